@@ -1,0 +1,345 @@
+//! Per-ray parameters and the scalar reference kernels.
+//!
+//! Column coordinate `X` is in pixel units with `X = 0` at the left image edge;
+//! rows are indexed from the top. Ray `r = v * n_det + k` enters row `i` at
+//! `X_t = x_top[r] + i * sx[r]` and leaves it at `X_b = X_t + sx[r]`; its length
+//! inside any one row is `len[r]` mm.
+
+use dbt_geometry::Geometry;
+use rayon::prelude::*;
+
+/// Rays with `|sx|` below this cross at most two pixels per row (with margin for
+/// rounding) and use the two-pixel kernels.
+pub(crate) const FAST_LIMIT: f32 = 0.999;
+
+/// Scratch padding (entries) on both sides of the per-row ray arrays of the
+/// pixel-driven adjoint.
+pub(crate) const PAD: usize = 64;
+
+/// A `j` that never matches a pixel: marks rays that contribute nothing.
+pub(crate) const NO_PIXEL: i32 = i32::MIN / 2;
+
+/// The inverse map of one (view, row): fractional index of the ray through the
+/// left edge of pixel `j` at the top of the row is `(a j + b) / (c j + d)`;
+/// candidate rays for pixel `j` are `floor(that) - off .. + count`.
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct InvMap {
+    pub a: f32,
+    pub b: f32,
+    pub c: f32,
+    pub d: f32,
+    pub off: i32,
+    pub count: u32,
+    /// Candidate starts are non-decreasing in `j` (enables windowed gathers).
+    pub monotone: bool,
+}
+
+impl InvMap {
+    #[inline(always)]
+    pub fn start(&self, j: usize) -> i32 {
+        let x = j as f32;
+        let r = (self.a * x + self.b) / (self.c * x + self.d);
+        // Saturating conversion; NaN maps to 0 and is covered by `count`
+        // verification (see `RayTable::build_inverse_maps`).
+        (r.floor() as i32).saturating_sub(self.off)
+    }
+}
+
+#[derive(Debug, Clone)]
+pub(crate) struct RayTable {
+    pub nx: usize,
+    pub nz: usize,
+    pub n_det: usize,
+    pub n_views: usize,
+    pub x_top: Vec<f32>,
+    pub sx: Vec<f32>,
+    pub len: Vec<f32>,
+    pub inv: Vec<f32>,
+    /// First and one-past-last row the ray touches inside the image.
+    pub row_lo: Vec<u32>,
+    pub row_hi: Vec<u32>,
+    pub fast: Vec<bool>,
+    /// Every ray of the view is fast and its pixel index is non-decreasing along
+    /// the detector at every row: the SIMD forward kernel applies.
+    pub view_simd: Vec<bool>,
+    /// Whether the view has any slow ray (handled by scalar scatter in the adjoint).
+    pub view_has_slow: Vec<bool>,
+    /// Inverse maps, `n_views * nz`, view-major.
+    pub inv_map: Vec<InvMap>,
+}
+
+/// Row segment `(lo, hi)` of a ray in row `i`, in column units.
+#[inline(always)]
+pub(crate) fn segment(x_top: f32, sx: f32, i: usize) -> (f32, f32) {
+    let xt = x_top + (i as f32) * sx;
+    let xb = xt + sx;
+    (xt.min(xb), xt.max(xb))
+}
+
+/// Two-pixel weights of a fast ray: pixel `j` gets `w0`, pixel `j + 1` gets `w1`.
+#[inline(always)]
+pub(crate) fn fast_weights(lo: f32, len: f32, inv: f32) -> (i32, f32, f32) {
+    let jf = lo.floor();
+    let w0 = len * (((jf + 1.0) - lo) * inv).min(1.0);
+    (jf as i32, w0, len - w0)
+}
+
+/// Exact intersection lengths of a slow ray with the pixels of one row.
+#[inline]
+pub(crate) fn slow_weights(lo: f32, hi: f32, len: f32, inv: f32, nx: usize, mut f: impl FnMut(usize, f32)) {
+    let j0 = (lo.floor() as i64).max(0);
+    let j1 = (hi.floor() as i64).min(nx as i64 - 1);
+    for j in j0..=j1 {
+        let jf = j as f32;
+        let w = len * ((hi.min(jf + 1.0) - lo.max(jf)) * inv);
+        if w > 0.0 {
+            f(j as usize, w);
+        }
+    }
+}
+
+#[inline(always)]
+fn row_valid(lo: f32, hi: f32, nx: usize) -> bool {
+    hi > 0.0 && lo < nx as f32
+}
+
+impl RayTable {
+    pub fn new(g: &Geometry) -> Self {
+        let (nx, nz, n_det, n_views) = (g.nx(), g.nz(), g.n_det(), g.n_views());
+        let n = n_det * n_views;
+        let p = g.image.pixel_mm;
+        let x_min = -g.width_mm() / 2.0;
+        let z_top = g.height_mm() / 2.0;
+        let mut t = RayTable {
+            nx,
+            nz,
+            n_det,
+            n_views,
+            x_top: vec![0.0; n],
+            sx: vec![0.0; n],
+            len: vec![0.0; n],
+            inv: vec![0.0; n],
+            row_lo: vec![0; n],
+            row_hi: vec![0; n],
+            fast: vec![true; n],
+            view_simd: vec![true; n_views],
+            view_has_slow: vec![false; n_views],
+            inv_map: vec![InvMap::default(); n_views * nz],
+        };
+        for v in 0..n_views {
+            for k in 0..n_det {
+                let r = v * n_det + k;
+                let ((sxm, szm), (pxm, pzm)) = g.ray_endpoints_mm(v, k);
+                // Validation guarantees pzm < szm (the ray goes down).
+                let dxdz = (pxm - sxm) / (pzm - szm);
+                let x_at_top = sxm + (z_top - szm) * dxdz;
+                let slope = -dxdz; // change of X per row going down (pixel units)
+                t.x_top[r] = ((x_at_top - x_min) / p) as f32;
+                t.sx[r] = slope as f32;
+                t.len[r] = (p * (1.0 + dxdz * dxdz).sqrt()) as f32;
+                let a = t.sx[r].abs();
+                t.inv[r] = if a > 0.0 { 1.0 / a } else { f32::MAX };
+                t.fast[r] = a < FAST_LIMIT;
+            }
+        }
+        // Row ranges: the valid rows of a ray form an interval because the
+        // row segment moves monotonically with the row index.
+        let ranges: Vec<(u32, u32)> = (0..n)
+            .into_par_iter()
+            .map(|r| {
+                let valid = |i: usize| {
+                    let (lo, hi) = segment(t.x_top[r], t.sx[r], i);
+                    row_valid(lo, hi, nx)
+                };
+                match (0..nz).find(|&i| valid(i)) {
+                    None => (0, 0),
+                    Some(first) => {
+                        let last = (first..nz).rev().find(|&i| valid(i)).unwrap_or(first);
+                        (first as u32, last as u32 + 1)
+                    }
+                }
+            })
+            .collect();
+        for (r, (lo, hi)) in ranges.into_iter().enumerate() {
+            t.row_lo[r] = lo;
+            t.row_hi[r] = hi;
+        }
+        for v in 0..n_views {
+            let rays = v * n_det..(v + 1) * n_det;
+            t.view_has_slow[v] = rays.clone().any(|r| !t.fast[r]);
+            t.view_simd[v] = !t.view_has_slow[v] && t.pixel_index_monotone(v);
+        }
+        t.build_inverse_maps(g);
+        t
+    }
+
+    /// Pixel index of a fast ray at row `i`, clamped to `[-1, nx - 1]` as the
+    /// SIMD forward kernel computes it.
+    fn clamped_j(&self, r: usize, i: usize) -> i32 {
+        let (lo, _) = segment(self.x_top[r], self.sx[r], i);
+        (lo.floor().clamp(-1.0, self.nx as f32 - 1.0)) as i32
+    }
+
+    fn pixel_index_monotone(&self, v: usize) -> bool {
+        let base = v * self.n_det;
+        (0..self.nz).into_par_iter().all(|i| {
+            (1..self.n_det).all(|k| self.clamped_j(base + k, i) >= self.clamped_j(base + k - 1, i))
+        })
+    }
+
+    /// Which fast rays contribute to which pixel in row `i` of view `v`:
+    /// `(ray index within view, j, w0, w1)` for every valid fast ray.
+    fn fast_contributions(&self, v: usize, i: usize, mut f: impl FnMut(usize, i32, f32, f32)) {
+        for k in 0..self.n_det {
+            let r = v * self.n_det + k;
+            if !self.fast[r] || (i as u32) < self.row_lo[r] || (i as u32) >= self.row_hi[r] {
+                continue;
+            }
+            let (lo, _) = segment(self.x_top[r], self.sx[r], i);
+            let (j, w0, w1) = fast_weights(lo, self.len[r], self.inv[r]);
+            f(k, j, w0, w1);
+        }
+    }
+
+    fn build_inverse_maps(&mut self, g: &Geometry) {
+        let (nx, nz, n_det) = (self.nx, self.nz, self.n_det);
+        let p = g.image.pixel_mm;
+        let x_min = -g.width_mm() / 2.0;
+        let z_top = g.height_mm() / 2.0;
+        let d = g.source_to_detector_mm;
+        let pitch = g.detector.pitch_mm;
+        let h = (n_det as f64 - 1.0) / 2.0;
+        let maps: Vec<InvMap> = (0..self.n_views * nz)
+            .into_par_iter()
+            .map(|vi| {
+                let (v, i) = (vi / nz, vi % nz);
+                let th = g.angle_rad(v);
+                let (s, c) = th.sin_cos();
+                let (sxm, szm) = g.source_mm(v);
+                let z = z_top - i as f64 * p;
+                // lateral(X) = c p X + l0, depth(X) = -s p X + d0
+                let l0 = (x_min - sxm) * c - (z - szm) * s;
+                let d0 = -((x_min - sxm) * s + (z - szm) * c);
+                // r = (D/pitch * lateral + h * depth) / depth
+                let mut m = InvMap {
+                    a: (d / pitch * c * p - h * s * p) as f32,
+                    b: (d / pitch * l0 + h * d0) as f32,
+                    c: (-s * p) as f32,
+                    d: d0 as f32,
+                    off: 0,
+                    count: 0,
+                    monotone: true,
+                };
+                // Which rays each pixel needs, from the exact contributions.
+                let mut need_min = vec![i64::MAX; nx];
+                let mut need_max = vec![i64::MIN; nx];
+                self.fast_contributions(v, i, |k, j, w0, w1| {
+                    for (jj, w) in [(j as i64, w0), (j as i64 + 1, w1)] {
+                        if w != 0.0 && (0..nx as i64).contains(&jj) {
+                            let u = jj as usize;
+                            need_min[u] = need_min[u].min(k as i64);
+                            need_max[u] = need_max[u].max(k as i64);
+                        }
+                    }
+                });
+                let est = |j: usize| m.start(j) as i64; // off = 0 here
+                let mut off = i64::MIN;
+                for j in 0..nx {
+                    if need_min[j] != i64::MAX {
+                        off = off.max(est(j) - need_min[j]);
+                    }
+                }
+                if off == i64::MIN {
+                    return m; // no contributions in this row: count 0
+                }
+                let mut count = 0i64;
+                for j in 0..nx {
+                    if need_max[j] != i64::MIN {
+                        count = count.max(need_max[j] - (est(j) - off) + 1);
+                    }
+                }
+                m.off = off.clamp(i32::MIN as i64 / 4, i32::MAX as i64 / 4) as i32;
+                m.count = count.clamp(0, 1 << 20) as u32;
+                m.monotone = (1..nx).all(|j| m.start(j) >= m.start(j - 1));
+                m
+            })
+            .collect();
+        self.inv_map = maps;
+    }
+
+    /// Scalar forward projection of one ray (the reference).
+    pub fn forward_ray_scalar(&self, r: usize, img: &[f32]) -> f32 {
+        let nx = self.nx;
+        let (x0, sx, len, inv) = (self.x_top[r], self.sx[r], self.len[r], self.inv[r]);
+        let mut acc = 0.0f32;
+        for i in self.row_lo[r] as usize..self.row_hi[r] as usize {
+            let (lo, hi) = segment(x0, sx, i);
+            let row = &img[i * nx..(i + 1) * nx];
+            if self.fast[r] {
+                let (j, w0, w1) = fast_weights(lo, len, inv);
+                if j >= 0 {
+                    acc += w0 * row[j as usize];
+                }
+                if j + 1 < nx as i32 {
+                    acc += w1 * row[(j + 1) as usize];
+                }
+            } else {
+                slow_weights(lo, hi, len, inv, nx, |j, w| acc += w * row[j]);
+            }
+        }
+        acc
+    }
+
+    /// Scalar adjoint (ray-driven scatter) for rows `i0 .. i0 + out.len() / nx`.
+    pub fn adjoint_rows_scalar(&self, sino: &[f32], i0: usize, out: &mut [f32]) {
+        let nx = self.nx;
+        let i1 = i0 + out.len() / nx;
+        out.fill(0.0);
+        for r in 0..self.n_det * self.n_views {
+            let y = sino[r];
+            let ra = (self.row_lo[r] as usize).max(i0);
+            let rb = (self.row_hi[r] as usize).min(i1);
+            for i in ra..rb {
+                self.scatter_ray_row(r, i, y, &mut out[(i - i0) * nx..(i - i0 + 1) * nx]);
+            }
+        }
+    }
+
+    /// Add ray `r`'s contribution `y * l_rj` to the pixels of one row.
+    #[inline]
+    pub fn scatter_ray_row(&self, r: usize, i: usize, y: f32, row: &mut [f32]) {
+        let nx = self.nx;
+        let (lo, hi) = segment(self.x_top[r], self.sx[r], i);
+        if self.fast[r] {
+            let (j, w0, w1) = fast_weights(lo, self.len[r], self.inv[r]);
+            if j >= 0 {
+                row[j as usize] += w0 * y;
+            }
+            if j + 1 < nx as i32 {
+                row[(j + 1) as usize] += w1 * y;
+            }
+        } else {
+            slow_weights(lo, hi, self.len[r], self.inv[r], nx, |j, w| row[j] += w * y);
+        }
+    }
+
+    /// The weights of ray `r` as `(pixel, weight)` in the order the forward
+    /// kernel visits them (used by the CSR export).
+    pub fn ray_weights(&self, r: usize, mut f: impl FnMut(usize, f32)) {
+        let nx = self.nx;
+        for i in self.row_lo[r] as usize..self.row_hi[r] as usize {
+            let (lo, hi) = segment(self.x_top[r], self.sx[r], i);
+            if self.fast[r] {
+                let (j, w0, w1) = fast_weights(lo, self.len[r], self.inv[r]);
+                if j >= 0 && w0 != 0.0 {
+                    f(i * nx + j as usize, w0);
+                }
+                if j + 1 < nx as i32 && w1 != 0.0 {
+                    f(i * nx + (j + 1) as usize, w1);
+                }
+            } else {
+                slow_weights(lo, hi, self.len[r], self.inv[r], nx, |j, w| f(i * nx + j, w));
+            }
+        }
+    }
+}
