@@ -441,7 +441,10 @@ mod tests {
         let (s, p) = g.ray_endpoints_mm(12, 639);
         assert!((s.1 - 650.0).abs() < 1e-9);
         assert!((p.1 + 50.0).abs() < 1e-9);
-        assert!((p.0 + 0.1).abs() < 1e-9, "element 639 centre is half a pitch left");
+        assert!(
+            (p.0 + 0.1).abs() < 1e-9,
+            "element 639 centre is half a pitch left"
+        );
         // The breast support is the bottom of the 60 mm image.
         assert!((g.support_z_mm() + 30.0).abs() < 1e-12);
     }
@@ -471,10 +474,19 @@ mod tests {
     fn impossible_geometries_name_the_field() {
         let cases: Vec<(&str, Box<dyn FnOnce(&mut Geometry)>)> = vec![
             ("detector.pitch_mm", Box::new(|g| g.detector.pitch_mm = 0.0)),
-            ("detector.pitch_mm", Box::new(|g| g.detector.pitch_mm = f64::NAN)),
+            (
+                "detector.pitch_mm",
+                Box::new(|g| g.detector.pitch_mm = f64::NAN),
+            ),
             ("image.pixel_mm", Box::new(|g| g.image.pixel_mm = -0.2)),
-            ("source_to_center_mm", Box::new(|g| g.source_to_center_mm = 0.0)),
-            ("source_to_detector_mm", Box::new(|g| g.source_to_detector_mm = 600.0)),
+            (
+                "source_to_center_mm",
+                Box::new(|g| g.source_to_center_mm = 0.0),
+            ),
+            (
+                "source_to_detector_mm",
+                Box::new(|g| g.source_to_detector_mm = 600.0),
+            ),
             ("views.count", Box::new(|g| g.views.count = 1)),
             ("views.last_deg", Box::new(|g| g.views.last_deg = -30.0)),
             ("views.first_deg", Box::new(|g| g.views.first_deg = -95.0)),
@@ -483,12 +495,18 @@ mod tests {
             ("detector.elements", Box::new(|g| g.detector.elements = 0)),
             // 1000 elements of 0.2 mm (200 mm) cannot catch a 200 mm wide image
             // magnified by the fan.
-            ("detector.elements", Box::new(|g| g.detector.elements = 1000)),
+            (
+                "detector.elements",
+                Box::new(|g| g.detector.elements = 1000),
+            ),
             // Source inside the image.
-            ("source_to_center_mm", Box::new(|g| {
-                g.source_to_center_mm = 20.0;
-                g.source_to_detector_mm = 700.0;
-            })),
+            (
+                "source_to_center_mm",
+                Box::new(|g| {
+                    g.source_to_center_mm = 20.0;
+                    g.source_to_detector_mm = 700.0;
+                }),
+            ),
         ];
         for (field, f) in cases {
             let err = with(f).unwrap_err();
@@ -506,7 +524,10 @@ mod tests {
         let e = Geometry::from_toml_str(&unknown).unwrap_err();
         assert!(e.to_string().contains("colour"), "{e}");
         let bad = PAPER_TOML.replace("count = 25", "count = 1");
-        assert_eq!(field_of(Geometry::from_toml_str(&bad).unwrap_err()), "views.count");
+        assert_eq!(
+            field_of(Geometry::from_toml_str(&bad).unwrap_err()),
+            "views.count"
+        );
     }
 
     #[test]

@@ -183,8 +183,20 @@ unsafe fn ray_pass(t: &RayTable, v: usize, i: usize, ys: &[f32], s: &mut RowRays
     let ii = _mm512_set1_epi32(i as i32);
     let fi = _mm512_set1_ps(i as f32);
     let nop = _mm512_set1_epi32(NO_PIXEL);
+    let map = &t.inv_map[v * t.nz + i];
+    let (k_lo, k_hi) = (map.ray_lo as usize, map.ray_hi as usize);
+    let zero = _mm512_setzero_ps();
     let mut k = 0;
     while k + L <= n_det {
+        if k + L <= k_lo || k >= k_hi {
+            // No ray of this block touches the row: mark it empty (the scratch
+            // is reused across rows and must not keep stale entries).
+            _mm512_storeu_si512(s.j.as_mut_ptr().add(PAD + k) as *mut __m512i, nop);
+            _mm512_storeu_ps(s.c0.as_mut_ptr().add(PAD + k), zero);
+            _mm512_storeu_ps(s.c1.as_mut_ptr().add(PAD + k), zero);
+            k += L;
+            continue;
+        }
         let r = base + k;
         let x_top = _mm512_loadu_ps(t.x_top.as_ptr().add(r));
         let sx = _mm512_loadu_ps(t.sx.as_ptr().add(r));
@@ -193,7 +205,12 @@ unsafe fn ray_pass(t: &RayTable, v: usize, i: usize, ys: &[f32], s: &mut RowRays
         let y = _mm512_loadu_ps(ys.as_ptr().add(k));
         let row_lo = _mm512_loadu_si512(t.row_lo.as_ptr().add(r) as *const __m512i);
         let row_hi = _mm512_loadu_si512(t.row_hi.as_ptr().add(r) as *const __m512i);
-        let mut valid = _mm512_cmpge_epi32_mask(ii, row_lo) & _mm512_cmplt_epi32_mask(ii, row_hi);
+        let interior = k >= k_lo && k + L <= k_hi && !t.view_has_slow[v];
+        let mut valid = if interior {
+            0xffff
+        } else {
+            _mm512_cmpge_epi32_mask(ii, row_lo) & _mm512_cmplt_epi32_mask(ii, row_hi)
+        };
         if t.view_has_slow[v] {
             for l in 0..L {
                 if !t.fast[r + l] {
@@ -208,10 +225,25 @@ unsafe fn ray_pass(t: &RayTable, v: usize, i: usize, ys: &[f32], s: &mut RowRays
         let frac = _mm512_mul_ps(_mm512_sub_ps(_mm512_add_ps(jf, one), lo), inv);
         let w0 = _mm512_mul_ps(len, _mm512_min_ps(frac, one));
         let w1 = _mm512_sub_ps(len, w0);
-        let j = _mm512_mask_blend_epi32(valid, nop, _mm512_cvttps_epi32(jf));
-        _mm512_storeu_si512(s.j.as_mut_ptr().add(PAD + k) as *mut __m512i, j);
-        _mm512_storeu_ps(s.c0.as_mut_ptr().add(PAD + k), _mm512_maskz_mul_ps(valid, w0, y));
-        _mm512_storeu_ps(s.c1.as_mut_ptr().add(PAD + k), _mm512_maskz_mul_ps(valid, w1, y));
+        if interior {
+            _mm512_storeu_si512(
+                s.j.as_mut_ptr().add(PAD + k) as *mut __m512i,
+                _mm512_cvttps_epi32(jf),
+            );
+            _mm512_storeu_ps(s.c0.as_mut_ptr().add(PAD + k), _mm512_mul_ps(w0, y));
+            _mm512_storeu_ps(s.c1.as_mut_ptr().add(PAD + k), _mm512_mul_ps(w1, y));
+        } else {
+            let j = _mm512_mask_blend_epi32(valid, nop, _mm512_cvttps_epi32(jf));
+            _mm512_storeu_si512(s.j.as_mut_ptr().add(PAD + k) as *mut __m512i, j);
+            _mm512_storeu_ps(
+                s.c0.as_mut_ptr().add(PAD + k),
+                _mm512_maskz_mul_ps(valid, w0, y),
+            );
+            _mm512_storeu_ps(
+                s.c1.as_mut_ptr().add(PAD + k),
+                _mm512_maskz_mul_ps(valid, w1, y),
+            );
+        }
         k += L;
     }
     for k in k..n_det {
@@ -251,30 +283,74 @@ fn pixel_scalar(map: &InvMap, s: &RowRays, n_det: usize, j: usize) -> f32 {
     acc
 }
 
+/// 32 consecutive entries of the row's ray scratch, in registers.
+struct Window {
+    jl: __m512i,
+    jh: __m512i,
+    c0l: __m512,
+    c0h: __m512,
+    c1l: __m512,
+    c1h: __m512,
+}
+
+/// Add, for 16 pixels `jv`, the contributions of the candidate rays at window
+/// positions `idx` to two independent accumulators (first and second pixel of
+/// each ray), keeping the dependency chains short.
+#[inline(always)]
+unsafe fn collect_step(
+    w: &Window,
+    idx: __m512i,
+    jv: __m512i,
+    acc: (__m512, __m512),
+) -> (__m512, __m512) {
+    let jr = _mm512_permutex2var_epi32(w.jl, idx, w.jh);
+    let c0 = _mm512_permutex2var_ps(w.c0l, idx, w.c0h);
+    let c1 = _mm512_permutex2var_ps(w.c1l, idx, w.c1h);
+    let m0 = _mm512_cmpeq_epi32_mask(jr, jv);
+    let m1 = _mm512_cmpeq_epi32_mask(_mm512_add_epi32(jr, _mm512_set1_epi32(1)), jv);
+    (
+        _mm512_mask_add_ps(acc.0, m0, acc.0, c0),
+        _mm512_mask_add_ps(acc.1, m1, acc.1, c1),
+    )
+}
+
+/// Contributions of candidates `idx + k`, `k < N`, to 16 pixels.
+#[target_feature(enable = "avx512f")]
+unsafe fn collect<const N: i32>(w: &Window, idx: __m512i, jv: __m512i) -> __m512 {
+    collect_n(w, idx, jv, N)
+}
+
+#[inline(always)]
+unsafe fn collect_n(w: &Window, idx: __m512i, jv: __m512i, n: i32) -> __m512 {
+    let mut acc = (_mm512_setzero_ps(), _mm512_setzero_ps());
+    for k in 0..n {
+        acc = collect_step(w, _mm512_add_epi32(idx, _mm512_set1_epi32(k)), jv, acc);
+    }
+    _mm512_add_ps(acc.0, acc.1)
+}
+
 #[target_feature(enable = "avx512f")]
 unsafe fn pixel_pass(t: &RayTable, map: &InvMap, s: &RowRays, row_out: &mut [f32]) {
     let (nx, n_det) = (t.nx, t.n_det);
     let count = map.count as i32;
     let lanes = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
     let lanes_f = _mm512_cvtepi32_ps(lanes);
-    let (a, b, c, d) = (
-        _mm512_set1_ps(map.a),
-        _mm512_set1_ps(map.b),
-        _mm512_set1_ps(map.c),
-        _mm512_set1_ps(map.d),
-    );
     let off = _mm512_set1_epi32(map.off);
-    let ione = _mm512_set1_epi32(1);
     let lim = _mm512_set1_ps(1.0e9);
     let mut jb = 0;
     while jb + L <= nx {
         let jv = _mm512_add_epi32(_mm512_set1_epi32(jb as i32), lanes);
-        let x = _mm512_add_ps(_mm512_set1_ps(jb as f32), lanes_f);
-        // Same operations as InvMap::start: (a x + b) / (c x + d), floor.
-        let num = _mm512_add_ps(_mm512_mul_ps(a, x), b);
-        let den = _mm512_add_ps(_mm512_mul_ps(c, x), d);
-        let r = floor_ps(_mm512_div_ps(num, den));
-        let r = _mm512_max_ps(_mm512_min_ps(r, lim), _mm512_sub_ps(_mm512_setzero_ps(), lim));
+        // Same operations as InvMap::start.
+        let (rb, sb) = map.block(jb);
+        let r = _mm512_add_ps(
+            _mm512_set1_ps(rb),
+            _mm512_mul_ps(lanes_f, _mm512_set1_ps(sb)),
+        );
+        let r = floor_ps(r);
+        let r = _mm512_max_ps(
+            _mm512_min_ps(r, lim),
+            _mm512_sub_ps(_mm512_setzero_ps(), lim),
+        );
         let start = _mm512_sub_epi32(_mm512_cvttps_epi32(r), off);
         let first = _mm512_cvtsi512_si32(start);
         let last = lane(start, 15);
@@ -290,18 +366,21 @@ unsafe fn pixel_pass(t: &RayTable, map: &InvMap, s: &RowRays, row_out: &mut [f32
             let c0h = _mm512_loadu_ps(s.c0.as_ptr().add(e + 16));
             let c1l = _mm512_loadu_ps(s.c1.as_ptr().add(e));
             let c1h = _mm512_loadu_ps(s.c1.as_ptr().add(e + 16));
-            let mut idx = _mm512_sub_epi32(start, _mm512_set1_epi32(first));
-            let mut acc = _mm512_setzero_ps();
-            for _ in 0..count {
-                let jr = _mm512_permutex2var_epi32(jl, idx, jh);
-                let c0 = _mm512_permutex2var_ps(c0l, idx, c0h);
-                let c1 = _mm512_permutex2var_ps(c1l, idx, c1h);
-                let m0 = _mm512_cmpeq_epi32_mask(jr, jv);
-                let m1 = _mm512_cmpeq_epi32_mask(_mm512_add_epi32(jr, ione), jv);
-                acc = _mm512_mask_add_ps(acc, m0, acc, c0);
-                acc = _mm512_mask_add_ps(acc, m1, acc, c1);
-                idx = _mm512_add_epi32(idx, ione);
-            }
+            let idx = _mm512_sub_epi32(start, _mm512_set1_epi32(first));
+            let w = Window {
+                jl,
+                jh,
+                c0l,
+                c0h,
+                c1l,
+                c1h,
+            };
+            let acc = match count {
+                2 => collect::<2>(&w, idx, jv),
+                3 => collect::<3>(&w, idx, jv),
+                4 => collect::<4>(&w, idx, jv),
+                _ => collect_n(&w, idx, jv, count),
+            };
             let o = row_out.as_mut_ptr().add(jb);
             _mm512_storeu_ps(o, _mm512_add_ps(_mm512_loadu_ps(o), acc));
         } else {

@@ -237,7 +237,10 @@ impl Projector {
 
 /// Euclidean norm in f64.
 pub fn norm2(v: &[f32]) -> f64 {
-    v.iter().map(|&a| (a as f64) * (a as f64)).sum::<f64>().sqrt()
+    v.iter()
+        .map(|&a| (a as f64) * (a as f64))
+        .sum::<f64>()
+        .sqrt()
 }
 
 /// Inner product in f64.

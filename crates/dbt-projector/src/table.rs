@@ -19,29 +19,48 @@ pub(crate) const PAD: usize = 64;
 /// A `j` that never matches a pixel: marks rays that contribute nothing.
 pub(crate) const NO_PIXEL: i32 = i32::MIN / 2;
 
-/// The inverse map of one (view, row): fractional index of the ray through the
-/// left edge of pixel `j` at the top of the row is `(a j + b) / (c j + d)`;
-/// candidate rays for pixel `j` are `floor(that) - off .. + count`.
+/// The inverse map of one (view, row): the fractional index of the ray through
+/// the left edge of pixel `j` at the top of the row is the Moebius function
+/// `(a j + b) / (c j + d)`. It is evaluated exactly at the first pixel `jb` of
+/// each block of 16 and continued linearly with its derivative there (one pair
+/// of scalar divisions per block, identical in the scalar and SIMD code);
+/// candidate rays for pixel `j` are `floor(that) - off .. + count`, with `off`
+/// and `count` verified at construction against the exact contributions.
 #[derive(Debug, Clone, Copy, Default)]
 pub(crate) struct InvMap {
     pub a: f32,
     pub b: f32,
     pub c: f32,
     pub d: f32,
+    /// `a d - b c`, the numerator of the derivative.
+    pub e: f32,
     pub off: i32,
     pub count: u32,
+    /// Rays `ray_lo .. ray_hi` (within the view) are the only ones valid in
+    /// this row.
+    pub ray_lo: u32,
+    pub ray_hi: u32,
     /// Candidate starts are non-decreasing in `j` (enables windowed gathers).
     pub monotone: bool,
 }
 
 impl InvMap {
+    /// Value and slope of the map at block start `jb` (a multiple of 16).
+    #[inline(always)]
+    pub fn block(&self, jb: usize) -> (f32, f32) {
+        let x = jb as f32;
+        let den = self.c * x + self.d;
+        ((self.a * x + self.b) / den, self.e / (den * den))
+    }
+
+    /// First candidate ray of pixel `j` (see the type's documentation).
     #[inline(always)]
     pub fn start(&self, j: usize) -> i32 {
-        let x = j as f32;
-        let r = (self.a * x + self.b) / (self.c * x + self.d);
-        // Saturating conversion; NaN maps to 0 and is covered by `count`
-        // verification (see `RayTable::build_inverse_maps`).
-        (r.floor() as i32).saturating_sub(self.off)
+        let (rb, sb) = self.block(j & !15);
+        let r = rb + ((j & 15) as f32) * sb;
+        // Saturating conversion, clamped as the SIMD code does; the result is
+        // covered by the `count` verification (`RayTable::build_inverse_maps`).
+        (r.floor().clamp(-1.0e9, 1.0e9) as i32).saturating_sub(self.off)
     }
 }
 
@@ -86,7 +105,14 @@ pub(crate) fn fast_weights(lo: f32, len: f32, inv: f32) -> (i32, f32, f32) {
 
 /// Exact intersection lengths of a slow ray with the pixels of one row.
 #[inline]
-pub(crate) fn slow_weights(lo: f32, hi: f32, len: f32, inv: f32, nx: usize, mut f: impl FnMut(usize, f32)) {
+pub(crate) fn slow_weights(
+    lo: f32,
+    hi: f32,
+    len: f32,
+    inv: f32,
+    nx: usize,
+    mut f: impl FnMut(usize, f32),
+) {
     let j0 = (lo.floor() as i64).max(0);
     let j1 = (hi.floor() as i64).min(nx as i64 - 1);
     for j in j0..=j1 {
@@ -221,15 +247,34 @@ impl RayTable {
                 let l0 = (x_min - sxm) * c - (z - szm) * s;
                 let d0 = -((x_min - sxm) * s + (z - szm) * c);
                 // r = (D/pitch * lateral + h * depth) / depth
+                let (ma, mb, mc, md) = (
+                    d / pitch * c * p - h * s * p,
+                    d / pitch * l0 + h * d0,
+                    -s * p,
+                    d0,
+                );
                 let mut m = InvMap {
-                    a: (d / pitch * c * p - h * s * p) as f32,
-                    b: (d / pitch * l0 + h * d0) as f32,
-                    c: (-s * p) as f32,
-                    d: d0 as f32,
+                    a: ma as f32,
+                    b: mb as f32,
+                    c: mc as f32,
+                    d: md as f32,
+                    e: (ma * md - mb * mc) as f32,
                     off: 0,
                     count: 0,
+                    ray_lo: 0,
+                    ray_hi: 0,
                     monotone: true,
                 };
+                let valid_rays: Vec<usize> = (0..n_det)
+                    .filter(|&k| {
+                        let r = v * n_det + k;
+                        (i as u32) >= self.row_lo[r] && (i as u32) < self.row_hi[r]
+                    })
+                    .collect();
+                if let (Some(&first), Some(&last)) = (valid_rays.first(), valid_rays.last()) {
+                    m.ray_lo = first as u32;
+                    m.ray_hi = last as u32 + 1;
+                }
                 // Which rays each pixel needs, from the exact contributions.
                 let mut need_min = vec![i64::MAX; nx];
                 let mut need_max = vec![i64::MIN; nx];
@@ -338,7 +383,9 @@ impl RayTable {
                     f(i * nx + (j + 1) as usize, w1);
                 }
             } else {
-                slow_weights(lo, hi, self.len[r], self.inv[r], nx, |j, w| f(i * nx + j, w));
+                slow_weights(lo, hi, self.len[r], self.inv[r], nx, |j, w| {
+                    f(i * nx + j, w)
+                });
             }
         }
     }

@@ -71,7 +71,10 @@ fn adjoint_identity_on_random_data() {
             let lhs = dot(&px, &y);
             let rhs = dot(&x, &pty);
             let rel = (lhs - rhs).abs() / lhs.abs();
-            assert!(rel < 1e-5, "{name} {kernel:?}: <Px,y>={lhs} <x,P*y>={rhs} rel={rel:e}");
+            assert!(
+                rel < 1e-5,
+                "{name} {kernel:?}: <Px,y>={lhs} <x,P*y>={rhs} rel={rel:e}"
+            );
         }
     }
 }
@@ -96,7 +99,10 @@ fn simd_kernels_match_the_scalar_reference() {
         assert!(e < 1e-6, "{name} adjoint SIMD vs scalar {e:e}");
         // Element-wise too: no pixel may be dropped by the candidate windows.
         for (k, (p, q)) in d.iter().zip(&c).enumerate() {
-            assert!((p - q).abs() <= 1e-4 * q.abs().max(1.0), "{name} pixel {k}: {p} vs {q}");
+            assert!(
+                (p - q).abs() <= 1e-4 * q.abs().max(1.0),
+                "{name} pixel {k}: {p} vs {q}"
+            );
         }
     }
 }
@@ -125,7 +131,10 @@ fn csr_export_matches_matrix_free() {
         assert!(e < 1e-6, "{name} CSR adjoint {e:e}");
         // Every stored weight is a length inside one pixel of one row.
         let max_len = g.image.pixel_mm * 2f64.sqrt();
-        assert!(m.values.iter().all(|&w| w > 0.0 && (w as f64) <= max_len + 1e-4));
+        assert!(m
+            .values
+            .iter()
+            .all(|&w| w > 0.0 && (w as f64) <= max_len + 1e-4));
     }
 }
 
@@ -153,7 +162,10 @@ fn chord_rect(s: (f64, f64), p: (f64, f64), x0: f64, x1: f64, z0: f64, z1: f64) 
 fn slab_line_integrals_match_closed_form() {
     // A 60 mm slab of adipose (0.0512 / mm) filling every row, 160 mm wide.
     let mu = 0.0512f64;
-    for (name, g) in [("paper", Geometry::paper()), ("binned x4", Geometry::paper().binned(4).unwrap())] {
+    for (name, g) in [
+        ("paper", Geometry::paper()),
+        ("binned x4", Geometry::paper().binned(4).unwrap()),
+    ] {
         let p = Projector::new(&g);
         let half = 80.0;
         let mut img = vec![0.0f32; p.domain_len()];
@@ -180,11 +192,17 @@ fn slab_line_integrals_match_closed_form() {
                 let scale = exact.max(mu * 60.0);
                 worst = worst.max(err / scale);
             }
-            assert!(worst < 1e-3, "{name} view {v}: worst relative error {worst:e}");
+            assert!(
+                worst < 1e-3,
+                "{name} view {v}: worst relative error {worst:e}"
+            );
             // The slab edges lie on pixel boundaries, so the intersection-length
             // model is exact here and only f32 rounding of the ray positions
             // (~1e-4 pixel at column 1000) remains.
-            assert!(worst < 1e-4, "{name} view {v}: exact model should give rounding error only, got {worst:e}");
+            assert!(
+                worst < 1e-4,
+                "{name} view {v}: exact model should give rounding error only, got {worst:e}"
+            );
         }
     }
 }
@@ -268,7 +286,10 @@ fn view_errors(g: &Geometry, sino: &[f32], exact: impl Fn(usize, usize) -> f64) 
 #[test]
 fn off_centre_ellipse_line_integrals_match_closed_form() {
     let mu = 0.0798f64; // fibroglandular, per mm
-    for (name, g) in [("paper", Geometry::paper()), ("binned x2", Geometry::paper().binned(2).unwrap())] {
+    for (name, g) in [
+        ("paper", Geometry::paper()),
+        ("binned x2", Geometry::paper().binned(2).unwrap()),
+    ] {
         let p = Projector::new(&g);
         let mut sino = vec![0.0f32; p.range_len()];
         // (a) Smooth profile mu (1 - rho^2)^2 (continuous with its derivative at
@@ -277,7 +298,9 @@ fn off_centre_ellipse_line_integrals_match_closed_form() {
         // view. Single near-vertical rays run down one pixel column and keep its
         // first-order error (pixel/2 * df/dx along the whole path; 1.8e-3 of the
         // thickest ray at worst here), inherent to any pixel basis: bounded at 5e-3.
-        let img = discretise(&g, 4, |x, z| mu * (1.0 - ellipse_rho2(x, z)).max(0.0).powi(2));
+        let img = discretise(&g, 4, |x, z| {
+            mu * (1.0 - ellipse_rho2(x, z)).max(0.0).powi(2)
+        });
         p.forward(&img, &mut sino).unwrap();
         let errs = view_errors(&g, &sino, |v, k| {
             let (s, e) = g.ray_endpoints_mm(v, k);
@@ -287,13 +310,23 @@ fn off_centre_ellipse_line_integrals_match_closed_form() {
         // the paper's 0.2 mm pixels, proportionally more for binned geometries.
         let l2_bound = 1e-3 * (g.image.pixel_mm / 0.2);
         for (v, (l2, worst)) in errs.into_iter().enumerate() {
-            assert!(l2 < l2_bound, "{name} smooth ellipse view {v}: relative L2 {l2:e}");
-            assert!(worst < 5e-3, "{name} smooth ellipse view {v}: worst ray / peak {worst:e}");
+            assert!(
+                l2 < l2_bound,
+                "{name} smooth ellipse view {v}: relative L2 {l2:e}"
+            );
+            assert!(
+                worst < 5e-3,
+                "{name} smooth ellipse view {v}: worst ray / peak {worst:e}"
+            );
         }
         // (b) Uniform ellipse, area-sampled: the boundary pixels limit the
         // agreement (a grazing ray runs through a string of partly covered
         // pixels), to ~1e-3 norm-wise at 0.2 mm and 2e-3 at 0.4 mm pixels.
-        let img = discretise(&g, 16, |x, z| if ellipse_rho2(x, z) <= 1.0 { mu } else { 0.0 });
+        let img = discretise(
+            &g,
+            16,
+            |x, z| if ellipse_rho2(x, z) <= 1.0 { mu } else { 0.0 },
+        );
         p.forward(&img, &mut sino).unwrap();
         let errs = view_errors(&g, &sino, |v, k| {
             let (s, e) = g.ray_endpoints_mm(v, k);
@@ -301,8 +334,14 @@ fn off_centre_ellipse_line_integrals_match_closed_form() {
         });
         let bound = 1.2e-2 * g.image.pixel_mm; // 2.4e-3 at 0.2 mm, first order in the pixel
         for (v, (l2, worst)) in errs.into_iter().enumerate() {
-            assert!(l2 < bound, "{name} uniform ellipse view {v}: relative L2 {l2:e}");
-            assert!(worst < 0.15 * g.image.pixel_mm, "{name} uniform ellipse view {v}: worst ray / peak {worst:e}");
+            assert!(
+                l2 < bound,
+                "{name} uniform ellipse view {v}: relative L2 {l2:e}"
+            );
+            assert!(
+                worst < 0.15 * g.image.pixel_mm,
+                "{name} uniform ellipse view {v}: worst ray / peak {worst:e}"
+            );
         }
     }
 }
@@ -337,7 +376,10 @@ fn line_integrals_match_brute_force_integration_of_the_pixel_image() {
             }
             acc *= (t1 - t0) * (d.0 * d.0 + d.1 * d.1).sqrt() / n as f64;
             let got = sino[v * g.n_det() + k] as f64;
-            assert!((got - acc).abs() <= 1e-4 * acc.max(1.0), "view {v} element {k}: {got} vs {acc}");
+            assert!(
+                (got - acc).abs() <= 1e-4 * acc.max(1.0),
+                "view {v} element {k}: {got} vs {acc}"
+            );
         }
     }
 }
@@ -389,7 +431,10 @@ pixel_mm = 1.0
         x = y.iter().map(|v| v / lambda).collect();
     }
     let dense = lambda.sqrt();
-    assert!((sigma - dense).abs() / dense < 1e-4, "power iteration {sigma} vs dense {dense}");
+    assert!(
+        (sigma - dense).abs() / dense < 1e-4,
+        "power iteration {sigma} vs dense {dense}"
+    );
     // And it bounds the gain on random images.
     let xr = random_vec(p.domain_len(), 9);
     let mut y = vec![0.0; p.range_len()];
