@@ -472,7 +472,8 @@ mod tests {
 
     #[test]
     fn impossible_geometries_name_the_field() {
-        let cases: Vec<(&str, Box<dyn FnOnce(&mut Geometry)>)> = vec![
+        type Mutation = Box<dyn FnOnce(&mut Geometry)>;
+        let cases: Vec<(&str, Mutation)> = vec![
             ("detector.pitch_mm", Box::new(|g| g.detector.pitch_mm = 0.0)),
             (
                 "detector.pitch_mm",

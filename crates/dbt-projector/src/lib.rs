@@ -24,6 +24,9 @@
 //! so `P*` is the transpose of `P` up to the order of summation.
 
 #![deny(missing_docs)]
+// The kernels index several parallel per-ray arrays with one index; zipping
+// five iterators would hide the arithmetic.
+#![allow(clippy::needless_range_loop)]
 
 use dbt_geometry::Geometry;
 use rayon::prelude::*;

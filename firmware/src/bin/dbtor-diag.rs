@@ -1,0 +1,108 @@
+//! Service diagnostics for the DBToR gantry PC.
+//!
+//! ```text
+//! dbtor-diag selftest [--geometry FILE.toml] [--binning N] [--json]
+//! dbtor-diag geometry [--geometry FILE.toml] [--binning N]
+//! ```
+//! Exit codes: 0 all checks passed, 1 a check failed, 2 bad usage or input.
+
+use anyhow::{bail, Context, Result};
+use dbt_geometry::Geometry;
+use dbtor_firmware::selftest;
+use std::process::ExitCode;
+
+fn load_geometry(args: &[String]) -> Result<Geometry> {
+    let mut path = None;
+    let mut binning = 1usize;
+    let mut it = args.iter();
+    while let Some(a) = it.next() {
+        match a.as_str() {
+            "--geometry" => path = Some(it.next().context("--geometry needs a file")?.clone()),
+            "--binning" => {
+                binning = it
+                    .next()
+                    .context("--binning needs a number")?
+                    .parse()
+                    .context("--binning")?
+            }
+            "--json" => {}
+            other => bail!("unknown argument `{other}`"),
+        }
+    }
+    let g = match path {
+        Some(p) => {
+            let text = std::fs::read_to_string(&p)
+                .with_context(|| format!("reading geometry file {p}"))?;
+            Geometry::from_toml_str(&text).with_context(|| format!("geometry file {p}"))?
+        }
+        None => Geometry::paper(),
+    };
+    Ok(g.binned(binning)?)
+}
+
+fn run() -> Result<bool> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let Some(cmd) = args.first() else {
+        bail!(
+            "usage: dbtor-diag <selftest|geometry> [--geometry FILE.toml] [--binning N] [--json]"
+        );
+    };
+    let rest = &args[1..];
+    let json = rest.iter().any(|a| a == "--json");
+    match cmd.as_str() {
+        "selftest" => {
+            let g = load_geometry(rest)?;
+            let checks = selftest::projector(&g);
+            let ok = checks.iter().all(|c| c.passed());
+            if json {
+                let v: Vec<_> = checks
+                    .iter()
+                    .map(|c| serde_json::json!({"check": c.name, "value": c.value, "limit": c.limit, "passed": c.passed(), "detail": c.detail}))
+                    .collect();
+                println!(
+                    "{}",
+                    serde_json::json!({"geometry": g.describe(), "passed": ok, "checks": v})
+                );
+            } else {
+                println!("geometry: {}", g.describe());
+                println!(
+                    "{:<24} {:>6} {:>11} {:>9}  detail",
+                    "check", "result", "value", "limit"
+                );
+                for c in &checks {
+                    let r = if c.passed() { "PASS" } else { "FAIL" };
+                    println!(
+                        "{:<24} {:>6} {:>11.3e} {:>9.1e}  {}",
+                        c.name, r, c.value, c.limit, c.detail
+                    );
+                }
+                println!(
+                    "{}",
+                    if ok {
+                        "all checks passed"
+                    } else {
+                        "SOME CHECKS FAILED"
+                    }
+                );
+            }
+            Ok(ok)
+        }
+        "geometry" => {
+            let g = load_geometry(rest)?;
+            print!("{}", g.to_toml_string());
+            Ok(true)
+        }
+        other => bail!("unknown command `{other}` (expected selftest or geometry)"),
+    }
+}
+
+fn main() -> ExitCode {
+    match run() {
+        Ok(true) => ExitCode::SUCCESS,
+        Ok(false) => ExitCode::from(1),
+        Err(e) => {
+            eprintln!("dbtor-diag: error: {e:#}");
+            ExitCode::from(2)
+        }
+    }
+}
