@@ -30,6 +30,26 @@ unsafe fn floor_ps(x: __m512) -> __m512 {
     _mm512_roundscale_ps::<{ _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC }>(x)
 }
 
+/// `table::segment` and `table::fast_weights` for 16 rays at row `fi`, with the
+/// same operations: `(lo, floor(lo), w0, w1)`.
+#[inline(always)]
+unsafe fn weights16(
+    x_top: __m512,
+    sx: __m512,
+    len: __m512,
+    inv: __m512,
+    fi: __m512,
+) -> (__m512, __m512, __m512, __m512) {
+    let one = _mm512_set1_ps(1.0);
+    let xt = _mm512_add_ps(x_top, _mm512_mul_ps(fi, sx));
+    let xb = _mm512_add_ps(xt, sx);
+    let lo = _mm512_min_ps(xt, xb);
+    let jf = floor_ps(lo);
+    let frac = _mm512_mul_ps(_mm512_sub_ps(_mm512_add_ps(jf, one), lo), inv);
+    let w0 = _mm512_mul_ps(len, _mm512_min_ps(frac, one));
+    (lo, jf, w0, _mm512_sub_ps(len, w0))
+}
+
 /// Mask of the window elements `e in 0..16` with `0 <= start + e < n`.
 #[inline(always)]
 fn window_mask(start: i64, n: i64) -> u16 {
@@ -73,20 +93,13 @@ unsafe fn forward_block(t: &RayTable, img: &[f32], rb: usize) -> [f32; L] {
     let row_hi = _mm512_loadu_si512(t.row_hi.as_ptr().add(rb) as *const __m512i);
     let i_start = t.row_lo[rb..rb + L].iter().copied().min().unwrap_or(0) as usize;
     let i_end = t.row_hi[rb..rb + L].iter().copied().max().unwrap_or(0) as usize;
-    let one = _mm512_set1_ps(1.0);
     let jmin = _mm512_set1_ps(-1.0);
     let jmax = _mm512_set1_ps(nx as f32 - 1.0);
     let ione = _mm512_set1_epi32(1);
     let mut acc = _mm512_setzero_ps();
     for i in i_start..i_end.max(i_start) {
         let fi = _mm512_set1_ps(i as f32);
-        let xt = _mm512_add_ps(x_top, _mm512_mul_ps(fi, sx));
-        let xb = _mm512_add_ps(xt, sx);
-        let lo = _mm512_min_ps(xt, xb);
-        let jf = floor_ps(lo);
-        let frac = _mm512_mul_ps(_mm512_sub_ps(_mm512_add_ps(jf, one), lo), inv);
-        let w0 = _mm512_mul_ps(len, _mm512_min_ps(frac, one));
-        let w1 = _mm512_sub_ps(len, w0);
+        let (lo, jf, w0, w1) = weights16(x_top, sx, len, inv, fi);
         let ii = _mm512_set1_epi32(i as i32);
         let valid = _mm512_cmpge_epi32_mask(ii, row_lo) & _mm512_cmplt_epi32_mask(ii, row_hi);
         let jc = _mm512_cvttps_epi32(_mm512_min_ps(_mm512_max_ps(jf, jmin), jmax));
@@ -179,7 +192,6 @@ pub(crate) unsafe fn adjoint_rows(t: &RayTable, sino: &[f32], i0: usize, out: &m
 unsafe fn ray_pass(t: &RayTable, v: usize, i: usize, ys: &[f32], s: &mut RowRays) {
     let n_det = t.n_det;
     let base = v * n_det;
-    let one = _mm512_set1_ps(1.0);
     let ii = _mm512_set1_epi32(i as i32);
     let fi = _mm512_set1_ps(i as f32);
     let nop = _mm512_set1_epi32(NO_PIXEL);
@@ -218,13 +230,7 @@ unsafe fn ray_pass(t: &RayTable, v: usize, i: usize, ys: &[f32], s: &mut RowRays
                 }
             }
         }
-        let xt = _mm512_add_ps(x_top, _mm512_mul_ps(fi, sx));
-        let xb = _mm512_add_ps(xt, sx);
-        let lo = _mm512_min_ps(xt, xb);
-        let jf = floor_ps(lo);
-        let frac = _mm512_mul_ps(_mm512_sub_ps(_mm512_add_ps(jf, one), lo), inv);
-        let w0 = _mm512_mul_ps(len, _mm512_min_ps(frac, one));
-        let w1 = _mm512_sub_ps(len, w0);
+        let (_, jf, w0, w1) = weights16(x_top, sx, len, inv, fi);
         if interior {
             _mm512_storeu_si512(
                 s.j.as_mut_ptr().add(PAD + k) as *mut __m512i,
