@@ -3,28 +3,25 @@
 use std::time::Instant;
 
 /// Run `f` `warmup` times untimed, then `reps` times, returning the median
-/// wall time in milliseconds and all samples.
-pub fn median_ms(warmup: usize, reps: usize, mut f: impl FnMut()) -> (f64, Vec<f64>) {
+/// wall time in milliseconds.
+pub fn median_ms(warmup: usize, reps: usize, mut f: impl FnMut()) -> f64 {
     for _ in 0..warmup {
         f();
     }
-    let mut samples: Vec<f64> = (0..reps.max(1))
+    let mut sorted: Vec<f64> = (0..reps.max(1))
         .map(|_| {
             let t = Instant::now();
             f();
             t.elapsed().as_secs_f64() * 1e3
         })
         .collect();
-    let mut sorted = samples.clone();
     sorted.sort_by(|a, b| a.total_cmp(b));
     let n = sorted.len();
-    let med = if n % 2 == 1 {
+    if n % 2 == 1 {
         sorted[n / 2]
     } else {
         0.5 * (sorted[n / 2 - 1] + sorted[n / 2])
-    };
-    samples.shrink_to_fit();
-    (med, samples)
+    }
 }
 
 /// Write a slice of f32 as raw little-endian bytes.

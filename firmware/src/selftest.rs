@@ -1,6 +1,6 @@
 //! Self-tests a service engineer can run on the gantry PC.
 
-use dbt_geometry::Geometry;
+use dbt_geometry::{chord_in_rect, Geometry};
 use dbt_projector::{dot, norm2, Projector};
 
 /// The outcome of one check.
@@ -76,7 +76,7 @@ pub fn projector(g: &Geometry) -> Vec<Check> {
     for v in 0..g.n_views() {
         for k in 0..g.n_det() {
             let (s, e) = g.ray_endpoints_mm(v, k);
-            let exact = mu * chord_rect(s, e, half, hh);
+            let exact = mu * chord_in_rect(s, e, -half, half, -hh, hh);
             let got = px[v * g.n_det() + k] as f64;
             worst = worst.max((got - exact).abs() / exact.max(mu * g.height_mm()));
         }
@@ -106,25 +106,6 @@ pub fn projector(g: &Geometry) -> Vec<Check> {
         ),
     });
     checks
-}
-
-/// Chord length of the line `s -> e` inside `[-half, half] x [-hh, hh]`.
-fn chord_rect(s: (f64, f64), e: (f64, f64), half: f64, hh: f64) -> f64 {
-    let d = (e.0 - s.0, e.1 - s.1);
-    let n = (d.0 * d.0 + d.1 * d.1).sqrt();
-    let (mut t0, mut t1) = (f64::NEG_INFINITY, f64::INFINITY);
-    for (o, dd, h) in [(s.0, d.0, half), (s.1, d.1, hh)] {
-        if dd.abs() < 1e-300 {
-            if o.abs() > h {
-                return 0.0;
-            }
-        } else {
-            let (a, b) = ((-h - o) / dd, (h - o) / dd);
-            t0 = t0.max(a.min(b));
-            t1 = t1.min(a.max(b));
-        }
-    }
-    (t1 - t0).max(0.0) * n
 }
 
 #[cfg(test)]

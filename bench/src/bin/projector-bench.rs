@@ -90,17 +90,17 @@ fn main() -> Result<()> {
     let mut sino = vec![0.0f32; proj.range_len()];
     let mut back = vec![0.0f32; proj.domain_len()];
 
-    let (fwd_ms, _) = median_ms(args.warmup, args.reps, || {
+    let fwd_ms = median_ms(args.warmup, args.reps, || {
         let _ = fast.forward(&img, &mut sino);
     });
-    let (adj_ms, _) = median_ms(args.warmup, args.reps, || {
+    let adj_ms = median_ms(args.warmup, args.reps, || {
         let _ = fast.adjoint(&sino_in, &mut back);
     });
     let sreps = (args.reps / 5).max(3);
-    let (sfwd_ms, _) = median_ms(1, sreps, || {
+    let sfwd_ms = median_ms(1, sreps, || {
         let _ = scalar.forward(&img, &mut sino);
     });
-    let (sadj_ms, _) = median_ms(1, sreps, || {
+    let sadj_ms = median_ms(1, sreps, || {
         let _ = scalar.adjoint(&sino_in, &mut back);
     });
     fast.forward(&img, &mut sino)?;

@@ -178,7 +178,7 @@ pub(crate) unsafe fn adjoint_rows(t: &RayTable, sino: &[f32], i0: usize, out: &m
             if t.view_has_slow[v] {
                 for k in 0..n_det {
                     let r = v * n_det + k;
-                    let inside = (i as u32) >= t.row_lo[r] && (i as u32) < t.row_hi[r];
+                    let inside = t.touches_row(r, i);
                     if !t.fast[r] && inside {
                         t.scatter_ray_row(r, i, ys[k], row_out);
                     }
@@ -254,7 +254,7 @@ unsafe fn ray_pass(t: &RayTable, v: usize, i: usize, ys: &[f32], s: &mut RowRays
     }
     for k in k..n_det {
         let r = base + k;
-        let inside = (i as u32) >= t.row_lo[r] && (i as u32) < t.row_hi[r];
+        let inside = t.touches_row(r, i);
         if inside && t.fast[r] {
             let (lo, _) = segment(t.x_top[r], t.sx[r], i);
             let (j, w0, w1) = fast_weights(lo, t.len[r], t.inv[r]);
@@ -320,12 +320,7 @@ unsafe fn collect_step(
     )
 }
 
-/// Contributions of candidates `idx + k`, `k < N`, to 16 pixels.
-#[target_feature(enable = "avx512f")]
-unsafe fn collect<const N: i32>(w: &Window, idx: __m512i, jv: __m512i) -> __m512 {
-    collect_n(w, idx, jv, N)
-}
-
+/// Contributions of candidates `idx + k`, `k < n`, to 16 pixels.
 #[inline(always)]
 unsafe fn collect_n(w: &Window, idx: __m512i, jv: __m512i, n: i32) -> __m512 {
     let mut acc = (_mm512_setzero_ps(), _mm512_setzero_ps());
@@ -381,12 +376,7 @@ unsafe fn pixel_pass(t: &RayTable, map: &InvMap, s: &RowRays, row_out: &mut [f32
                 c1l,
                 c1h,
             };
-            let acc = match count {
-                2 => collect::<2>(&w, idx, jv),
-                3 => collect::<3>(&w, idx, jv),
-                4 => collect::<4>(&w, idx, jv),
-                _ => collect_n(&w, idx, jv, count),
-            };
+            let acc = collect_n(&w, idx, jv, count);
             let o = row_out.as_mut_ptr().add(jb);
             _mm512_storeu_ps(o, _mm512_add_ps(_mm512_loadu_ps(o), acc));
         } else {

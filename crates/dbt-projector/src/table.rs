@@ -199,6 +199,12 @@ impl RayTable {
         t
     }
 
+    /// Whether ray `r` crosses the image in row `i`.
+    #[inline(always)]
+    pub fn touches_row(&self, r: usize, i: usize) -> bool {
+        (i as u32) >= self.row_lo[r] && (i as u32) < self.row_hi[r]
+    }
+
     /// Pixel index of a fast ray at row `i`, clamped to `[-1, nx - 1]` as the
     /// SIMD forward kernel computes it.
     fn clamped_j(&self, r: usize, i: usize) -> i32 {
@@ -218,7 +224,7 @@ impl RayTable {
     fn fast_contributions(&self, v: usize, i: usize, mut f: impl FnMut(usize, i32, f32, f32)) {
         for k in 0..self.n_det {
             let r = v * self.n_det + k;
-            if !self.fast[r] || (i as u32) < self.row_lo[r] || (i as u32) >= self.row_hi[r] {
+            if !self.fast[r] || !self.touches_row(r, i) {
                 continue;
             }
             let (lo, _) = segment(self.x_top[r], self.sx[r], i);
@@ -265,13 +271,10 @@ impl RayTable {
                     ray_hi: 0,
                     monotone: true,
                 };
-                let valid_rays: Vec<usize> = (0..n_det)
-                    .filter(|&k| {
-                        let r = v * n_det + k;
-                        (i as u32) >= self.row_lo[r] && (i as u32) < self.row_hi[r]
-                    })
-                    .collect();
-                if let (Some(&first), Some(&last)) = (valid_rays.first(), valid_rays.last()) {
+                let touches = |k: usize| self.touches_row(v * n_det + k, i);
+                if let (Some(first), Some(last)) =
+                    ((0..n_det).position(touches), (0..n_det).rposition(touches))
+                {
                     m.ray_lo = first as u32;
                     m.ray_hi = last as u32 + 1;
                 }

@@ -7,7 +7,7 @@
 //! intersection-length model, so only rounding remains) or area-sampled (ellipse:
 //! the discretisation error of the boundary pixels dominates, ~1e-4).
 
-use dbt_geometry::Geometry;
+use dbt_geometry::{chord_in_rect, Geometry};
 use dbt_projector::{dot, norm2, Kernel, Projector, ProjectorError};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -138,26 +138,6 @@ fn csr_export_matches_matrix_free() {
     }
 }
 
-/// Length (mm) of the part of the line through `s` and `p` inside the
-/// axis-aligned rectangle `[x0, x1] x [z0, z1]` (slab method).
-fn chord_rect(s: (f64, f64), p: (f64, f64), x0: f64, x1: f64, z0: f64, z1: f64) -> f64 {
-    let d = (p.0 - s.0, p.1 - s.1);
-    let n = (d.0 * d.0 + d.1 * d.1).sqrt();
-    let (mut t0, mut t1) = (f64::NEG_INFINITY, f64::INFINITY);
-    for (o, dd, lo, hi) in [(s.0, d.0, x0, x1), (s.1, d.1, z0, z1)] {
-        if dd.abs() < 1e-300 {
-            if o < lo || o > hi {
-                return 0.0;
-            }
-        } else {
-            let (a, b) = ((lo - o) / dd, (hi - o) / dd);
-            t0 = t0.max(a.min(b));
-            t1 = t1.min(a.max(b));
-        }
-    }
-    ((t1 - t0).max(0.0)) * n
-}
-
 #[test]
 fn slab_line_integrals_match_closed_form() {
     // A 60 mm slab of adipose (0.0512 / mm) filling every row, 160 mm wide.
@@ -184,7 +164,7 @@ fn slab_line_integrals_match_closed_form() {
             let mut worst = 0.0f64;
             for k in 0..g.n_det() {
                 let (s, e) = g.ray_endpoints_mm(v, k);
-                let exact = mu * chord_rect(s, e, -half, half, -hh, hh);
+                let exact = mu * chord_in_rect(s, e, -half, half, -hh, hh);
                 let got = sino[v * g.n_det() + k] as f64;
                 let err = (got - exact).abs();
                 // Relative where the ray crosses a real length of slab; absolute
