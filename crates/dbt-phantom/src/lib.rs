@@ -1,0 +1,427 @@
+//! Compressed-breast label volumes: the procedural generator ([`generate`]),
+//! external label volumes with a sidecar ([`external`]), and the extraction of
+//! coronal slices on the image grid of a [`Geometry`].
+//!
+//! # Volume layout
+//! A [`LabelVolume`] holds one `u8` label per voxel (codes of
+//! [`dbt_materials::Tissue`]) on an isotropic grid with three named axes:
+//! * `lateral` (left-right, along the chest wall; the image columns),
+//! * `vertical` (the compression axis; index 0 rests on the breast support),
+//! * `depth` (from the chest wall, index 0, toward the nipple).
+//!
+//! `lateral` varies fastest, then `vertical`, then `depth`, so each coronal
+//! slice (fixed depth) is one contiguous block, bottom row first.
+//!
+//! This crate does no I/O: external volumes are decoded from bytes that an
+//! adapter has read.
+
+pub mod external;
+pub mod generate;
+mod noise;
+
+use dbt_geometry::Geometry;
+use dbt_materials::{count_labels, glandularity, Tissue, UnknownLabel, MU_BY_LABEL};
+use thiserror::Error;
+
+pub use external::{ExternalSidecar, VolumeAxis};
+pub use generate::{generate, PhantomSpec, Population};
+
+/// Errors of this crate; each names what was wrong.
+#[derive(Debug, Error)]
+pub enum PhantomError {
+    /// A generator parameter is out of its allowed range.
+    #[error("phantom parameter `{field}` = {value}: {reason}")]
+    Parameter {
+        /// Parameter name as in [`PhantomSpec`].
+        field: &'static str,
+        /// The offending value.
+        value: f64,
+        /// The allowed range or rule.
+        reason: String,
+    },
+    /// The sidecar of an external phantom is malformed or inconsistent.
+    #[error("phantom sidecar: {0}")]
+    Sidecar(String),
+    /// The raw data does not match the sidecar.
+    #[error("phantom raw data: {0}")]
+    Raw(String),
+    /// A label code not in the tissue table (or not mapped by a sidecar).
+    #[error("{0}")]
+    Label(#[from] UnknownLabel),
+    /// A label in an external volume that its sidecar does not map.
+    #[error("external label {label} (first at file voxel {voxel:?}) is not mapped in the sidecar's [labels] table")]
+    Unmapped {
+        /// The label code in the file.
+        label: u8,
+        /// File indices (fastest axis first) of its first occurrence.
+        voxel: [usize; 3],
+    },
+    /// The phantom does not fit the image of the geometry.
+    #[error("phantom does not fit the geometry: {0}")]
+    DoesNotFit(String),
+    /// A slice index beyond the volume.
+    #[error("coronal slice {index} out of range (volume has {count})")]
+    SliceOutOfRange {
+        /// Requested index.
+        index: usize,
+        /// Number of coronal slices.
+        count: usize,
+    },
+}
+
+/// An isotropic label volume (see the crate docs for the layout).
+#[derive(Debug, Clone, PartialEq)]
+pub struct LabelVolume {
+    /// Voxel counts `[lateral, vertical, depth]`.
+    dims: [usize; 3],
+    voxel_mm: f64,
+    data: Vec<u8>,
+}
+
+impl LabelVolume {
+    /// Wrap labels; checks the length and that every label is a known tissue.
+    pub fn new(dims: [usize; 3], voxel_mm: f64, data: Vec<u8>) -> Result<Self, PhantomError> {
+        if !(voxel_mm.is_finite() && voxel_mm > 0.0) {
+            return Err(PhantomError::Parameter {
+                field: "voxel_mm",
+                value: voxel_mm,
+                reason: "must be positive".into(),
+            });
+        }
+        let n = dims.iter().product::<usize>();
+        if n == 0 || n != data.len() {
+            return Err(PhantomError::Raw(format!(
+                "dimensions {dims:?} need {n} voxels, got {}",
+                data.len()
+            )));
+        }
+        count_labels(&data)?;
+        Ok(Self {
+            dims,
+            voxel_mm,
+            data,
+        })
+    }
+
+    /// Voxel counts `[lateral, vertical, depth]`.
+    pub fn dims(&self) -> [usize; 3] {
+        self.dims
+    }
+
+    /// Voxel side, mm.
+    pub fn voxel_mm(&self) -> f64 {
+        self.voxel_mm
+    }
+
+    /// All labels in storage order.
+    pub fn labels(&self) -> &[u8] {
+        &self.data
+    }
+
+    /// Number of coronal slices (the depth extent).
+    pub fn n_coronal(&self) -> usize {
+        self.dims[2]
+    }
+
+    /// Labels of coronal slice `d`, bottom row first, `[vertical][lateral]`.
+    pub fn coronal(&self, d: usize) -> Result<&[u8], PhantomError> {
+        if d >= self.dims[2] {
+            return Err(PhantomError::SliceOutOfRange {
+                index: d,
+                count: self.dims[2],
+            });
+        }
+        let n = self.dims[0] * self.dims[1];
+        Ok(&self.data[d * n..(d + 1) * n])
+    }
+
+    /// Label at `(lateral, vertical, depth)`.
+    pub fn at(&self, l: usize, v: usize, d: usize) -> u8 {
+        self.data[(d * self.dims[1] + v) * self.dims[0] + l]
+    }
+
+    /// Voxel counts per tissue, in label order.
+    pub fn counts(&self) -> [u64; 5] {
+        // Labels were validated on construction.
+        count_labels(&self.data).unwrap_or([0; 5])
+    }
+
+    /// Ground-truth glandularity by mass of the whole volume (ligaments counted
+    /// as fibroglandular, skin excluded), or `None` without breast tissue.
+    pub fn glandularity(&self) -> Option<f64> {
+        let c = self.counts();
+        glandularity(c[3] + c[4], c[1])
+    }
+
+    /// Compressed thickness: the vertical extent of the tissue, mm.
+    pub fn thickness_mm(&self) -> f64 {
+        match self.tissue_bounds() {
+            Some(b) => (b[1][1] - b[1][0]) as f64 * self.voxel_mm,
+            None => 0.0,
+        }
+    }
+
+    /// Half-open index bounds `[[lo, hi]; 3]` of the non-air voxels, per axis.
+    pub fn tissue_bounds(&self) -> Option<[[usize; 2]; 3]> {
+        let [nx, nz, ny] = self.dims;
+        let mut b = [[usize::MAX, 0]; 3];
+        for d in 0..ny {
+            for v in 0..nz {
+                let row = &self.data[(d * nz + v) * nx..(d * nz + v + 1) * nx];
+                let first = row.iter().position(|&l| l != 0);
+                if let Some(f) = first {
+                    let last = row.iter().rposition(|&l| l != 0).unwrap_or(f);
+                    b[0] = [b[0][0].min(f), b[0][1].max(last + 1)];
+                    b[1] = [b[1][0].min(v), b[1][1].max(v + 1)];
+                    b[2] = [b[2][0].min(d), b[2][1].max(d + 1)];
+                }
+            }
+        }
+        (b[0][0] != usize::MAX).then_some(b)
+    }
+
+    /// The volume cropped to the bounding box of its tissue, so that the breast
+    /// rests on vertical index 0 and starts at the chest wall (depth 0).
+    pub fn cropped_to_tissue(&self) -> Result<Self, PhantomError> {
+        let b = self
+            .tissue_bounds()
+            .ok_or_else(|| PhantomError::Raw("the volume contains no tissue".into()))?;
+        let dims = [b[0][1] - b[0][0], b[1][1] - b[1][0], b[2][1] - b[2][0]];
+        let mut data = Vec::with_capacity(dims.iter().product());
+        for d in b[2][0]..b[2][1] {
+            for v in b[1][0]..b[1][1] {
+                let base = (d * self.dims[1] + v) * self.dims[0];
+                data.extend_from_slice(&self.data[base + b[0][0]..base + b[0][1]]);
+            }
+        }
+        Ok(Self {
+            dims,
+            voxel_mm: self.voxel_mm,
+            data,
+        })
+    }
+
+    /// Nearest-neighbour resampling to another isotropic voxel size (labels are
+    /// categorical, so they are sampled, never averaged). Voxel centres of the
+    /// new grid are sampled in the old grid; the physical extent is kept up to
+    /// one new voxel.
+    pub fn resampled(&self, voxel_mm: f64) -> Result<Self, PhantomError> {
+        if !(voxel_mm.is_finite() && voxel_mm > 0.0) {
+            return Err(PhantomError::Parameter {
+                field: "voxel_mm",
+                value: voxel_mm,
+                reason: "must be positive".into(),
+            });
+        }
+        if (voxel_mm - self.voxel_mm).abs() < 1e-9 {
+            return Ok(self.clone());
+        }
+        let r = self.voxel_mm / voxel_mm;
+        let nd = self.dims.map(|n| ((n as f64 * r).round() as usize).max(1));
+        let map = |i: usize, axis: usize| -> usize {
+            let c = ((i as f64 + 0.5) / r).floor() as usize;
+            c.min(self.dims[axis] - 1)
+        };
+        let mut data = Vec::with_capacity(nd.iter().product());
+        for d in 0..nd[2] {
+            let sd = map(d, 2);
+            for v in 0..nd[1] {
+                let sv = map(v, 1);
+                for l in 0..nd[0] {
+                    data.push(self.at(map(l, 0), sv, sd));
+                }
+            }
+        }
+        Ok(Self {
+            dims: nd,
+            voxel_mm,
+            data,
+        })
+    }
+}
+
+/// One coronal slice placed on the image grid of a geometry.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Slice {
+    /// Labels, image layout: row 0 at the top, `rows x columns`.
+    pub labels: Vec<u8>,
+    /// Compressed breast thickness of the phantom, mm (what the gantry reports).
+    pub thickness_mm: f64,
+}
+
+impl Slice {
+    /// Attenuation image at 20 keV (1/mm), image layout.
+    pub fn mu(&self) -> Vec<f32> {
+        labels_to_mu(&self.labels)
+    }
+
+    /// The breast-thickness mask of the paper: 1 on every image row whose
+    /// centre lies within the compressed thickness above the support, across the
+    /// full width; 0 above. Encoded as `f32` 0/1, image layout.
+    pub fn thickness_mask(&self, geom: &Geometry) -> Vec<f32> {
+        thickness_mask(geom, self.thickness_mm)
+    }
+}
+
+/// Attenuation (1/mm) of each label; labels must be valid tissue codes.
+pub fn labels_to_mu(labels: &[u8]) -> Vec<f32> {
+    labels
+        .iter()
+        .map(|&l| MU_BY_LABEL.get(l as usize).copied().unwrap_or(0.0))
+        .collect()
+}
+
+/// The thickness mask (see [`Slice::thickness_mask`]) for a reported thickness.
+pub fn thickness_mask(geom: &Geometry, thickness_mm: f64) -> Vec<f32> {
+    let rows = geom.image.rows;
+    let cols = geom.image.columns;
+    let inside = geom.rows_within_thickness(thickness_mm);
+    let mut m = vec![0.0f32; rows * cols];
+    m[(rows - inside) * cols..].fill(1.0);
+    m
+}
+
+/// Place coronal slice `d` of `vol` on the image grid of `geom`: the breast
+/// rests on the bottom row and the volume's lateral centre sits at `x = 0`.
+/// The volume's voxel must equal the geometry's pixel (resample first with
+/// [`LabelVolume::resampled`]); the phantom must fit the image.
+pub fn coronal_slice(vol: &LabelVolume, d: usize, geom: &Geometry) -> Result<Slice, PhantomError> {
+    let src = vol.coronal(d)?;
+    if (vol.voxel_mm - geom.image.pixel_mm).abs() > 1e-9 {
+        return Err(PhantomError::DoesNotFit(format!(
+            "voxel {} mm differs from the image pixel {} mm; resample the volume first",
+            vol.voxel_mm, geom.image.pixel_mm
+        )));
+    }
+    let [nx, nz, _] = vol.dims;
+    let (rows, cols) = (geom.image.rows, geom.image.columns);
+    // Vertical: only rows holding tissue must fit (air above is dropped).
+    let top = (0..nz)
+        .rev()
+        .find(|&v| src[v * nx..(v + 1) * nx].iter().any(|&l| l != 0))
+        .map_or(0, |v| v + 1);
+    if top > rows {
+        return Err(PhantomError::DoesNotFit(format!(
+            "tissue is {} mm high, the image only {} mm ({} rows)",
+            top as f64 * vol.voxel_mm,
+            geom.height_mm(),
+            rows
+        )));
+    }
+    if nx > cols {
+        // Lateral air margins may be trimmed, tissue may not.
+        let b = vol.tissue_bounds().unwrap_or([[0, 0]; 3]);
+        let (lo, hi) = (b[0][0], b[0][1]);
+        let off = (nx - cols) / 2;
+        if lo < off || hi > off + cols {
+            return Err(PhantomError::DoesNotFit(format!(
+                "tissue is {} mm wide, the image only {} mm",
+                (hi - lo) as f64 * vol.voxel_mm,
+                geom.width_mm()
+            )));
+        }
+    }
+    let mut labels = vec![0u8; rows * cols];
+    // Column c of the image holds lateral index c + shift.
+    let shift = nx as isize / 2 - cols as isize / 2;
+    for v in 0..top {
+        let row = rows - 1 - v;
+        for c in 0..cols {
+            let l = c as isize + shift;
+            if l >= 0 && (l as usize) < nx {
+                labels[row * cols + c] = src[v * nx + l as usize];
+            }
+        }
+    }
+    Ok(Slice {
+        labels,
+        thickness_mm: vol.thickness_mm(),
+    })
+}
+
+/// Tissue of a valid label (air for anything unknown; labels are validated when
+/// a volume is built).
+pub fn tissue_of(label: u8) -> Tissue {
+    Tissue::from_label(label).unwrap_or(Tissue::Air)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tiny() -> LabelVolume {
+        // 4 lateral x 3 vertical x 2 depth
+        let mut data = vec![0u8; 24];
+        data[1] = 1; // (1,0,0)
+        data[4 + 2] = 3; // (2,1,0)
+        data[12 + 1] = 2; // (1,0,1)
+        LabelVolume::new([4, 3, 2], 0.5, data).unwrap()
+    }
+
+    #[test]
+    fn layout_bounds_crop() {
+        let v = tiny();
+        assert_eq!(v.at(2, 1, 0), 3);
+        assert_eq!(v.tissue_bounds(), Some([[1, 3], [0, 2], [0, 2]]));
+        let c = v.cropped_to_tissue().unwrap();
+        assert_eq!(c.dims(), [2, 2, 2]);
+        assert_eq!(c.at(1, 1, 0), 3);
+        assert!((v.thickness_mm() - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn bad_volumes_rejected() {
+        assert!(matches!(
+            LabelVolume::new([2, 2, 2], 1.0, vec![0; 7]),
+            Err(PhantomError::Raw(_))
+        ));
+        assert!(matches!(
+            LabelVolume::new([2, 1, 1], 1.0, vec![0, 7]),
+            Err(PhantomError::Label(UnknownLabel(7)))
+        ));
+        assert!(LabelVolume::new([2, 1, 1], 0.0, vec![0, 0]).is_err());
+    }
+
+    #[test]
+    fn resample_keeps_extent_and_labels() {
+        let v = tiny();
+        let r = v.resampled(0.25).unwrap();
+        assert_eq!(r.dims(), [8, 6, 4]);
+        assert_eq!(r.at(2, 0, 0), 1);
+        assert_eq!(r.at(3, 1, 1), 1);
+        assert_eq!(r.at(4, 2, 0), 3);
+        let back = r.resampled(0.5).unwrap();
+        assert_eq!(back, v);
+    }
+
+    #[test]
+    fn slice_rests_on_bottom_row_centred() {
+        let g = Geometry::paper().binned(4).unwrap();
+        let vol = LabelVolume::new([4, 3, 1], g.image.pixel_mm, {
+            let mut d = vec![1u8; 12];
+            d[8..].fill(0); // top vertical row is air
+            d
+        })
+        .unwrap();
+        let s = coronal_slice(&vol, 0, &g).unwrap();
+        let (rows, cols) = (g.image.rows, g.image.columns);
+        let c0 = cols / 2 - 2;
+        assert_eq!(s.labels[(rows - 1) * cols + c0], 1);
+        assert_eq!(s.labels[(rows - 2) * cols + c0 + 3], 1);
+        assert_eq!(s.labels[(rows - 3) * cols + c0], 0);
+        assert_eq!(s.labels[(rows - 1) * cols + c0 - 1], 0);
+        assert_eq!(s.labels.iter().filter(|&&l| l == 1).count(), 8);
+        // Mask: 2 rows thick (1.6 mm at 0.8 mm pixels).
+        let m = s.thickness_mask(&g);
+        assert_eq!(m.iter().filter(|&&x| x == 1.0).count(), 2 * cols);
+        assert!(matches!(
+            coronal_slice(&vol, 1, &g),
+            Err(PhantomError::SliceOutOfRange { .. })
+        ));
+        let wrong = vol.resampled(0.4).unwrap();
+        assert!(matches!(
+            coronal_slice(&wrong, 0, &g),
+            Err(PhantomError::DoesNotFit(_))
+        ));
+    }
+}
