@@ -1,8 +1,15 @@
 #!/usr/bin/env bash
-# The main job. Until the acquisition pipeline exists (see README, "Status"),
-# this runs the most complete path that does: the firmware's self-test of the
-# shipped geometry and projector (adjointness, analytic slab line integrals,
-# operator norm) at the paper's full geometry, in release mode.
+# The main job. Until the firmware pipeline exists (see README, "Status"), this
+# runs the most complete path that does, in release mode:
+#  1. the firmware's self-test of the shipped geometry and projector at the
+#     paper's full geometry (adjointness, analytic slab line integrals, norm);
+#  2. a simulated acquisition of test-set phantoms (procedural breasts, Poisson
+#     noise) reconstructed with the MLTR and FBP baselines and scored against
+#     the truth, at the paper geometry binned x4 so it takes seconds
+#     (`dbt-eval baselines` without flags is the full-size evaluation).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-cargo run --release --locked -q -p dbtor-firmware --bin dbtor-diag -- selftest "$@"
+cargo build --release --locked -q -p dbtor-firmware -p dbt-eval
+./target/release/dbtor-diag selftest "$@"
+./target/release/dbt-eval baselines --binning 4 --phantoms 2 --slices 2 \
+    --json eval/results/main-job-baselines.json

@@ -145,6 +145,11 @@ pub struct Population {
 }
 
 impl Population {
+    /// Population seed of the fixed evaluation test set. Training datasets
+    /// must use another seed (the exporter refuses this one), so that no test
+    /// phantom is ever trained on.
+    pub const TEST_SEED: u64 = 0x7E57_0000_0000_0001;
+
     /// The population (thickness 30-75 mm, chest wall to nipple 58-180
     /// mm, glandularity 3-70 %), limited to what fits the image of `geom`: the
     /// thickness to the image height less 2 pixels, the width to the image width

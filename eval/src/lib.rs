@@ -1,0 +1,261 @@
+//! Evaluation of reconstructions against the phantom truth, as in the paper's
+//! Tables 1-2: L2 (MSE), SSIM and PSNR, mean +- sd over the slices of a fixed
+//! test set of phantoms (population seed `Population::TEST_SEED`), noise-free
+//! and at N = 4, 8, 12.
+//!
+//! Conventions (chosen to match the scale of the paper's numbers; see
+//! `eval/README.md`): images in 1/cm, metrics over the whole image, data range
+//! of the ground truth for PSNR and SSIM; FBP is limited to the thickness
+//! support like MLTR.
+
+pub mod picture;
+
+use dbt_acquisition::NoiseLevel;
+use dbt_geometry::Geometry;
+use dbt_metrics::{mean_sd, score, ImageScores, Shape};
+use dbt_phantom::{generate, Population};
+use dbt_projector::Projector;
+use dbt_recon::{mltr, Fbp, MltrOptions};
+use host_sim::{simulate_slices, tissue_slices, SimSlice};
+use rayon::prelude::*;
+use serde::Serialize;
+
+/// Options of the baseline evaluation.
+#[derive(Debug, Clone, Serialize)]
+pub struct BaselineOptions {
+    /// Geometry (phantoms are generated at its pixel size).
+    pub geometry: Geometry,
+    /// Test-set phantoms `0..phantoms` of the test population.
+    pub phantoms: usize,
+    /// Coronal slices per phantom, evenly spaced over its tissue slices.
+    pub slices_per_phantom: usize,
+    /// MLTR iterations (the paper: 100).
+    pub iterations: usize,
+    /// Noise levels.
+    pub levels: Vec<NoiseLevel>,
+}
+
+/// mean +- sd of one metric.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Stat {
+    /// Mean.
+    pub mean: f64,
+    /// Sample standard deviation.
+    pub sd: f64,
+}
+
+/// One row of the table.
+#[derive(Debug, Clone, Serialize)]
+pub struct Row {
+    /// `MLTR` or `FBP`.
+    pub method: String,
+    /// `noise-free`, `N4`, ...
+    pub noise: String,
+    /// L2 loss (MSE, 1/cm squared).
+    pub l2: Stat,
+    /// SSIM.
+    pub ssim: Stat,
+    /// PSNR, dB.
+    pub psnr: Stat,
+    /// Number of slices.
+    pub n: usize,
+}
+
+/// One slice of the test set.
+#[derive(Debug, Clone, Serialize)]
+pub struct TestSlice {
+    /// Test-set phantom index.
+    pub phantom: u64,
+    /// Coronal index.
+    pub depth: usize,
+}
+
+/// The evaluation result.
+#[derive(Debug, Clone, Serialize)]
+pub struct BaselineReport {
+    /// What was run.
+    pub options: BaselineOptions,
+    /// The slices used.
+    pub slices: Vec<TestSlice>,
+    /// Ground-truth glandularity of each test phantom.
+    pub phantom_glandularity: Vec<f64>,
+    /// The table.
+    pub rows: Vec<Row>,
+}
+
+/// Pick `m` indices evenly spaced over `0..n`.
+pub fn evenly_spaced(n: usize, m: usize) -> Vec<usize> {
+    if n == 0 || m == 0 {
+        return vec![];
+    }
+    let m = m.min(n);
+    (0..m)
+        .map(|k| ((k as f64 + 0.5) * n as f64 / m as f64) as usize)
+        .collect()
+}
+
+/// The simulated test slices with their origin, and each phantom's glandularity.
+pub type TestSet = (Vec<(TestSlice, SimSlice)>, Vec<f64>);
+
+/// The fixed test set: phantoms and slices, simulated at every level.
+pub fn test_set(
+    geom: &Geometry,
+    proj: &Projector,
+    phantoms: usize,
+    per_phantom: usize,
+    levels: &[NoiseLevel],
+) -> anyhow::Result<TestSet> {
+    let pop = Population::for_geometry(geom);
+    let mut out = Vec::new();
+    let mut glands = Vec::new();
+    for i in 0..phantoms as u64 {
+        let _span = tracing::info_span!("test_phantom", index = i).entered();
+        let vol = generate(&pop.draw(Population::TEST_SEED, i))?;
+        glands.push(vol.glandularity().unwrap_or(0.0));
+        let all = tissue_slices(&vol, 1);
+        let depths: Vec<usize> = evenly_spaced(all.len(), per_phantom)
+            .into_iter()
+            .map(|k| all[k])
+            .collect();
+        let noise_seed = host_sim::mix_seed(Population::TEST_SEED, &[i, 1]);
+        for s in simulate_slices(&vol, geom, proj, &depths, levels, noise_seed)? {
+            out.push((
+                TestSlice {
+                    phantom: i,
+                    depth: s.depth,
+                },
+                s,
+            ));
+        }
+    }
+    Ok((out, glands))
+}
+
+fn to_per_cm(v: &[f32]) -> Vec<f32> {
+    v.iter().map(|x| x * 10.0).collect()
+}
+
+/// Run MLTR and FBP on the test set and tabulate.
+pub fn evaluate_baselines(opts: &BaselineOptions) -> anyhow::Result<BaselineReport> {
+    let g = &opts.geometry;
+    let proj = Projector::new(g);
+    let fbp = Fbp::new(g);
+    let shape = Shape {
+        rows: g.image.rows,
+        cols: g.image.columns,
+    };
+    let (set, glands) = test_set(
+        g,
+        &proj,
+        opts.phantoms,
+        opts.slices_per_phantom,
+        &opts.levels,
+    )?;
+    let mltr_opts = MltrOptions {
+        iterations: opts.iterations,
+        track_likelihood: false,
+    };
+    // scores[level][method] = per-slice scores
+    let mut scores = vec![[Vec::<ImageScores>::new(), Vec::new()]; opts.levels.len()];
+    for (ts, s) in &set {
+        let _span = tracing::info_span!("slice", phantom = ts.phantom, depth = ts.depth).entered();
+        let truth = to_per_cm(&s.mu);
+        let per_level: Vec<anyhow::Result<[ImageScores; 2]>> = (0..opts.levels.len())
+            .into_par_iter()
+            .map(|k| {
+                let (m, _) = mltr(&proj, &s.counts[k], s.flux[k], &s.mask, &mltr_opts)?;
+                let line = dbt_acquisition::log_transform(&s.counts[k], s.flux[k]);
+                let f = fbp.reconstruct(&line, Some(&s.mask))?;
+                Ok([
+                    score(shape, &truth, &to_per_cm(&m))?,
+                    score(shape, &truth, &to_per_cm(&f))?,
+                ])
+            })
+            .collect();
+        for (k, r) in per_level.into_iter().enumerate() {
+            let [a, b] = r?;
+            scores[k][0].push(a);
+            scores[k][1].push(b);
+        }
+    }
+    let mut rows = Vec::new();
+    for (mi, method) in ["MLTR", "FBP"].iter().enumerate() {
+        for (k, lvl) in opts.levels.iter().enumerate() {
+            let sc = &scores[k][mi];
+            let stat = |f: fn(&ImageScores) -> f64| {
+                let v: Vec<f64> = sc.iter().map(f).collect();
+                let (mean, sd) = mean_sd(&v);
+                Stat { mean, sd }
+            };
+            rows.push(Row {
+                method: method.to_string(),
+                noise: lvl.name(),
+                l2: stat(|s| s.l2),
+                ssim: stat(|s| s.ssim),
+                psnr: stat(|s| s.psnr),
+                n: sc.len(),
+            });
+        }
+    }
+    Ok(BaselineReport {
+        options: opts.clone(),
+        slices: set.into_iter().map(|(t, _)| t).collect(),
+        phantom_glandularity: glands,
+        rows,
+    })
+}
+
+/// The table as Markdown.
+pub fn table(report: &BaselineReport) -> String {
+    let mut s = String::from(
+        "| Model | noise | L2 loss | SSIM | PSNR (dB) | slices |\n|---|---|---|---|---|---|\n",
+    );
+    for r in &report.rows {
+        s.push_str(&format!(
+            "| {} | {} | {:.4} ± {:.1e} | {:.3} ± {:.1e} | {:.2} ± {:.1e} | {} |\n",
+            r.method,
+            r.noise,
+            r.l2.mean,
+            r.l2.sd,
+            r.ssim.mean,
+            r.ssim.sd,
+            r.psnr.mean,
+            r.psnr.sd,
+            r.n
+        ));
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn spacing() {
+        assert_eq!(evenly_spaced(10, 2), vec![2, 7]);
+        assert_eq!(evenly_spaced(3, 5), vec![0, 1, 2]);
+        assert!(evenly_spaced(0, 3).is_empty());
+    }
+
+    #[test]
+    fn tiny_evaluation_runs_and_mltr_beats_fbp() {
+        let opts = BaselineOptions {
+            geometry: Geometry::paper().binned(4).unwrap(),
+            phantoms: 1,
+            slices_per_phantom: 2,
+            iterations: 20,
+            levels: vec![NoiseLevel::NoiseFree, NoiseLevel::Poisson(8)],
+        };
+        let r = evaluate_baselines(&opts).unwrap();
+        assert_eq!(r.rows.len(), 4);
+        assert_eq!(r.slices.len(), 2);
+        for row in &r.rows {
+            assert_eq!(row.n, 2);
+            assert!(row.l2.mean.is_finite() && row.ssim.mean <= 1.0);
+        }
+        // MLTR is quantitative, limited-angle FBP is not: MLTR's L2 is lower.
+        assert!(r.rows[0].l2.mean < r.rows[2].l2.mean);
+        assert!(table(&r).contains("| MLTR | noise-free |"));
+    }
+}

@@ -1,0 +1,163 @@
+//! `host-sim`: the hardware stand-in. Today: phantoms and training data; the
+//! gantry servers (Modbus, serial frames) come with issue #8.
+
+use anyhow::{bail, Context, Result};
+use clap::{Parser, Subcommand};
+use dbt_acquisition::NoiseLevel;
+use dbt_geometry::Geometry;
+use dbt_phantom::{generate, PhantomSpec, Population};
+use host_sim::dataset::{export, ExportOptions};
+use std::path::PathBuf;
+use std::time::Instant;
+
+#[derive(Parser)]
+#[command(
+    name = "host-sim",
+    about = "Simulated breasts, acquisitions and training data"
+)]
+struct Cli {
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Generate one phantom and write it as raw labels plus a TOML sidecar.
+    Phantom {
+        /// Output sidecar path (`NAME.toml`; the raw goes beside it).
+        #[arg(long)]
+        out: PathBuf,
+        /// Population seed.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Index of the phantom in the population.
+        #[arg(long, default_value_t = 0)]
+        index: u64,
+        /// Geometry TOML (default: the paper's).
+        #[arg(long)]
+        geometry: Option<PathBuf>,
+        /// Binning of the geometry (1, 2, 4).
+        #[arg(long, default_value_t = 1)]
+        binning: usize,
+    },
+    /// Export a training dataset (see DATASET.md).
+    Dataset {
+        /// Output folder (must not hold a dataset yet).
+        #[arg(long)]
+        out: PathBuf,
+        /// Train + validation slices wanted.
+        #[arg(long, default_value_t = 10_000)]
+        slices: usize,
+        /// Phantoms of the fixed test set to include.
+        #[arg(long, default_value_t = 5)]
+        test_phantoms: usize,
+        /// Population seed of the training phantoms.
+        #[arg(long, default_value_t = 2024)]
+        seed: u64,
+        /// Noise levels, comma separated (`noise-free,N4,N8,N12`).
+        #[arg(long, default_value = "noise-free,N4,N8,N12")]
+        levels: String,
+        /// Geometry TOML (default: the paper's).
+        #[arg(long)]
+        geometry: Option<PathBuf>,
+        /// Binning of the geometry (1, 2, 4).
+        #[arg(long, default_value_t = 4)]
+        binning: usize,
+        /// Phantoms generated at once.
+        #[arg(long, default_value_t = 4)]
+        batch: usize,
+    },
+}
+
+fn load_geometry(path: &Option<PathBuf>, binning: usize) -> Result<Geometry> {
+    let g = match path {
+        Some(p) => Geometry::from_toml_str(
+            &std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
+        )
+        .with_context(|| format!("geometry {}", p.display()))?,
+        None => Geometry::paper(),
+    };
+    Ok(g.binned(binning)?)
+}
+
+fn main() -> Result<()> {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    match Cli::parse().cmd {
+        Cmd::Phantom {
+            out,
+            seed,
+            index,
+            geometry,
+            binning,
+        } => {
+            let g = load_geometry(&geometry, binning)?;
+            let spec: PhantomSpec = Population::for_geometry(&g).draw(seed, index);
+            let vol = generate(&spec)?;
+            dbt_store::save_phantom(&vol, &out)?;
+            println!(
+                "{}: {:?} voxels of {} mm, thickness {:.1} mm, glandularity {:.3}",
+                out.display(),
+                vol.dims(),
+                vol.voxel_mm(),
+                vol.thickness_mm(),
+                vol.glandularity().unwrap_or(0.0)
+            );
+        }
+        Cmd::Dataset {
+            out,
+            slices,
+            test_phantoms,
+            seed,
+            levels,
+            geometry,
+            binning,
+            batch,
+        } => {
+            let levels = levels
+                .split(',')
+                .map(NoiseLevel::parse)
+                .collect::<Result<Vec<_>, _>>()?;
+            if slices == 0 {
+                bail!("--slices must be positive");
+            }
+            let opts = ExportOptions {
+                geometry: load_geometry(&geometry, binning)?,
+                slices,
+                test_phantoms,
+                seed,
+                levels,
+                batch,
+            };
+            let t = Instant::now();
+            let m = export(&out, &opts)?;
+            let secs = t.elapsed().as_secs_f64();
+            let n: Vec<String> = m
+                .splits
+                .iter()
+                .map(|s| {
+                    format!(
+                        "{} {} slices / {} phantoms",
+                        s.name,
+                        s.slices.len(),
+                        s.phantoms.len()
+                    )
+                })
+                .collect();
+            let total: usize = m.splits.iter().map(|s| s.slices.len()).sum();
+            println!(
+                "{}: {} ({} slices in {:.1} s, {:.1} slices/s)",
+                out.display(),
+                n.join(", "),
+                total,
+                secs,
+                total as f64 / secs
+            );
+        }
+    }
+    Ok(())
+}
