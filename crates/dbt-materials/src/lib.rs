@@ -87,12 +87,48 @@ const SKIN: [ElementFraction; 8] = [
     ef(20, 0.175),
 ];
 /// Dry air (TG-195 case 3).
-const AIR: [ElementFraction; 4] = [
+const AIR_ELEMENTS: [ElementFraction; 4] = [
     ef(6, 0.0124),
     ef(7, 75.5268),
     ef(8, 23.1781),
     ef(18, 1.2827),
 ];
+
+/// A non-tissue medium of the dose simulation (plates, body, air).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Composition {
+    /// Name for reports.
+    pub name: &'static str,
+    /// Mass density, g/cm^3.
+    pub density: f64,
+    /// Elements by mass fraction.
+    pub elements: &'static [ElementFraction],
+}
+
+/// Dry air (TG-195 case 3).
+pub const AIR: Composition = Composition {
+    name: "air",
+    density: 0.001205,
+    elements: &AIR_ELEMENTS,
+};
+/// PMMA compression plates (TG-195 case 3).
+pub const PMMA: Composition = Composition {
+    name: "PMMA",
+    density: 1.19,
+    elements: &[ef(1, 8.0541), ef(6, 59.9846), ef(8, 31.9613)],
+};
+/// PET (polyethylene terephthalate, C10H8O4), the paper's compression paddle.
+pub const PET: Composition = Composition {
+    name: "PET",
+    density: 1.38,
+    elements: &[ef(1, 4.1959), ef(6, 62.5017), ef(8, 33.3025)],
+};
+/// Water (the body in the dose simulation).
+pub const WATER: Composition = Composition {
+    name: "water",
+    density: 1.0,
+    elements: &[ef(1, 11.1894), ef(8, 88.8106)],
+};
 
 impl Tissue {
     /// Every tissue, in label order.
@@ -162,7 +198,7 @@ impl Tissue {
     /// Elemental composition by mass (Hammerstein 1979; ligament = fibroglandular).
     pub fn composition(self) -> &'static [ElementFraction] {
         match self {
-            Tissue::Air => &AIR,
+            Tissue::Air => &AIR_ELEMENTS,
             Tissue::Adipose => &ADIPOSE,
             Tissue::Skin => &SKIN,
             Tissue::Fibroglandular | Tissue::Ligament => &GLANDULAR,
@@ -248,6 +284,14 @@ mod tests {
         for t in Tissue::ALL {
             let s: f64 = t.composition().iter().map(|e| e.fraction).sum();
             assert!((s - 1.0).abs() < 1e-6, "{t:?} sums to {s}");
+        }
+    }
+
+    #[test]
+    fn media_compositions_sum_to_one() {
+        for c in [AIR, PMMA, PET, WATER] {
+            let s: f64 = c.elements.iter().map(|e| e.fraction).sum();
+            assert!((s - 1.0).abs() < 1e-5, "{} sums to {s}", c.name);
         }
     }
 

@@ -1,0 +1,395 @@
+//! Photon transport: analytic flights in the world and homogeneous boxes,
+//! Woodcock (delta) tracking in the voxel grid, interactions sampled from the
+//! material's partial coefficients. Photons are split into a fixed number of
+//! batches, each with its own ChaCha8 stream, so results are reproducible for
+//! a seed whatever the number of threads, and the batch means give the
+//! statistical uncertainty (batch method).
+
+use crate::material::Mu;
+use crate::physics::{rotate, sample_compton, sample_rayleigh};
+use crate::scene::{ray_box, Region, Scene};
+use crate::spectrum::Spectrum;
+use crate::DoseError;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use serde::Serialize;
+use std::f64::consts::PI;
+
+/// Step past a boundary, mm, so that a photon on a face is unambiguously on
+/// one side of it (a grazing photon cannot bounce between two regions).
+const NUDGE_MM: f64 = 1e-7;
+
+/// Photons below this energy deposit locally (the tables start at 1 keV).
+pub const CUTOFF_KEV: f64 = 1.0;
+
+/// An isotropic point source collimated to a rectangle in a plane `z = const`.
+#[derive(Debug, Clone)]
+pub struct PointSource {
+    /// Focal spot, mm.
+    pub position: [f64; 3],
+    /// Field rectangle `[x0, x1] x [y0, y1]` at `z = field_z`.
+    pub field_x: [f64; 2],
+    /// See `field_x`.
+    pub field_y: [f64; 2],
+    /// The plane of the field.
+    pub field_z: f64,
+    /// Energies.
+    pub spectrum: Spectrum,
+}
+
+impl PointSource {
+    /// Nearest point of the field to the source: max of the hit density.
+    fn max_density(&self) -> f64 {
+        let s = self.position;
+        let h = (s[2] - self.field_z).abs();
+        let nx = s[0].clamp(self.field_x[0], self.field_x[1]);
+        let ny = s[1].clamp(self.field_y[0], self.field_y[1]);
+        let r = ((nx - s[0]).powi(2) + (ny - s[1]).powi(2) + h * h).sqrt();
+        (h / r).powi(3)
+    }
+
+    /// Direction uniform in solid angle within the field: a point of the
+    /// rectangle with density proportional to `h / r^3` by rejection.
+    #[inline]
+    fn emit<R: Rng>(&self, rng: &mut R, max_density: f64) -> [f64; 3] {
+        let s = self.position;
+        let h = (s[2] - self.field_z).abs();
+        loop {
+            let x = self.field_x[0] + (self.field_x[1] - self.field_x[0]) * rng.random::<f64>();
+            let y = self.field_y[0] + (self.field_y[1] - self.field_y[0]) * rng.random::<f64>();
+            let d = [x - s[0], y - s[1], self.field_z - s[2]];
+            let r = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            if rng.random::<f64>() * max_density <= (h / r).powi(3) {
+                return [d[0] / r, d[1] / r, d[2] / r];
+            }
+        }
+    }
+}
+
+/// Energy bookkeeping of a run or a batch, keV.
+#[derive(Debug, Clone, Default, Serialize, PartialEq)]
+pub struct Tallies {
+    /// Photons emitted.
+    pub photons: u64,
+    /// Energy emitted.
+    pub emitted_kev: f64,
+    /// Energy deposited per material.
+    pub deposited_kev: Vec<f64>,
+    /// Energy deposited per grid tally.
+    pub tally_kev: Vec<f64>,
+    /// Energy that left the world.
+    pub escaped_kev: f64,
+    /// Interactions by type: photoelectric, Rayleigh, Compton.
+    pub interactions: [u64; 3],
+    /// Photons that left the world without any interaction (primary
+    /// transmission).
+    pub uncollided_escaped: u64,
+}
+
+impl Tallies {
+    fn new(nm: usize, nt: usize) -> Self {
+        Self {
+            deposited_kev: vec![0.0; nm],
+            tally_kev: vec![0.0; nt],
+            ..Default::default()
+        }
+    }
+
+    fn add(&mut self, o: &Tallies) {
+        self.photons += o.photons;
+        self.emitted_kev += o.emitted_kev;
+        self.escaped_kev += o.escaped_kev;
+        for (a, b) in self.deposited_kev.iter_mut().zip(&o.deposited_kev) {
+            *a += b;
+        }
+        for (a, b) in self.tally_kev.iter_mut().zip(&o.tally_kev) {
+            *a += b;
+        }
+        for k in 0..3 {
+            self.interactions[k] += o.interactions[k];
+        }
+        self.uncollided_escaped += o.uncollided_escaped;
+    }
+}
+
+/// A run: the totals and the per-batch tallies.
+#[derive(Debug, Clone, Serialize)]
+pub struct RunResult {
+    /// Sum over batches.
+    pub total: Tallies,
+    /// Each batch.
+    pub batches: Vec<Tallies>,
+}
+
+impl RunResult {
+    /// Mean per emitted photon of `f(batch) / photons(batch)` and its standard
+    /// error from the spread of the batch means.
+    pub fn per_photon(&self, f: impl Fn(&Tallies) -> f64) -> (f64, f64) {
+        let mean = f(&self.total) / self.total.photons.max(1) as f64;
+        let n = self.batches.len();
+        if n < 2 {
+            return (mean, f64::NAN);
+        }
+        let v: Vec<f64> = self
+            .batches
+            .iter()
+            .map(|b| f(b) / b.photons.max(1) as f64)
+            .collect();
+        let m = v.iter().sum::<f64>() / n as f64;
+        let var = v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1) as f64;
+        (mean, (var / n as f64).sqrt())
+    }
+}
+
+struct Cache {
+    e: f64,
+    mu: Vec<Mu>,
+    total: Vec<f64>,
+    grid_max: f64,
+}
+
+impl Cache {
+    fn update(&mut self, scene: &Scene, grid_mats: &[u8], e: f64) {
+        if e == self.e {
+            return;
+        }
+        self.e = e;
+        for (i, m) in scene.materials.iter().enumerate() {
+            self.mu[i] = m.mu(e);
+            self.total[i] = self.mu[i].total();
+        }
+        self.grid_max = grid_mats
+            .iter()
+            .map(|&m| self.total[m as usize])
+            .fold(0.0, f64::max);
+    }
+}
+
+#[inline]
+fn exp_sample<R: Rng>(rng: &mut R, mu: f64) -> f64 {
+    if mu <= 0.0 {
+        return f64::INFINITY;
+    }
+    -(1.0 - rng.random::<f64>()).ln() / mu
+}
+
+#[inline]
+fn advance(p: [f64; 3], d: [f64; 3], s: f64) -> [f64; 3] {
+    [p[0] + s * d[0], p[1] + s * d[1], p[2] + s * d[2]]
+}
+
+/// Outcome of an interaction.
+enum After {
+    Absorbed,
+    Scattered,
+}
+
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn interact<R: Rng>(
+    scene: &Scene,
+    cache: &Cache,
+    mat: usize,
+    tally: u8,
+    e: &mut f64,
+    d: &mut [f64; 3],
+    rng: &mut R,
+    t: &mut Tallies,
+) -> After {
+    let mu = cache.mu[mat];
+    let r = rng.random::<f64>() * cache.total[mat];
+    let deposit = |kev: f64, t: &mut Tallies| {
+        t.deposited_kev[mat] += kev;
+        if tally > 0 {
+            t.tally_kev[tally as usize - 1] += kev;
+        }
+    };
+    if r < mu.photo {
+        t.interactions[0] += 1;
+        deposit(*e, t);
+        return After::Absorbed;
+    }
+    let m = &scene.materials[mat];
+    let (cos_t, e_out) = if r < mu.photo + mu.rayleigh {
+        t.interactions[1] += 1;
+        (sample_rayleigh(m, *e, rng), *e)
+    } else {
+        t.interactions[2] += 1;
+        sample_compton(m, *e, rng)
+    };
+    deposit(*e - e_out, t);
+    *e = e_out;
+    *d = rotate(*d, cos_t, 2.0 * PI * rng.random::<f64>());
+    if *e < CUTOFF_KEV {
+        deposit(*e, t);
+        return After::Absorbed;
+    }
+    After::Scattered
+}
+
+#[allow(clippy::too_many_arguments)]
+fn track<R: Rng>(
+    scene: &Scene,
+    grid_mats: &[u8],
+    cache: &mut Cache,
+    mut p: [f64; 3],
+    mut d: [f64; 3],
+    mut e: f64,
+    rng: &mut R,
+    t: &mut Tallies,
+) {
+    let g = &scene.grid;
+    let (gmin, gmax) = (g.origin, g.max());
+    let mut region = scene.region_of(p);
+    let before = t.interactions.iter().sum::<u64>();
+    loop {
+        cache.update(scene, grid_mats, e);
+        match region {
+            Region::World => {
+                // Nearest entry into the grid or a box along the ray.
+                let mut best = (f64::INFINITY, Region::World);
+                let (tn, tf) = ray_box(p, d, gmin, gmax);
+                if tn <= tf && tf > 1e-9 {
+                    best = (tn.max(0.0), Region::Grid);
+                }
+                for (i, b) in scene.boxes.iter().enumerate() {
+                    let (tn, tf) = ray_box(p, d, b.min, b.max);
+                    if tn <= tf && tf > 1e-9 && tn.max(0.0) < best.0 {
+                        best = (tn.max(0.0), Region::Box(i));
+                    }
+                }
+                let (_, t_exit) = ray_box(p, d, scene.world_min, scene.world_max);
+                let wm = scene.world_material as usize;
+                let s = exp_sample(rng, cache.total[wm]);
+                if s < best.0.min(t_exit) {
+                    p = advance(p, d, s);
+                    if let After::Absorbed = interact(scene, cache, wm, 0, &mut e, &mut d, rng, t) {
+                        return;
+                    }
+                } else if best.0 <= t_exit && best.1 != Region::World {
+                    p = advance(p, d, best.0 + NUDGE_MM);
+                    region = best.1;
+                } else {
+                    t.escaped_kev += e;
+                    if t.interactions.iter().sum::<u64>() == before {
+                        t.uncollided_escaped += 1;
+                    }
+                    return;
+                }
+            }
+            Region::Box(i) => {
+                let b = &scene.boxes[i];
+                let (_, t_exit) = ray_box(p, d, b.min, b.max);
+                let m = b.material as usize;
+                let s = exp_sample(rng, cache.total[m]);
+                if s < t_exit {
+                    p = advance(p, d, s);
+                    if let After::Absorbed = interact(scene, cache, m, 0, &mut e, &mut d, rng, t) {
+                        return;
+                    }
+                } else {
+                    p = advance(p, d, t_exit.max(0.0) + NUDGE_MM);
+                    region = Region::World;
+                }
+            }
+            Region::Grid => {
+                let (_, t_exit) = ray_box(p, d, gmin, gmax);
+                let t_exit = t_exit.max(0.0);
+                let mu_max = cache.grid_max;
+                let mut travelled = 0.0;
+                loop {
+                    let s = exp_sample(rng, mu_max);
+                    if travelled + s >= t_exit {
+                        p = advance(p, d, t_exit + NUDGE_MM);
+                        region = Region::World;
+                        break;
+                    }
+                    travelled += s;
+                    let q = advance(p, d, travelled);
+                    let idx = g.index(q);
+                    let m = g.material[idx] as usize;
+                    if rng.random::<f64>() * mu_max < cache.total[m] {
+                        p = q;
+                        match interact(scene, cache, m, g.tally[idx], &mut e, &mut d, rng, t) {
+                            After::Absorbed => return,
+                            After::Scattered => break,
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Simulate `photons` photons from `source` in `scene`, in `batches` batches.
+pub fn run(
+    scene: &Scene,
+    source: &PointSource,
+    photons: u64,
+    batches: usize,
+    seed: u64,
+) -> Result<RunResult, DoseError> {
+    scene.validate()?;
+    if photons == 0 || batches == 0 {
+        return Err(DoseError::Scene(
+            "photons and batches must be positive".into(),
+        ));
+    }
+    if scene.region_of(source.position) != Region::World {
+        return Err(DoseError::Scene(
+            "the source lies inside the grid or a box".into(),
+        ));
+    }
+    let mut grid_mats: Vec<u8> = Vec::new();
+    let mut seen = [false; 256];
+    for &m in &scene.grid.material {
+        if !seen[m as usize] {
+            seen[m as usize] = true;
+            grid_mats.push(m);
+        }
+    }
+    let nm = scene.materials.len();
+    let maxd = source.max_density();
+    let results: Vec<Tallies> = (0..batches)
+        .into_par_iter()
+        .map(|b| {
+            let _span = tracing::trace_span!("mc_batch", b).entered();
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            rng.set_stream(b as u64);
+            let n = photons / batches as u64 + u64::from((b as u64) < photons % batches as u64);
+            let mut t = Tallies::new(nm, scene.n_tallies);
+            let mut cache = Cache {
+                e: f64::NAN,
+                mu: vec![Mu::default(); nm],
+                total: vec![0.0; nm],
+                grid_max: 0.0,
+            };
+            for _ in 0..n {
+                let e = source.spectrum.sample(&mut rng);
+                let d = source.emit(&mut rng, maxd);
+                t.photons += 1;
+                t.emitted_kev += e;
+                track(
+                    scene,
+                    &grid_mats,
+                    &mut cache,
+                    source.position,
+                    d,
+                    e,
+                    &mut rng,
+                    &mut t,
+                );
+            }
+            t
+        })
+        .collect();
+    let mut total = Tallies::new(nm, scene.n_tallies);
+    for r in &results {
+        total.add(r);
+    }
+    Ok(RunResult {
+        total,
+        batches: results,
+    })
+}
