@@ -5,10 +5,13 @@ Run once (offline: xraylib ships its data):  pip install xraylib==4.3.0
     python3 crates/dbt-dose/data/gen_tables.py
 Writes, next to this script:
   elements.csv  Z, symbol, atomic weight (g/mol)
-  xs.csv        Z, E (keV), photoelectric, Rayleigh, Compton, energy-absorption
-                mass coefficients (cm^2/g) on 1.0..60.0 keV every 0.1 keV
-                (CS_Photo, CS_Rayl, CS_Compt, CS_Energy); Compton includes the
-                incoherent scattering function S(x, Z), Rayleigh the form factor.
+  xs.csv        Z, E (keV), photoelectric, Rayleigh, Compton mass coefficients
+                (cm^2/g) on 1.0..60.0 keV every 0.1 keV (CS_Photo, CS_Rayl,
+                CS_Compt); Compton includes the incoherent scattering function
+                S(x, Z), Rayleigh the form factor.
+                Not CS_Energy: in xraylib 4.3.0 it gives 0.382 cm^2/g for water
+                at 20 keV where NIST (Hubbell and Seltzer) gives 0.550; the
+                engine computes mu_en from its own deposition model instead.
   ff.csv        Z, x = sin(theta/2)/lambda (1/Angstrom), F(x, Z) (FF_Rayl),
                 S(x, Z) (SF_Compt) on x = 0 and 400 log-spaced points 1e-3..20.
 Source: xraylib 4.3.0 (Schoonjans et al., Spectrochim. Acta B 66 (2011) 776;
@@ -33,12 +36,12 @@ def main() -> None:
             f.write(f"{z},{xl.AtomicNumberToSymbol(z)},{xl.AtomicWeight(z):.6f}\n")
     energies = [round(1.0 + 0.1 * i, 1) for i in range(591)]
     with open(os.path.join(HERE, "xs.csv"), "w") as f:
-        f.write(HEADER + "Z,E_keV,photo,rayleigh,compton,energy_absorption\n")
+        f.write(HEADER + "Z,E_keV,photo,rayleigh,compton\n")
         for z in ELEMENTS:
             for e in energies:
                 f.write(
                     f"{z},{e:.1f},{xl.CS_Photo(z, e):.6e},{xl.CS_Rayl(z, e):.6e},"
-                    f"{xl.CS_Compt(z, e):.6e},{xl.CS_Energy(z, e):.6e}\n"
+                    f"{xl.CS_Compt(z, e):.6e}\n"
                 )
     xs = [0.0] + [10 ** (-3 + 4.30103 * i / 399) for i in range(400)]
     with open(os.path.join(HERE, "ff.csv"), "w") as f:

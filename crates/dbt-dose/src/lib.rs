@@ -14,12 +14,14 @@
 //! * [`tg195`]: AAPM TG-195 case 3, the reference this engine must reproduce.
 
 pub mod material;
+pub mod patient;
 pub mod physics;
 pub mod scene;
 pub mod spectrum;
 pub mod tables;
 pub mod tg195;
 pub mod transport;
+pub mod xray;
 
 use thiserror::Error;
 

@@ -76,6 +76,10 @@ pub struct Scene {
     pub world_max: [f64; 3],
     /// Number of tallies used by the grid.
     pub n_tallies: usize,
+    /// Distinct materials and the largest tally of the grid, computed once
+    /// (the grid must not change after the first use).
+    /// Leave it `Default::default()`.
+    pub summary: std::sync::OnceLock<(Vec<u8>, u8)>,
 }
 
 fn overlap(a0: [f64; 3], a1: [f64; 3], b0: [f64; 3], b1: [f64; 3]) -> bool {
@@ -83,22 +87,44 @@ fn overlap(a0: [f64; 3], a1: [f64; 3], b0: [f64; 3], b1: [f64; 3]) -> bool {
 }
 
 impl Scene {
+    /// Distinct grid materials and the largest grid tally (cached: the grid
+    /// must not change after the first call).
+    pub fn grid_summary(&self) -> &(Vec<u8>, u8) {
+        self.summary.get_or_init(|| {
+            let mut seen = [false; 256];
+            let mut mats = Vec::new();
+            for &m in &self.grid.material {
+                if !seen[m as usize] {
+                    seen[m as usize] = true;
+                    mats.push(m);
+                }
+            }
+            (mats, self.grid.tally.iter().copied().max().unwrap_or(0))
+        })
+    }
+
     /// Check the scene's consistency.
     pub fn validate(&self) -> Result<(), DoseError> {
         let g = &self.grid;
         let n: usize = g.dims.iter().product();
-        if n == 0 || g.material.len() != n || g.tally.len() != n || g.voxel_mm.is_nan() || g.voxel_mm <= 0.0 {
+        if n == 0
+            || g.material.len() != n
+            || g.tally.len() != n
+            || g.voxel_mm.is_nan()
+            || g.voxel_mm <= 0.0
+        {
             return Err(DoseError::Scene("voxel grid size mismatch or empty".into()));
         }
         let nm = self.materials.len();
-        if let Some(bad) = g.material.iter().find(|&&m| m as usize >= nm) {
+        let (mats, max_tally) = self.grid_summary();
+        if let Some(bad) = mats.iter().find(|&&m| m as usize >= nm) {
             return Err(DoseError::Scene(format!(
                 "voxel material {bad} but {nm} materials"
             )));
         }
-        if let Some(bad) = g.tally.iter().find(|&&t| t as usize > self.n_tallies) {
+        if *max_tally as usize > self.n_tallies {
             return Err(DoseError::Scene(format!(
-                "voxel tally {bad} but {} tallies",
+                "voxel tally {max_tally} but {} tallies",
                 self.n_tallies
             )));
         }

@@ -22,14 +22,12 @@ pub struct Element {
     /// Atomic weight, g/mol.
     pub a: f64,
     /// Mass coefficients on the energy grid, cm^2/g: photoelectric, Rayleigh,
-    /// Compton (with S), energy absorption.
+    /// Compton (with S).
     pub photo: Vec<f64>,
     /// Rayleigh (coherent), with the form factor.
     pub rayleigh: Vec<f64>,
     /// Compton (incoherent), with the incoherent scattering function.
     pub compton: Vec<f64>,
-    /// Mass energy-absorption coefficient.
-    pub energy_absorption: Vec<f64>,
     /// Momentum transfer grid `x = sin(theta/2)/lambda`, 1/Angstrom.
     pub x: Vec<f64>,
     /// Atomic form factor F(x, Z).
@@ -61,7 +59,6 @@ pub fn elements() -> Result<Vec<Element>, DoseError> {
             photo: vec![],
             rayleigh: vec![],
             compton: vec![],
-            energy_absorption: vec![],
             x: vec![],
             ff: vec![],
             sf: vec![],
@@ -69,7 +66,7 @@ pub fn elements() -> Result<Vec<Element>, DoseError> {
     }
     let find = |out: &mut Vec<Element>, z: u8| out.iter().position(|e| e.z == z);
     for r in rows(XS_CSV) {
-        if r.len() != 6 {
+        if r.len() != 5 {
             return Err(DoseError::Table(format!("xs.csv row {r:?}")));
         }
         let z = num(r[0], "xs.csv Z")? as u8;
@@ -78,7 +75,6 @@ pub fn elements() -> Result<Vec<Element>, DoseError> {
         e.photo.push(num(r[2], "photo")?);
         e.rayleigh.push(num(r[3], "rayleigh")?);
         e.compton.push(num(r[4], "compton")?);
-        e.energy_absorption.push(num(r[5], "energy_absorption")?);
     }
     for r in rows(FF_CSV) {
         if r.len() != 4 {

@@ -56,7 +56,15 @@ pub fn scene(voxel_mm: f64) -> Result<Scene, DoseError> {
     let els = elements()?;
     let materials = vec![
         Material::new("air", AIR.density, AIR.elements, &els)?,
-        Material::new("breast 20/80", 0.952, &mix_breast(), &els)?,
+        Material::new("breast 20/80", 0.952, &mix_breast(), &els)?.glandular_share(
+            0.2,
+            &Material::new(
+                "glandular",
+                1.04,
+                Tissue::Fibroglandular.composition(),
+                &els,
+            )?,
+        ),
         Material::new(
             "skin",
             Tissue::Skin.density_g_cm3(),
@@ -119,6 +127,7 @@ pub fn scene(voxel_mm: f64) -> Result<Scene, DoseError> {
         world_min: [-1000.0, -1000.0, -1000.0],
         world_max: [1000.0, 1000.0, 1000.0],
         n_tallies: 7,
+        summary: Default::default(),
     };
     scene.validate()?;
     Ok(scene)
@@ -129,11 +138,11 @@ pub fn scene(voxel_mm: f64) -> Result<Scene, DoseError> {
 /// [-130, 130] at z = 0 (the detector, which does not move).
 pub fn source(angle_deg: f64, spectrum: Spectrum) -> PointSource {
     let a = angle_deg.to_radians();
-    PointSource {
-        position: [0.0, 660.0 * a.sin(), 660.0 * a.cos()],
-        field_x: [0.0, 140.0],
-        field_y: [-130.0, 130.0],
-        field_z: 0.0,
+    PointSource::rect_z(
+        [0.0, 660.0 * a.sin(), 660.0 * a.cos()],
+        [0.0, 140.0],
+        [-130.0, 130.0],
+        0.0,
         spectrum,
-    }
+    )
 }

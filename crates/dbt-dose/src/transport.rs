@@ -23,43 +23,100 @@ const NUDGE_MM: f64 = 1e-7;
 /// Photons below this energy deposit locally (the tables start at 1 keV).
 pub const CUTOFF_KEV: f64 = 1.0;
 
-/// An isotropic point source collimated to a rectangle in a plane `z = const`.
+/// An isotropic point source collimated to a rectangle (the detector).
 #[derive(Debug, Clone)]
 pub struct PointSource {
     /// Focal spot, mm.
     pub position: [f64; 3],
-    /// Field rectangle `[x0, x1] x [y0, y1]` at `z = field_z`.
-    pub field_x: [f64; 2],
-    /// See `field_x`.
-    pub field_y: [f64; 2],
-    /// The plane of the field.
-    pub field_z: f64,
+    /// Centre of the field rectangle, mm.
+    pub field_centre: [f64; 3],
+    /// Unit vectors spanning the rectangle (orthogonal).
+    pub field_axes: [[f64; 3]; 2],
+    /// Half-sizes along the two axes, mm.
+    pub field_half: [f64; 2],
     /// Energies.
     pub spectrum: Spectrum,
 }
 
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
 impl PointSource {
-    /// Nearest point of the field to the source: max of the hit density.
+    /// A field rectangle `[x0, x1] x [y0, y1]` in the plane `z = z`.
+    pub fn rect_z(
+        position: [f64; 3],
+        x: [f64; 2],
+        y: [f64; 2],
+        z: f64,
+        spectrum: Spectrum,
+    ) -> Self {
+        Self {
+            position,
+            field_centre: [(x[0] + x[1]) / 2.0, (y[0] + y[1]) / 2.0, z],
+            field_axes: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+            field_half: [(x[1] - x[0]).abs() / 2.0, (y[1] - y[0]).abs() / 2.0],
+            spectrum,
+        }
+    }
+
+    fn normal(&self) -> [f64; 3] {
+        let [u, v] = self.field_axes;
+        [
+            u[1] * v[2] - u[2] * v[1],
+            u[2] * v[0] - u[0] * v[2],
+            u[0] * v[1] - u[1] * v[0],
+        ]
+    }
+
+    /// Distance from the source to the field plane, and the source's foot in
+    /// the rectangle's coordinates.
+    fn foot(&self) -> (f64, [f64; 2]) {
+        let rel = sub(self.position, self.field_centre);
+        let h = dot(rel, self.normal()).abs();
+        (
+            h,
+            [dot(rel, self.field_axes[0]), dot(rel, self.field_axes[1])],
+        )
+    }
+
+    /// Maximum of the hit density `(h / r)^3` over the rectangle.
     fn max_density(&self) -> f64 {
-        let s = self.position;
-        let h = (s[2] - self.field_z).abs();
-        let nx = s[0].clamp(self.field_x[0], self.field_x[1]);
-        let ny = s[1].clamp(self.field_y[0], self.field_y[1]);
-        let r = ((nx - s[0]).powi(2) + (ny - s[1]).powi(2) + h * h).sqrt();
-        (h / r).powi(3)
+        let (h, f) = self.foot();
+        let nx = f[0].clamp(-self.field_half[0], self.field_half[0]) - f[0];
+        let ny = f[1].clamp(-self.field_half[1], self.field_half[1]) - f[1];
+        (h / (nx * nx + ny * ny + h * h).sqrt()).powi(3)
+    }
+
+    /// Solid angle of the field seen from the source, sr.
+    pub fn solid_angle(&self) -> f64 {
+        let (h, f) = self.foot();
+        let xs = [-self.field_half[0] - f[0], self.field_half[0] - f[0]];
+        let ys = [-self.field_half[1] - f[1], self.field_half[1] - f[1]];
+        let g = |x: f64, y: f64| (x * y / (h * (h * h + x * x + y * y).sqrt())).atan();
+        g(xs[1], ys[1]) - g(xs[0], ys[1]) - g(xs[1], ys[0]) + g(xs[0], ys[0])
     }
 
     /// Direction uniform in solid angle within the field: a point of the
-    /// rectangle with density proportional to `h / r^3` by rejection.
+    /// rectangle with density proportional to `h / r^3`, by rejection.
     #[inline]
-    fn emit<R: Rng>(&self, rng: &mut R, max_density: f64) -> [f64; 3] {
+    fn emit<R: Rng>(&self, rng: &mut R, h: f64, max_density: f64) -> [f64; 3] {
         let s = self.position;
-        let h = (s[2] - self.field_z).abs();
+        let [u, v] = self.field_axes;
         loop {
-            let x = self.field_x[0] + (self.field_x[1] - self.field_x[0]) * rng.random::<f64>();
-            let y = self.field_y[0] + (self.field_y[1] - self.field_y[0]) * rng.random::<f64>();
-            let d = [x - s[0], y - s[1], self.field_z - s[2]];
-            let r = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            let a = (2.0 * rng.random::<f64>() - 1.0) * self.field_half[0];
+            let b = (2.0 * rng.random::<f64>() - 1.0) * self.field_half[1];
+            let c = self.field_centre;
+            let d = [
+                c[0] + a * u[0] + b * v[0] - s[0],
+                c[1] + a * u[1] + b * v[1] - s[1],
+                c[2] + a * u[2] + b * v[2] - s[2],
+            ];
+            let r = dot(d, d).sqrt();
             if rng.random::<f64>() * max_density <= (h / r).powi(3) {
                 return [d[0] / r, d[1] / r, d[2] / r];
             }
@@ -85,6 +142,9 @@ pub struct Tallies {
     /// Photons that left the world without any interaction (primary
     /// transmission).
     pub uncollided_escaped: u64,
+    /// Energy deposited in glandular tissue (per the materials' glandular
+    /// weights).
+    pub glandular_kev: f64,
 }
 
 impl Tallies {
@@ -110,6 +170,7 @@ impl Tallies {
             self.interactions[k] += o.interactions[k];
         }
         self.uncollided_escaped += o.uncollided_escaped;
+        self.glandular_kev += o.glandular_kev;
     }
 }
 
@@ -199,8 +260,10 @@ fn interact<R: Rng>(
 ) -> After {
     let mu = cache.mu[mat];
     let r = rng.random::<f64>() * cache.total[mat];
+    let gw = scene.materials[mat].glandular_weight(*e);
     let deposit = |kev: f64, t: &mut Tallies| {
         t.deposited_kev[mat] += kev;
+        t.glandular_kev += kev * gw;
         if tally > 0 {
             t.tally_kev[tally as usize - 1] += kev;
         }
@@ -341,16 +404,10 @@ pub fn run(
             "the source lies inside the grid or a box".into(),
         ));
     }
-    let mut grid_mats: Vec<u8> = Vec::new();
-    let mut seen = [false; 256];
-    for &m in &scene.grid.material {
-        if !seen[m as usize] {
-            seen[m as usize] = true;
-            grid_mats.push(m);
-        }
-    }
+    let grid_mats = scene.grid_summary().0.clone();
     let nm = scene.materials.len();
     let maxd = source.max_density();
+    let (h, _) = source.foot();
     let results: Vec<Tallies> = (0..batches)
         .into_par_iter()
         .map(|b| {
@@ -367,7 +424,7 @@ pub fn run(
             };
             for _ in 0..n {
                 let e = source.spectrum.sample(&mut rng);
-                let d = source.emit(&mut rng, maxd);
+                let d = source.emit(&mut rng, h, maxd);
                 t.photons += 1;
                 t.emitted_kev += e;
                 track(

@@ -40,17 +40,18 @@ fn slab_scene(layers: &[u8], mats: Vec<Material>) -> Scene {
         world_min: [-500.0; 3],
         world_max: [500.0; 3],
         n_tallies: 0,
+        summary: Default::default(),
     }
 }
 
 fn pencil(e: f64) -> PointSource {
-    PointSource {
-        position: [0.0, 0.0, 400.0],
-        field_x: [-0.01, 0.01],
-        field_y: [-0.01, 0.01],
-        field_z: 0.0,
-        spectrum: Spectrum::mono(e).unwrap(),
-    }
+    PointSource::rect_z(
+        [0.0, 0.0, 400.0],
+        [-0.01, 0.01],
+        [-0.01, 0.01],
+        0.0,
+        Spectrum::mono(e).unwrap(),
+    )
 }
 
 #[test]

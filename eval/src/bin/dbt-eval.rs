@@ -44,6 +44,28 @@ enum Cmd {
         #[arg(long, default_value = "eval/results/baselines.json")]
         json: PathBuf,
     },
+    /// Mean glandular dose of a phantom: patient-specific and model breast
+    /// (Monte Carlo, paper Table 3 spectrum), as JSON.
+    Mgd {
+        /// External phantom sidecar (default: a test-set phantom).
+        #[arg(long)]
+        phantom: Option<PathBuf>,
+        /// Test-set phantom index (when no --phantom).
+        #[arg(long, default_value_t = 0)]
+        index: u64,
+        /// Dose voxel side, mm (phantoms are generated or resampled to it).
+        #[arg(long, default_value_t = 0.8)]
+        voxel: f64,
+        /// `dbt` (25 views, -24..24 deg) or `mammo` (0 deg).
+        #[arg(long, default_value = "dbt")]
+        views: String,
+        /// Target relative statistical uncertainty of each MGD.
+        #[arg(long, default_value_t = 0.01)]
+        target: f64,
+        /// Seed.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
     /// PNG of a test slice: phantom, sinogram, MLTR, FBP.
     Picture {
         /// Output PNG.
@@ -119,6 +141,72 @@ fn main() -> Result<()> {
             std::fs::write(&json, serde_json::to_string_pretty(&report)?)
                 .with_context(|| format!("writing {}", json.display()))?;
             println!("\nJSON: {}", json.display());
+        }
+        Cmd::Mgd {
+            phantom,
+            index,
+            voxel,
+            views,
+            target,
+            seed,
+        } => {
+            use dbt_dose::patient::{dbt_views, mgd_to_uncertainty, Breast, Model};
+            let vol = match &phantom {
+                Some(p) => dbt_store::load_external_phantom(p)?.resampled(voxel)?,
+                None => {
+                    let g = Geometry::paper();
+                    let mut spec = dbt_phantom::Population::for_geometry(&g)
+                        .draw(dbt_phantom::Population::TEST_SEED, index);
+                    spec.voxel_mm = voxel;
+                    dbt_phantom::generate(&spec)?
+                }
+            };
+            let views_deg = match views.as_str() {
+                "dbt" => dbt_views(),
+                "mammo" => vec![0.0],
+                other => anyhow::bail!("--views must be dbt or mammo, got `{other}`"),
+            };
+            let tube = dbt_dose::xray::paper_spectrum(vol.thickness_mm())?;
+            let spectrum = tube.spectrum.clone().context("spectrum")?;
+            let b = Breast {
+                dims: vol.dims(),
+                voxel_mm: vol.voxel_mm(),
+                labels: vol.labels(),
+            };
+            let max = 200_000_000;
+            let p = mgd_to_uncertainty(
+                &b,
+                Model::PatientSpecific,
+                &spectrum,
+                &views_deg,
+                target,
+                200_000,
+                max,
+                seed,
+            )?;
+            let m = mgd_to_uncertainty(
+                &b,
+                Model::Homogeneous,
+                &spectrum,
+                &views_deg,
+                target,
+                200_000,
+                max,
+                seed + 1,
+            )?;
+            let out = serde_json::json!({
+                "phantom": phantom.as_ref().map(|p| p.display().to_string()).unwrap_or(format!("test-set phantom {index}")),
+                "dims": vol.dims(),
+                "voxel_mm": vol.voxel_mm(),
+                "thickness_mm": vol.thickness_mm(),
+                "glandularity": vol.glandularity(),
+                "spectrum": tube,
+                "views": views,
+                "patient_specific": p,
+                "model_breast": m,
+                "model_over_patient": m.mgd_per_kerma / p.mgd_per_kerma,
+            });
+            println!("{}", serde_json::to_string_pretty(&out)?);
         }
         Cmd::Picture {
             out,

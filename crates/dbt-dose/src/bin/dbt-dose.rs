@@ -16,6 +16,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Cmd {
+    /// The paper's W/Rh spectra (Table 3): rhodium solved for each HVL, as JSON.
+    Spectra,
     /// AAPM TG-195 case 3: energy deposited in the breast and the 7 VOIs, as JSON.
     Tg195 {
         /// Spectrum file (two columns: energy keV, relative weight); default 16.8 keV.
@@ -44,6 +46,23 @@ enum Cmd {
 
 fn main() -> Result<()> {
     match Cli::parse().cmd {
+        Cmd::Spectra => {
+            let rows: Vec<_> = dbt_dose::xray::PAPER_TABLE3
+                .iter()
+                .map(|&((lo, hi), kv, hvl)| {
+                    let s = dbt_dose::xray::w_rh_spectrum(kv, hvl)?;
+                    Ok(serde_json::json!({
+                        "thickness_mm": [lo, hi],
+                        "kv": kv,
+                        "target_hvl_mm_al": hvl,
+                        "rh_um": s.rh_mm * 1e3,
+                        "hvl_mm_al": s.hvl_mm_al,
+                        "mean_kev": s.mean_kev,
+                    }))
+                })
+                .collect::<Result<_>>()?;
+            println!("{}", serde_json::to_string_pretty(&rows)?);
+        }
         Cmd::Tg195 {
             spectrum,
             energy,
