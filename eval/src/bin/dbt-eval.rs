@@ -62,6 +62,16 @@ enum Cmd {
         /// Target relative statistical uncertainty of each MGD.
         #[arg(long, default_value_t = 0.01)]
         target: f64,
+        /// Spectrum file (energy keV, weight) instead of the paper's Table 3 choice.
+        #[arg(long)]
+        spectrum: Option<PathBuf>,
+        /// Tube output: incident air kerma at the reference point per mAs
+        /// (mGy/mAs, measured on the system), to report MGD in mGy.
+        #[arg(long)]
+        kerma_mgy_per_mas: Option<f64>,
+        /// Tube loading of the whole acquisition, mAs (with --kerma-mgy-per-mas).
+        #[arg(long)]
+        mas: Option<f64>,
         /// Seed.
         #[arg(long, default_value_t = 1)]
         seed: u64,
@@ -148,6 +158,9 @@ fn main() -> Result<()> {
             voxel,
             views,
             target,
+            spectrum,
+            kerma_mgy_per_mas,
+            mas,
             seed,
         } => {
             use dbt_dose::patient::{dbt_views, mgd_to_uncertainty, Breast, Model};
@@ -167,7 +180,20 @@ fn main() -> Result<()> {
                 other => anyhow::bail!("--views must be dbt or mammo, got `{other}`"),
             };
             let tube = dbt_dose::xray::paper_spectrum(vol.thickness_mm())?;
-            let spectrum = tube.spectrum.clone().context("spectrum")?;
+            let (spectrum, spectrum_json) = match &spectrum {
+                Some(p) => (
+                    dbt_dose::Spectrum::parse(
+                        &std::fs::read_to_string(p)
+                            .with_context(|| format!("reading {}", p.display()))?,
+                    )
+                    .with_context(|| format!("spectrum {}", p.display()))?,
+                    serde_json::json!({ "file": p.display().to_string() }),
+                ),
+                None => (
+                    tube.spectrum.clone().context("spectrum")?,
+                    serde_json::to_value(&tube)?,
+                ),
+            };
             let b = Breast {
                 dims: vol.dims(),
                 voxel_mm: vol.voxel_mm(),
@@ -200,7 +226,17 @@ fn main() -> Result<()> {
                 "voxel_mm": vol.voxel_mm(),
                 "thickness_mm": vol.thickness_mm(),
                 "glandularity": vol.glandularity(),
-                "spectrum": tube,
+                "spectrum": spectrum_json,
+                "mgd_mgy": match (kerma_mgy_per_mas, mas) {
+                    // MGD = (MGD / K) x K, K = output x mAs spread over the views
+                    // (mgd_per_kerma already refers to the summed kerma).
+                    (Some(k), Some(q)) => serde_json::json!({
+                        "patient_specific": p.mgd_per_kerma * k * q,
+                        "model_breast": m.mgd_per_kerma * k * q,
+                        "kerma_mgy": k * q,
+                    }),
+                    _ => serde_json::Value::Null,
+                },
                 "views": views,
                 "patient_specific": p,
                 "model_breast": m,
