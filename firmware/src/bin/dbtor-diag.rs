@@ -3,6 +3,7 @@
 //! ```text
 //! dbtor-diag selftest [--geometry FILE.toml] [--binning N] [--json]
 //! dbtor-diag geometry [--geometry FILE.toml] [--binning N]
+//! dbtor-diag report FILE.dcm [--json]     # the values of a dose or density SR
 //! ```
 //! Exit codes: 0 all checks passed, 1 a check failed, 2 bad usage or input.
 
@@ -44,7 +45,7 @@ fn run() -> Result<bool> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let Some(cmd) = args.first() else {
         bail!(
-            "usage: dbtor-diag <selftest|geometry> [--geometry FILE.toml] [--binning N] [--json]"
+            "usage: dbtor-diag <selftest|geometry|report> [--geometry FILE.toml] [--binning N] [--json] [FILE.dcm]"
         );
     };
     let rest = &args[1..];
@@ -92,7 +93,32 @@ fn run() -> Result<bool> {
             print!("{}", g.to_toml_string());
             Ok(true)
         }
-        other => bail!("unknown command `{other}` (expected selftest or geometry)"),
+        "report" => {
+            let file = rest
+                .iter()
+                .find(|a| !a.starts_with("--"))
+                .context("report needs a DICOM file")?;
+            let bytes = std::fs::read(file).with_context(|| format!("reading {file}"))?;
+            let (class, values) =
+                dbt_dicom::read_values(&bytes).with_context(|| format!("decoding {file}"))?;
+            if json {
+                let v: Vec<_> = values
+                    .iter()
+                    .map(|(k, v)| serde_json::json!({"concept": k, "value": v}))
+                    .collect();
+                println!(
+                    "{}",
+                    serde_json::json!({"file": file, "sop_class_uid": class, "values": v})
+                );
+            } else {
+                println!("{file}: SOP class {class}");
+                for (k, v) in &values {
+                    println!("  {k}: {v}");
+                }
+            }
+            Ok(true)
+        }
+        other => bail!("unknown command `{other}` (expected selftest, geometry or report)"),
     }
 }
 

@@ -1,0 +1,934 @@
+//! The two reports. Codes are DICOM (DCM), SNOMED CT (SCT), UCUM, and our
+//! private scheme `99DBTOR` where DICOM has no concept (model-breast dose,
+//! statistical uncertainty, volumes), as PS3.16 allows for local codes.
+
+use crate::content::{Code, Item, Rel};
+use crate::DicomError;
+use dicom_core::value::DataSetSequence;
+use dicom_core::{DataElement, VR};
+use dicom_dictionary_std::{tags, uids};
+use dicom_object::{FileMetaTableBuilder, InMemDicomObject};
+
+/// X-Ray Radiation Dose SR Storage.
+pub const DOSE_SR_CLASS: &str = "1.2.840.10008.5.1.4.1.1.88.67";
+/// Comprehensive SR Storage.
+pub const COMPREHENSIVE_SR_CLASS: &str = "1.2.840.10008.5.1.4.1.1.88.33";
+/// Breast Tomosynthesis Image Storage (the source projections).
+pub const BREAST_TOMO_CLASS: &str = "1.2.840.10008.5.1.4.1.1.13.1.3";
+/// Our private coding scheme.
+pub const PRIVATE_SCHEME: &str = "99DBTOR";
+
+/// Which breast.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Laterality {
+    /// Left.
+    Left,
+    /// Right.
+    Right,
+}
+
+impl Laterality {
+    fn code(self) -> Code {
+        match self {
+            Laterality::Left => Code::new("7771000", "SCT", "Left"),
+            Laterality::Right => Code::new("24028007", "SCT", "Right"),
+        }
+    }
+}
+
+/// Patient, study and source attributes, from the acquisition header.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Header {
+    /// Patient's name (PN, `Family^Given`).
+    pub patient_name: String,
+    /// Patient ID.
+    pub patient_id: String,
+    /// Birth date `YYYYMMDD` or empty.
+    pub patient_birth_date: String,
+    /// `F`, `M`, `O` or empty.
+    pub patient_sex: String,
+    /// Study Instance UID of the acquisition.
+    pub study_uid: String,
+    /// Study date `YYYYMMDD`.
+    pub study_date: String,
+    /// Study time `HHMMSS`.
+    pub study_time: String,
+    /// Study ID (may be empty).
+    pub study_id: String,
+    /// Accession number (may be empty).
+    pub accession_number: String,
+    /// Referring physician (may be empty).
+    pub referring_physician: String,
+    /// Breast.
+    pub laterality: Laterality,
+    /// Series Instance UID of the projections.
+    pub source_series_uid: String,
+    /// SOP Instance UIDs of the projections.
+    pub source_instance_uids: Vec<String>,
+}
+
+/// The reporting device.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Equipment {
+    /// Manufacturer.
+    pub manufacturer: String,
+    /// Model name.
+    pub model: String,
+    /// Device serial number.
+    pub serial: String,
+    /// Software version.
+    pub software_version: String,
+    /// Device Observer UID.
+    pub device_uid: String,
+}
+
+/// New UIDs under a configurable root: `<root>.<seed>.<counter>`. The seed
+/// comes from the adapter (e.g. the time in microseconds), so the domain code
+/// stays deterministic.
+#[derive(Debug, Clone)]
+pub struct UidSource {
+    root: String,
+    seed: u64,
+    counter: u64,
+}
+
+fn valid_uid(u: &str) -> bool {
+    !u.is_empty()
+        && u.len() <= 64
+        && u.split('.').all(|c| {
+            !c.is_empty()
+                && c.chars().all(|ch| ch.is_ascii_digit())
+                && (c == "0" || !c.starts_with('0'))
+        })
+}
+
+impl UidSource {
+    /// A source under `root` (digits and dots, at most 40 characters).
+    pub fn new(root: &str, seed: u64) -> Result<Self, DicomError> {
+        if !valid_uid(root) || root.len() > 40 {
+            return Err(DicomError::Field {
+                field: "uid_root",
+                reason: format!("`{root}` is not a UID root of at most 40 characters"),
+            });
+        }
+        Ok(Self {
+            root: root.into(),
+            seed,
+            counter: 0,
+        })
+    }
+
+    /// The next UID.
+    pub fn next_uid(&mut self) -> String {
+        self.counter += 1;
+        format!("{}.{}.{}", self.root, self.seed, self.counter)
+    }
+}
+
+/// One irradiation event (one projection).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DoseEvent {
+    /// Start of the arc of this projection, degrees.
+    pub angle_start_deg: f64,
+    /// End of the arc, degrees.
+    pub angle_end_deg: f64,
+    /// Tube voltage, kV.
+    pub kvp: f64,
+    /// Exposure, uAs.
+    pub exposure_uas: f64,
+    /// Patient-specific Monte Carlo AGD of this projection, mGy.
+    pub agd_mgy: f64,
+    /// Incident air kerma at the reference point, mGy.
+    pub entrance_kerma_mgy: f64,
+    /// `YYYYMMDDHHMMSS` of the exposure.
+    pub datetime: String,
+}
+
+/// Everything the dose report says.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DoseInput {
+    /// Patient and study.
+    pub header: Header,
+    /// The reporting device.
+    pub equipment: Equipment,
+    /// One per projection.
+    pub events: Vec<DoseEvent>,
+    /// Compressed breast thickness, mm.
+    pub compression_mm: f64,
+    /// First HVL, mm Al.
+    pub hvl_mm_al: f64,
+    /// Rhodium filter thickness, mm.
+    pub filter_rh_mm: f64,
+    /// Accumulated patient-specific AGD, mGy.
+    pub accumulated_agd_mgy: f64,
+    /// Relative statistical uncertainty of the accumulated AGD (1 s.d.).
+    pub relative_uncertainty: f64,
+    /// The model-breast (homogeneous) estimate, mGy.
+    pub model_agd_mgy: f64,
+    /// Content date and time `YYYYMMDD`, `HHMMSS`.
+    pub content_date: String,
+    /// See `content_date`.
+    pub content_time: String,
+}
+
+/// Everything the density report says.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DensityInput {
+    /// Patient and study.
+    pub header: Header,
+    /// The reporting device.
+    pub equipment: Equipment,
+    /// Glandularity by mass, 0..1 (paper eq. 4).
+    pub glandularity: f64,
+    /// Fibroglandular volume, cm^3.
+    pub fibroglandular_cm3: f64,
+    /// Breast volume (skin included), cm^3.
+    pub breast_cm3: f64,
+    /// Reconstructor name (e.g. `DBToR int8`).
+    pub reconstructor: String,
+    /// Model version (manifest checksum or tag).
+    pub model_version: String,
+    /// Content date and time.
+    pub content_date: String,
+    /// See `content_date`.
+    pub content_time: String,
+}
+
+/// A built report: the dataset and its identity.
+pub struct Report {
+    /// SOP Class UID.
+    pub sop_class: &'static str,
+    /// SOP Instance UID.
+    pub sop_instance: String,
+    obj: InMemDicomObject,
+}
+
+impl Report {
+    /// The DICOM Part 10 file (explicit VR little endian).
+    pub fn to_bytes(&self) -> Result<Vec<u8>, DicomError> {
+        let file = self
+            .obj
+            .clone()
+            .with_meta(
+                FileMetaTableBuilder::new()
+                    .transfer_syntax(uids::EXPLICIT_VR_LITTLE_ENDIAN)
+                    .implementation_class_uid("1.2.826.0.1.3680043.10.543.1")
+                    .implementation_version_name("DBTOR_0_1"),
+            )
+            .map_err(|e| DicomError::Encoding(e.to_string()))?;
+        let mut out = Vec::new();
+        file.write_all(&mut out)
+            .map_err(|e| DicomError::Encoding(e.to_string()))?;
+        Ok(out)
+    }
+
+    /// The dataset (for tests that break it on purpose).
+    pub fn dataset_mut(&mut self) -> &mut InMemDicomObject {
+        &mut self.obj
+    }
+}
+
+fn dcm(v: &str, m: &str) -> Code {
+    Code::new(v, "DCM", m)
+}
+
+fn private(v: &str, m: &str) -> Code {
+    Code::new(v, PRIVATE_SCHEME, m)
+}
+
+fn check(field: &'static str, v: f64, lo: f64, hi: f64) -> Result<(), DicomError> {
+    if v.is_finite() && (lo..=hi).contains(&v) {
+        Ok(())
+    } else {
+        Err(DicomError::Field {
+            field,
+            reason: format!("{v} outside [{lo}, {hi}]"),
+        })
+    }
+}
+
+fn check_uid(field: &'static str, u: &str) -> Result<(), DicomError> {
+    if valid_uid(u) {
+        Ok(())
+    } else {
+        Err(DicomError::Field {
+            field,
+            reason: format!("`{u}` is not a valid UID"),
+        })
+    }
+}
+
+fn observer_context(eq: &Equipment) -> Vec<(Rel, Item)> {
+    vec![
+        (
+            Rel::HasObsContext,
+            Item::Code(
+                dcm("121005", "Observer Type"),
+                dcm("121007", "Device"),
+                vec![],
+            ),
+        ),
+        (
+            Rel::HasObsContext,
+            Item::UidRef(dcm("121012", "Device Observer UID"), eq.device_uid.clone()),
+        ),
+        (
+            Rel::HasObsContext,
+            Item::Text(dcm("121013", "Device Observer Name"), eq.model.clone()),
+        ),
+        (
+            Rel::HasObsContext,
+            Item::Text(
+                dcm("121014", "Device Observer Manufacturer"),
+                eq.manufacturer.clone(),
+            ),
+        ),
+        (
+            Rel::HasObsContext,
+            Item::Text(
+                dcm("121015", "Device Observer Model Name"),
+                eq.model.clone(),
+            ),
+        ),
+        (
+            Rel::HasObsContext,
+            Item::Text(
+                dcm("121016", "Device Observer Serial Number"),
+                eq.serial.clone(),
+            ),
+        ),
+    ]
+}
+
+fn sq(items: Vec<InMemDicomObject>) -> DataSetSequence<InMemDicomObject> {
+    DataSetSequence::from(items)
+}
+
+/// What distinguishes the documents in the shared header.
+struct DocKind<'a> {
+    class: &'static str,
+    series_number: &'a str,
+    content_date: &'a str,
+    content_time: &'a str,
+    template: &'a str,
+}
+
+/// The header modules shared by both reports.
+fn base(
+    kind: DocKind<'_>,
+    h: &Header,
+    eq: &Equipment,
+    uids: &mut UidSource,
+    root: &Item,
+) -> Result<Report, DicomError> {
+    check_uid("header.study_uid", &h.study_uid)?;
+    check_uid("header.source_series_uid", &h.source_series_uid)?;
+    for u in &h.source_instance_uids {
+        check_uid("header.source_instance_uids", u)?;
+    }
+    if h.patient_id.trim().is_empty() {
+        return Err(DicomError::Field {
+            field: "header.patient_id",
+            reason: "empty".into(),
+        });
+    }
+    let sop_instance = uids.next_uid();
+    let series = uids.next_uid();
+    let mut o = root.dataset(None);
+    let s = |t, vr, v: &str| DataElement::new(t, vr, v.to_string());
+    for e in [
+        s(tags::SPECIFIC_CHARACTER_SET, VR::CS, "ISO_IR 192"),
+        s(tags::SOP_CLASS_UID, VR::UI, kind.class),
+        s(tags::SOP_INSTANCE_UID, VR::UI, &sop_instance),
+        s(tags::STUDY_DATE, VR::DA, &h.study_date),
+        s(tags::STUDY_TIME, VR::TM, &h.study_time),
+        s(tags::CONTENT_DATE, VR::DA, kind.content_date),
+        s(tags::CONTENT_TIME, VR::TM, kind.content_time),
+        s(tags::ACCESSION_NUMBER, VR::SH, &h.accession_number),
+        s(tags::MODALITY, VR::CS, "SR"),
+        s(tags::MANUFACTURER, VR::LO, &eq.manufacturer),
+        s(
+            tags::REFERRING_PHYSICIAN_NAME,
+            VR::PN,
+            &h.referring_physician,
+        ),
+        s(tags::MANUFACTURER_MODEL_NAME, VR::LO, &eq.model),
+        s(tags::PATIENT_NAME, VR::PN, &h.patient_name),
+        s(tags::PATIENT_ID, VR::LO, &h.patient_id),
+        s(tags::PATIENT_BIRTH_DATE, VR::DA, &h.patient_birth_date),
+        s(tags::PATIENT_SEX, VR::CS, &h.patient_sex),
+        s(tags::DEVICE_SERIAL_NUMBER, VR::LO, &eq.serial),
+        s(tags::SOFTWARE_VERSIONS, VR::LO, &eq.software_version),
+        s(tags::STUDY_INSTANCE_UID, VR::UI, &h.study_uid),
+        s(tags::SERIES_INSTANCE_UID, VR::UI, &series),
+        s(tags::STUDY_ID, VR::SH, &h.study_id),
+        s(tags::SERIES_NUMBER, VR::IS, kind.series_number),
+        s(tags::INSTANCE_NUMBER, VR::IS, "1"),
+        s(tags::COMPLETION_FLAG, VR::CS, "COMPLETE"),
+        s(tags::VERIFICATION_FLAG, VR::CS, "UNVERIFIED"),
+    ] {
+        o.put(e);
+    }
+    o.put(DataElement::new(
+        tags::REFERENCED_PERFORMED_PROCEDURE_STEP_SEQUENCE,
+        VR::SQ,
+        sq(vec![]),
+    ));
+    o.put(DataElement::new(
+        tags::PERFORMED_PROCEDURE_CODE_SEQUENCE,
+        VR::SQ,
+        sq(vec![]),
+    ));
+    o.put(DataElement::new(
+        tags::CONTENT_TEMPLATE_SEQUENCE,
+        VR::SQ,
+        sq(vec![InMemDicomObject::from_element_iter([
+            DataElement::new(tags::MAPPING_RESOURCE, VR::CS, "DCMR"),
+            DataElement::new(tags::TEMPLATE_IDENTIFIER, VR::CS, kind.template),
+        ])]),
+    ));
+    // Evidence: the projections this report was made from.
+    let sops: Vec<InMemDicomObject> = h
+        .source_instance_uids
+        .iter()
+        .map(|u| {
+            InMemDicomObject::from_element_iter([
+                DataElement::new(tags::REFERENCED_SOP_CLASS_UID, VR::UI, BREAST_TOMO_CLASS),
+                DataElement::new(tags::REFERENCED_SOP_INSTANCE_UID, VR::UI, u.as_str()),
+            ])
+        })
+        .collect();
+    if !sops.is_empty() {
+        let series_item = InMemDicomObject::from_element_iter([
+            DataElement::new(tags::REFERENCED_SOP_SEQUENCE, VR::SQ, sq(sops)),
+            DataElement::new(
+                tags::SERIES_INSTANCE_UID,
+                VR::UI,
+                h.source_series_uid.as_str(),
+            ),
+        ]);
+        let study_item = InMemDicomObject::from_element_iter([
+            DataElement::new(
+                tags::REFERENCED_SERIES_SEQUENCE,
+                VR::SQ,
+                sq(vec![series_item]),
+            ),
+            DataElement::new(tags::STUDY_INSTANCE_UID, VR::UI, h.study_uid.as_str()),
+        ]);
+        o.put(DataElement::new(
+            tags::CURRENT_REQUESTED_PROCEDURE_EVIDENCE_SEQUENCE,
+            VR::SQ,
+            sq(vec![study_item]),
+        ));
+    }
+    Ok(Report {
+        sop_class: kind.class,
+        sop_instance,
+        obj: o,
+    })
+}
+
+fn mgy() -> Code {
+    Code::ucum("mGy", "mGy")
+}
+
+/// Build the X-Ray Radiation Dose SR (TID 10001/10003/10005).
+pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, DicomError> {
+    check("compression_mm", input.compression_mm, 1.0, 200.0)?;
+    check("hvl_mm_al", input.hvl_mm_al, 0.05, 10.0)?;
+    check(
+        "accumulated_agd_mgy",
+        input.accumulated_agd_mgy,
+        0.0,
+        1000.0,
+    )?;
+    check("model_agd_mgy", input.model_agd_mgy, 0.0, 1000.0)?;
+    check("relative_uncertainty", input.relative_uncertainty, 0.0, 1.0)?;
+    if input.events.is_empty() {
+        return Err(DicomError::Field {
+            field: "events",
+            reason: "at least one irradiation event is needed".into(),
+        });
+    }
+    let h = &input.header;
+    let lat = h.laterality.code();
+    let breast = || Code::new("76752008", "SCT", "Breast");
+    let mut children = vec![(
+        Rel::HasConceptMod,
+        Item::Code(
+            dcm("121058", "Procedure reported"),
+            Code::new("71651007", "SCT", "Mammography"),
+            vec![],
+        ),
+    )];
+    children.extend(observer_context(&input.equipment));
+    children.push((
+        Rel::Contains,
+        Item::Code(
+            dcm("113705", "Scope of Accumulation"),
+            dcm("113014", "Study"),
+            vec![(
+                Rel::HasProperties,
+                Item::UidRef(dcm("110180", "Study Instance UID"), h.study_uid.clone()),
+            )],
+        ),
+    ));
+    let method = format!(
+        "Average glandular dose computed patient-specifically by Monte Carlo photon transport \
+         (photoelectric, Rayleigh, Compton; validated against AAPM TG-195 case 3) on the \
+         tissue-classified DBToR reconstruction of this breast; relative statistical \
+         uncertainty {:.2} % (1 s.d., batch method). Model-breast (homogeneous, same \
+         thickness and glandularity) estimate with the same engine: {} mGy.",
+        100.0 * input.relative_uncertainty,
+        crate::format_ds(input.model_agd_mgy)
+    );
+    children.push((
+        Rel::Contains,
+        Item::Container(
+            dcm("113702", "Accumulated X-Ray Dose Data"),
+            vec![
+                (
+                    Rel::HasConceptMod,
+                    Item::Code(
+                        dcm("113764", "Acquisition Plane"),
+                        dcm("113622", "Single Plane"),
+                        vec![],
+                    ),
+                ),
+                (
+                    Rel::Contains,
+                    Item::Num(
+                        dcm("111637", "Accumulated Average Glandular Dose"),
+                        input.accumulated_agd_mgy,
+                        mgy(),
+                        vec![(
+                            Rel::HasConceptMod,
+                            Item::Code(
+                                Code::new("272741003", "SCT", "Laterality"),
+                                lat.clone(),
+                                vec![],
+                            ),
+                        )],
+                    ),
+                ),
+                (
+                    Rel::Contains,
+                    Item::Num(
+                        private(
+                            "AGDMODEL",
+                            "Model-breast Accumulated Average Glandular Dose",
+                        ),
+                        input.model_agd_mgy,
+                        mgy(),
+                        vec![],
+                    ),
+                ),
+                (
+                    Rel::Contains,
+                    Item::Num(
+                        private("AGDUNC", "Relative statistical uncertainty of AGD"),
+                        100.0 * input.relative_uncertainty,
+                        Code::ucum("%", "Percent"),
+                        vec![],
+                    ),
+                ),
+                (Rel::Contains, Item::Text(dcm("121106", "Comment"), method)),
+            ],
+        ),
+    ));
+    for (i, ev) in input.events.iter().enumerate() {
+        check("events.agd_mgy", ev.agd_mgy, 0.0, 1000.0)?;
+        check("events.kvp", ev.kvp, 10.0, 60.0)?;
+        let eu = uids.next_uid();
+        let items = vec![
+            (
+                Rel::HasConceptMod,
+                Item::Code(
+                    dcm("113764", "Acquisition Plane"),
+                    dcm("113622", "Single Plane"),
+                    vec![],
+                ),
+            ),
+            (
+                Rel::Contains,
+                Item::UidRef(dcm("113769", "Irradiation Event UID"), eu),
+            ),
+            (
+                Rel::Contains,
+                Item::DateTime(dcm("111526", "DateTime Started"), ev.datetime.clone()),
+            ),
+            (
+                Rel::Contains,
+                Item::Code(
+                    dcm("113721", "Irradiation Event Type"),
+                    dcm("113613", "Rotational Acquisition"),
+                    vec![],
+                ),
+            ),
+            (
+                Rel::Contains,
+                Item::Text(
+                    dcm("125203", "Acquisition Protocol"),
+                    format!("DBT projection {} of {}", i + 1, input.events.len()),
+                ),
+            ),
+            (
+                Rel::Contains,
+                Item::Code(
+                    dcm("123014", "Target Region"),
+                    breast(),
+                    vec![(
+                        Rel::HasConceptMod,
+                        Item::Code(
+                            Code::new("272741003", "SCT", "Laterality"),
+                            lat.clone(),
+                            vec![],
+                        ),
+                    )],
+                ),
+            ),
+            (
+                Rel::Contains,
+                Item::Num(
+                    dcm("111633", "Compression Thickness"),
+                    input.compression_mm,
+                    Code::ucum("mm", "mm"),
+                    vec![],
+                ),
+            ),
+            (
+                Rel::Contains,
+                Item::Num(
+                    dcm("111631", "Average Glandular Dose"),
+                    ev.agd_mgy,
+                    mgy(),
+                    vec![],
+                ),
+            ),
+            (
+                Rel::Contains,
+                Item::Num(
+                    dcm("111636", "Entrance Exposure at RP"),
+                    ev.entrance_kerma_mgy,
+                    mgy(),
+                    vec![],
+                ),
+            ),
+            (
+                Rel::Contains,
+                Item::Num(
+                    dcm("112011", "Positioner Primary Angle"),
+                    ev.angle_start_deg,
+                    Code::ucum("deg", "degree"),
+                    vec![],
+                ),
+            ),
+            (
+                Rel::Contains,
+                Item::Num(
+                    dcm("113739", "Positioner Primary End Angle"),
+                    ev.angle_end_deg,
+                    Code::ucum("deg", "degree"),
+                    vec![],
+                ),
+            ),
+            (
+                Rel::Contains,
+                Item::Num(dcm("113733", "KVP"), ev.kvp, Code::ucum("kV", "kV"), vec![]),
+            ),
+            (
+                Rel::Contains,
+                Item::Num(
+                    dcm("113736", "Exposure"),
+                    ev.exposure_uas,
+                    Code::ucum("uA.s", "uAs"),
+                    vec![],
+                ),
+            ),
+            (
+                Rel::Contains,
+                Item::Num(
+                    dcm("111634", "Half Value Layer"),
+                    input.hvl_mm_al,
+                    Code::ucum("mm", "mm"),
+                    vec![],
+                ),
+            ),
+            (
+                Rel::Contains,
+                Item::Code(
+                    dcm("111632", "Anode Target Material"),
+                    Code::new("C-164F9", "SRT", "Tungsten or tungsten compound"),
+                    vec![],
+                ),
+            ),
+            (
+                Rel::Contains,
+                Item::Container(
+                    dcm("113771", "X-Ray Filters"),
+                    vec![
+                        (
+                            Rel::Contains,
+                            Item::Code(
+                                dcm("113772", "X-Ray Filter Type"),
+                                dcm("113653", "Flat filter"),
+                                vec![],
+                            ),
+                        ),
+                        (
+                            Rel::Contains,
+                            Item::Code(
+                                dcm("113757", "X-Ray Filter Material"),
+                                Code::new("C-167F9", "SRT", "Rhodium or rhodium compound"),
+                                vec![],
+                            ),
+                        ),
+                        (
+                            Rel::Contains,
+                            Item::Num(
+                                dcm("113758", "X-Ray Filter Thickness Minimum"),
+                                input.filter_rh_mm,
+                                Code::ucum("mm", "mm"),
+                                vec![],
+                            ),
+                        ),
+                        (
+                            Rel::Contains,
+                            Item::Num(
+                                dcm("113773", "X-Ray Filter Thickness Maximum"),
+                                input.filter_rh_mm,
+                                Code::ucum("mm", "mm"),
+                                vec![],
+                            ),
+                        ),
+                    ],
+                ),
+            ),
+        ];
+        children.push((
+            Rel::Contains,
+            Item::Container(dcm("113706", "Irradiation Event X-Ray Data"), items),
+        ));
+    }
+    let root = Item::Container(dcm("113701", "X-Ray Radiation Dose Report"), children);
+    let kind = DocKind {
+        class: DOSE_SR_CLASS,
+        series_number: "9001",
+        content_date: &input.content_date,
+        content_time: &input.content_time,
+        template: "10001",
+    };
+    let mut r = base(kind, h, &input.equipment, uids, &root)?;
+    r.obj.put(DataElement::new(
+        tags::SERIES_DESCRIPTION,
+        VR::LO,
+        "DBToR radiation dose report",
+    ));
+    Ok(r)
+}
+
+/// BI-RADS-style composition category (CID 6000) from the volumetric
+/// fibroglandular fraction. Thresholds (volume %): below 4.5 almost entirely
+/// fatty, below 7.5 scattered fibroglandular densities, below 15.5
+/// heterogeneously dense, else extremely dense: the published mapping of
+/// volumetric density grades to BI-RADS 5th edition categories (Volpara
+/// density grades). Our choice, to be tuned by the evaluation (issue #7).
+pub fn composition_category(volume_fraction: f64) -> (char, Code) {
+    let p = 100.0 * volume_fraction;
+    if p < 4.5 {
+        ('a', Code::new("129715009", "SCT", "Almost entirely fatty"))
+    } else if p < 7.5 {
+        (
+            'b',
+            Code::new("129716005", "SCT", "Scattered fibroglandular densities"),
+        )
+    } else if p < 15.5 {
+        ('c', Code::new("129717001", "SCT", "Heterogeneously dense"))
+    } else {
+        ('d', Code::new("129718006", "SCT", "Extremely dense"))
+    }
+}
+
+/// Build the density report (Comprehensive SR).
+pub fn density_report(input: &DensityInput, uids: &mut UidSource) -> Result<Report, DicomError> {
+    check("glandularity", input.glandularity, 0.0, 1.0)?;
+    check("breast_cm3", input.breast_cm3, 1.0, 1e5)?;
+    check(
+        "fibroglandular_cm3",
+        input.fibroglandular_cm3,
+        0.0,
+        input.breast_cm3,
+    )?;
+    let vf = input.fibroglandular_cm3 / input.breast_cm3;
+    let (_, cat) = composition_category(vf);
+    let cm3 = || Code::ucum("cm3", "cubic centimeter");
+    let mut children = observer_context(&input.equipment);
+    children.push((
+        Rel::Contains,
+        Item::Num(
+            dcm("111046", "Percent Fibroglandular Tissue"),
+            100.0 * input.glandularity,
+            Code::ucum("%", "Percent"),
+            vec![(
+                Rel::HasConceptMod,
+                Item::Code(
+                    Code::new("272741003", "SCT", "Laterality"),
+                    input.header.laterality.code(),
+                    vec![],
+                ),
+            )],
+        ),
+    ));
+    children.push((
+        Rel::Contains,
+        Item::Num(
+            private("FGV", "Fibroglandular tissue volume"),
+            input.fibroglandular_cm3,
+            cm3(),
+            vec![],
+        ),
+    ));
+    children.push((
+        Rel::Contains,
+        Item::Num(
+            private("BV", "Breast volume"),
+            input.breast_cm3,
+            cm3(),
+            vec![],
+        ),
+    ));
+    children.push((
+        Rel::Contains,
+        Item::Num(
+            private("VPD", "Volumetric fibroglandular fraction"),
+            100.0 * vf,
+            Code::ucum("%", "Percent"),
+            vec![],
+        ),
+    ));
+    children.push((
+        Rel::Contains,
+        Item::Code(
+            Code::new("129714008", "SCT", "Breast composition"),
+            cat,
+            vec![],
+        ),
+    ));
+    children.push((
+        Rel::Contains,
+        Item::Text(dcm("111001", "Algorithm Name"), input.reconstructor.clone()),
+    ));
+    children.push((
+        Rel::Contains,
+        Item::Text(
+            dcm("111003", "Algorithm Version"),
+            input.model_version.clone(),
+        ),
+    ));
+    children.push((
+        Rel::Contains,
+        Item::Text(
+            dcm("121106", "Comment"),
+            "Percent Fibroglandular Tissue is the glandularity by mass, G = Ng rho_g / (Ng rho_g + Na rho_a) \
+             (Hammerstein densities), Cooper's ligaments counted as fibroglandular, skin excluded, from the \
+             tissue-classified DBToR reconstruction; the composition category uses the volumetric fraction \
+             (thresholds 4.5 / 7.5 / 15.5 %)."
+                .into(),
+        ),
+    ));
+    let root = Item::Container(
+        private("VBDR", "Volumetric breast density report"),
+        children,
+    );
+    let kind = DocKind {
+        class: COMPREHENSIVE_SR_CLASS,
+        series_number: "9002",
+        content_date: &input.content_date,
+        content_time: &input.content_time,
+        template: "2000",
+    };
+    let mut r = base(kind, &input.header, &input.equipment, uids, &root)?;
+    // TID 2000 is the basic diagnostic imaging report; our content is not
+    // template-conformant to it, so no Content Template Sequence is claimed.
+    r.obj.remove_element(tags::CONTENT_TEMPLATE_SEQUENCE);
+    r.obj.put(DataElement::new(
+        tags::SERIES_DESCRIPTION,
+        VR::LO,
+        "DBToR breast density report",
+    ));
+    Ok(r)
+}
+
+/// Read back a report: `(concept meaning, value)` for every NUM, CODE, TEXT
+/// and UIDREF item in document order (values as strings), plus the SOP class.
+pub fn read_values(bytes: &[u8]) -> Result<(String, Vec<(String, String)>), DicomError> {
+    let obj = dicom_object::from_reader(bytes).map_err(|e| DicomError::Encoding(e.to_string()))?;
+    let class = obj
+        .element(tags::SOP_CLASS_UID)
+        .ok()
+        .and_then(|e| e.to_str().ok())
+        .map(|s| s.trim_end_matches('\0').to_string())
+        .unwrap_or_default();
+    let mut out = Vec::new();
+    fn meaning(o: &InMemDicomObject, t: dicom_core::Tag) -> String {
+        o.element(t)
+            .ok()
+            .and_then(|e| e.items())
+            .and_then(|i| i.first())
+            .and_then(|c| c.element(tags::CODE_MEANING).ok())
+            .and_then(|e| e.to_str().ok())
+            .map(|s| s.to_string())
+            .unwrap_or_default()
+    }
+    fn walk(o: &InMemDicomObject, out: &mut Vec<(String, String)>) {
+        let vt = o
+            .element(tags::VALUE_TYPE)
+            .ok()
+            .and_then(|e| e.to_str().ok())
+            .map(|s| s.trim().to_string())
+            .unwrap_or_default();
+        let name = meaning(o, tags::CONCEPT_NAME_CODE_SEQUENCE);
+        let val = match vt.as_str() {
+            "NUM" => o
+                .element(tags::MEASURED_VALUE_SEQUENCE)
+                .ok()
+                .and_then(|e| e.items())
+                .and_then(|i| i.first())
+                .map(|m| {
+                    let v = m
+                        .element(tags::NUMERIC_VALUE)
+                        .ok()
+                        .and_then(|e| e.to_str().ok())
+                        .map(|s| s.trim().to_string())
+                        .unwrap_or_default();
+                    format!("{v} {}", meaning(m, tags::MEASUREMENT_UNITS_CODE_SEQUENCE))
+                }),
+            "CODE" => Some(meaning(o, tags::CONCEPT_CODE_SEQUENCE)),
+            "TEXT" => o
+                .element(tags::TEXT_VALUE)
+                .ok()
+                .and_then(|e| e.to_str().ok())
+                .map(|s| s.to_string()),
+            "UIDREF" => o
+                .element(tags::UID)
+                .ok()
+                .and_then(|e| e.to_str().ok())
+                .map(|s| s.to_string()),
+            _ => None,
+        };
+        if let Some(v) = val {
+            out.push((name, v));
+        }
+        if let Some(items) = o
+            .element(tags::CONTENT_SEQUENCE)
+            .ok()
+            .and_then(|e| e.items())
+        {
+            for i in items {
+                walk(i, out);
+            }
+        }
+    }
+    walk(&obj, &mut out);
+    Ok((class, out))
+}
