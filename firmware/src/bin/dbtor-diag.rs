@@ -4,6 +4,7 @@
 //! dbtor-diag selftest [--geometry FILE.toml] [--binning N] [--json]
 //! dbtor-diag geometry [--geometry FILE.toml] [--binning N]
 //! dbtor-diag report FILE.dcm [--json]     # the values of a dose or density SR
+//! dbtor-diag echo AET@host:port            # DICOM C-ECHO to the PACS
 //! ```
 //! Exit codes: 0 all checks passed, 1 a check failed, 2 bad usage or input.
 
@@ -45,7 +46,7 @@ fn run() -> Result<bool> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let Some(cmd) = args.first() else {
         bail!(
-            "usage: dbtor-diag <selftest|geometry|report> [--geometry FILE.toml] [--binning N] [--json] [FILE.dcm]"
+            "usage: dbtor-diag <selftest|geometry|report|echo> [--geometry FILE.toml] [--binning N] [--json] [FILE.dcm | AET@host:port]"
         );
     };
     let rest = &args[1..];
@@ -118,7 +119,28 @@ fn run() -> Result<bool> {
             }
             Ok(true)
         }
-        other => bail!("unknown command `{other}` (expected selftest, geometry or report)"),
+        "echo" => {
+            let peer = rest
+                .iter()
+                .find(|a| !a.starts_with("--"))
+                .context("echo needs AET@host:port")?;
+            let cfg = dbt_pacs::PacsConfig::parse(peer)?;
+            let t = std::time::Instant::now();
+            match dbt_pacs::echo(&cfg) {
+                Ok(()) => {
+                    println!(
+                        "C-ECHO {peer}: success in {:.0} ms",
+                        t.elapsed().as_secs_f64() * 1e3
+                    );
+                    Ok(true)
+                }
+                Err(e) => {
+                    println!("C-ECHO {peer}: FAILED: {e}");
+                    Ok(false)
+                }
+            }
+        }
+        other => bail!("unknown command `{other}` (expected selftest, geometry, report or echo)"),
     }
 }
 

@@ -1,0 +1,224 @@
+//! A real PACS: Orthanc (Debian package `orthanc`) started on loopback ports.
+//! Reports arrive by C-STORE and are read back through Orthanc's REST API;
+//! with Orthanc stopped they wait in the outbox and arrive after it starts.
+//! `.ci/run` installs Orthanc; a missing binary fails the test.
+
+use dbt_dicom::*;
+use dbt_pacs::{echo, Outbox, PacsConfig};
+use std::io::{Read, Write};
+use std::net::TcpStream;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+struct Orthanc {
+    child: Child,
+}
+
+impl Orthanc {
+    fn start(dir: &Path, dicom: u16, http: u16) -> Orthanc {
+        let cfg = dir.join("orthanc.json");
+        let db = dir.join("db");
+        std::fs::create_dir_all(&db).unwrap();
+        let conf = serde_json::json!({
+            "Name": "DBTOR-HIL",
+            "StorageDirectory": db,
+            "IndexDirectory": db,
+            "DicomAet": "ORTHANC",
+            "DicomPort": dicom,
+            "HttpPort": http,
+            "RemoteAccessAllowed": false,
+            "AuthenticationEnabled": false,
+            "DicomCheckCalledAet": true,
+            "Plugins": [],
+        });
+        std::fs::write(&cfg, conf.to_string()).unwrap();
+        let bin = ["/usr/sbin/Orthanc", "/usr/bin/Orthanc"]
+            .into_iter()
+            .map(PathBuf::from)
+            .find(|p| p.exists())
+            .expect("Orthanc not found: apt-get install orthanc");
+        let log = std::fs::File::create(dir.join("orthanc.log")).unwrap();
+        let child = Command::new(bin)
+            .arg(&cfg)
+            .stdout(Stdio::from(log.try_clone().unwrap()))
+            .stderr(Stdio::from(log))
+            .spawn()
+            .unwrap();
+        let o = Orthanc { child };
+        let t = Instant::now();
+        while http_get(http, "/system").is_none() {
+            assert!(
+                t.elapsed() < Duration::from_secs(30),
+                "Orthanc did not start; see {}",
+                dir.join("orthanc.log").display()
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        o
+    }
+
+    fn stop(mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for Orthanc {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Minimal HTTP/1.0 GET on loopback: the body, or None when not reachable or
+/// not 200.
+fn http_get(port: u16, path: &str) -> Option<Vec<u8>> {
+    let mut s = TcpStream::connect(("127.0.0.1", port)).ok()?;
+    s.set_read_timeout(Some(Duration::from_secs(10))).ok()?;
+    write!(s, "GET {path} HTTP/1.0\r\nHost: 127.0.0.1\r\n\r\n").ok()?;
+    let mut buf = Vec::new();
+    s.read_to_end(&mut buf).ok()?;
+    let split = buf.windows(4).position(|w| w == b"\r\n\r\n")?;
+    let head = String::from_utf8_lossy(&buf[..split]).to_string();
+    if !head.starts_with("HTTP/1.1 200") && !head.starts_with("HTTP/1.0 200") {
+        return None;
+    }
+    Some(buf[split + 4..].to_vec())
+}
+
+fn instances(port: u16) -> Vec<String> {
+    let body = http_get(port, "/instances").expect("GET /instances");
+    serde_json::from_slice(&body).unwrap()
+}
+
+fn header() -> Header {
+    Header {
+        patient_name: "Doe^Jane".into(),
+        patient_id: "HIL-0001".into(),
+        patient_birth_date: "19700101".into(),
+        patient_sex: "F".into(),
+        study_uid: "1.2.826.0.1.3680043.10.543.88.1".into(),
+        study_date: "20261122".into(),
+        study_time: "101500".into(),
+        study_id: "S1".into(),
+        accession_number: "A1".into(),
+        referring_physician: "".into(),
+        laterality: Laterality::Right,
+        source_series_uid: "1.2.826.0.1.3680043.10.543.88.2".into(),
+        source_instance_uids: vec!["1.2.826.0.1.3680043.10.543.88.3".into()],
+    }
+}
+
+fn equipment() -> Equipment {
+    Equipment {
+        manufacturer: "DBToR Medical".into(),
+        model: "DBToR gantry PC".into(),
+        serial: "SN-HIL".into(),
+        software_version: "0.1.0".into(),
+        device_uid: "1.2.826.0.1.3680043.10.543.88.9".into(),
+    }
+}
+
+fn dose(agd: f64) -> DoseInput {
+    DoseInput {
+        header: header(),
+        equipment: equipment(),
+        events: vec![DoseEvent {
+            angle_start_deg: -1.0,
+            angle_end_deg: 1.0,
+            kvp: 29.0,
+            exposure_uas: 3000.0,
+            agd_mgy: agd,
+            entrance_kerma_mgy: 4.2,
+            datetime: "20261122101500".into(),
+        }],
+        compression_mm: 52.0,
+        hvl_mm_al: 0.538,
+        filter_rh_mm: 0.0583,
+        accumulated_agd_mgy: agd,
+        relative_uncertainty: 0.008,
+        model_agd_mgy: agd * 1.3,
+        content_date: "20261122".into(),
+        content_time: "102000".into(),
+    }
+}
+
+fn density() -> DensityInput {
+    DensityInput {
+        header: header(),
+        equipment: equipment(),
+        glandularity: 0.12,
+        fibroglandular_cm3: 40.0,
+        breast_cm3: 700.0,
+        reconstructor: "DBToR fp32".into(),
+        model_version: "test".into(),
+        content_date: "20261122".into(),
+        content_time: "102000".into(),
+    }
+}
+
+#[test]
+fn reports_reach_orthanc_and_survive_an_outage() {
+    let dir = tempfile::tempdir().unwrap();
+    let (dicom, http) = (free_port(), free_port());
+    let orthanc = Orthanc::start(dir.path(), dicom, http);
+    let mut pacs = PacsConfig::new("ORTHANC", "127.0.0.1", dicom);
+    pacs.attempts = 2;
+    pacs.backoff_ms = 50;
+    pacs.timeout_ms = 3000;
+    echo(&pacs).expect("C-ECHO to Orthanc");
+    // Orthanc checks the called AE title: a wrong one is refused at association.
+    let wrong = PacsConfig::new("NOTORTHANC", "127.0.0.1", dicom);
+    assert!(echo(&wrong).is_err());
+
+    let ob = Outbox::open(&dir.path().join("output"), &dir.path().join("outbox")).unwrap();
+    let mut uids = UidSource::new("1.2.826.0.1.3680043.10.543", 99).unwrap();
+    let d = dose_report(&dose(1.61), &mut uids).unwrap();
+    let g = density_report(&density(), &mut uids).unwrap();
+    let mut sent_bytes = Vec::new();
+    for (name, r) in [("dose", &d), ("density", &g)] {
+        let bytes = r.to_bytes().unwrap();
+        let rep = ob.deliver(name, &bytes, Some(&pacs)).unwrap();
+        assert_eq!(rep.sent.len(), 1, "{name}: {:?}", rep.waiting);
+        sent_bytes.push(bytes);
+    }
+    assert!(ob.pending().unwrap().is_empty());
+    // Read back through the REST API and compare the report values.
+    let ids = instances(http);
+    assert_eq!(ids.len(), 2);
+    let mut got: Vec<_> = ids
+        .iter()
+        .map(|id| read_values(&http_get(http, &format!("/instances/{id}/file")).unwrap()).unwrap())
+        .collect();
+    let mut want: Vec<_> = sent_bytes.iter().map(|b| read_values(b).unwrap()).collect();
+    got.sort_by(|a, b| a.0.cmp(&b.0));
+    want.sort_by(|a, b| a.0.cmp(&b.0));
+    assert_eq!(got, want);
+
+    // Outage: the report waits in the outbox (and is in the output folder).
+    orthanc.stop();
+    let late = dose_report(&dose(2.02), &mut uids).unwrap();
+    let rep = ob
+        .deliver("late-dose", &late.to_bytes().unwrap(), Some(&pacs))
+        .unwrap();
+    assert!(rep.sent.is_empty() && rep.waiting.len() == 1, "{rep:?}");
+    assert_eq!(ob.pending().unwrap().len(), 1);
+    assert!(dir.path().join("output/late-dose.dcm").exists());
+
+    // Orthanc is back: the next flush delivers it.
+    let orthanc = Orthanc::start(dir.path(), dicom, http);
+    let rep = ob.flush(&pacs).unwrap();
+    assert_eq!(rep.sent.len(), 1, "{rep:?}");
+    assert!(ob.pending().unwrap().is_empty());
+    assert_eq!(instances(http).len(), 3);
+    orthanc.stop();
+}
