@@ -228,6 +228,18 @@ impl Report {
     }
 }
 
+/// `HAS CONCEPT MOD (Laterality) = Left | Right`.
+fn laterality_mod(l: Laterality) -> (Rel, Item) {
+    (
+        Rel::HasConceptMod,
+        Item::Code(
+            Code::new("272741003", "SCT", "Laterality"),
+            l.code(),
+            vec![],
+        ),
+    )
+}
+
 fn dcm(v: &str, m: &str) -> Code {
     Code::new(v, "DCM", m)
 }
@@ -451,7 +463,6 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
         });
     }
     let h = &input.header;
-    let lat = h.laterality.code();
     let breast = || Code::new("76752008", "SCT", "Breast");
     let mut children = vec![(
         Rel::HasConceptMod,
@@ -501,14 +512,7 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
                         dcm("111637", "Accumulated Average Glandular Dose"),
                         input.accumulated_agd_mgy,
                         mgy(),
-                        vec![(
-                            Rel::HasConceptMod,
-                            Item::Code(
-                                Code::new("272741003", "SCT", "Laterality"),
-                                lat.clone(),
-                                vec![],
-                            ),
-                        )],
+                        vec![laterality_mod(h.laterality)],
                     ),
                 ),
                 (
@@ -577,14 +581,7 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
                 Item::Code(
                     dcm("123014", "Target Region"),
                     breast(),
-                    vec![(
-                        Rel::HasConceptMod,
-                        Item::Code(
-                            Code::new("272741003", "SCT", "Laterality"),
-                            lat.clone(),
-                            vec![],
-                        ),
-                    )],
+                    vec![laterality_mod(h.laterality)],
                 ),
             ),
             (
@@ -769,14 +766,7 @@ pub fn density_report(input: &DensityInput, uids: &mut UidSource) -> Result<Repo
             dcm("111046", "Percent Fibroglandular Tissue"),
             100.0 * input.glandularity,
             Code::ucum("%", "Percent"),
-            vec![(
-                Rel::HasConceptMod,
-                Item::Code(
-                    Code::new("272741003", "SCT", "Laterality"),
-                    input.header.laterality.code(),
-                    vec![],
-                ),
-            )],
+            vec![laterality_mod(input.header.laterality)],
         ),
     ));
     children.push((

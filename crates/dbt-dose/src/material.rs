@@ -158,6 +158,16 @@ impl Material {
         })
     }
 
+    /// A tissue of the model (composition and density from dbt-materials).
+    pub fn tissue(t: dbt_materials::Tissue, elements: &[Element]) -> Result<Self, DoseError> {
+        Self::new(t.name(), t.density_g_cm3(), t.composition(), elements)
+    }
+
+    /// A non-tissue medium (air, PMMA, PET, water).
+    pub fn medium(c: &dbt_materials::Composition, elements: &[Element]) -> Result<Self, DoseError> {
+        Self::new(c.name, c.density, c.elements, elements)
+    }
+
     /// Count all energy deposited in this material as glandular.
     pub fn glandular(mut self) -> Self {
         self.gland_w = vec![1.0; N_E];

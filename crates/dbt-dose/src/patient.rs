@@ -145,44 +145,18 @@ pub fn glandularity(b: &Breast<'_>) -> (f64, u64) {
 pub fn scene(b: &Breast<'_>, model: Model) -> Result<Scene, DoseError> {
     validate(b)?;
     let els = elements()?;
-    let gland = Material::new(
-        "fibroglandular",
-        Tissue::Fibroglandular.density_g_cm3(),
-        Tissue::Fibroglandular.composition(),
-        &els,
-    )?;
+    let gland = Material::tissue(Tissue::Fibroglandular, &els)?;
     let (g, _) = glandularity(b);
     // Homogeneous interior: glandular and adipose mixed by mass fraction g.
-    let mix_comp: Vec<_> = Tissue::Fibroglandular
-        .composition()
-        .iter()
-        .zip(Tissue::Adipose.composition())
-        .map(|(eg, ea)| dbt_materials::ElementFraction {
-            z: eg.z,
-            fraction: g * eg.fraction + (1.0 - g) * ea.fraction,
-        })
-        .collect();
-    let mix_density = 1.0
-        / (g / Tissue::Fibroglandular.density_g_cm3()
-            + (1.0 - g) / Tissue::Adipose.density_g_cm3());
+    let (mix_comp, mix_density) = dbt_materials::glandular_adipose_mix(g);
     let materials = vec![
-        Material::new("air", AIR.density, AIR.elements, &els)?,
-        Material::new(
-            "adipose",
-            Tissue::Adipose.density_g_cm3(),
-            Tissue::Adipose.composition(),
-            &els,
-        )?,
-        Material::new(
-            "skin",
-            Tissue::Skin.density_g_cm3(),
-            Tissue::Skin.composition(),
-            &els,
-        )?,
+        Material::medium(&AIR, &els)?,
+        Material::tissue(Tissue::Adipose, &els)?,
+        Material::tissue(Tissue::Skin, &els)?,
         gland.clone().glandular(),
-        Material::new("PET", PET.density, PET.elements, &els)?,
-        Material::new("PMMA", PMMA.density, PMMA.elements, &els)?,
-        Material::new("water", WATER.density, WATER.elements, &els)?,
+        Material::medium(&PET, &els)?,
+        Material::medium(&PMMA, &els)?,
+        Material::medium(&WATER, &els)?,
         Material::new("breast mixture", mix_density, &mix_comp, &els)?.glandular_share(g, &gland),
     ];
     let [nl, nv, nd] = b.dims;

@@ -8,7 +8,7 @@ use crate::spectrum::Spectrum;
 use crate::tables::elements;
 use crate::transport::PointSource;
 use crate::DoseError;
-use dbt_materials::{ElementFraction, Tissue, AIR, PMMA, WATER};
+use dbt_materials::{glandular_adipose_mix, Tissue, AIR, PMMA, WATER};
 
 /// Material codes of the case.
 pub const AIR_M: u8 = 0;
@@ -37,42 +37,19 @@ pub const REF_TOTAL_EV: f64 = 4697.3;
 /// Published reference VOIs 1..7, eV per photon.
 pub const REF_VOI_EV: [f64; 7] = [17.692, 18.070, 17.865, 17.262, 17.768, 5.417, 56.017];
 
-fn mix_breast() -> Vec<ElementFraction> {
-    // 20 % glandular / 80 % adipose by weight: mix the mass fractions.
-    let g = Tissue::Fibroglandular.composition();
-    let a = Tissue::Adipose.composition();
-    g.iter()
-        .zip(a)
-        .map(|(eg, ea)| ElementFraction {
-            z: eg.z,
-            fraction: 0.2 * eg.fraction + 0.8 * ea.fraction,
-        })
-        .collect()
-}
-
 /// The case-3 scene with a voxel grid of side `voxel_mm` (must divide 1 mm
 /// boundaries: 0.5, 1, ...).
 pub fn scene(voxel_mm: f64) -> Result<Scene, DoseError> {
     let els = elements()?;
+    // 20 % glandular / 80 % adipose by weight; TG-195 specifies 0.952 g/cm3.
+    let (mix, _) = glandular_adipose_mix(0.2);
+    let gland = Material::tissue(Tissue::Fibroglandular, &els)?;
     let materials = vec![
-        Material::new("air", AIR.density, AIR.elements, &els)?,
-        Material::new("breast 20/80", 0.952, &mix_breast(), &els)?.glandular_share(
-            0.2,
-            &Material::new(
-                "glandular",
-                1.04,
-                Tissue::Fibroglandular.composition(),
-                &els,
-            )?,
-        ),
-        Material::new(
-            "skin",
-            Tissue::Skin.density_g_cm3(),
-            Tissue::Skin.composition(),
-            &els,
-        )?,
-        Material::new("PMMA", PMMA.density, PMMA.elements, &els)?,
-        Material::new("water", WATER.density, WATER.elements, &els)?,
+        Material::medium(&AIR, &els)?,
+        Material::new("breast 20/80", 0.952, &mix, &els)?.glandular_share(0.2, &gland),
+        Material::tissue(Tissue::Skin, &els)?,
+        Material::medium(&PMMA, &els)?,
+        Material::medium(&WATER, &els)?,
     ];
     let origin = [0.0, -130.0, 13.0];
     let ext = [140.0, 260.0, 54.0];

@@ -212,6 +212,24 @@ impl Tissue {
     }
 }
 
+/// Composition of a homogeneous glandular/adipose mixture with glandular
+/// mass fraction `g` (mass fractions mixed), and its density
+/// `1 / (g / rho_g + (1 - g) / rho_a)` (volumes add).
+pub fn glandular_adipose_mix(g: f64) -> (Vec<ElementFraction>, f64) {
+    let comp = GLANDULAR
+        .iter()
+        .zip(ADIPOSE.iter())
+        .map(|(eg, ea)| ElementFraction {
+            z: eg.z,
+            fraction: g * eg.fraction + (1.0 - g) * ea.fraction,
+        })
+        .collect();
+    let rho = 1.0
+        / (g / Tissue::Fibroglandular.density_g_cm3()
+            + (1.0 - g) / Tissue::Adipose.density_g_cm3());
+    (comp, rho)
+}
+
 /// Attenuation lookup table indexed by label code (codes above 4 are not
 /// present; callers validate labels first).
 pub const MU_BY_LABEL: [f32; 5] = [
@@ -293,6 +311,20 @@ mod tests {
             let s: f64 = c.elements.iter().map(|e| e.fraction).sum();
             assert!((s - 1.0).abs() < 1e-5, "{} sums to {s}", c.name);
         }
+    }
+
+    #[test]
+    fn mixture_by_mass() {
+        let (c, rho) = glandular_adipose_mix(0.2);
+        let s: f64 = c.iter().map(|e| e.fraction).sum();
+        assert!((s - 1.0).abs() < 1e-9);
+        // TG-195 quotes 0.952 g/cm3 for its 20/80 breast, rounded; volumes
+        // adding gives 0.9505.
+        assert!((rho - 0.9505).abs() < 1e-3);
+        assert_eq!(
+            glandular_adipose_mix(1.0).0[0].fraction,
+            GLANDULAR[0].fraction
+        );
     }
 
     #[test]
