@@ -1,15 +1,50 @@
 #!/usr/bin/env bash
-# The main job. Until the firmware pipeline exists (see README, "Status"), this
-# runs the most complete path that does, in release mode:
-#  1. the firmware's self-test of the shipped geometry and projector at the
-#     paper's full geometry (adjointness, analytic slab line integrals, norm);
-#  2. a simulated acquisition of test-set phantoms (procedural breasts, Poisson
-#     noise) reconstructed with the MLTR and FBP baselines and scored against
-#     the truth, at the paper geometry binned x4 so it takes seconds
-#     (`dbt-eval baselines` without flags is the full-size evaluation).
+# The main job: a simulated acquisition through the firmware's processing to
+# validated DICOM output.
+#  1. dbtor-diag selftest: the shipped geometry and projector at the paper's
+#     full geometry (adjointness, analytic slab line integrals, norm bound).
+#  2. host-sim acquire: test-set phantom 0 (never trained on), every coronal
+#     slice simulated at N = 8 (Poisson), paper geometry binned x4, written as
+#     a recorded acquisition (acquisition.json + counts.f32).
+#  3. dbtor-process: per-slice reconstruction, tissue classification,
+#     glandularity, Monte Carlo MGD (25 views, patient-specific and model
+#     breast, 1 % uncertainty), dose SR and density SR to the output folder.
+#     The reconstructor is MLTR (the paper's baseline) until the trained DBToR
+#     model ships (issue #4): density and dose are therefore MLTR-quality.
+#  4. Validation: every report is read back (dbtor-diag report) and, where
+#     installed, checked with dciodvfy and dsrdump (apt-get install dicom3tools
+#     dcmtk; .ci/run installs them).
+# Output: out/main-job/ (summary.json, reports/*.dcm). Options for step 3 can
+# be given as arguments, e.g. --pacs ORTHANC@127.0.0.1:4242.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-cargo build --release --locked -q -p dbtor-firmware -p dbt-eval
-./target/release/dbtor-diag selftest "$@"
-./target/release/dbt-eval baselines --binning 4 --phantoms 2 --slices 2 \
-    --json eval/results/main-job-baselines.json
+OUT=out/main-job
+cargo build --release --locked -q -p dbtor-firmware -p host-sim
+./target/release/dbtor-diag selftest
+rm -rf "$OUT"
+mkdir -p "$OUT"
+./target/release/host-sim acquire --out "$OUT/acquisition" --index 0 --binning 4 --noise N8 2>/dev/null
+./target/release/dbtor-process "$OUT/acquisition" --out "$OUT/reports" "$@" > "$OUT/summary.json"
+python3 - "$OUT/summary.json" <<'PY' || cat "$OUT/summary.json"
+import json, sys
+d = json.load(open(sys.argv[1]))
+r, t = d["result"], d["truth"] or {}
+print(f"processed {d['acquisition']} in {d['seconds']:.1f} s ({r['reconstructor']})")
+print(f"glandularity: labels {r['density']['glandularity_labels']:.3f}, partial volume "
+      f"{r['density']['glandularity_partial_volume']:.3f}; phantom truth {t.get('glandularity', float('nan')):.3f}")
+print(f"MGD {r['mgd_mgy']:.3f} mGy (+- {100 * r['dose_patient']['mgd_rel_uncertainty']:.2f} %), "
+      f"model breast {r['model_mgd_mgy']:.3f} mGy, incident air kerma {r['kerma_mgy']:.2f} mGy")
+PY
+status=0
+for f in "$OUT"/reports/*.dcm; do
+    ./target/release/dbtor-diag report "$f" > /dev/null || status=1
+    if command -v dciodvfy >/dev/null 2>&1 && command -v dsrdump >/dev/null 2>&1; then
+        errors=$(dciodvfy "$f" 2>&1 | grep -c '^Error' || true)
+        dsrdump "$f" > /dev/null 2>&1 || errors=$((errors + 1))
+        echo "$f: dciodvfy/dsrdump errors: $errors"
+        [ "$errors" = "0" ] || status=1
+    else
+        echo "$f: read back OK; dciodvfy/dsrdump not installed, external validation skipped"
+    fi
+done
+exit $status

@@ -4,6 +4,10 @@
 
 pub mod dataset;
 
+use dbt_store::acquisition::{
+    Acquisition as AcqFile, AcquisitionHeader, Patient, Study, ACQ_FORMAT,
+};
+
 use dbt_acquisition::{simulate_from_line_integrals, NoiseLevel};
 use dbt_geometry::Geometry;
 use dbt_phantom::{coronal_slice, LabelVolume, PhantomError};
@@ -106,4 +110,86 @@ pub fn simulate_slices(
             })
         })
         .collect()
+}
+
+/// Technique of a simulated acquisition (plausible values, not a measured
+/// tube): the kV of the paper's Table 3 for the thickness, a sweep of
+/// `mas_total` and a tube output at the reference point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Technique {
+    /// Tube loading of the sweep, mAs.
+    pub mas_total: f64,
+    /// Incident air kerma at the reference point per mAs, mGy/mAs.
+    pub tube_output_mgy_per_mas: f64,
+}
+
+impl Default for Technique {
+    fn default() -> Self {
+        Self {
+            mas_total: 60.0,
+            tube_output_mgy_per_mas: 0.11,
+        }
+    }
+}
+
+/// Simulate the whole acquisition of a phantom: every coronal slice at one
+/// noise level, with a synthetic patient and study (UIDs under `uid_root`).
+#[allow(clippy::too_many_arguments)]
+pub fn simulate_acquisition(
+    vol: &LabelVolume,
+    geom: &Geometry,
+    noise: NoiseLevel,
+    seed: u64,
+    technique: Technique,
+    kvp: f64,
+    patient_id: &str,
+    uid_root: &str,
+) -> Result<AcqFile, SimError> {
+    let _span = tracing::info_span!("acquisition", patient_id).entered();
+    let proj = Projector::new(geom);
+    let depths: Vec<usize> = (0..vol.n_coronal()).collect();
+    let slices = simulate_slices(vol, geom, &proj, &depths, &[noise], seed)?;
+    let thickness = vol.thickness_mm();
+    let uid = |k: u64| format!("{uid_root}.{seed}.{k}");
+    let header = AcquisitionHeader {
+        format: ACQ_FORMAT.into(),
+        geometry: geom.clone(),
+        thickness_mm: thickness,
+        flux: noise.flux(),
+        slices: slices.len(),
+        slice_spacing_mm: vol.voxel_mm(),
+        kvp,
+        mas_total: technique.mas_total,
+        tube_output_mgy_per_mas: technique.tube_output_mgy_per_mas,
+        laterality: "L".into(),
+        patient: Patient {
+            name: format!("Phantom^{patient_id}"),
+            id: patient_id.into(),
+            birth_date: "".into(),
+            sex: "F".into(),
+        },
+        study: Study {
+            study_uid: uid(1),
+            date: "20261122".into(),
+            time: "120000".into(),
+            accession: format!("SIM{:013}", seed % 10_000_000_000_000),
+            study_id: "1".into(),
+            series_uid: uid(2),
+            instance_uids: (0..geom.n_views() as u64).map(|v| uid(100 + v)).collect(),
+        },
+        truth: Some(serde_json::json!({
+            "glandularity": vol.glandularity(),
+            "thickness_mm": thickness,
+            "noise": noise.name(),
+            "voxel_mm": vol.voxel_mm(),
+            "dims": vol.dims(),
+        })),
+    };
+    Ok(AcqFile {
+        header,
+        counts: slices
+            .into_iter()
+            .map(|s| s.counts.into_iter().next().unwrap_or_default())
+            .collect(),
+    })
 }

@@ -40,6 +40,22 @@ enum Cmd {
         #[arg(long, default_value_t = 1)]
         binning: usize,
     },
+    /// Simulate the acquisition of one breast and write it as files
+    /// (`dbtor-acquisition/1`: acquisition.json + counts.f32).
+    Acquire {
+        /// Output folder.
+        #[arg(long)]
+        out: PathBuf,
+        /// Phantom of the fixed test set (never trained on).
+        #[arg(long, default_value_t = 0)]
+        index: u64,
+        /// Binning of the paper geometry (phantom voxels = pixels).
+        #[arg(long, default_value_t = 4)]
+        binning: usize,
+        /// Noise level (`noise-free`, `N4`, `N8`, `N12`).
+        #[arg(long, default_value = "N8")]
+        noise: String,
+    },
     /// Export a training dataset (see DATASET.md).
     Dataset {
         /// Output folder (must not hold a dataset yet).
@@ -106,6 +122,40 @@ fn main() -> Result<()> {
                 vol.voxel_mm(),
                 vol.thickness_mm(),
                 vol.glandularity().unwrap_or(0.0)
+            );
+        }
+        Cmd::Acquire {
+            out,
+            index,
+            binning,
+            noise,
+        } => {
+            let g = load_geometry(&None, binning)?;
+            let spec = Population::for_geometry(&g).draw(Population::TEST_SEED, index);
+            let vol = generate(&spec)?;
+            let noise = NoiseLevel::parse(&noise)?;
+            let kvp = dbt_dose::xray::PAPER_TABLE3
+                .iter()
+                .find(|r| vol.thickness_mm() < r.0 .1)
+                .map_or(31.0, |r| r.1 as f64);
+            let acq = host_sim::simulate_acquisition(
+                &vol,
+                &g,
+                noise,
+                host_sim::mix_seed(Population::TEST_SEED, &[index, 1]),
+                host_sim::Technique::default(),
+                kvp,
+                &format!("TEST{index:03}"),
+                "1.2.826.0.1.3680043.10.543.2",
+            )?;
+            dbt_store::acquisition::write_acquisition(&out, &acq)?;
+            println!(
+                "{}: test phantom {index}, {} slices, thickness {:.1} mm, glandularity {:.3}, {}",
+                out.display(),
+                acq.header.slices,
+                acq.header.thickness_mm,
+                vol.glandularity().unwrap_or(0.0),
+                noise.name()
             );
         }
         Cmd::Dataset {

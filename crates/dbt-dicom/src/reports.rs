@@ -338,6 +338,23 @@ fn base(
     for u in &h.source_instance_uids {
         check_uid("header.source_instance_uids", u)?;
     }
+    for (field, v, max) in [
+        ("header.accession_number", &h.accession_number, 16),
+        ("header.study_id", &h.study_id, 16),
+        ("header.patient_id", &h.patient_id, 64),
+        ("header.patient_name", &h.patient_name, 64),
+        ("equipment.manufacturer", &eq.manufacturer, 64),
+        ("equipment.model", &eq.model, 64),
+        ("equipment.serial", &eq.serial, 64),
+        ("equipment.software_version", &eq.software_version, 64),
+    ] {
+        if v.chars().count() > max || v.contains('\\') {
+            return Err(DicomError::Field {
+                field,
+                reason: format!("`{v}` is longer than {max} characters or holds a backslash"),
+            });
+        }
+    }
     if h.patient_id.trim().is_empty() {
         return Err(DicomError::Field {
             field: "header.patient_id",

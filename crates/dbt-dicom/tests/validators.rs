@@ -190,6 +190,10 @@ fn bad_inputs_are_named() {
     let e = dose_report(&d, &mut uids).err().unwrap().to_string();
     assert!(e.contains("header.study_uid"), "{e}");
     let mut d = dose_input();
+    d.header.accession_number = "SIM8177500879482156470".into();
+    let e = dose_report(&d, &mut uids).err().unwrap().to_string();
+    assert!(e.contains("header.accession_number"), "{e}");
+    let mut d = dose_input();
     d.events.clear();
     assert!(dose_report(&d, &mut uids)
         .err()

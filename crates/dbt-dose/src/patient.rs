@@ -92,6 +92,8 @@ pub struct MgdResult {
     pub glandular_mass_g: f64,
     /// MGD per emitted photon, mGy (all views).
     pub mgd_per_photon_mgy: f64,
+    /// Each view's share of the MGD (sums to 1).
+    pub view_fractions: Vec<f64>,
     /// Relative standard error of the MGD (batch method).
     pub mgd_rel_uncertainty: f64,
     /// Incident air kerma at the reference point per emitted photon, mGy
@@ -308,6 +310,7 @@ pub fn mgd(
     }
     let per_view = (photons / views_deg.len() as u64).max(batches as u64);
     let mut e_gland = 0.0;
+    let mut per_view_e = Vec::with_capacity(views_deg.len());
     let mut var = 0.0;
     let mut total = 0u64;
     for (k, &a) in views_deg.iter().enumerate() {
@@ -315,6 +318,7 @@ pub fn mgd(
         let r = run(&sc, &src, per_view, batches, seed.wrapping_add(k as u64))?;
         let (m, se) = r.per_photon(|t: &Tallies| t.glandular_kev);
         e_gland += m;
+        per_view_e.push(m);
         var += se * se;
         total += r.total.photons;
     }
@@ -333,6 +337,7 @@ pub fn mgd(
         glandularity: g,
         glandular_mass_g: m_gland,
         mgd_per_photon_mgy: mgd,
+        view_fractions: per_view_e.iter().map(|e| e / e_gland).collect(),
         mgd_rel_uncertainty: var.sqrt() / e_gland,
         kerma_per_photon_mgy: k0,
         mgd_per_kerma: mgd / k0,

@@ -3,6 +3,7 @@
 //!   TOML sidecar, decoded by `dbt_phantom::ExternalSidecar`;
 //! * [`dataset`]: the memory-mappable training dataset (see `DATASET.md`).
 
+pub mod acquisition;
 pub mod dataset;
 
 use dbt_phantom::{ExternalSidecar, LabelVolume, PhantomError};

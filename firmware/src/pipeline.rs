@@ -1,0 +1,274 @@
+//! Processing of one acquisition, from counts to report contents: per coronal
+//! slice reconstruction (today MLTR, the paper's baseline; DBToR replaces it
+//! with issue #4), stacking into a volume, tissue classification, density,
+//! Monte Carlo MGD (patient-specific and model breast), and the two DICOM
+//! reports. Pure: the adapters read the acquisition and deliver the reports.
+
+use dbt_dicom::{
+    density_report, dose_report, DensityInput, DoseEvent, DoseInput, Equipment, Header, Laterality,
+    Report, UidSource,
+};
+use dbt_dose::patient::{dbt_views, mgd_to_uncertainty, Breast, MgdResult, Model};
+use dbt_projector::Projector;
+use dbt_recon::{mltr, MltrOptions};
+use dbt_store::acquisition::Acquisition;
+use dbt_tissue::{classify, density, Classification, ClassifyOptions, Density};
+use serde::Serialize;
+use thiserror::Error;
+
+/// Errors of the processing; each says which step and why.
+#[derive(Debug, Error)]
+pub enum PipelineError {
+    /// The acquisition cannot be processed as given.
+    #[error("acquisition: {0}")]
+    Input(String),
+    /// Reconstruction failed.
+    #[error("reconstruction of slice {slice}: {source}")]
+    Recon {
+        /// Coronal slice.
+        slice: usize,
+        /// Cause.
+        source: dbt_recon::ReconError,
+    },
+    /// Classification failed.
+    #[error("classification: {0}")]
+    Tissue(#[from] dbt_tissue::TissueError),
+    /// Dose computation failed.
+    #[error("dose: {0}")]
+    Dose(#[from] dbt_dose::DoseError),
+    /// Report building failed.
+    #[error("report: {0}")]
+    Report(#[from] dbt_dicom::DicomError),
+}
+
+/// Options of the processing.
+#[derive(Debug, Clone, Serialize)]
+pub struct PipelineOptions {
+    /// MLTR iterations (the paper: 100).
+    pub mltr_iterations: usize,
+    /// Target relative statistical uncertainty of the MGD.
+    pub dose_uncertainty: f64,
+    /// Monte Carlo seed.
+    pub seed: u64,
+}
+
+impl Default for PipelineOptions {
+    fn default() -> Self {
+        Self {
+            mltr_iterations: 100,
+            dose_uncertainty: 0.01,
+            seed: 1,
+        }
+    }
+}
+
+/// Everything the processing found.
+#[derive(Debug, Clone, Serialize)]
+pub struct ProcessResult {
+    /// Reconstructor used.
+    pub reconstructor: String,
+    /// Volume dimensions `[lateral, vertical, depth]`.
+    pub dims: [usize; 3],
+    /// Voxel side, mm.
+    pub voxel_mm: f64,
+    /// Reconstructed attenuation, 1/mm.
+    #[serde(skip)]
+    pub mu: Vec<f32>,
+    /// Classification summary (labels skipped in JSON).
+    pub classification: Classification,
+    /// Density estimates.
+    pub density: Density,
+    /// Patient-specific Monte Carlo MGD.
+    pub dose_patient: MgdResult,
+    /// Model-breast MGD.
+    pub dose_model: MgdResult,
+    /// Incident air kerma at the reference point of the sweep, mGy.
+    pub kerma_mgy: f64,
+    /// Patient-specific MGD of the sweep, mGy.
+    pub mgd_mgy: f64,
+    /// Model-breast MGD of the sweep, mGy.
+    pub model_mgd_mgy: f64,
+}
+
+/// Reconstruct, classify, and compute density and dose.
+pub fn process(acq: &Acquisition, opts: &PipelineOptions) -> Result<ProcessResult, PipelineError> {
+    let h = &acq.header;
+    let g = &h.geometry;
+    let _span =
+        tracing::info_span!("acquisition", patient = %h.patient.id, slices = h.slices).entered();
+    if (h.slice_spacing_mm - g.image.pixel_mm).abs() > 1e-6 {
+        return Err(PipelineError::Input(format!(
+            "slice spacing {} mm differs from the pixel {} mm (the dose grid must be isotropic)",
+            h.slice_spacing_mm, g.image.pixel_mm
+        )));
+    }
+    if acq.counts.is_empty() {
+        return Err(PipelineError::Input("no slices".into()));
+    }
+    let proj = Projector::new(g);
+    let mask = dbt_phantom::thickness_mask(g, h.thickness_mm);
+    let (rows, cols) = (g.image.rows, g.image.columns);
+    let nv = g.rows_within_thickness(h.thickness_mm);
+    if nv == 0 {
+        return Err(PipelineError::Input(format!(
+            "thickness {} mm holds no image row",
+            h.thickness_mm
+        )));
+    }
+    let nd = acq.counts.len();
+    let mut mu = vec![0f32; cols * nv * nd];
+    let mopts = MltrOptions {
+        iterations: opts.mltr_iterations,
+        track_likelihood: false,
+    };
+    for (d, counts) in acq.counts.iter().enumerate() {
+        let _s = tracing::debug_span!("slice", d).entered();
+        let (img, _) = mltr(&proj, counts, h.flux, &mask, &mopts)
+            .map_err(|source| PipelineError::Recon { slice: d, source })?;
+        // Image row r (0 at the top) -> vertical index rows - 1 - r.
+        for v in 0..nv {
+            let r = rows - 1 - v;
+            let dst = (d * nv + v) * cols;
+            mu[dst..dst + cols].copy_from_slice(&img[r * cols..(r + 1) * cols]);
+        }
+    }
+    let dims = [cols, nv, nd];
+    let classification = classify(&mu, dims, &ClassifyOptions::default())?;
+    let dens = density(&mu, &classification.labels, g.image.pixel_mm);
+    let tube = dbt_dose::xray::paper_spectrum(h.thickness_mm)?;
+    let spectrum = tube
+        .spectrum
+        .clone()
+        .ok_or_else(|| PipelineError::Input("no spectrum".into()))?;
+    let breast = Breast {
+        dims,
+        voxel_mm: g.image.pixel_mm,
+        labels: &classification.labels,
+    };
+    let views = dbt_views();
+    let max = 100_000_000;
+    let dose_patient = mgd_to_uncertainty(
+        &breast,
+        Model::PatientSpecific,
+        &spectrum,
+        &views,
+        opts.dose_uncertainty,
+        200_000,
+        max,
+        opts.seed,
+    )?;
+    let dose_model = mgd_to_uncertainty(
+        &breast,
+        Model::Homogeneous,
+        &spectrum,
+        &views,
+        opts.dose_uncertainty,
+        200_000,
+        max,
+        opts.seed + 1,
+    )?;
+    let kerma_mgy = h.mas_total * h.tube_output_mgy_per_mas;
+    Ok(ProcessResult {
+        reconstructor: format!("MLTR {} iterations", opts.mltr_iterations),
+        dims,
+        voxel_mm: g.image.pixel_mm,
+        mu,
+        density: dens,
+        mgd_mgy: dose_patient.mgd_per_kerma * kerma_mgy,
+        model_mgd_mgy: dose_model.mgd_per_kerma * kerma_mgy,
+        kerma_mgy,
+        classification,
+        dose_patient,
+        dose_model,
+    })
+}
+
+/// The dose and density reports of a processed acquisition.
+pub fn reports(
+    acq: &Acquisition,
+    res: &ProcessResult,
+    equipment: &Equipment,
+    uids: &mut UidSource,
+    content_date: &str,
+    content_time: &str,
+) -> Result<(Report, Report), PipelineError> {
+    let h = &acq.header;
+    let g = &h.geometry;
+    let header = Header {
+        patient_name: h.patient.name.clone(),
+        patient_id: h.patient.id.clone(),
+        patient_birth_date: h.patient.birth_date.clone(),
+        patient_sex: h.patient.sex.clone(),
+        study_uid: h.study.study_uid.clone(),
+        study_date: h.study.date.clone(),
+        study_time: h.study.time.clone(),
+        study_id: h.study.study_id.clone(),
+        accession_number: h.study.accession.clone(),
+        referring_physician: String::new(),
+        laterality: if h.laterality == "R" {
+            Laterality::Right
+        } else {
+            Laterality::Left
+        },
+        source_series_uid: h.study.series_uid.clone(),
+        source_instance_uids: h.study.instance_uids.clone(),
+    };
+    let nv = g.n_views();
+    let step = if nv > 1 {
+        g.angle_deg(1) - g.angle_deg(0)
+    } else {
+        0.0
+    };
+    let tube = dbt_dose::xray::paper_spectrum(h.thickness_mm)?;
+    let events = (0..nv)
+        .map(|v| {
+            let a = g.angle_deg(v);
+            let frac = res
+                .dose_patient
+                .view_fractions
+                .get(v)
+                .copied()
+                .unwrap_or(1.0 / nv as f64);
+            DoseEvent {
+                angle_start_deg: a - step / 2.0,
+                angle_end_deg: a + step / 2.0,
+                kvp: h.kvp,
+                exposure_uas: h.mas_total * 1000.0 / nv as f64,
+                agd_mgy: res.mgd_mgy * frac,
+                entrance_kerma_mgy: res.kerma_mgy / nv as f64,
+                datetime: format!("{}{}", h.study.date, h.study.time),
+            }
+        })
+        .collect();
+    let dose = dose_report(
+        &DoseInput {
+            header: header.clone(),
+            equipment: equipment.clone(),
+            events,
+            compression_mm: h.thickness_mm,
+            hvl_mm_al: tube.hvl_mm_al,
+            filter_rh_mm: tube.rh_mm,
+            accumulated_agd_mgy: res.mgd_mgy,
+            relative_uncertainty: res.dose_patient.mgd_rel_uncertainty,
+            model_agd_mgy: res.model_mgd_mgy,
+            content_date: content_date.into(),
+            content_time: content_time.into(),
+        },
+        uids,
+    )?;
+    let dens = density_report(
+        &DensityInput {
+            header,
+            equipment: equipment.clone(),
+            glandularity: res.density.glandularity_labels,
+            fibroglandular_cm3: res.density.fibroglandular_cm3,
+            breast_cm3: res.density.breast_cm3.max(1.0),
+            reconstructor: res.reconstructor.clone(),
+            model_version: "baseline (no learned model)".into(),
+            content_date: content_date.into(),
+            content_time: content_time.into(),
+        },
+        uids,
+    )?;
+    Ok((dose, dens))
+}

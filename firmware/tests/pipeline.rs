@@ -1,0 +1,88 @@
+//! The processing chain on a small simulated acquisition: counts in, two
+//! DICOM reports out, with values that agree with what was computed.
+
+use dbt_acquisition::NoiseLevel;
+use dbt_dicom::{read_values, Equipment, UidSource};
+use dbt_geometry::Geometry;
+use dbt_phantom::{generate, PhantomSpec};
+use dbtor_firmware::pipeline::{process, reports, PipelineOptions};
+use host_sim::{simulate_acquisition, Technique};
+
+#[test]
+fn acquisition_to_reports() {
+    let g = Geometry::paper().binned(4).unwrap();
+    let spec = PhantomSpec {
+        thickness_mm: 32.0,
+        chest_to_nipple_mm: 30.0,
+        width_mm: 80.0,
+        glandularity: 0.3,
+        ..PhantomSpec::typical(g.image.pixel_mm, 5)
+    };
+    let vol = generate(&spec).unwrap();
+    let acq = simulate_acquisition(
+        &vol,
+        &g,
+        NoiseLevel::NoiseFree,
+        3,
+        Technique::default(),
+        27.0,
+        "T1",
+        "1.2.3",
+    )
+    .unwrap();
+    let opts = PipelineOptions {
+        mltr_iterations: 30,
+        dose_uncertainty: 0.05,
+        seed: 1,
+    };
+    let res = process(&acq, &opts).unwrap();
+    assert_eq!(res.dims[2], vol.n_coronal());
+    assert_eq!(res.dims[1], g.rows_within_thickness(32.0));
+    let d = res.density;
+    assert!(d.glandularity_labels > 0.0 && d.glandularity_labels < 1.0);
+    assert!(
+        d.breast_cm3 > 0.5 * 80.0 * 30.0 * 32.0 / 1000.0 * 0.5,
+        "{d:?}"
+    );
+    assert!(res.mgd_mgy > 0.0 && res.dose_patient.mgd_rel_uncertainty < 0.05);
+    let eq = Equipment {
+        manufacturer: "T".into(),
+        model: "T".into(),
+        serial: "1".into(),
+        software_version: "0".into(),
+        device_uid: "1.2.3.9".into(),
+    };
+    let mut uids = UidSource::new("1.2.3", 7).unwrap();
+    let (dose, dens) = reports(&acq, &res, &eq, &mut uids, "20261122", "120000").unwrap();
+    let (_, v) = read_values(&dose.to_bytes().unwrap()).unwrap();
+    let agd: Vec<f64> = v
+        .iter()
+        .filter(|(k, _)| k == "Average Glandular Dose")
+        .map(|(_, s)| s.split(' ').next().unwrap().parse().unwrap())
+        .collect();
+    assert_eq!(agd.len(), g.n_views());
+    // The per-view doses add up to the accumulated dose.
+    let acc: f64 = v
+        .iter()
+        .find(|(k, _)| k == "Accumulated Average Glandular Dose")
+        .map(|(_, s)| s.split(' ').next().unwrap().parse().unwrap())
+        .unwrap();
+    assert!(
+        (agd.iter().sum::<f64>() - acc).abs() < 1e-6 * acc.max(1e-9) + 1e-9,
+        "{acc}"
+    );
+    let (_, v) = read_values(&dens.to_bytes().unwrap()).unwrap();
+    let pft: f64 = v
+        .iter()
+        .find(|(k, _)| k == "Percent Fibroglandular Tissue")
+        .map(|(_, s)| s.split(' ').next().unwrap().parse().unwrap())
+        .unwrap();
+    assert!((pft - 100.0 * d.glandularity_labels).abs() < 1e-9);
+    // A bad acquisition is named.
+    let mut bad = acq.clone();
+    bad.header.slice_spacing_mm = 0.5;
+    assert!(process(&bad, &opts)
+        .unwrap_err()
+        .to_string()
+        .contains("slice spacing"));
+}
