@@ -8,6 +8,7 @@
 //! of the ground truth for PSNR and SSIM; FBP is limited to the thickness
 //! support like MLTR.
 
+pub mod accuracy;
 pub mod picture;
 
 use dbt_acquisition::NoiseLevel;

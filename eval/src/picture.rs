@@ -47,3 +47,67 @@ pub fn compose(panels: &[Panel]) -> (Vec<u8>, usize, usize) {
     }
     (out, width, height)
 }
+
+/// A Bland-Altman plot as 8-bit grey pixels (`width x height`): one dark
+/// square per case at (mean of truth and estimate, difference), the zero line
+/// dotted, the bias solid and the 95 % limits dashed. Axes span the data with
+/// a 10 % margin; the caller states the ranges in the accompanying JSON.
+pub fn bland_altman(
+    means: &[f64],
+    diffs: &[f64],
+    bias: f64,
+    loa: [f64; 2],
+) -> (Vec<u8>, usize, usize, [f64; 4]) {
+    let (w, h) = (640usize, 400usize);
+    let mut px = vec![255u8; w * h];
+    let lo_x = means.iter().copied().fold(f64::MAX, f64::min);
+    let hi_x = means.iter().copied().fold(f64::MIN, f64::max);
+    let ys = diffs.iter().copied().chain([loa[0], loa[1], 0.0]);
+    let lo_y = ys.clone().fold(f64::MAX, f64::min);
+    let hi_y = ys.fold(f64::MIN, f64::max);
+    let pad = |lo: f64, hi: f64| {
+        let r = (hi - lo).max(1e-9);
+        (lo - 0.1 * r, hi + 0.1 * r)
+    };
+    let ((x0, x1), (y0, y1)) = (pad(lo_x, hi_x), pad(lo_y, hi_y));
+    let to_px = |x: f64, y: f64| {
+        let c = ((x - x0) / (x1 - x0) * (w - 1) as f64).round() as isize;
+        let r = ((y1 - y) / (y1 - y0) * (h - 1) as f64).round() as isize;
+        (c, r)
+    };
+    let mut hline = |y: f64, on: &dyn Fn(usize) -> bool, v: u8| {
+        let (_, r) = to_px(x0, y);
+        if (0..h as isize).contains(&r) {
+            for c in 0..w {
+                if on(c) {
+                    px[r as usize * w + c] = v;
+                }
+            }
+        }
+    };
+    hline(0.0, &|c| c % 6 < 2, 150);
+    hline(bias, &|_| true, 0);
+    hline(loa[0], &|c| c % 12 < 7, 60);
+    hline(loa[1], &|c| c % 12 < 7, 60);
+    for (&m, &d) in means.iter().zip(diffs) {
+        let (c, r) = to_px(m, d);
+        for dr in -3..=3 {
+            for dc in -3..=3 {
+                let (rr, cc) = (r + dr, c + dc);
+                if (0..h as isize).contains(&rr) && (0..w as isize).contains(&cc) {
+                    px[rr as usize * w + cc as usize] = 30;
+                }
+            }
+        }
+    }
+    // Frame.
+    for c in 0..w {
+        px[c] = 0;
+        px[(h - 1) * w + c] = 0;
+    }
+    for r in 0..h {
+        px[r * w] = 0;
+        px[r * w + w - 1] = 0;
+    }
+    (px, w, h, [x0, x1, y0, y1])
+}

@@ -76,6 +76,32 @@ enum Cmd {
         #[arg(long, default_value_t = 1)]
         seed: u64,
     },
+    /// End-to-end accuracy of glandularity and MGD on held-out phantoms
+    /// (simulated acquisition -> firmware processing), Bland-Altman
+    /// statistics, JSON and PNG plots.
+    Accuracy {
+        /// Test-set phantoms 0..N.
+        #[arg(long, default_value_t = 30)]
+        phantoms: usize,
+        /// Evaluate this external phantom (sidecar) instead.
+        #[arg(long)]
+        phantom: Option<PathBuf>,
+        /// Binning of the paper geometry (voxels = pixels).
+        #[arg(long, default_value_t = 4)]
+        binning: usize,
+        /// Noise level.
+        #[arg(long, default_value = "N8")]
+        noise: String,
+        /// MLTR iterations.
+        #[arg(long, default_value_t = 100)]
+        iterations: usize,
+        /// Target MGD uncertainty per Monte Carlo run.
+        #[arg(long, default_value_t = 0.01)]
+        dose_uncertainty: f64,
+        /// Output folder (accuracy.json, bland-altman-*.png).
+        #[arg(long, default_value = "eval/results/accuracy")]
+        out: PathBuf,
+    },
     /// PNG of a test slice: phantom, sinogram, MLTR, FBP.
     Picture {
         /// Output PNG.
@@ -243,6 +269,132 @@ fn main() -> Result<()> {
                 "model_over_patient": m.mgd_per_kerma / p.mgd_per_kerma,
             });
             println!("{}", serde_json::to_string_pretty(&out)?);
+        }
+        Cmd::Accuracy {
+            phantoms,
+            phantom,
+            binning,
+            noise,
+            iterations,
+            dose_uncertainty,
+            out,
+        } => {
+            use dbt_eval::accuracy::{run_case, summarise, test_phantoms};
+            let g = Geometry::paper().binned(binning)?;
+            let noise = NoiseLevel::parse(&noise)?;
+            let opts = dbtor_firmware::pipeline::PipelineOptions {
+                mltr_iterations: iterations,
+                dose_uncertainty,
+                seed: 1,
+            };
+            let inputs: Vec<anyhow::Result<(String, dbt_phantom::LabelVolume)>> = match &phantom {
+                Some(p) => vec![dbt_store::load_external_phantom(p)
+                    .map_err(anyhow::Error::from)
+                    .and_then(|v| Ok(v.resampled(g.image.pixel_mm)?))
+                    .map(|v| (p.display().to_string(), v))],
+                None => test_phantoms(&g, phantoms).collect(),
+            };
+            let mut cases = Vec::new();
+            for (k, item) in inputs.into_iter().enumerate() {
+                let (name, vol) = item?;
+                let c = run_case(name, &vol, &g, noise, &opts, 1000 + k as u64)?;
+                eprintln!(
+                    "{}: T {:.1} mm, G true {:.3} labels {:.3} pv {:.3}; MGD true {:.3} est {:.3} model {:.3} mGy ({:.0} s)",
+                    c.phantom, c.thickness_mm, c.g_true, c.g_labels, c.g_partial_volume, c.mgd_true, c.mgd_est, c.mgd_model, c.seconds
+                );
+                cases.push(c);
+            }
+            let summary = summarise(&cases);
+            std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+            println!("| quantity | bias | sd | 95 % limits | max abs | p (bias) | n |\n|---|---|---|---|---|---|---|");
+            let mut plots = serde_json::Map::new();
+            for (name, a, diffs, means) in [
+                (
+                    "glandularity, labels (pp)",
+                    summary.glandularity_labels_pp,
+                    cases
+                        .iter()
+                        .map(|c| 100.0 * (c.g_labels - c.g_true))
+                        .collect::<Vec<_>>(),
+                    cases
+                        .iter()
+                        .map(|c| 50.0 * (c.g_labels + c.g_true))
+                        .collect::<Vec<_>>(),
+                ),
+                (
+                    "glandularity, partial volume (pp)",
+                    summary.glandularity_partial_volume_pp,
+                    cases
+                        .iter()
+                        .map(|c| 100.0 * (c.g_partial_volume - c.g_true))
+                        .collect(),
+                    cases
+                        .iter()
+                        .map(|c| 50.0 * (c.g_partial_volume + c.g_true))
+                        .collect(),
+                ),
+                (
+                    "MGD, patient-specific (%)",
+                    summary.mgd_percent,
+                    cases
+                        .iter()
+                        .map(|c| 100.0 * (c.mgd_est / c.mgd_true - 1.0))
+                        .collect(),
+                    cases
+                        .iter()
+                        .map(|c| 0.5 * (c.mgd_est + c.mgd_true))
+                        .collect(),
+                ),
+                (
+                    "MGD, model breast (%)",
+                    summary.model_mgd_percent,
+                    cases
+                        .iter()
+                        .map(|c| 100.0 * (c.mgd_model / c.mgd_true - 1.0))
+                        .collect(),
+                    cases
+                        .iter()
+                        .map(|c| 0.5 * (c.mgd_model + c.mgd_true))
+                        .collect(),
+                ),
+            ] {
+                println!(
+                    "| {name} | {:+.2} | {:.2} | [{:+.2}, {:+.2}] | {:.2} | {:.3} | {} |",
+                    a.bias, a.sd, a.loa[0], a.loa[1], a.max_abs, a.p_value, a.n
+                );
+                let file = format!(
+                    "bland-altman-{}.png",
+                    name.split(' ')
+                        .next()
+                        .unwrap_or("x")
+                        .trim_end_matches(',')
+                        .to_lowercase()
+                        + if name.contains("partial") {
+                            "-pv"
+                        } else if name.contains("model") {
+                            "-model"
+                        } else {
+                            ""
+                        }
+                );
+                let (px, w, h, ranges) =
+                    dbt_eval::picture::bland_altman(&means, &diffs, a.bias, a.loa);
+                write_png(&out.join(&file), &px, w, h)?;
+                plots.insert(file, serde_json::json!({"quantity": name, "x_range_mean": [ranges[0], ranges[1]], "y_range_difference": [ranges[2], ranges[3]]}));
+            }
+            let json = serde_json::json!({
+                "reconstructor": format!("MLTR {iterations} iterations"),
+                "noise": noise.name(),
+                "geometry": g.describe(),
+                "cases": cases,
+                "summary": summary,
+                "plots": plots,
+            });
+            std::fs::write(
+                out.join("accuracy.json"),
+                serde_json::to_string_pretty(&json)?,
+            )?;
+            println!("\nJSON and Bland-Altman PNGs (x: mean of truth and estimate; y: difference; solid: bias; dashed: 95 % limits): {}", out.display());
         }
         Cmd::Picture {
             out,

@@ -1,0 +1,266 @@
+//! End-to-end accuracy on held-out phantoms (issue #7): simulated acquisition
+//! -> firmware processing -> glandularity and MGD, against the phantom truth
+//! (its own labels through the same dose engine), with Bland-Altman
+//! statistics. Today the reconstructor is MLTR; DBToR joins with issue #4.
+
+use dbt_acquisition::NoiseLevel;
+use dbt_dose::patient::{dbt_views, mgd_to_uncertainty, Breast, Model};
+use dbt_geometry::Geometry;
+use dbt_phantom::{generate, LabelVolume, Population};
+use dbtor_firmware::pipeline::{process, PipelineOptions};
+use host_sim::{simulate_acquisition, Technique};
+use serde::Serialize;
+
+/// One case.
+#[derive(Debug, Clone, Serialize)]
+pub struct Case {
+    /// Where the phantom came from.
+    pub phantom: String,
+    /// Compressed thickness, mm.
+    pub thickness_mm: f64,
+    /// True glandularity by mass.
+    pub g_true: f64,
+    /// Estimated glandularity from labels.
+    pub g_labels: f64,
+    /// Estimated glandularity from partial volumes.
+    pub g_partial_volume: f64,
+    /// True MGD (phantom labels through the engine), mGy.
+    pub mgd_true: f64,
+    /// MGD of the classified reconstruction, mGy.
+    pub mgd_est: f64,
+    /// Model-breast MGD (reconstruction's outline and glandularity), mGy.
+    pub mgd_model: f64,
+    /// Processing seconds.
+    pub seconds: f64,
+}
+
+/// Bland-Altman summary of differences.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Agreement {
+    /// Mean difference.
+    pub bias: f64,
+    /// Sample standard deviation of the differences.
+    pub sd: f64,
+    /// 95 % limits of agreement, `bias -+ 1.96 sd`.
+    pub loa: [f64; 2],
+    /// Largest absolute difference.
+    pub max_abs: f64,
+    /// Two-sided p-value of the paired t-test for zero bias.
+    pub p_value: f64,
+    /// Cases.
+    pub n: usize,
+}
+
+/// ln Gamma (Lanczos, g = 7, n = 9).
+fn ln_gamma(x: f64) -> f64 {
+    const C: [f64; 9] = [
+        0.999_999_999_999_809_9,
+        676.520_368_121_885_1,
+        -1_259.139_216_722_402_8,
+        771.323_428_777_653_1,
+        -176.615_029_162_140_6,
+        12.507_343_278_686_905,
+        -0.138_571_095_265_720_12,
+        9.984_369_578_019_572e-6,
+        1.505_632_735_149_311_6e-7,
+    ];
+    if x < 0.5 {
+        return (std::f64::consts::PI / (std::f64::consts::PI * x).sin()).ln() - ln_gamma(1.0 - x);
+    }
+    let x = x - 1.0;
+    let mut a = C[0];
+    let t = x + 7.5;
+    for (i, c) in C.iter().enumerate().skip(1) {
+        a += c / (x + i as f64);
+    }
+    0.5 * (2.0 * std::f64::consts::PI).ln() + (x + 0.5) * t.ln() - t + a.ln()
+}
+
+/// Regularised incomplete beta I_x(a, b) (continued fraction, Numerical
+/// Recipes `betacf`).
+fn inc_beta(x: f64, a: f64, b: f64) -> f64 {
+    if x <= 0.0 {
+        return 0.0;
+    }
+    if x >= 1.0 {
+        return 1.0;
+    }
+    let front =
+        (ln_gamma(a + b) - ln_gamma(a) - ln_gamma(b) + a * x.ln() + b * (1.0 - x).ln()).exp();
+    let cf = |x: f64, a: f64, b: f64| {
+        let (qab, qap, qam) = (a + b, a + 1.0, a - 1.0);
+        let (mut c, mut d) = (1.0, 1.0 - qab * x / qap);
+        d = if d.abs() < 1e-300 { 1e-300 } else { d };
+        d = 1.0 / d;
+        let mut h = d;
+        for m in 1..300 {
+            let m = m as f64;
+            let m2 = 2.0 * m;
+            let aa = m * (b - m) * x / ((qam + m2) * (a + m2));
+            d = 1.0 + aa * d;
+            d = if d.abs() < 1e-300 { 1e-300 } else { d };
+            c = 1.0 + aa / c;
+            c = if c.abs() < 1e-300 { 1e-300 } else { c };
+            d = 1.0 / d;
+            h *= d * c;
+            let aa = -(a + m) * (qab + m) * x / ((a + m2) * (qap + m2));
+            d = 1.0 + aa * d;
+            d = if d.abs() < 1e-300 { 1e-300 } else { d };
+            c = 1.0 + aa / c;
+            c = if c.abs() < 1e-300 { 1e-300 } else { c };
+            d = 1.0 / d;
+            let del = d * c;
+            h *= del;
+            if (del - 1.0).abs() < 1e-14 {
+                break;
+            }
+        }
+        h
+    };
+    if x < (a + 1.0) / (a + b + 2.0) {
+        front * cf(x, a, b) / a
+    } else {
+        1.0 - front * cf(1.0 - x, b, a) / b
+    }
+}
+
+/// Two-sided p-value of Student's t with `nu` degrees of freedom.
+pub fn t_test_p(t: f64, nu: f64) -> f64 {
+    inc_beta(nu / (nu + t * t), nu / 2.0, 0.5)
+}
+
+/// Bland-Altman statistics of `diffs`.
+pub fn agreement(diffs: &[f64]) -> Agreement {
+    let n = diffs.len();
+    let (bias, sd) = dbt_metrics::mean_sd(diffs);
+    let p_value = if n > 1 && sd > 0.0 {
+        t_test_p(bias / (sd / (n as f64).sqrt()), (n - 1) as f64)
+    } else {
+        f64::NAN
+    };
+    Agreement {
+        bias,
+        sd,
+        loa: [bias - 1.96 * sd, bias + 1.96 * sd],
+        max_abs: diffs.iter().fold(0.0, |m, d| m.max(d.abs())),
+        p_value,
+        n,
+    }
+}
+
+/// One phantom through acquisition, processing and dose.
+pub fn run_case(
+    name: String,
+    vol: &LabelVolume,
+    geom: &Geometry,
+    noise: NoiseLevel,
+    opts: &PipelineOptions,
+    seed: u64,
+) -> anyhow::Result<Case> {
+    let _span = tracing::info_span!("case", %name).entered();
+    let t0 = std::time::Instant::now();
+    let tech = Technique::default();
+    let acq = simulate_acquisition(
+        vol,
+        geom,
+        noise,
+        seed,
+        tech,
+        28.0,
+        "EVAL",
+        "1.2.826.0.1.3680043.10.543.3",
+    )?;
+    let res = process(&acq, opts)?;
+    let tube = dbt_dose::xray::paper_spectrum(vol.thickness_mm())?;
+    let spec = tube
+        .spectrum
+        .clone()
+        .ok_or_else(|| anyhow::anyhow!("no spectrum"))?;
+    let truth = Breast {
+        dims: vol.dims(),
+        voxel_mm: vol.voxel_mm(),
+        labels: vol.labels(),
+    };
+    let t = mgd_to_uncertainty(
+        &truth,
+        Model::PatientSpecific,
+        &spec,
+        &dbt_views(),
+        opts.dose_uncertainty,
+        200_000,
+        100_000_000,
+        seed + 7,
+    )?;
+    Ok(Case {
+        phantom: name,
+        thickness_mm: vol.thickness_mm(),
+        g_true: vol.glandularity().unwrap_or(0.0),
+        g_labels: res.density.glandularity_labels,
+        g_partial_volume: res.density.glandularity_partial_volume,
+        mgd_true: t.mgd_per_kerma * res.kerma_mgy,
+        mgd_est: res.mgd_mgy,
+        mgd_model: res.model_mgd_mgy,
+        seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// The fixed held-out phantoms `0..n` of the test population.
+pub fn test_phantoms(
+    geom: &Geometry,
+    n: usize,
+) -> impl Iterator<Item = anyhow::Result<(String, LabelVolume)>> + '_ {
+    let pop = Population::for_geometry(geom);
+    (0..n as u64).map(move |i| {
+        let vol = generate(&pop.draw(Population::TEST_SEED, i))?;
+        Ok((format!("test-set phantom {i}"), vol))
+    })
+}
+
+/// Summary rows of a set of cases.
+#[derive(Debug, Clone, Serialize)]
+pub struct AccuracySummary {
+    /// Glandularity error (labels), percentage points.
+    pub glandularity_labels_pp: Agreement,
+    /// Glandularity error (partial volume), percentage points.
+    pub glandularity_partial_volume_pp: Agreement,
+    /// Patient-specific MGD error, percent.
+    pub mgd_percent: Agreement,
+    /// Model-breast MGD error, percent.
+    pub model_mgd_percent: Agreement,
+}
+
+/// Summarise cases.
+pub fn summarise(cases: &[Case]) -> AccuracySummary {
+    let d = |f: &dyn Fn(&Case) -> f64| cases.iter().map(f).collect::<Vec<f64>>();
+    AccuracySummary {
+        glandularity_labels_pp: agreement(&d(&|c| 100.0 * (c.g_labels - c.g_true))),
+        glandularity_partial_volume_pp: agreement(&d(&|c| 100.0 * (c.g_partial_volume - c.g_true))),
+        mgd_percent: agreement(&d(&|c| 100.0 * (c.mgd_est / c.mgd_true - 1.0))),
+        model_mgd_percent: agreement(&d(&|c| 100.0 * (c.mgd_model / c.mgd_true - 1.0))),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn p_values_match_tables() {
+        // Student t two-sided critical values: t(0.975, 10) = 2.228, t(0.975, 29) = 2.045.
+        assert!((t_test_p(2.228, 10.0) - 0.05).abs() < 5e-4);
+        assert!((t_test_p(2.045, 29.0) - 0.05).abs() < 5e-4);
+        assert!((t_test_p(0.0, 5.0) - 1.0).abs() < 1e-12);
+        // Large nu approaches the normal: 1.96 -> 0.05.
+        assert!((t_test_p(1.96, 1e6) - 0.05).abs() < 1e-3);
+    }
+
+    #[test]
+    fn agreement_of_known_differences() {
+        let a = agreement(&[1.0, -1.0, 2.0, -2.0]);
+        assert_eq!(a.bias, 0.0);
+        assert!((a.sd - (10.0f64 / 3.0).sqrt()).abs() < 1e-12);
+        assert_eq!(a.max_abs, 2.0);
+        assert!((a.p_value - 1.0).abs() < 1e-12);
+        assert!((a.loa[1] - 1.96 * a.sd).abs() < 1e-12);
+    }
+}
