@@ -296,7 +296,7 @@ fn decode_payload(kind: u8, seq: u32, p: &[u8]) -> Result<Frame, FrameError> {
                 flat,
             }))
         }
-        3 | 4 | 5 => {
+        3..=5 => {
             let want = if kind == 3 { 2 } else { 4 };
             if p.len() != want {
                 return Err(bad(
