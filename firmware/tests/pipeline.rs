@@ -78,6 +78,26 @@ fn acquisition_to_reports() {
         .map(|(_, s)| s.split(' ').next().unwrap().parse().unwrap())
         .unwrap();
     assert!((pft - 100.0 * d.glandularity_labels).abs() < 1e-9);
+    // The reports the product writes pass the validators (dicom3tools,
+    // dcmtk; installed by .ci/run).
+    let dir = tempfile::tempdir().unwrap();
+    for (name, r) in [("dose.dcm", &dose), ("density.dcm", &dens)] {
+        let p = dir.path().join(name);
+        std::fs::write(&p, r.to_bytes().unwrap()).unwrap();
+        let out = std::process::Command::new("dciodvfy")
+            .arg(&p)
+            .output()
+            .expect("dciodvfy not found: apt-get install dicom3tools");
+        let text = String::from_utf8_lossy(&out.stderr).to_string()
+            + &String::from_utf8_lossy(&out.stdout);
+        let errors: Vec<&str> = text.lines().filter(|l| l.starts_with("Error")).collect();
+        assert!(errors.is_empty(), "{name}: {errors:?}");
+        let st = std::process::Command::new("dsrdump")
+            .arg(&p)
+            .output()
+            .expect("dsrdump not found: apt-get install dcmtk");
+        assert!(st.status.success(), "{name}: dsrdump failed");
+    }
     // A bad acquisition is named.
     let mut bad = acq.clone();
     bad.header.slice_spacing_mm = 0.5;
