@@ -6,12 +6,15 @@
 #  2. host-sim acquire: test-set phantom 0 (never trained on), every coronal
 #     slice simulated at N = 8 (Poisson), paper geometry binned x4, written as
 #     a recorded acquisition (acquisition.json + counts.f32).
-#  3. dbtor-process: per-slice reconstruction, tissue classification,
+#  3. host-sim stream | dbtor-receive: the gantry's projection stream
+#     (GANTRY_INTERFACE.md) over loopback TCP, two processes; the firmware
+#     acknowledges every frame and spools the acquisition atomically.
+#  4. dbtor-process: per-slice reconstruction, tissue classification,
 #     glandularity, Monte Carlo MGD (25 views, patient-specific and model
 #     breast, 1 % uncertainty), dose SR and density SR to the output folder.
 #     The reconstructor is MLTR (the paper's baseline) until the trained DBToR
 #     model ships (issue #4): density and dose are therefore MLTR-quality.
-#  4. Validation: every report is read back (dbtor-diag report) and, where
+#  5. Validation: every report is read back (dbtor-diag report) and, where
 #     installed, checked with dciodvfy and dsrdump (apt-get install dicom3tools
 #     dcmtk; .ci/run installs them).
 # Output: out/main-job/ (summary.json, reports/*.dcm). Options for step 3 can
@@ -23,12 +26,18 @@ cargo build --release --locked -q -p dbtor-firmware -p host-sim
 ./target/release/dbtor-diag selftest
 rm -rf "$OUT"
 mkdir -p "$OUT"
-./target/release/host-sim acquire --out "$OUT/acquisition" --index 0 --binning 4 --noise N8 2>/dev/null
-./target/release/dbtor-process "$OUT/acquisition" --out "$OUT/reports" "$@" > "$OUT/summary.json"
-python3 - "$OUT/summary.json" <<'PY' || cat "$OUT/summary.json"
+./target/release/host-sim acquire --out "$OUT/gantry-acquisition" --index 0 --binning 4 --noise N8 2>/dev/null
+PORT=$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
+./target/release/host-sim stream --acq "$OUT/gantry-acquisition" --listen "127.0.0.1:$PORT" 2>/dev/null &
+SIM=$!
+./target/release/dbtor-receive --connect "127.0.0.1:$PORT" --out "$OUT/spool/acquisition-1"
+wait "$SIM"
+./target/release/dbtor-process "$OUT/spool/acquisition-1" --out "$OUT/reports" "$@" > "$OUT/summary.json"
+python3 - "$OUT/summary.json" "$OUT/gantry-acquisition/acquisition.json" <<'PY' || cat "$OUT/summary.json"
 import json, sys
 d = json.load(open(sys.argv[1]))
-r, t = d["result"], d["truth"] or {}
+# The truth stays with the simulator: the gantry never sends it.
+r, t = d["result"], json.load(open(sys.argv[2])).get("truth") or {}
 print(f"processed {d['acquisition']} in {d['seconds']:.1f} s ({r['reconstructor']})")
 print(f"glandularity: labels {r['density']['glandularity_labels']:.3f}, partial volume "
       f"{r['density']['glandularity_partial_volume']:.3f}; phantom truth {t.get('glandularity', float('nan')):.3f}")

@@ -3,5 +3,6 @@
 //! daemon (gantry I/O, reconstruction, tissue, dose, DICOM) is built on top of
 //! it by the open issues listed in the README.
 
+pub mod link;
 pub mod pipeline;
 pub mod selftest;

@@ -3,6 +3,7 @@
 //! materials, projector and noise model to per-slice records.
 
 pub mod dataset;
+pub mod stream;
 
 use dbt_store::acquisition::{
     Acquisition as AcqFile, AcquisitionHeader, Patient, Study, ACQ_FORMAT,

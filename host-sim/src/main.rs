@@ -56,6 +56,19 @@ enum Cmd {
         #[arg(long, default_value = "N8")]
         noise: String,
     },
+    /// Serve a recorded acquisition as the gantry's projection stream on TCP
+    /// (one connection), with optional fault injection.
+    Stream {
+        /// Recorded acquisition folder (from `acquire`).
+        #[arg(long)]
+        acq: PathBuf,
+        /// Address to listen on, e.g. 127.0.0.1:7001.
+        #[arg(long)]
+        listen: String,
+        /// Faults: corrupt:SEQ, drop:SEQ, dup:SEQ, reorder:A,B, cut:SEQ (repeatable).
+        #[arg(long)]
+        fault: Vec<String>,
+    },
     /// Export a training dataset (see DATASET.md).
     Dataset {
         /// Output folder (must not hold a dataset yet).
@@ -157,6 +170,20 @@ fn main() -> Result<()> {
                 vol.glandularity().unwrap_or(0.0),
                 noise.name()
             );
+        }
+        Cmd::Stream { acq, listen, fault } => {
+            let faults = fault
+                .iter()
+                .map(|f| host_sim::stream::Fault::parse(f))
+                .collect::<Result<Vec<_>, _>>()
+                .map_err(anyhow::Error::msg)?;
+            let a = dbt_store::acquisition::read_acquisition(&acq)?;
+            let frames = host_sim::stream::frames_of(&a).map_err(anyhow::Error::msg)?;
+            let l = std::net::TcpListener::bind(&listen)
+                .with_context(|| format!("listening on {listen}"))?;
+            eprintln!("host-sim: streaming {} frames on {listen}", frames.len());
+            let resent = host_sim::stream::serve_one(&l, &frames, &faults)?;
+            println!("streamed {} frames, {resent} retransmitted", frames.len());
         }
         Cmd::Dataset {
             out,

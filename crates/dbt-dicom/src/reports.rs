@@ -560,6 +560,15 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
     for (i, ev) in input.events.iter().enumerate() {
         check("events.agd_mgy", ev.agd_mgy, 0.0, 1000.0)?;
         check("events.kvp", ev.kvp, 10.0, 60.0)?;
+        let dt_ok = ev.datetime.len() >= 8
+            && ev.datetime.len() <= 26
+            && ev.datetime[..8].bytes().all(|b| b.is_ascii_digit());
+        if !dt_ok {
+            return Err(DicomError::Field {
+                field: "events.datetime",
+                reason: format!("`{}` is not a DICOM DT (YYYYMMDD[HHMMSS])", ev.datetime),
+            });
+        }
         let eu = uids.next_uid();
         let items = vec![
             (

@@ -194,6 +194,13 @@ fn bad_inputs_are_named() {
     let e = dose_report(&d, &mut uids).err().unwrap().to_string();
     assert!(e.contains("header.accession_number"), "{e}");
     let mut d = dose_input();
+    d.events[3].datetime = String::new();
+    assert!(dose_report(&d, &mut uids)
+        .err()
+        .unwrap()
+        .to_string()
+        .contains("events.datetime"));
+    let mut d = dose_input();
     d.events.clear();
     assert!(dose_report(&d, &mut uids)
         .err()

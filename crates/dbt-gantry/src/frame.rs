@@ -87,6 +87,10 @@ pub struct AcquisitionHeader {
     pub study_uid: String,
     /// Accession number (at most 16 characters).
     pub accession: String,
+    /// Acquisition date `YYYYMMDD`.
+    pub study_date: String,
+    /// Acquisition time `HHMMSS`.
+    pub study_time: String,
     /// Compressed thickness reported by the gantry, mm.
     pub thickness_mm: f64,
     /// Tube voltage, kV.
@@ -121,6 +125,13 @@ impl AcquisitionHeader {
             });
         if !uid_ok {
             return Err(format!("study_uid `{}` is not a valid UID", self.study_uid));
+        }
+        let digits = |s: &str, n: usize| s.len() == n && s.bytes().all(|b| b.is_ascii_digit());
+        if !digits(&self.study_date, 8) {
+            return Err(format!("study_date `{}` must be YYYYMMDD", self.study_date));
+        }
+        if !digits(&self.study_time, 6) {
+            return Err(format!("study_time `{}` must be HHMMSS", self.study_time));
         }
         if self.accession.len() > 16 {
             return Err(format!(
@@ -413,6 +424,8 @@ mod tests {
             patient_name: "Doe^Jane".into(),
             study_uid: "1.2.826.0.1.3680043.10.543.5".into(),
             accession: "A1".into(),
+            study_date: "20261122".into(),
+            study_time: "101500".into(),
             thickness_mm: 45.0,
             kvp: 28.0,
             mas_total: 60.0,

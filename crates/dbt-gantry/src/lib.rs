@@ -8,5 +8,6 @@
 //!
 //! Pure: transports (serial, TCP, Modbus client) are adapters elsewhere.
 
+pub mod assemble;
 pub mod frame;
 pub mod registers;

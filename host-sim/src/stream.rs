@@ -1,0 +1,182 @@
+//! The simulated gantry's projection stream (GANTRY_INTERFACE.md, section 2)
+//! over TCP, with fault injection. One connection, one acquisition: every
+//! frame is sent, then naks are answered by retransmission until the
+//! receiver acknowledges the end frame or closes the connection.
+
+use dbt_gantry::frame::{encode, AcquisitionHeader, Decoder, Frame, Projection};
+use dbt_store::acquisition::Acquisition;
+use std::io::{Read, Write};
+use std::net::TcpListener;
+use std::time::Duration;
+
+/// Faults to inject (each on the first transmission only).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Fault {
+    /// Flip a payload bit of frame `seq` (the CRC fails).
+    Corrupt(u32),
+    /// Do not send frame `seq`.
+    Drop(u32),
+    /// Send frame `seq` twice.
+    Duplicate(u32),
+    /// Swap frames `a` and `b`.
+    Reorder(u32, u32),
+    /// Pull the cable: close the connection before frame `seq`.
+    Cut(u32),
+}
+
+impl Fault {
+    /// Parse `corrupt:3`, `drop:5`, `dup:2`, `reorder:1,2`.
+    pub fn parse(s: &str) -> Result<Fault, String> {
+        let (k, v) = s
+            .split_once(':')
+            .ok_or_else(|| format!("fault `{s}`: expected kind:seq"))?;
+        let n = |t: &str| {
+            t.trim()
+                .parse::<u32>()
+                .map_err(|_| format!("fault `{s}`: `{t}` is not a sequence number"))
+        };
+        match k {
+            "corrupt" => Ok(Fault::Corrupt(n(v)?)),
+            "drop" => Ok(Fault::Drop(n(v)?)),
+            "dup" => Ok(Fault::Duplicate(n(v)?)),
+            "cut" => Ok(Fault::Cut(n(v)?)),
+            "reorder" => {
+                let (a, b) = v
+                    .split_once(',')
+                    .ok_or_else(|| format!("fault `{s}`: reorder:a,b"))?;
+                Ok(Fault::Reorder(n(a)?, n(b)?))
+            }
+            _ => Err(format!(
+                "fault `{s}`: kind must be corrupt, drop, dup, reorder or cut"
+            )),
+        }
+    }
+}
+
+/// The frames of an acquisition: header (seq 0), one projection per view
+/// (seq 1 + view: rows = coronal slices, columns = detector elements, counts
+/// saturated at 65535), end (seq 1 + views).
+pub fn frames_of(acq: &Acquisition) -> Result<Vec<Frame>, String> {
+    let h = &acq.header;
+    let g = &h.geometry;
+    let (nv, nd, rows) = (g.n_views(), g.n_det(), acq.counts.len());
+    if rows > u16::MAX as usize || nd > u16::MAX as usize {
+        return Err("too many rows or columns for the frame format".into());
+    }
+    let mut frames = vec![Frame::Header(AcquisitionHeader {
+        patient_id: h.patient.id.clone(),
+        patient_name: h.patient.name.clone(),
+        study_uid: h.study.study_uid.clone(),
+        accession: h.study.accession.clone(),
+        study_date: h.study.date.clone(),
+        study_time: h.study.time.clone(),
+        thickness_mm: h.thickness_mm,
+        kvp: h.kvp,
+        mas_total: h.mas_total,
+        projections: nv as u16,
+        rows: rows as u16,
+        columns: nd as u16,
+        laterality: h.laterality.clone(),
+    })];
+    for v in 0..nv {
+        let mut counts = Vec::with_capacity(rows * nd);
+        for slice in &acq.counts {
+            counts.extend(
+                slice[v * nd..(v + 1) * nd]
+                    .iter()
+                    .map(|&c| c.round().clamp(0.0, 65535.0) as u16),
+            );
+        }
+        frames.push(Frame::Projection(Projection {
+            view: v as u16,
+            angle_deg: g.angle_deg(v) as f32,
+            rows: rows as u16,
+            columns: nd as u16,
+            counts,
+            flat: vec![h.flux as f32; rows * nd],
+        }));
+    }
+    frames.push(Frame::End {
+        projections: nv as u16,
+    });
+    Ok(frames)
+}
+
+/// Serve one connection on `listener`: stream `frames` with `faults`, then
+/// answer naks until the end frame is acknowledged or the peer closes.
+/// Returns the number of retransmissions.
+pub fn serve_one(
+    listener: &TcpListener,
+    frames: &[Frame],
+    faults: &[Fault],
+) -> std::io::Result<usize> {
+    let (mut s, _) = listener.accept()?;
+    s.set_read_timeout(Some(Duration::from_secs(30)))?;
+    let mut order: Vec<u32> = (0..frames.len() as u32).collect();
+    for f in faults {
+        match *f {
+            Fault::Drop(q) => order.retain(|&x| x != q),
+            Fault::Duplicate(q) => {
+                if let Some(i) = order.iter().position(|&x| x == q) {
+                    order.insert(i, q);
+                }
+            }
+            Fault::Reorder(a, b) => {
+                if let (Some(i), Some(j)) = (
+                    order.iter().position(|&x| x == a),
+                    order.iter().position(|&x| x == b),
+                ) {
+                    order.swap(i, j);
+                }
+            }
+            Fault::Corrupt(_) => {}
+            Fault::Cut(q) => {
+                if let Some(i) = order.iter().position(|&x| x == q) {
+                    order.truncate(i);
+                }
+            }
+        }
+    }
+    let cut = faults.iter().any(|f| matches!(f, Fault::Cut(_)));
+    let mut corrupted = false;
+    for q in order {
+        let Some(frame) = frames.get(q as usize) else {
+            continue;
+        };
+        let mut bytes = encode(frame, q);
+        if !corrupted && faults.contains(&Fault::Corrupt(q)) && bytes.len() > 20 {
+            bytes[16] ^= 0x01;
+            corrupted = true;
+        }
+        s.write_all(&bytes)?;
+    }
+    if cut {
+        let _ = s.shutdown(std::net::Shutdown::Both);
+        return Ok(0);
+    }
+    let end_seq = frames.len() as u32 - 1;
+    let mut dec = Decoder::new();
+    let mut buf = vec![0u8; 4096];
+    let mut resent = 0;
+    loop {
+        let n = match s.read(&mut buf) {
+            Ok(0) => return Ok(resent),
+            Ok(n) => n,
+            Err(e) if e.kind() == std::io::ErrorKind::ConnectionReset => return Ok(resent),
+            Err(e) => return Err(e),
+        };
+        dec.push(&buf[..n]);
+        while let Some(r) = dec.next_frame() {
+            match r {
+                Ok((_, Frame::Nak { seq })) => {
+                    if let Some(f) = frames.get(seq as usize) {
+                        s.write_all(&encode(f, seq))?;
+                        resent += 1;
+                    }
+                }
+                Ok((_, Frame::Ack { seq })) if seq == end_seq => return Ok(resent),
+                _ => {}
+            }
+        }
+    }
+}
