@@ -7,26 +7,25 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-/// A workspace binary, built by `cargo test --workspace` next to the tests.
+/// A workspace binary, (re)built first: `cargo test` does not rebuild other
+/// packages' binaries, and a stale one would test old code (a no-op when
+/// fresh; cargo does not hold the build lock while tests run).
 fn bin(name: &str) -> PathBuf {
     let exe = std::env::current_exe().unwrap();
     let dir = exe.parent().and_then(|d| d.parent()).unwrap();
-    let p = dir.join(name);
-    if !p.exists() {
-        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-        let pkg = if name == "host-sim" {
-            "host-sim"
-        } else {
-            "dbtor-firmware"
-        };
-        let mut c = Command::new(cargo);
-        c.args(["build", "-q", "-p", pkg, "--bin", name]);
-        if dir.ends_with("release") {
-            c.arg("--release");
-        }
-        assert!(c.status().unwrap().success(), "building {name}");
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let pkg = if name == "host-sim" {
+        "host-sim"
+    } else {
+        "dbtor-firmware"
+    };
+    let mut c = Command::new(cargo);
+    c.args(["build", "-q", "-p", pkg, "--bin", name]);
+    if dir.ends_with("release") {
+        c.arg("--release");
     }
-    p
+    assert!(c.status().unwrap().success(), "building {name}");
+    dir.join(name)
 }
 
 fn free_port() -> u16 {
