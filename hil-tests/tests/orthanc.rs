@@ -5,19 +5,12 @@
 
 use dbt_dicom::*;
 use dbt_pacs::{echo, Outbox, PacsConfig};
+use hil_tests::free_port;
 use std::io::{Read, Write};
 use std::net::TcpStream;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
-
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
 
 struct Orthanc {
     child: Child,

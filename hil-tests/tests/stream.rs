@@ -4,6 +4,7 @@
 //! yield exactly the acquisition that was sent; a pulled cable yields a named
 //! fault and nothing spooled.
 
+use hil_tests::free_port;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -26,14 +27,6 @@ fn bin(name: &str) -> PathBuf {
     }
     assert!(c.status().unwrap().success(), "building {name}");
     dir.join(name)
-}
-
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
 }
 
 fn transfer(acq: &Path, out: &Path, faults: &[&str]) -> (bool, String) {
