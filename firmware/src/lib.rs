@@ -4,5 +4,6 @@
 //! it by the open issues listed in the README.
 
 pub mod link;
+pub mod modbus;
 pub mod pipeline;
 pub mod selftest;

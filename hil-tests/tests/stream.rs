@@ -4,35 +4,14 @@
 //! yield exactly the acquisition that was sent; a pulled cable yields a named
 //! fault and nothing spooled.
 
-use hil_tests::free_port;
-use std::path::{Path, PathBuf};
+use hil_tests::{free_port, workspace_bin};
+use std::path::Path;
 use std::process::Command;
-
-/// A workspace binary, (re)built first: `cargo test` does not rebuild other
-/// packages' binaries, and a stale one would test old code (a no-op when
-/// fresh; cargo does not hold the build lock while tests run).
-fn bin(name: &str) -> PathBuf {
-    let exe = std::env::current_exe().unwrap();
-    let dir = exe.parent().and_then(|d| d.parent()).unwrap();
-    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-    let pkg = if name == "host-sim" {
-        "host-sim"
-    } else {
-        "dbtor-firmware"
-    };
-    let mut c = Command::new(cargo);
-    c.args(["build", "-q", "-p", pkg, "--bin", name]);
-    if dir.ends_with("release") {
-        c.arg("--release");
-    }
-    assert!(c.status().unwrap().success(), "building {name}");
-    dir.join(name)
-}
 
 fn transfer(acq: &Path, out: &Path, faults: &[&str]) -> (bool, String) {
     let port = free_port();
     let addr = format!("127.0.0.1:{port}");
-    let mut sim = Command::new(bin("host-sim"));
+    let mut sim = Command::new(workspace_bin("host-sim"));
     sim.args(["stream", "--acq"])
         .arg(acq)
         .args(["--listen", &addr]);
@@ -40,7 +19,7 @@ fn transfer(acq: &Path, out: &Path, faults: &[&str]) -> (bool, String) {
         sim.args(["--fault", f]);
     }
     let mut sim = sim.spawn().unwrap();
-    let rx = Command::new(bin("dbtor-receive"))
+    let rx = Command::new(workspace_bin("dbtor-receive"))
         .args(["--connect", &addr, "--out"])
         .arg(out)
         .args(["--timeout-s", "20"])
@@ -57,7 +36,7 @@ fn transfer(acq: &Path, out: &Path, faults: &[&str]) -> (bool, String) {
 fn faults_are_repaired_or_reported() {
     let dir = tempfile::tempdir().unwrap();
     let acq = dir.path().join("acq");
-    let st = Command::new(bin("host-sim"))
+    let st = Command::new(workspace_bin("host-sim"))
         .args([
             "acquire",
             "--index",

@@ -3,6 +3,7 @@
 //! materials, projector and noise model to per-slice records.
 
 pub mod dataset;
+pub mod modbus;
 pub mod stream;
 
 use dbt_store::acquisition::{

@@ -69,6 +69,24 @@ enum Cmd {
         #[arg(long)]
         fault: Vec<String>,
     },
+    /// Serve the gantry controller's Modbus registers on TCP until killed.
+    Modbus {
+        /// Address to listen on, e.g. 127.0.0.1:1502.
+        #[arg(long)]
+        listen: String,
+        /// Compressed thickness, mm.
+        #[arg(long, default_value_t = 45.3)]
+        thickness_mm: f64,
+        /// Acquisition state (idle, compressing, ready, exposing, complete, fault).
+        #[arg(long, default_value = "exposing")]
+        state: String,
+        /// Address of register 0.
+        #[arg(long, default_value_t = 0)]
+        base: u16,
+        /// Fault: `exception` or `silent`.
+        #[arg(long)]
+        fault: Option<String>,
+    },
     /// Export a training dataset (see DATASET.md).
     Dataset {
         /// Output folder (must not hold a dataset yet).
@@ -184,6 +202,63 @@ fn main() -> Result<()> {
             eprintln!("host-sim: streaming {} frames on {listen}", frames.len());
             let resent = host_sim::stream::serve_one(&l, &frames, &faults)?;
             println!("streamed {} frames, {resent} retransmitted", frames.len());
+        }
+        Cmd::Modbus {
+            listen,
+            thickness_mm,
+            state,
+            base,
+            fault,
+        } => {
+            use dbt_gantry::registers::{encode, Registers, State};
+            use host_sim::modbus::{serve, GantryService, ModbusFault};
+            let state = match state.as_str() {
+                "idle" => State::Idle,
+                "compressing" => State::Compressing,
+                "ready" => State::Ready,
+                "exposing" => State::Exposing,
+                "complete" => State::Complete,
+                "fault" => State::Fault,
+                other => bail!(
+                    "--state `{other}`: idle, compressing, ready, exposing, complete or fault"
+                ),
+            };
+            let fault = match fault.as_deref() {
+                None => None,
+                Some("exception") => Some(ModbusFault::Exception),
+                Some("silent") => Some(ModbusFault::Silent),
+                Some(other) => bail!("--fault `{other}`: exception or silent"),
+            };
+            let kvp = dbt_dose::xray::PAPER_TABLE3
+                .iter()
+                .find(|r| thickness_mm < r.0 .1)
+                .map_or(31.0, |r| r.1 as f64);
+            let regs = Registers {
+                version: 1,
+                state,
+                thickness_mm,
+                force_n: 110.0,
+                kvp,
+                mas_per_projection: 2.4,
+                anode_filter: "W/Rh",
+                projections: 25,
+                angles_deg: [-24.0, 24.0],
+                current: 12,
+                laterality: 'L',
+                view: "CC",
+                fault: 0,
+            };
+            let service = GantryService {
+                registers: std::sync::Arc::new(std::sync::Mutex::new(encode(&regs))),
+                base,
+                fault,
+            };
+            let addr: std::net::SocketAddr = listen
+                .parse()
+                .with_context(|| format!("--listen {listen}"))?;
+            let rt = tokio::runtime::Runtime::new()?;
+            eprintln!("host-sim: Modbus TCP on {addr}");
+            rt.block_on(serve(addr, service))?;
         }
         Cmd::Dataset {
             out,

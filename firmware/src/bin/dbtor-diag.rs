@@ -5,6 +5,7 @@
 //! dbtor-diag geometry [--geometry FILE.toml] [--binning N]
 //! dbtor-diag report FILE.dcm [--json]     # the values of a dose or density SR
 //! dbtor-diag echo AET@host:port            # DICOM C-ECHO to the PACS
+//! dbtor-diag modbus HOST:PORT [--unit N] [--base N] [--json]   # read and decode the gantry registers
 //! ```
 //! Exit codes: 0 all checks passed, 1 a check failed, 2 bad usage or input.
 
@@ -46,7 +47,7 @@ fn run() -> Result<bool> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let Some(cmd) = args.first() else {
         bail!(
-            "usage: dbtor-diag <selftest|geometry|report|echo> [--geometry FILE.toml] [--binning N] [--json] [FILE.dcm | AET@host:port]"
+            "usage: dbtor-diag <selftest|geometry|report|echo|modbus> [--geometry FILE.toml] [--binning N] [--json] [FILE.dcm | AET@host:port | HOST:PORT]"
         );
     };
     let rest = &args[1..];
@@ -140,7 +141,70 @@ fn run() -> Result<bool> {
                 }
             }
         }
-        other => bail!("unknown command `{other}` (expected selftest, geometry, report or echo)"),
+        "modbus" => {
+            let mut it = rest.iter();
+            let mut addr = None;
+            let (mut unit, mut base) = (1u8, 0u16);
+            while let Some(a) = it.next() {
+                match a.as_str() {
+                    "--unit" => {
+                        unit = it
+                            .next()
+                            .context("--unit needs a number")?
+                            .parse()
+                            .context("--unit")?
+                    }
+                    "--base" => {
+                        base = it
+                            .next()
+                            .context("--base needs a number")?
+                            .parse()
+                            .context("--base")?
+                    }
+                    "--json" => {}
+                    s if !s.starts_with("--") => addr = Some(s.to_string()),
+                    other => bail!("unknown argument `{other}`"),
+                }
+            }
+            let addr = addr.context("modbus needs HOST:PORT")?;
+            let sock: std::net::SocketAddr = addr
+                .parse()
+                .with_context(|| format!("`{addr}` is not HOST:PORT"))?;
+            let mut link = dbtor_firmware::modbus::ModbusLink::new(sock);
+            link.unit = unit;
+            link.base = base;
+            match dbtor_firmware::modbus::read_registers(&link) {
+                Ok(r) => {
+                    if json {
+                        println!("{}", serde_json::json!({"address": addr, "registers": r}));
+                    } else {
+                        println!("gantry registers at {addr} (unit {unit}, base {base}):");
+                        println!("  interface version   {}", r.version);
+                        println!("  state               {:?}", r.state);
+                        println!("  thickness           {:.1} mm", r.thickness_mm);
+                        println!("  force               {:.1} N", r.force_n);
+                        println!("  tube voltage        {:.1} kV", r.kvp);
+                        println!("  mAs per projection  {:.2}", r.mas_per_projection);
+                        println!("  anode/filter        {}", r.anode_filter);
+                        println!(
+                            "  projections         {} over [{:.1}, {:.1}] deg",
+                            r.projections, r.angles_deg[0], r.angles_deg[1]
+                        );
+                        println!("  current projection  {}", r.current);
+                        println!("  laterality / view   {} {}", r.laterality, r.view);
+                        println!("  fault code          {}", r.fault);
+                    }
+                    Ok(true)
+                }
+                Err(e) => {
+                    println!("Modbus {addr}: FAILED: {e}");
+                    Ok(false)
+                }
+            }
+        }
+        other => {
+            bail!("unknown command `{other}` (expected selftest, geometry, report, echo or modbus)")
+        }
     }
 }
 

@@ -1,0 +1,115 @@
+//! The gantry's Modbus registers over loopback TCP, host-sim (server) and the
+//! firmware's diagnostics (client) as separate processes; a third-party
+//! client, mbpoll (Debian; `.ci/run` installs it), reads the same registers.
+//! Injected faults (exception responses, silence) give named failures and
+//! exit status 1, never made-up values.
+
+use hil_tests::{free_port, workspace_bin};
+use std::process::{Child, Command};
+use std::time::{Duration, Instant};
+
+struct Sim(Child);
+
+impl Drop for Sim {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn start(port: u16, extra: &[&str]) -> Sim {
+    let child = Command::new(workspace_bin("host-sim"))
+        .args([
+            "modbus",
+            "--listen",
+            &format!("127.0.0.1:{port}"),
+            "--thickness-mm",
+            "52.1",
+        ])
+        .args(extra)
+        .spawn()
+        .unwrap();
+    let t = Instant::now();
+    while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+        assert!(
+            t.elapsed() < Duration::from_secs(20),
+            "host-sim modbus did not start"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    Sim(child)
+}
+
+#[test]
+fn registers_are_read_decoded_and_faults_named() {
+    let port = free_port();
+    let _sim = start(port, &[]);
+    let out = Command::new(workspace_bin("dbtor-diag"))
+        .args(["modbus", &format!("127.0.0.1:{port}"), "--json"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stdout)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let r = &v["registers"];
+    assert_eq!(r["thickness_mm"], 52.1);
+    assert_eq!(r["kvp"], 29.0);
+    assert_eq!(r["state"], "Exposing");
+    assert_eq!(r["projections"], 25);
+    assert_eq!(r["angles_deg"][0], -24.0);
+    assert_eq!(r["laterality"], "L");
+
+    // A third-party client reads the same register values.
+    let mb = Command::new("mbpoll")
+        .args([
+            "-m",
+            "tcp",
+            "-a",
+            "1",
+            "-r",
+            "1",
+            "-c",
+            "13",
+            "-t",
+            "4",
+            "-1",
+            "-p",
+            &port.to_string(),
+            "127.0.0.1",
+        ])
+        .output()
+        .expect("mbpoll not found: apt-get install mbpoll");
+    assert!(
+        mb.status.success(),
+        "{}",
+        String::from_utf8_lossy(&mb.stderr)
+    );
+    let text = String::from_utf8_lossy(&mb.stdout);
+    let values: Vec<u16> = text
+        .lines()
+        .filter(|l| l.starts_with('['))
+        .filter_map(|l| l.split_whitespace().nth(1).and_then(|x| x.parse().ok()))
+        .collect();
+    assert_eq!(values.len(), 13, "{text}");
+    assert_eq!(values[2], 521, "thickness register (0.1 mm)");
+    assert_eq!(values[8], (-240i16) as u16, "first angle register");
+
+    // Faults.
+    for (fault, want) in [
+        ("exception", "exception response"),
+        ("silent", "no answer within"),
+    ] {
+        let port = free_port();
+        let _sim = start(port, &["--fault", fault]);
+        let out = Command::new(workspace_bin("dbtor-diag"))
+            .args(["modbus", &format!("127.0.0.1:{port}")])
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert_eq!(out.status.code(), Some(1), "{fault}: {text}");
+        assert!(text.contains(want), "{fault}: {text}");
+    }
+}
