@@ -47,7 +47,7 @@ pub struct LinkStats {
 }
 
 /// Send a control frame; a peer that is gone means an incomplete acquisition.
-fn send(stream: &mut TcpStream, f: &Frame, asm: &Assembler) -> Result<(), LinkError> {
+fn send<S: Write>(stream: &mut S, f: &Frame, asm: &Assembler) -> Result<(), LinkError> {
     match stream.write_all(&encode(f, 0)) {
         Ok(()) => Ok(()),
         Err(e)
@@ -67,7 +67,19 @@ pub fn receive(
     stream: &mut TcpStream,
     timeout: Duration,
 ) -> Result<(Received, LinkStats), LinkError> {
-    stream.set_read_timeout(Some(timeout))?;
+    // Short reads let the overall deadline apply to any transport.
+    stream.set_read_timeout(Some(Duration::from_millis(200)))?;
+    receive_from(stream, timeout)
+}
+
+/// Receive one acquisition over any byte stream (TCP, a serial line). Reads
+/// may time out (serial ports do): the acquisition fails only when nothing
+/// arrives for `idle_timeout`.
+pub fn receive_from<S: Read + Write>(
+    stream: &mut S,
+    idle_timeout: Duration,
+) -> Result<(Received, LinkStats), LinkError> {
+    let mut last_data = std::time::Instant::now();
     let mut dec = Decoder::new();
     let mut asm = Assembler::new();
     let mut stats = LinkStats::default();
@@ -76,8 +88,20 @@ pub fn receive(
         let n = match stream.read(&mut buf) {
             Ok(n) => n,
             Err(e) if e.kind() == std::io::ErrorKind::ConnectionReset => 0,
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::TimedOut | std::io::ErrorKind::WouldBlock
+                ) =>
+            {
+                if last_data.elapsed() > idle_timeout {
+                    return Err(LinkError::Incomplete(asm.missing()));
+                }
+                continue;
+            }
             Err(e) => return Err(e.into()),
         };
+        last_data = std::time::Instant::now();
         if n == 0 {
             // Peer gone (cable pulled, gantry restarted) before completion.
             return Err(LinkError::Incomplete(asm.missing()));
@@ -98,6 +122,11 @@ pub fn receive(
                         }
                     }
                     if let Some(acq) = done {
+                        // Tell the gantry the whole acquisition is in: the
+                        // acknowledgement of the end frame's sequence number.
+                        let end = 1 + acq.header.projections as u32;
+                        let _ = stream.write_all(&encode(&Frame::Ack { seq: end }, 0));
+                        let _ = stream.flush();
                         tracing::info!(?stats, "acquisition received");
                         return Ok((acq, stats));
                     }

@@ -84,3 +84,88 @@ fn faults_are_repaired_or_reported() {
     );
     assert!(!out.exists());
 }
+
+/// The same stream over a serial line: a pseudo-terminal pair made by socat
+/// (Debian; `.ci/run` installs it), host-sim on one end, the firmware on the
+/// other, with repairable faults.
+#[test]
+fn serial_line_over_a_pty_pair() {
+    let dir = tempfile::tempdir().unwrap();
+    let acq = dir.path().join("acq");
+    let st = Command::new(workspace_bin("host-sim"))
+        .args([
+            "acquire",
+            "--index",
+            "4",
+            "--binning",
+            "4",
+            "--noise",
+            "N8",
+            "--out",
+        ])
+        .arg(&acq)
+        .output()
+        .unwrap();
+    assert!(
+        st.status.success(),
+        "{}",
+        String::from_utf8_lossy(&st.stderr)
+    );
+    let (a, b) = (
+        dir.path().join("tty-gantry"),
+        dir.path().join("tty-firmware"),
+    );
+    let mut socat = Command::new("socat")
+        .arg(format!("pty,raw,echo=0,link={}", a.display()))
+        .arg(format!("pty,raw,echo=0,link={}", b.display()))
+        .spawn()
+        .expect("socat not found: apt-get install socat");
+    let t = std::time::Instant::now();
+    while !(a.exists() && b.exists()) {
+        assert!(t.elapsed().as_secs() < 10, "socat made no pty pair");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let mut sim = Command::new(workspace_bin("host-sim"))
+        .args(["stream", "--acq"])
+        .arg(&acq)
+        .arg("--serial")
+        .arg(&a)
+        .args([
+            "--fault",
+            "corrupt:0",
+            "--fault",
+            "corrupt:6",
+            "--fault",
+            "drop:3",
+            "--fault",
+            "reorder:8,11",
+        ])
+        .spawn()
+        .unwrap();
+    let out = dir.path().join("rx");
+    let rx = Command::new(workspace_bin("dbtor-receive"))
+        .arg("--serial")
+        .arg(&b)
+        .arg("--out")
+        .arg(&out)
+        .args(["--timeout-s", "20"])
+        .output()
+        .unwrap();
+    // The receiver's output is what counts; do not wait on the gantry.
+    let _ = sim.kill();
+    let _ = sim.wait();
+    let _ = socat.kill();
+    let _ = socat.wait();
+    assert!(
+        rx.status.success(),
+        "{}",
+        String::from_utf8_lossy(&rx.stderr)
+    );
+    let report: serde_json::Value = serde_json::from_slice(&rx.stdout).unwrap();
+    assert_eq!(report["crc_errors"], 2, "{report}");
+    assert_eq!(
+        std::fs::read(acq.join("counts.f32")).unwrap(),
+        std::fs::read(out.join("counts.f32")).unwrap(),
+        "received counts differ from those sent"
+    );
+}

@@ -63,8 +63,14 @@ enum Cmd {
         #[arg(long)]
         acq: PathBuf,
         /// Address to listen on, e.g. 127.0.0.1:7001.
+        #[arg(long, conflicts_with = "serial")]
+        listen: Option<String>,
+        /// Serial line instead of TCP, e.g. /dev/ttyUSB0 or a pty.
         #[arg(long)]
-        listen: String,
+        serial: Option<String>,
+        /// Baud rate of the serial line.
+        #[arg(long, default_value_t = 921_600)]
+        baud: u32,
         /// Faults: corrupt:SEQ, drop:SEQ, dup:SEQ, reorder:A,B, cut:SEQ (repeatable).
         #[arg(long)]
         fault: Vec<String>,
@@ -189,7 +195,13 @@ fn main() -> Result<()> {
                 noise.name()
             );
         }
-        Cmd::Stream { acq, listen, fault } => {
+        Cmd::Stream {
+            acq,
+            listen,
+            serial,
+            baud,
+            fault,
+        } => {
             let faults = fault
                 .iter()
                 .map(|f| host_sim::stream::Fault::parse(f))
@@ -197,10 +209,31 @@ fn main() -> Result<()> {
                 .map_err(anyhow::Error::msg)?;
             let a = dbt_store::acquisition::read_acquisition(&acq)?;
             let frames = host_sim::stream::frames_of(&a).map_err(anyhow::Error::msg)?;
-            let l = std::net::TcpListener::bind(&listen)
-                .with_context(|| format!("listening on {listen}"))?;
-            eprintln!("host-sim: streaming {} frames on {listen}", frames.len());
-            let resent = host_sim::stream::serve_one(&l, &frames, &faults)?;
+            let resent = match (listen, serial) {
+                (Some(listen), None) => {
+                    let l = std::net::TcpListener::bind(&listen)
+                        .with_context(|| format!("listening on {listen}"))?;
+                    eprintln!("host-sim: streaming {} frames on {listen}", frames.len());
+                    host_sim::stream::serve_one(&l, &frames, &faults)?
+                }
+                (None, Some(path)) => {
+                    let mut port = serialport::new(&path, baud)
+                        .timeout(std::time::Duration::from_millis(200))
+                        .open()
+                        .with_context(|| format!("opening serial line {path}"))?;
+                    eprintln!(
+                        "host-sim: streaming {} frames on {path} at {baud} Bd",
+                        frames.len()
+                    );
+                    host_sim::stream::serve_stream(
+                        &mut port,
+                        &frames,
+                        &faults,
+                        std::time::Duration::from_secs(30),
+                    )?
+                }
+                _ => bail!("give --listen HOST:PORT or --serial PATH"),
+            };
             println!("streamed {} frames, {resent} retransmitted", frames.len());
         }
         Cmd::Modbus {

@@ -111,7 +111,24 @@ pub fn serve_one(
     faults: &[Fault],
 ) -> std::io::Result<usize> {
     let (mut s, _) = listener.accept()?;
-    s.set_read_timeout(Some(Duration::from_secs(30)))?;
+    s.set_read_timeout(Some(Duration::from_millis(200)))?;
+    let cut = faults.iter().any(|f| matches!(f, Fault::Cut(_)));
+    let r = serve_stream(&mut s, frames, faults, Duration::from_secs(30));
+    if cut {
+        let _ = s.shutdown(std::net::Shutdown::Both);
+    }
+    r
+}
+
+/// Stream `frames` over any byte stream (TCP, a serial line), then answer
+/// naks until the end frame is acknowledged, the peer closes, or nothing
+/// arrives for `idle_timeout`. Returns the number of retransmissions.
+pub fn serve_stream<S: Read + Write>(
+    s: &mut S,
+    frames: &[Frame],
+    faults: &[Fault],
+    idle_timeout: Duration,
+) -> std::io::Result<usize> {
     let mut order: Vec<u32> = (0..frames.len() as u32).collect();
     for f in faults {
         match *f {
@@ -138,39 +155,69 @@ pub fn serve_one(
         }
     }
     let cut = faults.iter().any(|f| matches!(f, Fault::Cut(_)));
-    let mut corrupted = false;
+    let mut corrupted: Vec<u32> = Vec::new();
     for q in order {
         let Some(frame) = frames.get(q as usize) else {
             continue;
         };
         let mut bytes = encode(frame, q);
-        if !corrupted && faults.contains(&Fault::Corrupt(q)) && bytes.len() > 20 {
+        if !corrupted.contains(&q) && faults.contains(&Fault::Corrupt(q)) && bytes.len() > 20 {
             bytes[16] ^= 0x01;
-            corrupted = true;
+            corrupted.push(q);
         }
         s.write_all(&bytes)?;
     }
+    s.flush()?;
     if cut {
-        let _ = s.shutdown(std::net::Shutdown::Both);
         return Ok(0);
     }
     let end_seq = frames.len() as u32 - 1;
     let mut dec = Decoder::new();
     let mut buf = vec![0u8; 4096];
     let mut resent = 0;
+    let mut last = std::time::Instant::now();
     loop {
         let n = match s.read(&mut buf) {
             Ok(0) => return Ok(resent),
             Ok(n) => n,
-            Err(e) if e.kind() == std::io::ErrorKind::ConnectionReset => return Ok(resent),
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::ConnectionReset
+                        | std::io::ErrorKind::BrokenPipe
+                        | std::io::ErrorKind::UnexpectedEof
+                ) =>
+            {
+                return Ok(resent)
+            }
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::TimedOut | std::io::ErrorKind::WouldBlock
+                ) =>
+            {
+                if last.elapsed() > idle_timeout {
+                    return Ok(resent);
+                }
+                continue;
+            }
             Err(e) => return Err(e),
         };
+        last = std::time::Instant::now();
         dec.push(&buf[..n]);
         while let Some(r) = dec.next_frame() {
             match r {
                 Ok((_, Frame::Nak { seq })) => {
                     if let Some(f) = frames.get(seq as usize) {
-                        s.write_all(&encode(f, seq))?;
+                        // A peer that is gone (it may have everything and
+                        // closed while duplicate naks were in flight) ends
+                        // the session; it is not the gantry's fault.
+                        if s.write_all(&encode(f, seq))
+                            .and_then(|_| s.flush())
+                            .is_err()
+                        {
+                            return Ok(resent);
+                        }
                         resent += 1;
                     }
                 }

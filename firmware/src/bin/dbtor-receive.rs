@@ -3,12 +3,12 @@
 //! temporary folder, then a rename). Exit 0 when received; 1 on a link or
 //! acquisition fault (named on stderr; nothing is spooled); 2 on bad usage.
 //!
-//! `dbtor-receive --connect HOST:PORT --out DIR [--binning N] [--timeout-s 30]
-//!  [--tube-output 0.11]`
+//! `dbtor-receive (--connect HOST:PORT | --serial PATH [--baud 921600]) --out DIR
+//!  [--binning N] [--timeout-s 30] [--tube-output 0.11]`
 
 use anyhow::{bail, Context, Result};
 use dbt_geometry::Geometry;
-use dbtor_firmware::link::{receive, to_acquisition};
+use dbtor_firmware::link::{receive, receive_from, to_acquisition};
 use std::net::TcpStream;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -18,6 +18,7 @@ fn run() -> Result<bool> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let (mut connect, mut out, mut binning, mut timeout, mut output) =
         (None, None, 4usize, 30u64, 0.11f64);
+    let (mut serial, mut baud) = (None::<String>, 921_600u32);
     let mut it = args.iter();
     while let Some(a) = it.next() {
         let mut val = |n: &str| {
@@ -27,6 +28,8 @@ fn run() -> Result<bool> {
         };
         match a.as_str() {
             "--connect" => connect = Some(val("--connect")?),
+            "--serial" => serial = Some(val("--serial")?),
+            "--baud" => baud = val("--baud")?.parse().context("--baud")?,
             "--out" => out = Some(PathBuf::from(val("--out")?)),
             "--binning" => binning = val("--binning")?.parse().context("--binning")?,
             "--timeout-s" => timeout = val("--timeout-s")?.parse().context("--timeout-s")?,
@@ -34,22 +37,34 @@ fn run() -> Result<bool> {
             other => bail!("unknown argument `{other}`"),
         }
     }
-    let addr = connect.context("--connect HOST:PORT is required")?;
     let out = out.context("--out DIR is required")?;
     let geom = Geometry::paper().binned(binning)?;
-    // The gantry may not be listening yet: retry the connection briefly.
-    let t0 = Instant::now();
-    let mut stream = loop {
-        match TcpStream::connect(&addr) {
-            Ok(s) => break s,
-            Err(e) if t0.elapsed() < Duration::from_secs(timeout) => {
-                tracing::debug!(%e, "gantry not reachable yet");
-                std::thread::sleep(Duration::from_millis(50));
-            }
-            Err(e) => bail!("connecting to {addr}: {e}"),
+    let result = match (connect, serial) {
+        (Some(addr), None) => {
+            // The gantry may not be listening yet: retry the connection briefly.
+            let t0 = Instant::now();
+            let mut stream = loop {
+                match TcpStream::connect(&addr) {
+                    Ok(s) => break s,
+                    Err(e) if t0.elapsed() < Duration::from_secs(timeout) => {
+                        tracing::debug!(%e, "gantry not reachable yet");
+                        std::thread::sleep(Duration::from_millis(50));
+                    }
+                    Err(e) => bail!("connecting to {addr}: {e}"),
+                }
+            };
+            receive(&mut stream, Duration::from_secs(timeout))
         }
+        (None, Some(path)) => {
+            let mut port = serialport::new(&path, baud)
+                .timeout(Duration::from_millis(200))
+                .open()
+                .with_context(|| format!("opening serial line {path}"))?;
+            receive_from(&mut port, Duration::from_secs(timeout))
+        }
+        _ => bail!("give --connect HOST:PORT or --serial PATH"),
     };
-    let (received, stats) = match receive(&mut stream, Duration::from_secs(timeout)) {
+    let (received, stats) = match result {
         Ok(r) => r,
         Err(e) => {
             eprintln!("dbtor-receive: FAULT: {e}");
