@@ -5,7 +5,7 @@
 //! fault and nothing spooled.
 
 use hil_tests::{free_port, workspace_bin};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 
 fn transfer(acq: &Path, out: &Path, faults: &[&str]) -> (bool, String) {
@@ -32,15 +32,14 @@ fn transfer(acq: &Path, out: &Path, faults: &[&str]) -> (bool, String) {
     )
 }
 
-#[test]
-fn faults_are_repaired_or_reported() {
-    let dir = tempfile::tempdir().unwrap();
-    let acq = dir.path().join("acq");
+/// `host-sim acquire` of test phantom `index` (N = 8, binned x4) into `dir/acq`.
+fn acquire(dir: &Path, index: u32) -> PathBuf {
+    let acq = dir.join("acq");
     let st = Command::new(workspace_bin("host-sim"))
         .args([
             "acquire",
             "--index",
-            "3",
+            &index.to_string(),
             "--binning",
             "4",
             "--noise",
@@ -55,6 +54,13 @@ fn faults_are_repaired_or_reported() {
         "{}",
         String::from_utf8_lossy(&st.stderr)
     );
+    acq
+}
+
+#[test]
+fn faults_are_repaired_or_reported() {
+    let dir = tempfile::tempdir().unwrap();
+    let acq = acquire(dir.path(), 3);
     let sent = std::fs::read(acq.join("counts.f32")).unwrap();
     let cases: [&[&str]; 6] = [
         &[],
@@ -91,26 +97,7 @@ fn faults_are_repaired_or_reported() {
 #[test]
 fn serial_line_over_a_pty_pair() {
     let dir = tempfile::tempdir().unwrap();
-    let acq = dir.path().join("acq");
-    let st = Command::new(workspace_bin("host-sim"))
-        .args([
-            "acquire",
-            "--index",
-            "4",
-            "--binning",
-            "4",
-            "--noise",
-            "N8",
-            "--out",
-        ])
-        .arg(&acq)
-        .output()
-        .unwrap();
-    assert!(
-        st.status.success(),
-        "{}",
-        String::from_utf8_lossy(&st.stderr)
-    );
+    let acq = acquire(dir.path(), 4);
     let (a, b) = (
         dir.path().join("tty-gantry"),
         dir.path().join("tty-firmware"),
