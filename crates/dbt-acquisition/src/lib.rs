@@ -171,20 +171,6 @@ pub fn log_transform(counts: &[f32], flux: f64) -> Vec<f32> {
         .collect()
 }
 
-/// Poisson log-likelihood (up to a constant) of counts `y` given line
-/// integrals `p`: `sum_i y_i ln(yhat_i) - yhat_i`, `yhat_i = b exp(-p_i)`.
-pub fn poisson_log_likelihood(counts: &[f32], p: &[f32], flux: f64) -> f64 {
-    counts
-        .par_iter()
-        .zip(p.par_iter())
-        .map(|(&y, &pi)| {
-            let pi = pi as f64;
-            let yhat = flux * (-pi).exp();
-            y as f64 * (flux.ln() - pi) - yhat
-        })
-        .sum()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -253,16 +253,4 @@ impl Material {
         let t = ((x - x0) / (x1 - x0)).clamp(0.0, 1.0);
         self.sf_ratio[j - 1] + t * (self.sf_ratio[j] - self.sf_ratio[j - 1])
     }
-
-    /// Differential Rayleigh cross section shape `(1 + cos^2) F^2_mix(x)` at
-    /// `cos_theta` (for tests of the sampler).
-    pub fn rayleigh_dcs_shape(&self, e_kev: f64, cos_theta: f64) -> f64 {
-        let x = (e_kev / HC_KEV_A) * ((1.0 - cos_theta) / 2.0).max(0.0).sqrt();
-        let u = x * x;
-        // dG/du = F^2(u) at u, by a centred difference of the cumulative.
-        let h = (u * 1e-3).max(1e-8);
-        let f2 = (self.rayleigh_cum(u + h) - self.rayleigh_cum((u - h).max(0.0)))
-            / (u + h - (u - h).max(0.0));
-        (1.0 + cos_theta * cos_theta) * f2
-    }
 }

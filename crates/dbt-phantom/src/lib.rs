@@ -20,7 +20,7 @@ pub mod generate;
 mod noise;
 
 use dbt_geometry::Geometry;
-use dbt_materials::{count_labels, glandularity, Tissue, UnknownLabel, MU_BY_LABEL};
+use dbt_materials::{count_labels, glandularity, UnknownLabel, MU_BY_LABEL};
 use thiserror::Error;
 
 pub use external::{ExternalSidecar, VolumeAxis};
@@ -337,12 +337,6 @@ pub fn coronal_slice(vol: &LabelVolume, d: usize, geom: &Geometry) -> Result<Sli
         labels,
         thickness_mm: vol.thickness_mm(),
     })
-}
-
-/// Tissue of a valid label (air for anything unknown; labels are validated when
-/// a volume is built).
-pub fn tissue_of(label: u8) -> Tissue {
-    Tissue::from_label(label).unwrap_or(Tissue::Air)
 }
 
 #[cfg(test)]
