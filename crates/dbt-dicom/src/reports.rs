@@ -240,6 +240,18 @@ fn laterality_mod(l: Laterality) -> (Rel, Item) {
     )
 }
 
+/// `HAS CONCEPT MOD (Acquisition Plane) = Single Plane`.
+fn single_plane() -> (Rel, Item) {
+    (
+        Rel::HasConceptMod,
+        Item::Code(
+            dcm("113764", "Acquisition Plane"),
+            dcm("113622", "Single Plane"),
+            vec![],
+        ),
+    )
+}
+
 fn dcm(v: &str, m: &str) -> Code {
     Code::new(v, "DCM", m)
 }
@@ -515,14 +527,7 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
         Item::Container(
             dcm("113702", "Accumulated X-Ray Dose Data"),
             vec![
-                (
-                    Rel::HasConceptMod,
-                    Item::Code(
-                        dcm("113764", "Acquisition Plane"),
-                        dcm("113622", "Single Plane"),
-                        vec![],
-                    ),
-                ),
+                single_plane(),
                 (
                     Rel::Contains,
                     Item::Num(
@@ -571,14 +576,7 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
         }
         let eu = uids.next_uid();
         let items = vec![
-            (
-                Rel::HasConceptMod,
-                Item::Code(
-                    dcm("113764", "Acquisition Plane"),
-                    dcm("113622", "Single Plane"),
-                    vec![],
-                ),
-            ),
+            single_plane(),
             (
                 Rel::Contains,
                 Item::UidRef(dcm("113769", "Irradiation Event UID"), eu),
