@@ -171,8 +171,9 @@ pub fn run_case(
         "1.2.826.0.1.3680043.10.543.3",
     )?;
     let res = process(&acq, opts)?;
-    let tube = dbt_dose::xray::paper_spectrum(vol.thickness_mm())?;
-    let spec = tube
+    // The acquisition's thickness is the phantom's: the same spectrum.
+    let spec = res
+        .tube
         .spectrum
         .clone()
         .ok_or_else(|| anyhow::anyhow!("no spectrum"))?;

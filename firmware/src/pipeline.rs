@@ -88,6 +88,8 @@ pub struct ProcessResult {
     pub mgd_mgy: f64,
     /// Model-breast MGD of the sweep, mGy.
     pub model_mgd_mgy: f64,
+    /// The tube spectrum the dose used (paper Table 3 for the thickness).
+    pub tube: dbt_dose::xray::TubeSpectrum,
 }
 
 /// Reconstruct, classify, and compute density and dose.
@@ -180,6 +182,7 @@ pub fn process(acq: &Acquisition, opts: &PipelineOptions) -> Result<ProcessResul
         classification,
         dose_patient,
         dose_model,
+        tube,
     })
 }
 
@@ -219,7 +222,7 @@ pub fn reports(
     } else {
         0.0
     };
-    let tube = dbt_dose::xray::paper_spectrum(h.thickness_mm)?;
+    let tube = &res.tube;
     let events = (0..nv)
         .map(|v| {
             let a = g.angle_deg(v);

@@ -171,10 +171,7 @@ fn main() -> Result<()> {
             let spec = Population::for_geometry(&g).draw(Population::TEST_SEED, index);
             let vol = generate(&spec)?;
             let noise = NoiseLevel::parse(&noise)?;
-            let kvp = dbt_dose::xray::PAPER_TABLE3
-                .iter()
-                .find(|r| vol.thickness_mm() < r.0 .1)
-                .map_or(31.0, |r| r.1 as f64);
+            let kvp = dbt_dose::xray::paper_technique(vol.thickness_mm()).0 as f64;
             let acq = host_sim::simulate_acquisition(
                 &vol,
                 &g,
@@ -262,10 +259,7 @@ fn main() -> Result<()> {
                 Some("silent") => Some(ModbusFault::Silent),
                 Some(other) => bail!("--fault `{other}`: exception or silent"),
             };
-            let kvp = dbt_dose::xray::PAPER_TABLE3
-                .iter()
-                .find(|r| thickness_mm < r.0 .1)
-                .map_or(31.0, |r| r.1 as f64);
+            let kvp = dbt_dose::xray::paper_technique(thickness_mm).0 as f64;
             let regs = Registers {
                 version: 1,
                 state,

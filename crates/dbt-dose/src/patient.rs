@@ -147,19 +147,19 @@ pub fn glandularity(b: &Breast<'_>) -> (f64, u64) {
 pub fn scene(b: &Breast<'_>, model: Model) -> Result<Scene, DoseError> {
     validate(b)?;
     let els = elements()?;
-    let gland = Material::tissue(Tissue::Fibroglandular, &els)?;
+    let gland = Material::tissue(Tissue::Fibroglandular, els)?;
     let (g, _) = glandularity(b);
     // Homogeneous interior: glandular and adipose mixed by mass fraction g.
     let (mix_comp, mix_density) = dbt_materials::glandular_adipose_mix(g);
     let materials = vec![
-        Material::medium(&AIR, &els)?,
-        Material::tissue(Tissue::Adipose, &els)?,
-        Material::tissue(Tissue::Skin, &els)?,
+        Material::medium(&AIR, els)?,
+        Material::tissue(Tissue::Adipose, els)?,
+        Material::tissue(Tissue::Skin, els)?,
         gland.clone().glandular(),
-        Material::medium(&PET, &els)?,
-        Material::medium(&PMMA, &els)?,
-        Material::medium(&WATER, &els)?,
-        Material::new("breast mixture", mix_density, &mix_comp, &els)?.glandular_share(g, &gland),
+        Material::medium(&PET, els)?,
+        Material::medium(&PMMA, els)?,
+        Material::medium(&WATER, els)?,
+        Material::new("breast mixture", mix_density, &mix_comp, els)?.glandular_share(g, &gland),
     ];
     let [nl, nv, nd] = b.dims;
     let h = b.voxel_mm;
@@ -250,7 +250,7 @@ pub fn dbt_views() -> Vec<f64> {
 /// Incident air kerma (mGy) per photon emitted into the field of `src` at
 /// point `q`, free in air with air attenuation, no backscatter.
 pub fn air_kerma_per_photon(src: &PointSource, q: [f64; 3]) -> Result<f64, DoseError> {
-    let air = Material::new("air", AIR.density, AIR.elements, &elements()?)?;
+    let air = Material::new("air", AIR.density, AIR.elements, elements()?)?;
     let d = [
         q[0] - src.position[0],
         q[1] - src.position[1],
@@ -283,12 +283,29 @@ pub fn mgd(
     batches: usize,
     seed: u64,
 ) -> Result<MgdResult, DoseError> {
-    let _span = tracing::info_span!("mgd", ?model, views = views_deg.len(), photons).entered();
-    let t0 = std::time::Instant::now();
     if views_deg.is_empty() {
         return Err(DoseError::Scene("no views".into()));
     }
     let sc = scene(breast, model)?;
+    mgd_in(
+        &sc, breast, model, spectrum, views_deg, photons, batches, seed,
+    )
+}
+
+/// [`mgd`] in a scene already built for `breast` and `model` (views checked).
+#[allow(clippy::too_many_arguments)]
+fn mgd_in(
+    sc: &Scene,
+    breast: &Breast<'_>,
+    model: Model,
+    spectrum: &Spectrum,
+    views_deg: &[f64],
+    photons: u64,
+    batches: usize,
+    seed: u64,
+) -> Result<MgdResult, DoseError> {
+    let _span = tracing::info_span!("mgd", ?model, views = views_deg.len(), photons).entered();
+    let t0 = std::time::Instant::now();
     let (g, n_gland) = glandularity(breast);
     let voxel_g = breast.voxel_mm.powi(3) / 1000.0;
     let interior = breast
@@ -315,7 +332,7 @@ pub fn mgd(
     let mut total = 0u64;
     for (k, &a) in views_deg.iter().enumerate() {
         let src = view_source(a, spectrum.clone());
-        let r = run(&sc, &src, per_view, batches, seed.wrapping_add(k as u64))?;
+        let r = run(sc, &src, per_view, batches, seed.wrapping_add(k as u64))?;
         let (m, se) = r.per_photon(|t: &Tallies| t.glandular_kev);
         e_gland += m;
         per_view_e.push(m);
@@ -359,10 +376,24 @@ pub fn mgd_to_uncertainty(
     max_photons: u64,
     seed: u64,
 ) -> Result<MgdResult, DoseError> {
-    let p = mgd(breast, model, spectrum, views_deg, pilot, 20, seed ^ 0x5EED)?;
+    if views_deg.is_empty() {
+        return Err(DoseError::Scene("no views".into()));
+    }
+    // One scene serves the pilot and the final run.
+    let sc = scene(breast, model)?;
+    let p = mgd_in(
+        &sc,
+        breast,
+        model,
+        spectrum,
+        views_deg,
+        pilot,
+        20,
+        seed ^ 0x5EED,
+    )?;
     let need = (pilot as f64 * (p.mgd_rel_uncertainty / target).powi(2) * 1.15).ceil() as u64;
     let n = need.clamp(pilot, max_photons);
-    let mut r = mgd(breast, model, spectrum, views_deg, n, 20, seed)?;
+    let mut r = mgd_in(&sc, breast, model, spectrum, views_deg, n, 20, seed)?;
     r.seconds += p.seconds;
     Ok(r)
 }

@@ -48,8 +48,16 @@ fn num(s: &str, what: &str) -> Result<f64, DoseError> {
         .map_err(|_| DoseError::Table(format!("{what}: `{s}` is not a number")))
 }
 
-/// All elements of the compiled-in tables.
-pub fn elements() -> Result<Vec<Element>, DoseError> {
+/// All elements of the compiled-in tables, parsed once per process.
+pub fn elements() -> Result<&'static [Element], DoseError> {
+    static TABLES: std::sync::OnceLock<Result<Vec<Element>, String>> = std::sync::OnceLock::new();
+    TABLES
+        .get_or_init(|| parse_elements().map_err(|e| e.to_string()))
+        .as_deref()
+        .map_err(|e| DoseError::Table(e.clone()))
+}
+
+fn parse_elements() -> Result<Vec<Element>, DoseError> {
     let mut out = Vec::new();
     for r in rows(ELEMENTS_CSV) {
         let z = num(r[0], "elements.csv Z")? as u8;

@@ -43,13 +43,13 @@ pub fn scene(voxel_mm: f64) -> Result<Scene, DoseError> {
     let els = elements()?;
     // 20 % glandular / 80 % adipose by weight; TG-195 specifies 0.952 g/cm3.
     let (mix, _) = glandular_adipose_mix(0.2);
-    let gland = Material::tissue(Tissue::Fibroglandular, &els)?;
+    let gland = Material::tissue(Tissue::Fibroglandular, els)?;
     let materials = vec![
-        Material::medium(&AIR, &els)?,
-        Material::new("breast 20/80", 0.952, &mix, &els)?.glandular_share(0.2, &gland),
-        Material::tissue(Tissue::Skin, &els)?,
-        Material::medium(&PMMA, &els)?,
-        Material::medium(&WATER, &els)?,
+        Material::medium(&AIR, els)?,
+        Material::new("breast 20/80", 0.952, &mix, els)?.glandular_share(0.2, &gland),
+        Material::tissue(Tissue::Skin, els)?,
+        Material::medium(&PMMA, els)?,
+        Material::medium(&WATER, els)?,
     ];
     let origin = [0.0, -130.0, 13.0];
     let ext = [140.0, 260.0, 54.0];

@@ -56,7 +56,7 @@ fn element_material(z: u8, density: f64) -> Result<Material, DoseError> {
         &format!("Z{z}"),
         density,
         &[ElementFraction { z, fraction: 1.0 }],
-        &elements()?,
+        elements()?,
     )
 }
 
@@ -73,7 +73,7 @@ impl Filters {
         Ok(Self {
             rh: element_material(45, RH_DENSITY)?,
             al: element_material(13, AL_DENSITY)?,
-            air: Material::new("air", AIR.density, AIR.elements, &elements()?)?,
+            air: Material::new("air", AIR.density, AIR.elements, elements()?)?,
         })
     }
 
@@ -149,14 +149,21 @@ pub struct TubeSpectrum {
     pub spectrum: Option<Spectrum>,
 }
 
-/// The paper's spectrum for a compressed thickness (Table 3; thinner than 30
-/// mm uses the 27 kV row, thicker than 80 mm the 31 kV row).
-pub fn paper_spectrum(thickness_mm: f64) -> Result<TubeSpectrum, DoseError> {
+/// The row of the paper's Table 3 for a compressed thickness, as
+/// `(kV, HVL mm Al)`: thinner than 30 mm uses the 27 kV row, thicker than 80
+/// mm the 31 kV row.
+pub fn paper_technique(thickness_mm: f64) -> (u32, f64) {
     let row = PAPER_TABLE3
         .iter()
         .find(|r| thickness_mm < r.0 .1)
         .unwrap_or(&PAPER_TABLE3[4]);
-    w_rh_spectrum(row.1, row.2)
+    (row.1, row.2)
+}
+
+/// The paper's spectrum for a compressed thickness ([`paper_technique`]).
+pub fn paper_spectrum(thickness_mm: f64) -> Result<TubeSpectrum, DoseError> {
+    let (kv, hvl) = paper_technique(thickness_mm);
+    w_rh_spectrum(kv, hvl)
 }
 
 /// W/Rh spectrum at `kv` with rhodium solved for `hvl_mm` of aluminium.

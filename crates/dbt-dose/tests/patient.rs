@@ -131,7 +131,7 @@ fn energy_absorption_matches_nist_for_water() {
         "water",
         1.0,
         dbt_materials::WATER.elements,
-        &dbt_dose::tables::elements().unwrap(),
+        dbt_dose::tables::elements().unwrap(),
     )
     .unwrap();
     for (e, nist) in [(15.0, 1.374), (20.0, 0.5503), (30.0, 0.1557)] {

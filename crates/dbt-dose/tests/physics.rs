@@ -11,7 +11,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 fn water() -> Material {
-    Material::new("water", 1.0, WATER.elements, &elements().unwrap()).unwrap()
+    Material::new("water", 1.0, WATER.elements, elements().unwrap()).unwrap()
 }
 
 /// A slab scene: a voxel grid 40 x 40 x `layers` mm with the given material per
@@ -23,7 +23,7 @@ fn slab_scene(layers: &[u8], mats: Vec<Material>) -> Scene {
         // k counts from z = 0 (bottom); layers are listed from the top.
         m.fill(layers[layers.len() - 1 - k]);
     }
-    let mut all = vec![Material::new("vacuum", 1e-30, AIR.elements, &elements().unwrap()).unwrap()];
+    let mut all = vec![Material::new("vacuum", 1e-30, AIR.elements, elements().unwrap()).unwrap()];
     all.extend(mats);
     let n = material.len();
     Scene {
@@ -73,7 +73,7 @@ fn energy_is_conserved() {
 fn unscattered_transmission_follows_beer_lambert() {
     // Homogeneous water, then water/PMMA layers (Woodcock rejections at work).
     let w = water();
-    let p = Material::new("PMMA", PMMA.density, PMMA.elements, &elements().unwrap()).unwrap();
+    let p = Material::new("PMMA", PMMA.density, PMMA.elements, elements().unwrap()).unwrap();
     let e = 20.0;
     let (mw, mp) = (w.mu(e).total(), p.mu(e).total());
     for (layers, mu_t) in [
@@ -172,7 +172,7 @@ fn compton_angles_and_energies_follow_klein_nishina_with_s() {
         "glandular",
         1.04,
         Tissue::Fibroglandular.composition(),
-        &elements().unwrap(),
+        elements().unwrap(),
     )
     .unwrap();
     for e_kev in [10.0, 30.0, 50.0] {
