@@ -190,7 +190,11 @@ pub fn export(dir: &Path, opts: &ExportOptions) -> Result<Manifest, SimError> {
         )?;
         write_phantom(&mut w, "test", entry, i, &slices)?;
     }
-    Ok(w.finish()?)
+    let manifest = w.finish()?;
+    // The operator the trainer uses: the same projector, as CSR.
+    let (norm, _) = proj.operator_norm(200, 1e-6);
+    dbt_store::operator::write_operator(&dir.join("operator"), geom, &proj.to_csr(), norm)?;
+    Ok(manifest)
 }
 
 #[cfg(test)]

@@ -5,6 +5,7 @@
 
 pub mod acquisition;
 pub mod dataset;
+pub mod operator;
 
 use dbt_phantom::{ExternalSidecar, LabelVolume, PhantomError};
 use std::io::Read;
