@@ -1,0 +1,224 @@
+"""Export a trained run to a firmware model folder.
+
+    python -m dbtor.export --run RUN --data DS --out models/NAME [--name NAME]
+        [--calibration 16] [--fixtures 2]
+
+Writes, per block in execution order (dual 0, primal 0, dual 1, ...), an fp32
+ONNX file (opset 17, inputs `state` [n,5,h,w] and `aux` [n,k,h,w], output
+`out` = state + block(cat(state, aux)), the residual update inside) and a static
+int8 QDQ version (onnxruntime quantize_static: per-channel int8 weights, int8
+activations, calibrated on the inputs each block sees on training slices).
+Also fixtures for the Rust equivalence test (a sinogram, its thickness, the
+PyTorch fp32 reconstruction and the onnxruntime int8 one) and manifest.json
+with the geometry, normalisation, block order, SHA-256 of every file,
+provenance and validation metrics.
+"""
+import argparse
+import hashlib
+import logging
+import json
+import os
+import sys
+
+import numpy as np
+import onnx
+import onnxruntime as ort
+import torch
+from onnxruntime.quantization import (CalibrationDataReader, CalibrationMethod, QuantFormat,
+                                      QuantType, quantize_static)
+
+from .data import Split
+from .model import STATE, PrimalDual
+from .operator import Operator
+from .train import tensors
+
+OPSET = 17
+
+
+def sha256(path):
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def blocks_in_order(net):
+    for i in range(net.n_blocks):
+        yield "dual", i, net.dual[i]
+        yield "primal", i, net.primal[i]
+
+
+def capture_block_inputs(net, g, m):
+    """Run the network and record (state, aux) at every block."""
+    seen = {}
+    hooks = []
+    for role, i, blk in blocks_in_order(net):
+        def hook(mod, args, role=role, i=i):
+            seen.setdefault((role, i), []).append((args[0].detach().numpy().copy(),
+                                                   args[1].detach().numpy().copy()))
+        hooks.append(blk.register_forward_pre_hook(hook))
+    with torch.no_grad():
+        out = net(g, m)
+    for h in hooks:
+        h.remove()
+    return out, seen
+
+
+class Reader(CalibrationDataReader):
+    def __init__(self, samples):
+        self.it = iter([{"state": s, "aux": a} for s, a in samples])
+
+    def get_next(self):
+        return next(self.it, None)
+
+
+def run_onnx_chain(files, op, g, m, n_blocks):
+    """The unrolled loop with onnxruntime blocks (reference for the int8 fixture)."""
+    sessions = [ort.InferenceSession(f, providers=["CPUExecutionProvider"]) for f in files]
+    b = g.shape[0]
+    h = torch.zeros(b, STATE, *op.sino_shape)
+    f = torch.zeros(b, STATE, *op.image_shape)
+    with torch.no_grad():
+        pm = op.forward(m)
+        for i in range(n_blocks):
+            aux = torch.cat([op.forward(f[:, 1:2]), g, pm], 1)
+            h = torch.from_numpy(sessions[2 * i].run(None, {"state": h.numpy(), "aux": aux.numpy()})[0])
+            aux = torch.cat([op.adjoint(h[:, 0:1]), m], 1)
+            f = torch.from_numpy(sessions[2 * i + 1].run(None, {"state": f.numpy(), "aux": aux.numpy()})[0])
+    return f[:, 0:1]
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--run", required=True)
+    ap.add_argument("--data", required=True)
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--name", default=None)
+    ap.add_argument("--calibration", type=int, default=16, help="training slices for int8 calibration")
+    ap.add_argument("--fixtures", type=int, default=2, help="validation slices stored as fixtures")
+    ap.add_argument("--validation", default=None, help="JSON of validation metrics to embed")
+    a = ap.parse_args(argv)
+    logging.getLogger().setLevel(logging.ERROR)  # onnxruntime's pre-processing advice
+    ck = torch.load(os.path.join(a.run, "checkpoint.pt"), weights_only=False)
+    with open(os.path.join(a.run, "run.json")) as f:
+        run = json.load(f)
+    op = Operator(os.path.join(a.data, "operator"))
+    if ck["model_kind"] != "dbtor":
+        sys.exit("only DBToR models (with the mask) are exported for the firmware")
+    net = PrimalDual(op, blocks=ck["blocks"], use_mask=True)
+    net.load_state_dict(ck["model"])
+    net.eval()
+    stats = ck["stats"]
+    level = ck["options"]["level"]
+    os.makedirs(a.out, exist_ok=True)
+    for sub in ("fp32", "int8", "fixtures"):
+        os.makedirs(os.path.join(a.out, sub), exist_ok=True)
+
+    # Calibration inputs: training slices (never validation or test).
+    train = Split(a.data, "train", level)
+    rng = np.random.default_rng(12345)
+    cal_idx = rng.choice(train.n, size=min(a.calibration, train.n), replace=False)
+    samples = {}
+    for s in range(0, len(cal_idx), 4):
+        g, m, _ = tensors(train.batch(cal_idx[s:s + 4]), stats)
+        _, seen = capture_block_inputs(net, g, m)
+        for k, v in seen.items():
+            for state, aux in v:
+                for j in range(state.shape[0]):
+                    samples.setdefault(k, []).append((state[j:j + 1], aux[j:j + 1]))
+
+    blocks = []
+    fp32_files, int8_files = [], []
+    for role, i, blk in blocks_in_order(net):
+        stem = f"{role}{i:02d}"
+        f32 = os.path.join(a.out, "fp32", stem + ".onnx")
+        i8 = os.path.join(a.out, "int8", stem + ".onnx")
+        state_ex, aux_ex = samples[(role, i)][0]
+        torch.onnx.export(blk, (torch.from_numpy(state_ex), torch.from_numpy(aux_ex)), f32,
+                          input_names=["state", "aux"], output_names=["out"], opset_version=OPSET,
+                          dynamic_axes={"state": {0: "n", 2: "h", 3: "w"}, "aux": {0: "n", 2: "h", 3: "w"},
+                                        "out": {0: "n", 2: "h", 3: "w"}},
+                          dynamo=False)
+        onnx.checker.check_model(onnx.load(f32))
+        quantize_static(f32, i8, Reader(samples[(role, i)]), quant_format=QuantFormat.QDQ,
+                        per_channel=True, activation_type=QuantType.QInt8, weight_type=QuantType.QInt8,
+                        calibrate_method=CalibrationMethod.MinMax)
+        for path in (f32, i8):
+            # Intermediate shape annotations name the batch symbolically; a
+            # runtime that fixes the input shapes (tract) infers them anew.
+            mo = onnx.load(path)
+            del mo.graph.value_info[:]
+            onnx.save(mo, path)
+        fp32_files.append(f32)
+        int8_files.append(i8)
+        blocks.append({"role": role, "index": i, "aux_channels": blk.aux_channels})
+        print(f"exported {stem}", flush=True)
+
+    # Fixtures: validation slices, raw log sinograms as the firmware gets them.
+    val = Split(a.data, "validation", level)
+    fx_idx = np.linspace(0, val.n - 1, a.fixtures + 2).astype(int)[1:-1]
+    fixtures = []
+    for k, j in enumerate(fx_idx):
+        graw, mraw, xraw = val.batch([j])
+        g, m, _ = tensors((graw, mraw, xraw), stats)
+        with torch.no_grad():
+            ref = (net(g, m) * stats["x_scale"]).numpy()[0, 0]
+        ref8 = (run_onnx_chain(int8_files, op, g, m, net.n_blocks) * stats["x_scale"]).numpy()[0, 0]
+        thickness = val.split["slices"][int(j)]["thickness_mm"]
+        stem = f"case{k}"
+        files = {}
+        for name, arr in (("sinogram", graw[0]), ("truth", xraw[0]), ("torch_fp32", ref), ("ort_int8", ref8)):
+            p = os.path.join(a.out, "fixtures", f"{stem}-{name}.f32")
+            np.asarray(arr, dtype="<f4").tofile(p)
+            files[name] = os.path.relpath(p, a.out)
+        fixtures.append({"name": stem, "thickness_mm": thickness, "validation_slice": int(j),
+                         "files": files,
+                         "int8_vs_fp32_max_abs_per_mm": float(np.abs(ref8 - ref).max())})
+        print(f"fixture {stem}: int8 vs fp32 max abs {np.abs(ref8 - ref).max():.3e} /mm", flush=True)
+
+    everything = []
+    for root, _, names in os.walk(a.out):
+        for n in sorted(names):
+            p = os.path.join(root, n)
+            if os.path.relpath(p, a.out) != "manifest.json":
+                everything.append(os.path.relpath(p, a.out))
+    manifest = {
+        "format": "dbtor-model/1",
+        "name": a.name or os.path.basename(os.path.normpath(a.out)),
+        "kind": "dbtor",
+        "geometry": run["geometry"],
+        "state_channels": STATE,
+        "channels": {"output": 0, "projected": 1, "backprojected": 0},
+        "block_inputs": {"dual": ["h (5)", "P(f[1])", "g", "P(m)"], "primal": ["f (5)", "P*(h[0])", "m"]},
+        "normalisation": {
+            "g_mean": stats["g_mean"], "g_std": stats["g_std"], "x_scale_per_mm": stats["x_scale"],
+            "operator_norm": op.norm,
+            "rule": "g_n = (g - g_mean) / g_std; the network's P and P* are divided by operator_norm; "
+                    "mask m is 0/1 on the image grid (rows within the thickness above the bottom row); "
+                    "output image (1/mm) = f[0] * x_scale_per_mm",
+        },
+        "opset": OPSET,
+        "blocks": [dict(b, fp32=os.path.relpath(f, a.out), int8=os.path.relpath(q, a.out))
+                   for b, f, q in zip(blocks, fp32_files, int8_files)],
+        "int8": {"format": "QDQ", "weights": "int8 per channel (symmetric)", "activations": "int8 per tensor",
+                 "calibration": f"MinMax on {len(cal_idx)} training slices", "tool": f"onnxruntime {ort.__version__}"},
+        "fixtures": fixtures,
+        "sha256": {p: sha256(os.path.join(a.out, p)) for p in sorted(everything)},
+        "provenance": {
+            "train_command": run["command"], "options": run["options"],
+            "iterations": ck["iteration"], "training_minutes": round(ck["elapsed_s"] / 60, 1),
+            "dataset_provenance": run["dataset_provenance"], "torch": torch.__version__,
+            "export_command": " ".join(["python -m dbtor.export"] + (argv or sys.argv[1:])),
+        },
+    }
+    if a.validation:
+        with open(a.validation) as f:
+            manifest["validation"] = json.load(f)
+    with open(os.path.join(a.out, "manifest.json"), "w") as f:
+        json.dump(manifest, f, indent=2)
+    print(f"wrote {a.out}/manifest.json ({len(everything)} files)")
+
+
+if __name__ == "__main__":
+    main()

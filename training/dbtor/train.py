@@ -1,0 +1,159 @@
+"""Train DBToR or LPD; resumable.
+
+    python -m dbtor.train --data DS --out RUN [--model dbtor|lpd] [--level N8]
+        [--iters 100000] [--batch 4] [--blocks 10] [--max-minutes M] [--seed 0]
+
+RUN/checkpoint.pt holds the model, Adam, the cosine schedule, the iteration
+and the RNG states; running the same command again continues from it (the
+options must match: they are stored and checked). RUN/curve.csv gets one line
+per logged step, RUN/run.json the options and normalisation.
+"""
+import argparse
+import csv
+import json
+import math
+import os
+import signal
+import sys
+import time
+
+import numpy as np
+import torch
+
+from .data import Split, statistics
+from .model import PrimalDual
+from .operator import Operator
+
+FIXED = ("model", "level", "iters", "batch", "blocks", "seed", "lr")
+
+
+def tensors(batch, stats):
+    g, m, x = batch
+    g = torch.from_numpy((g - stats["g_mean"]) / stats["g_std"]).float().unsqueeze(1)
+    m = torch.from_numpy(m.astype(np.float32)).unsqueeze(1)
+    x = torch.from_numpy(x / stats["x_scale"]).float().unsqueeze(1)
+    return g, m, x
+
+
+def validate(net, split, stats, n=32, batch=8):
+    """Mean squared error (image units of x_scale) and PSNR (dB, data range of each
+    truth) on the first `n` slices of an even spread over the validation split."""
+    idx = np.linspace(0, split.n - 1, min(n, split.n)).astype(int)
+    mse, psnr = [], []
+    net.eval()
+    with torch.no_grad():
+        for s in range(0, len(idx), batch):
+            g, m, x = tensors(split.batch(idx[s:s + batch]), stats)
+            z = net(g, m)
+            e = ((z - x) ** 2).flatten(1).mean(1)
+            rng = x.flatten(1).amax(1) - x.flatten(1).amin(1)
+            mse += e.tolist()
+            psnr += (10 * torch.log10(rng ** 2 / e)).tolist()
+    net.train()
+    return float(np.mean(mse)), float(np.mean(psnr))
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--data", required=True, help="host-sim dataset folder")
+    ap.add_argument("--out", required=True, help="run folder (checkpoint, curve)")
+    ap.add_argument("--model", choices=["dbtor", "lpd"], default="dbtor")
+    ap.add_argument("--level", default="N8", help="noise level trained on")
+    ap.add_argument("--iters", type=int, default=100000, help="total iterations (cosine schedule length)")
+    ap.add_argument("--batch", type=int, default=4)
+    ap.add_argument("--blocks", type=int, default=10)
+    ap.add_argument("--lr", type=float, default=1e-4)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--max-minutes", type=float, default=None, help="stop (with a checkpoint) after this long")
+    ap.add_argument("--stop-at", type=int, default=None, help="stop (with a checkpoint) at this iteration")
+    ap.add_argument("--log-every", type=int, default=50)
+    ap.add_argument("--val-every", type=int, default=500)
+    ap.add_argument("--threads", type=int, default=None)
+    a = ap.parse_args(argv)
+    if a.threads:
+        torch.set_num_threads(a.threads)
+    os.makedirs(a.out, exist_ok=True)
+    op = Operator(os.path.join(a.data, "operator"))
+    train = Split(a.data, "train", a.level)
+    val = Split(a.data, "validation", a.level)
+    if tuple(train.images.shape[1:]) != op.image_shape or tuple(train.sinos.shape[1:]) != op.sino_shape:
+        sys.exit(f"{a.data}: array shapes {train.images.shape[1:]}/{train.sinos.shape[1:]} do not match the operator")
+
+    ckpt_path = os.path.join(a.out, "checkpoint.pt")
+    run_path = os.path.join(a.out, "run.json")
+    opts = {k: getattr(a, k) for k in FIXED}
+    torch.manual_seed(a.seed)
+    net = PrimalDual(op, blocks=a.blocks, use_mask=(a.model == "dbtor"))
+    adam = torch.optim.Adam(net.parameters(), lr=a.lr, betas=(0.9, 0.999), eps=1e-8, weight_decay=0)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(adam, T_max=a.iters)
+    rng = np.random.default_rng(a.seed)
+    it, elapsed = 0, 0.0
+    if os.path.exists(ckpt_path):
+        ck = torch.load(ckpt_path, weights_only=False)
+        if ck["options"] != opts:
+            sys.exit(f"{ckpt_path}: made with {ck['options']}, asked for {opts}; use another --out")
+        net.load_state_dict(ck["model"])
+        adam.load_state_dict(ck["adam"])
+        sched.load_state_dict(ck["schedule"])
+        rng.bit_generator.state = ck["numpy_rng"]
+        torch.set_rng_state(ck["torch_rng"])
+        it, elapsed, stats = ck["iteration"], ck["elapsed_s"], ck["stats"]
+        print(f"resumed at iteration {it} ({elapsed / 60:.1f} min trained)", flush=True)
+    else:
+        stats = statistics(train)
+        with open(run_path, "w") as f:
+            json.dump({"options": opts, "data": os.path.abspath(a.data),
+                       "dataset_provenance": train.manifest["provenance"],
+                       "geometry": train.manifest["geometry"], "stats": stats,
+                       "operator_norm": op.norm,
+                       "command": " ".join(["python -m dbtor.train"] + (argv or sys.argv[1:]))}, f, indent=2)
+
+    def save():
+        tmp = ckpt_path + ".tmp"
+        torch.save({"options": opts, "model": net.state_dict(), "adam": adam.state_dict(),
+                    "schedule": sched.state_dict(), "numpy_rng": rng.bit_generator.state,
+                    "torch_rng": torch.get_rng_state(), "iteration": it, "elapsed_s": elapsed,
+                    "stats": stats, "blocks": a.blocks, "model_kind": a.model}, tmp)
+        os.replace(tmp, ckpt_path)
+
+    stop = {"now": False}
+    signal.signal(signal.SIGTERM, lambda *_: stop.update(now=True))
+    signal.signal(signal.SIGINT, lambda *_: stop.update(now=True))
+    curve = open(os.path.join(a.out, "curve.csv"), "a", newline="")
+    cw = csv.writer(curve)
+    if curve.tell() == 0:
+        cw.writerow(["iteration", "elapsed_s", "lr", "train_loss", "val_mse", "val_psnr_db"])
+    t0, run_loss, run_n = time.time(), 0.0, 0
+    start_elapsed = elapsed
+    end = a.iters if a.stop_at is None else min(a.iters, a.stop_at)
+    while it < end and not stop["now"]:
+        g, m, x = tensors(train.batch(rng.choice(train.n, size=a.batch, replace=False)), stats)
+        loss = torch.mean((net(g, m) - x) ** 2)
+        adam.zero_grad(set_to_none=True)
+        loss.backward()
+        adam.step()
+        sched.step()
+        it += 1
+        elapsed = start_elapsed + time.time() - t0
+        run_loss += loss.item()
+        run_n += 1
+        val_mse = val_psnr = ""
+        if it % a.val_every == 0 or it == end:
+            val_mse, val_psnr = validate(net, val, stats)
+        if it % a.log_every == 0 or val_mse != "":
+            cw.writerow([it, f"{elapsed:.1f}", f"{sched.get_last_lr()[0]:.3e}", f"{run_loss / run_n:.6f}",
+                         val_mse, val_psnr])
+            curve.flush()
+            print(f"it {it} loss {run_loss / run_n:.5f} val_mse {val_mse} val_psnr {val_psnr} "
+                  f"({elapsed / it if it else 0:.2f} s/it)", flush=True)
+            run_loss, run_n = 0.0, 0
+        if it % a.val_every == 0:
+            save()
+        if a.max_minutes is not None and time.time() - t0 > 60 * a.max_minutes:
+            break
+    save()
+    print(f"stopped at iteration {it} of {a.iters}; checkpoint {ckpt_path}", flush=True)
+
+
+if __name__ == "__main__":
+    main()

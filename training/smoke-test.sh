@@ -1,0 +1,26 @@
+#!/usr/bin/env bash
+# CI smoke test of the whole training path, in about a minute on 2 cores:
+# a small dataset (binned x4 geometry, N8) from host-sim, DBToR with 2+2 blocks
+# trained for 4 iterations in two runs (the second resumes from the first's
+# checkpoint), exported (fp32 + int8 QDQ, fixtures, manifest), and the export
+# checked by the firmware's runtime (`dbtor-diag model`: checksums, fp32 vs
+# PyTorch, int8 vs onnxruntime). Needs training/requirements.txt installed and
+# the release binaries (host-sim, dbtor-diag).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PY=${PYTHON:-python3}
+tmp=$(mktemp -d)
+trap 'rm -rf "$tmp"' EXIT
+cargo build --release --locked -q -p host-sim -p dbtor-firmware
+./target/release/host-sim dataset --out "$tmp/ds" --slices 1100 --test-phantoms 0 --levels N8 --binning 4 2>/dev/null
+cd training
+common=(--data "$tmp/ds" --out "$tmp/run" --iters 4 --batch 2 --blocks 2 --val-every 2 --log-every 1)
+$PY -m dbtor.train "${common[@]}" --stop-at 2
+$PY -m dbtor.train "${common[@]}" | tee "$tmp/second.log"
+grep -q "resumed at iteration 2" "$tmp/second.log" || { echo "smoke test: the second run did not resume"; exit 1; }
+[ "$(tail -n +2 "$tmp/run/curve.csv" | wc -l)" -ge 4 ] || { echo "smoke test: curve.csv is short"; exit 1; }
+$PY -m dbtor.export --run "$tmp/run" --data "$tmp/ds" --out "$tmp/model" --calibration 2 --fixtures 1
+$PY -m dbtor.plot --run "$tmp/run" --out "$tmp/model/training-curve.png"
+cd ..
+./target/release/dbtor-diag model "$tmp/model"
+echo "training smoke test passed"
