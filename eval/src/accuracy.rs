@@ -1,7 +1,8 @@
 //! End-to-end accuracy on held-out phantoms (issue #7): simulated acquisition
 //! -> firmware processing -> glandularity and MGD, against the phantom truth
 //! (its own labels through the same dose engine), with Bland-Altman
-//! statistics. Today the reconstructor is MLTR; DBToR joins with issue #4.
+//! statistics, for whichever reconstructor the pipeline options select (DBToR
+//! with a model, else MLTR).
 
 use dbt_acquisition::NoiseLevel;
 use dbt_dose::patient::{dbt_views, mgd_to_uncertainty, Breast, Model};

@@ -136,9 +136,23 @@ fn to_per_cm(v: &[f32]) -> Vec<f32> {
     v.iter().map(|x| x * 10.0).collect()
 }
 
-/// Run MLTR and FBP on the test set and tabulate.
-pub fn evaluate_baselines(opts: &BaselineOptions) -> anyhow::Result<BaselineReport> {
+/// Run MLTR, FBP and the given learned models (name, model) on the test set
+/// and tabulate. Each model's geometry must be the evaluation geometry.
+pub fn evaluate_baselines(
+    opts: &BaselineOptions,
+    models: &[(String, &dbt_dbtor::Dbtor)],
+) -> anyhow::Result<BaselineReport> {
     let g = &opts.geometry;
+    for (name, m) in models {
+        anyhow::ensure!(
+            m.geometry() == g,
+            "{name}: the model's geometry ({}) is not the evaluation geometry ({})",
+            m.geometry().describe(),
+            g.describe()
+        );
+    }
+    let mut methods: Vec<String> = vec!["MLTR".into(), "FBP".into()];
+    methods.extend(models.iter().map(|(n, _)| n.clone()));
     let proj = Projector::new(g);
     let fbp = Fbp::new(g);
     let shape = Shape {
@@ -157,30 +171,35 @@ pub fn evaluate_baselines(opts: &BaselineOptions) -> anyhow::Result<BaselineRepo
         track_likelihood: false,
     };
     // scores[level][method] = per-slice scores
-    let mut scores = vec![[Vec::<ImageScores>::new(), Vec::new()]; opts.levels.len()];
+    let mut scores = vec![vec![Vec::<ImageScores>::new(); methods.len()]; opts.levels.len()];
     for (ts, s) in &set {
         let _span = tracing::info_span!("slice", phantom = ts.phantom, depth = ts.depth).entered();
         let truth = to_per_cm(&s.mu);
-        let per_level: Vec<anyhow::Result<[ImageScores; 2]>> = (0..opts.levels.len())
+        let per_level: Vec<anyhow::Result<Vec<ImageScores>>> = (0..opts.levels.len())
             .into_par_iter()
             .map(|k| {
                 let (m, _) = mltr(&proj, &s.counts[k], s.flux[k], &s.mask, &mltr_opts)?;
                 let line = dbt_acquisition::log_transform(&s.counts[k], s.flux[k]);
                 let f = fbp.reconstruct(&line, Some(&s.mask))?;
-                Ok([
+                let mut out = vec![
                     score(shape, &truth, &to_per_cm(&m))?,
                     score(shape, &truth, &to_per_cm(&f))?,
-                ])
+                ];
+                for (_, model) in models {
+                    let x = model.reconstruct(&line, s.thickness_mm)?;
+                    out.push(score(shape, &truth, &to_per_cm(&x))?);
+                }
+                Ok(out)
             })
             .collect();
         for (k, r) in per_level.into_iter().enumerate() {
-            let [a, b] = r?;
-            scores[k][0].push(a);
-            scores[k][1].push(b);
+            for (mi, sc) in r?.into_iter().enumerate() {
+                scores[k][mi].push(sc);
+            }
         }
     }
     let mut rows = Vec::new();
-    for (mi, method) in ["MLTR", "FBP"].iter().enumerate() {
+    for (mi, method) in methods.iter().enumerate() {
         for (k, lvl) in opts.levels.iter().enumerate() {
             let sc = &scores[k][mi];
             let stat = |f: fn(&ImageScores) -> f64| {
@@ -248,7 +267,7 @@ mod tests {
             iterations: 20,
             levels: vec![NoiseLevel::NoiseFree, NoiseLevel::Poisson(8)],
         };
-        let r = evaluate_baselines(&opts).unwrap();
+        let r = evaluate_baselines(&opts, &[]).unwrap();
         assert_eq!(r.rows.len(), 4);
         assert_eq!(r.slices.len(), 2);
         for row in &r.rows {

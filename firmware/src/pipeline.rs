@@ -1,9 +1,10 @@
 //! Processing of one acquisition, from counts to report contents: per coronal
-//! slice reconstruction (today MLTR, the paper's baseline; DBToR replaces it
-//! with issue #4), stacking into a volume, tissue classification, density,
+//! slice reconstruction (DBToR with a trained model, or MLTR, the paper's
+//! baseline, as the fallback chosen by configuration), stacking into a volume, tissue classification, density,
 //! Monte Carlo MGD (patient-specific and model breast), and the two DICOM
 //! reports. Pure: the adapters read the acquisition and deliver the reports.
 
+use dbt_acquisition::log_transform;
 use dbt_dicom::{
     density_report, dose_report, DensityInput, DoseEvent, DoseInput, Equipment, Header, Laterality,
     Report, UidSource,
@@ -22,6 +23,14 @@ pub enum PipelineError {
     /// The acquisition cannot be processed as given.
     #[error("acquisition: {0}")]
     Input(String),
+    /// DBToR failed.
+    #[error("DBToR reconstruction of slice {slice}: {source}")]
+    Dbtor {
+        /// Coronal slice.
+        slice: usize,
+        /// Cause.
+        source: dbt_dbtor::DbtorError,
+    },
     /// Reconstruction failed.
     #[error("reconstruction of slice {slice}: {source}")]
     Recon {
@@ -44,7 +53,10 @@ pub enum PipelineError {
 /// Options of the processing.
 #[derive(Debug, Clone, Serialize)]
 pub struct PipelineOptions {
-    /// MLTR iterations (the paper: 100).
+    /// The DBToR model; `None` selects MLTR.
+    #[serde(skip)]
+    pub dbtor: Option<std::sync::Arc<dbt_dbtor::Dbtor>>,
+    /// MLTR iterations (the paper: 100), when MLTR is the reconstructor.
     pub mltr_iterations: usize,
     /// Target relative statistical uncertainty of the MGD.
     pub dose_uncertainty: f64,
@@ -55,6 +67,7 @@ pub struct PipelineOptions {
 impl Default for PipelineOptions {
     fn default() -> Self {
         Self {
+            dbtor: None,
             mltr_iterations: 100,
             dose_uncertainty: 0.01,
             seed: 1,
@@ -123,10 +136,31 @@ pub fn process(acq: &Acquisition, opts: &PipelineOptions) -> Result<ProcessResul
         iterations: opts.mltr_iterations,
         track_likelihood: false,
     };
+    if let Some(m) = &opts.dbtor {
+        if m.geometry() != g {
+            return Err(PipelineError::Input(format!(
+                "the acquisition's geometry ({}) is not the model's ({}); use a model trained for it or MLTR",
+                g.describe(),
+                m.geometry().describe()
+            )));
+        }
+    }
+    let reconstructor = match &opts.dbtor {
+        Some(m) => format!("DBToR {} ({})", m.manifest().name, m.precision()),
+        None => format!("MLTR {} iterations", opts.mltr_iterations),
+    };
     for (d, counts) in acq.counts.iter().enumerate() {
         let _s = tracing::debug_span!("slice", d).entered();
-        let (img, _) = mltr(&proj, counts, h.flux, &mask, &mopts)
-            .map_err(|source| PipelineError::Recon { slice: d, source })?;
+        let img = match &opts.dbtor {
+            Some(m) => m
+                .reconstruct(&log_transform(counts, h.flux), h.thickness_mm)
+                .map_err(|source| PipelineError::Dbtor { slice: d, source })?,
+            None => {
+                mltr(&proj, counts, h.flux, &mask, &mopts)
+                    .map_err(|source| PipelineError::Recon { slice: d, source })?
+                    .0
+            }
+        };
         // Image row r (0 at the top) -> vertical index rows - 1 - r.
         for v in 0..nv {
             let r = rows - 1 - v;
@@ -171,7 +205,7 @@ pub fn process(acq: &Acquisition, opts: &PipelineOptions) -> Result<ProcessResul
     )?;
     let kerma_mgy = h.mas_total * h.tube_output_mgy_per_mas;
     Ok(ProcessResult {
-        reconstructor: format!("MLTR {} iterations", opts.mltr_iterations),
+        reconstructor,
         dims,
         voxel_mm: g.image.pixel_mm,
         mu,

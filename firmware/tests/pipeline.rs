@@ -31,6 +31,7 @@ fn acquisition_to_reports() {
     )
     .unwrap();
     let opts = PipelineOptions {
+        dbtor: None,
         mltr_iterations: 30,
         dose_uncertainty: 0.05,
         seed: 1,

@@ -3,6 +3,7 @@
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 use dbt_acquisition::NoiseLevel;
+use dbt_dbtor::{Dbtor, Precision};
 use dbt_eval::picture::{auto_window, compose, Panel};
 use dbt_eval::{evaluate_baselines, table, test_set, BaselineOptions};
 use dbt_geometry::Geometry;
@@ -25,9 +26,16 @@ struct Cli {
 enum Cmd {
     /// MLTR and FBP table (paper Tables 1-2), printed and written as JSON.
     Baselines {
-        /// Binning of the paper geometry (1 = the paper's).
-        #[arg(long, default_value_t = 1)]
-        binning: usize,
+        /// Binning of the paper geometry (1 = the paper's; with --model, the
+        /// model's geometry is used and this must agree if given).
+        #[arg(long)]
+        binning: Option<usize>,
+        /// A trained DBToR model folder (models/NAME) to evaluate beside the baselines.
+        #[arg(long)]
+        model: Option<PathBuf>,
+        /// Precisions of the model to run (comma separated: fp32, int8).
+        #[arg(long, default_value = "fp32,int8")]
+        precisions: String,
         /// Test-set phantoms.
         #[arg(long, default_value_t = 5)]
         phantoms: usize,
@@ -101,6 +109,12 @@ enum Cmd {
         /// Output folder (accuracy.json, bland-altman-*.png).
         #[arg(long, default_value = "eval/results/accuracy")]
         out: PathBuf,
+        /// Reconstruct with this DBToR model (default: MLTR).
+        #[arg(long)]
+        model: Option<PathBuf>,
+        /// Model precision (fp32 or int8).
+        #[arg(long, default_value = "fp32")]
+        precision: String,
     },
     /// PNG of a test slice: phantom, sinogram, MLTR, FBP.
     Picture {
@@ -116,6 +130,11 @@ enum Cmd {
         /// Noise level.
         #[arg(long, default_value = "N8")]
         noise: String,
+        /// A trained DBToR model: adds its reconstruction (fp32) and the
+        /// difference to the phantom (the paper's Figures 7-9); the geometry
+        /// is the model's.
+        #[arg(long)]
+        model: Option<PathBuf>,
     },
 }
 
@@ -137,6 +156,22 @@ fn write_png(path: &PathBuf, pixels: &[u8], w: usize, h: usize) -> Result<()> {
     Ok(())
 }
 
+/// Load a model folder at each precision asked for, named `DBToR fp32`, ...
+fn load_models(dir: Option<&std::path::Path>, precisions: &str) -> Result<Vec<(String, Dbtor)>> {
+    let Some(dir) = dir else { return Ok(vec![]) };
+    let mut out = Vec::new();
+    for p in precisions.split(',').filter(|p| !p.is_empty()) {
+        let p: Precision = p.parse().map_err(anyhow::Error::msg)?;
+        let m = Dbtor::load(dir, p).with_context(|| format!("loading {} ({p})", dir.display()))?;
+        out.push((format!("DBToR {p}"), m));
+    }
+    Ok(out)
+}
+
+fn line_for_model(counts: &[f32], flux: f64) -> Vec<f32> {
+    dbt_acquisition::log_transform(counts, flux)
+}
+
 fn main() -> Result<()> {
     tracing_subscriber::fmt()
         .with_env_filter(
@@ -147,21 +182,39 @@ fn main() -> Result<()> {
     match Cli::parse().cmd {
         Cmd::Baselines {
             binning,
+            model,
+            precisions,
             phantoms,
             slices,
             iterations,
             levels,
             json,
         } => {
+            let loaded = load_models(model.as_deref(), &precisions)?;
+            let geometry = match (loaded.first(), binning) {
+                (Some((_, m)), None) => m.geometry().clone(),
+                (Some((name, m)), Some(b)) => {
+                    let g = Geometry::paper().binned(b)?;
+                    anyhow::ensure!(
+                        &g == m.geometry(),
+                        "--binning {b} gives {}, but {name} was trained for {}",
+                        g.describe(),
+                        m.geometry().describe()
+                    );
+                    g
+                }
+                (None, b) => Geometry::paper().binned(b.unwrap_or(1))?,
+            };
+            let refs: Vec<(String, &Dbtor)> = loaded.iter().map(|(n, m)| (n.clone(), m)).collect();
             let opts = BaselineOptions {
-                geometry: Geometry::paper().binned(binning)?,
+                geometry,
                 phantoms,
                 slices_per_phantom: slices,
                 iterations,
                 levels: parse_levels(&levels)?,
             };
             let t = Instant::now();
-            let report = evaluate_baselines(&opts)?;
+            let report = evaluate_baselines(&opts, &refs)?;
             println!(
                 "Baselines on the fixed test set ({} phantoms, {} slices, {}; MLTR {} iterations; {:.0} s)\n",
                 phantoms,
@@ -278,11 +331,17 @@ fn main() -> Result<()> {
             iterations,
             dose_uncertainty,
             out,
+            model,
+            precision,
         } => {
             use dbt_eval::accuracy::{run_case, summarise, test_phantoms};
             let g = Geometry::paper().binned(binning)?;
             let noise = NoiseLevel::parse(&noise)?;
+            let dbtor = load_models(model.as_deref(), &precision)?
+                .pop()
+                .map(|(_, m)| std::sync::Arc::new(m));
             let opts = dbtor_firmware::pipeline::PipelineOptions {
+                dbtor,
                 mltr_iterations: iterations,
                 dose_uncertainty,
                 seed: 1,
@@ -401,8 +460,13 @@ fn main() -> Result<()> {
             binning,
             phantom,
             noise,
+            model,
         } => {
-            let g = Geometry::paper().binned(binning)?;
+            let model = load_models(model.as_deref(), "fp32")?.pop().map(|(_, m)| m);
+            let g = match &model {
+                Some(m) => m.geometry().clone(),
+                None => Geometry::paper().binned(binning)?,
+            };
             let proj = Projector::new(&g);
             let level = NoiseLevel::parse(&noise)?;
             let (set, _) = test_set(&g, &proj, phantom + 1, 1, &[level])?;
@@ -418,7 +482,7 @@ fn main() -> Result<()> {
             let f = Fbp::new(&g).reconstruct(&line, Some(&s.mask))?;
             let (rows, cols) = (g.image.rows, g.image.columns);
             let mu_window = (0.0, 0.0854 * 1.05);
-            let panels = [
+            let mut panels = vec![
                 Panel {
                     data: s.mu.clone(),
                     rows,
@@ -448,10 +512,32 @@ fn main() -> Result<()> {
                     stretch: 1,
                 },
             ];
+            let mut legend = String::from(
+                "phantom (0..0.09 /mm), sinogram, MLTR 100 it. (same window), FBP (own window)",
+            );
+            if let Some(m) = &model {
+                let x = m.reconstruct(&line_for_model(&s.counts[0], s.flux[0]), s.thickness_mm)?;
+                let diff: Vec<f32> = x.iter().zip(&s.mu).map(|(a, b)| a - b).collect();
+                panels.push(Panel {
+                    data: x,
+                    rows,
+                    cols,
+                    window: mu_window,
+                    stretch: 1,
+                });
+                panels.push(Panel {
+                    data: diff,
+                    rows,
+                    cols,
+                    window: (-0.02, 0.02),
+                    stretch: 1,
+                });
+                legend.push_str(", DBToR fp32 (same window), DBToR - phantom (-0.02..0.02 /mm)");
+            }
             let (px, w, h) = compose(&panels);
             write_png(&out, &px, w, h)?;
             println!(
-                "{}: test phantom {phantom}, slice {}, {}; panels top to bottom: phantom (0..0.09 /mm), sinogram, MLTR 100 it. (same window), FBP (own window)",
+                "{}: test phantom {phantom}, slice {}, {}; panels top to bottom: {legend}",
                 out.display(),
                 s.depth,
                 level.name()

@@ -5,7 +5,11 @@
 //! received from the gantry.
 //!
 //! `dbtor-process ACQ_DIR --out DIR [--pacs AET@host:port] [--uid-root ROOT]
-//!   [--iterations N] [--dose-uncertainty 0.01]`
+//!   [--model models/dbtor-x4 [--precision fp32|int8]] [--iterations N]
+//!   [--dose-uncertainty 0.01]`
+//!
+//! With `--model`, slices are reconstructed by DBToR (the model's checksums are
+//! verified first); without it by MLTR (`--iterations`, default 100).
 
 use anyhow::{bail, Context, Result};
 use dbt_dicom::{Equipment, UidSource};
@@ -25,6 +29,8 @@ fn main() -> Result<()> {
     let mut pacs = None;
     let mut uid_root = "1.2.826.0.1.3680043.10.543.1".to_string();
     let mut opts = PipelineOptions::default();
+    let mut model = None;
+    let mut precision = dbt_dbtor::Precision::Fp32;
     let mut it = args.iter();
     while let Some(a) = it.next() {
         let mut val = |name: &str| {
@@ -36,6 +42,13 @@ fn main() -> Result<()> {
             "--out" => out = Some(PathBuf::from(val("--out")?)),
             "--pacs" => pacs = Some(dbt_pacs::PacsConfig::parse(&val("--pacs")?)?),
             "--uid-root" => uid_root = val("--uid-root")?,
+            "--model" => model = Some(PathBuf::from(val("--model")?)),
+            "--precision" => {
+                precision = val("--precision")?
+                    .parse()
+                    .map_err(anyhow::Error::msg)
+                    .context("--precision")?
+            }
             "--iterations" => {
                 opts.mltr_iterations = val("--iterations")?.parse().context("--iterations")?
             }
@@ -51,6 +64,11 @@ fn main() -> Result<()> {
     let acq_dir =
         acq_dir.context("usage: dbtor-process ACQ_DIR --out DIR [--pacs AET@host:port]")?;
     let out = out.context("--out DIR is required")?;
+    if let Some(dir) = &model {
+        let m = dbt_dbtor::Dbtor::load(dir, precision)
+            .with_context(|| format!("loading the DBToR model {}", dir.display()))?;
+        opts.dbtor = Some(std::sync::Arc::new(m));
+    }
     let acq = dbt_store::acquisition::read_acquisition(&acq_dir)?;
     let t = std::time::Instant::now();
     let res = process(&acq, &opts)?;

@@ -1,0 +1,222 @@
+//! `models/<name>/manifest.json` (format `dbtor-model/1`).
+
+use crate::DbtorError;
+use dbt_geometry::Geometry;
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+use std::collections::BTreeMap;
+use std::io::Read;
+use std::path::Path;
+
+/// Format tag.
+pub const FORMAT: &str = "dbtor-model/1";
+
+/// Primal (image space) or dual (sinogram space).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Role {
+    /// Sinogram-space block.
+    Dual,
+    /// Image-space block.
+    Primal,
+}
+
+/// One block, in execution order.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BlockEntry {
+    /// Dual or primal.
+    pub role: Role,
+    /// Its iteration.
+    pub index: usize,
+    /// Channels of its `aux` input.
+    pub aux_channels: usize,
+    /// fp32 ONNX file, relative to the model folder.
+    pub fp32: String,
+    /// int8 QDQ ONNX file.
+    pub int8: String,
+}
+
+/// Normalisation constants from the training set.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Normalisation {
+    /// Mean of the training sinograms.
+    pub g_mean: f64,
+    /// Their standard deviation.
+    pub g_std: f64,
+    /// Image unit of the network, 1/mm.
+    pub x_scale_per_mm: f64,
+    /// `||P||` of the model's geometry.
+    pub operator_norm: f64,
+}
+
+/// Which state channels are read.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Channels {
+    /// Primal channel returned as the image.
+    pub output: usize,
+    /// Primal channel projected for the dual block.
+    pub projected: usize,
+    /// Dual channel back-projected for the primal block.
+    pub backprojected: usize,
+}
+
+/// A stored test case for the equivalence test.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Fixture {
+    /// Case name.
+    pub name: String,
+    /// Compressed thickness, mm.
+    pub thickness_mm: f64,
+    /// Files: `sinogram`, `truth`, `torch_fp32`, `ort_int8` (raw little-endian f32).
+    pub files: BTreeMap<String, String>,
+}
+
+/// The manifest.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ModelManifest {
+    /// [`FORMAT`].
+    pub format: String,
+    /// Model name.
+    pub name: String,
+    /// `dbtor`.
+    pub kind: String,
+    /// Geometry of the input sinogram and output image.
+    pub geometry: Geometry,
+    /// State channels (5).
+    pub state_channels: usize,
+    /// Channel conventions.
+    pub channels: Channels,
+    /// Normalisation.
+    pub normalisation: Normalisation,
+    /// Blocks in execution order.
+    pub blocks: Vec<BlockEntry>,
+    /// Equivalence fixtures.
+    #[serde(default)]
+    pub fixtures: Vec<Fixture>,
+    /// SHA-256 (hex) of every file of the model, by relative path.
+    pub sha256: BTreeMap<String, String>,
+    /// How the model was made.
+    #[serde(default)]
+    pub provenance: serde_json::Value,
+    /// Validation metrics recorded at export.
+    #[serde(default)]
+    pub validation: serde_json::Value,
+}
+
+/// SHA-256 of a file, hex.
+pub fn sha256_file(path: &Path) -> Result<String, DbtorError> {
+    let io = |source| DbtorError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut f = std::fs::File::open(path).map_err(io)?;
+    let mut h = Sha256::new();
+    let mut buf = vec![0u8; 1 << 16];
+    loop {
+        let n = f.read(&mut buf).map_err(io)?;
+        if n == 0 {
+            break;
+        }
+        h.update(&buf[..n]);
+    }
+    Ok(h.finalize().iter().map(|b| format!("{b:02x}")).collect())
+}
+
+impl ModelManifest {
+    /// Read and check `dir/manifest.json` (format, block order, channel counts).
+    pub fn load(dir: &Path) -> Result<Self, DbtorError> {
+        let path = dir.join("manifest.json");
+        let text = std::fs::read_to_string(&path).map_err(|source| DbtorError::Io {
+            path: path.clone(),
+            source,
+        })?;
+        let bad = |reason: String| DbtorError::Manifest {
+            path: path.clone(),
+            reason,
+        };
+        let m: ModelManifest = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
+        if m.format != FORMAT {
+            return Err(bad(format!(
+                "format is {:?}, expected {FORMAT:?}",
+                m.format
+            )));
+        }
+        m.geometry
+            .validate()
+            .map_err(|e| bad(format!("geometry: {e}")))?;
+        let c = m.state_channels;
+        if c == 0
+            || m.channels.output >= c
+            || m.channels.projected >= c
+            || m.channels.backprojected >= c
+        {
+            return Err(bad(format!(
+                "channels {:?} do not fit {c} state channels",
+                m.channels
+            )));
+        }
+        if m.blocks.is_empty() || m.blocks.len() % 2 != 0 {
+            return Err(bad(format!(
+                "{} blocks: expected dual/primal pairs",
+                m.blocks.len()
+            )));
+        }
+        for (k, b) in m.blocks.iter().enumerate() {
+            let (role, aux) = if k % 2 == 0 {
+                (Role::Dual, 3)
+            } else {
+                (Role::Primal, 2)
+            };
+            if b.role != role || b.index != k / 2 || b.aux_channels != aux {
+                return Err(bad(format!(
+                    "blocks[{k}] is {:?} {} with {} aux channels; expected {role:?} {} with {aux}",
+                    b.role,
+                    b.index,
+                    b.aux_channels,
+                    k / 2
+                )));
+            }
+            for f in [&b.fp32, &b.int8] {
+                if !m.sha256.contains_key(f) {
+                    return Err(bad(format!("blocks[{k}]: {f} has no SHA-256 entry")));
+                }
+            }
+        }
+        let nm = &m.normalisation;
+        for (name, v) in [
+            ("g_std", nm.g_std),
+            ("x_scale_per_mm", nm.x_scale_per_mm),
+            ("operator_norm", nm.operator_norm),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(bad(format!("normalisation.{name} = {v} must be positive")));
+            }
+        }
+        if !nm.g_mean.is_finite() {
+            return Err(bad("normalisation.g_mean is not finite".into()));
+        }
+        Ok(m)
+    }
+
+    /// Check every file named in `sha256` exists and matches.
+    pub fn verify_files(&self, dir: &Path) -> Result<(), DbtorError> {
+        for (rel, expected) in &self.sha256 {
+            let path = dir.join(rel);
+            if !path.is_file() {
+                return Err(DbtorError::Manifest {
+                    path: dir.join("manifest.json"),
+                    reason: format!("{rel} is listed but missing from {}", dir.display()),
+                });
+            }
+            let found = sha256_file(&path)?;
+            if &found != expected {
+                return Err(DbtorError::Checksum {
+                    path,
+                    expected: expected.clone(),
+                    found,
+                });
+            }
+        }
+        Ok(())
+    }
+}
