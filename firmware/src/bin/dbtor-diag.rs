@@ -6,6 +6,9 @@
 //! dbtor-diag report FILE.dcm [--json]     # the values of a dose or density SR
 //! dbtor-diag echo AET@host:port            # DICOM C-ECHO to the PACS
 //! dbtor-diag modbus HOST:PORT [--unit N] [--base N] [--json]   # read and decode the gantry registers
+//! dbtor-diag model DIR [--precision fp32|int8] [--json]   # checksums + stored fixtures of a DBToR model
+//! dbtor-diag status (--config FILE | --status FILE) [--json]  # the daemon's state, results and faults
+//! dbtor-diag config FILE                   # validate a daemon configuration and print it
 //! ```
 //! Exit codes: 0 all checks passed, 1 a check failed, 2 bad usage or input.
 
@@ -47,7 +50,7 @@ fn run() -> Result<bool> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let Some(cmd) = args.first() else {
         bail!(
-            "usage: dbtor-diag <selftest|geometry|report|echo|modbus> [--geometry FILE.toml] [--binning N] [--json] [FILE.dcm | AET@host:port | HOST:PORT]"
+            "usage: dbtor-diag <selftest|geometry|report|echo|modbus|model|status|config> [--geometry FILE.toml] [--binning N] [--json] [FILE.dcm | AET@host:port | HOST:PORT]"
         );
     };
     let rest = &args[1..];
@@ -86,6 +89,153 @@ fn run() -> Result<bool> {
                     } else {
                         "SOME CHECKS FAILED"
                     }
+                );
+            }
+            Ok(ok)
+        }
+        "config" => {
+            let path = rest
+                .iter()
+                .find(|a| !a.starts_with("--"))
+                .context("usage: dbtor-diag config FILE")?;
+            let cfg = dbtor_firmware::config::Config::load(std::path::Path::new(path))?;
+            println!("{path}: valid\n{cfg:#?}");
+            Ok(true)
+        }
+        "status" => {
+            let arg = |k: &str| {
+                rest.iter()
+                    .position(|a| a == k)
+                    .and_then(|i| rest.get(i + 1))
+            };
+            let path = match (arg("--status"), arg("--config")) {
+                (Some(s), _) => std::path::PathBuf::from(s),
+                (None, Some(c)) => {
+                    dbtor_firmware::config::Config::load(std::path::Path::new(c))?
+                        .paths
+                        .status
+                }
+                _ => bail!("usage: dbtor-diag status (--config FILE | --status FILE) [--json]"),
+            };
+            let bytes = std::fs::read(&path).with_context(|| {
+                format!(
+                    "reading the status file {} (is the daemon running?)",
+                    path.display()
+                )
+            })?;
+            let st: serde_json::Value = serde_json::from_slice(&bytes)
+                .with_context(|| format!("{} is not a status file", path.display()))?;
+            let pid = st["pid"].as_u64().unwrap_or(0);
+            let state = st["state"].as_str().unwrap_or("?");
+            let alive = pid > 0 && std::path::Path::new(&format!("/proc/{pid}")).exists();
+            let running = if state == "stopped" {
+                "stopped".to_string()
+            } else if alive {
+                format!("running (pid {pid})")
+            } else {
+                format!("NOT RUNNING (pid {pid} gone; last state {state})")
+            };
+            let faults = st["faults"].as_array().cloned().unwrap_or_default();
+            // Healthy: no fault newer than the last reported acquisition.
+            let last_ok_at = st["recent"]
+                .as_array()
+                .and_then(|r| r.last())
+                .and_then(|r| r["finished_unix"].as_u64());
+            let last_fault_at = faults.last().and_then(|f| f["at_unix"].as_u64());
+            let healthy = match (last_fault_at, last_ok_at) {
+                (None, _) => true,
+                (Some(f), Some(ok)) => ok > f,
+                (Some(_), None) => false,
+            };
+            if json {
+                println!(
+                    "{}",
+                    serde_json::json!({"status_file": path.display().to_string(), "running": alive && state != "stopped", "healthy": healthy, "status": st})
+                );
+            } else {
+                println!("daemon        {running}");
+                println!(
+                    "state         {state}{}",
+                    st["current"]
+                        .as_str()
+                        .map(|c| format!(" ({c})"))
+                        .unwrap_or_default()
+                );
+                println!(
+                    "reconstructor {}",
+                    st["reconstructor"].as_str().unwrap_or("?")
+                );
+                println!(
+                    "processed     {} (recovered from spool at start: {}; waiting in spool: {})",
+                    st["processed"], st["recovered"], st["incoming"]
+                );
+                if let Some(r) = st["recent"].as_array() {
+                    println!("recent acquisitions:");
+                    for a in r.iter().rev().take(10) {
+                        println!(
+                            "  {:<40} G {:.3} (labels) MGD {:.3} mGy  {:.1} s",
+                            a["acquisition"].as_str().unwrap_or("?"),
+                            a["glandularity_labels"].as_f64().unwrap_or(f64::NAN),
+                            a["mgd_mgy"].as_f64().unwrap_or(f64::NAN),
+                            a["seconds"].as_f64().unwrap_or(f64::NAN)
+                        );
+                    }
+                }
+                println!("faults ({}):", faults.len());
+                for f in faults.iter().rev().take(10) {
+                    println!(
+                        "  [{}] {:<10} {} {}",
+                        f["at_unix"],
+                        f["kind"].as_str().unwrap_or("?"),
+                        f["acquisition"].as_str().unwrap_or("-"),
+                        f["message"].as_str().unwrap_or("")
+                    );
+                }
+            }
+            Ok(healthy)
+        }
+        "model" => {
+            let dir = rest
+                .iter()
+                .find(|a| !a.starts_with("--") && !matches!(a.as_str(), "fp32" | "int8"))
+                .context("usage: dbtor-diag model DIR [--precision fp32|int8] [--json]")?;
+            let precisions: Vec<dbt_dbtor::Precision> =
+                match rest.iter().position(|a| a == "--precision") {
+                    Some(i) => vec![rest
+                        .get(i + 1)
+                        .context("--precision needs fp32 or int8")?
+                        .parse()
+                        .map_err(anyhow::Error::msg)?],
+                    None => vec![dbt_dbtor::Precision::Fp32, dbt_dbtor::Precision::Int8],
+                };
+            let dir = std::path::Path::new(dir);
+            let mut all = Vec::new();
+            for p in precisions {
+                let t = std::time::Instant::now();
+                // Loading verifies every SHA-256 of the manifest first.
+                let m = dbt_dbtor::Dbtor::load(dir, p)
+                    .with_context(|| format!("loading {} ({p})", dir.display()))?;
+                let checks = dbt_dbtor::check_fixtures(&m, dir)?;
+                if !json {
+                    println!(
+                        "{} ({p}): {} files verified, {} fixtures, {:.1} s",
+                        m.manifest().name,
+                        m.manifest().sha256.len(),
+                        checks.len(),
+                        t.elapsed().as_secs_f64()
+                    );
+                    for c in &checks {
+                        let r = if c.pass { "PASS" } else { "FAIL" };
+                        println!("  {:<8} {r}  {}", c.name, c.rule);
+                    }
+                }
+                all.extend(checks);
+            }
+            let ok = !all.is_empty() && all.iter().all(|c| c.pass);
+            if json {
+                println!(
+                    "{}",
+                    serde_json::json!({"model": dir.display().to_string(), "passed": ok, "fixtures": all})
                 );
             }
             Ok(ok)

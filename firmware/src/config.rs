@@ -1,0 +1,365 @@
+//! The daemon's configuration (TOML), validated at start: every error names
+//! the key and says what is wrong. `firmware/config/dbtor.toml` is the
+//! installed example.
+
+use serde::Deserialize;
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+use thiserror::Error;
+
+/// A configuration error.
+#[derive(Debug, Error)]
+pub enum ConfigError {
+    /// The file cannot be read.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// TOML syntax, an unknown key, or a wrong type.
+    #[error("{path}: {reason}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// The parser's message (it names the key and line).
+        reason: String,
+    },
+    /// A value that cannot work.
+    #[error("{path}: `{key}`: {reason}")]
+    Invalid {
+        /// The file.
+        path: PathBuf,
+        /// The key.
+        key: &'static str,
+        /// Why.
+        reason: String,
+    },
+}
+
+/// Where the projection frames come from.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct FramesConfig {
+    /// `tcp` (connect to the gantry's frame server) or `serial`.
+    pub transport: String,
+    /// `host:port` for tcp.
+    #[serde(default)]
+    pub address: Option<String>,
+    /// Device path for serial.
+    #[serde(default)]
+    pub port: Option<String>,
+    /// Baud rate for serial.
+    #[serde(default = "default_baud")]
+    pub baud: u32,
+    /// An acquisition fails when nothing arrives for this long, s.
+    #[serde(default = "default_idle")]
+    pub idle_timeout_s: f64,
+    /// Binning of the paper geometry the gantry sends.
+    #[serde(default = "default_binning")]
+    pub binning: usize,
+}
+
+fn default_baud() -> u32 {
+    921_600
+}
+fn default_idle() -> f64 {
+    30.0
+}
+fn default_binning() -> usize {
+    4
+}
+
+/// The gantry controller's registers.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ModbusConfig {
+    /// `tcp` or `off` (no cross-check of the thickness: reported at start).
+    pub transport: String,
+    /// `host:port`.
+    #[serde(default)]
+    pub address: Option<String>,
+    /// Unit id.
+    #[serde(default = "default_unit")]
+    pub unit: u8,
+    /// Address of register 0 of the map.
+    #[serde(default)]
+    pub base: u16,
+    /// Timeout per call, ms.
+    #[serde(default = "default_timeout_ms")]
+    pub timeout_ms: u64,
+    /// Attempts per read.
+    #[serde(default = "default_attempts")]
+    pub attempts: u32,
+    /// Largest accepted difference between the register thickness and the
+    /// acquisition header's, mm.
+    #[serde(default = "default_tol")]
+    pub thickness_tolerance_mm: f64,
+}
+
+fn default_unit() -> u8 {
+    1
+}
+fn default_timeout_ms() -> u64 {
+    1000
+}
+fn default_attempts() -> u32 {
+    3
+}
+fn default_tol() -> f64 {
+    1.0
+}
+
+/// Reconstruction.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ReconConfig {
+    /// `dbtor` or `mltr` (the fallback).
+    pub reconstructor: String,
+    /// Model folder (for dbtor).
+    #[serde(default)]
+    pub model: Option<PathBuf>,
+    /// `fp32` or `int8`.
+    #[serde(default = "default_precision")]
+    pub precision: String,
+    /// MLTR iterations (for mltr).
+    #[serde(default = "default_iterations")]
+    pub mltr_iterations: usize,
+    /// Target relative uncertainty of the Monte Carlo MGD.
+    #[serde(default = "default_unc")]
+    pub dose_uncertainty: f64,
+}
+
+fn default_precision() -> String {
+    "int8".into()
+}
+fn default_iterations() -> usize {
+    100
+}
+fn default_unc() -> f64 {
+    0.01
+}
+
+/// Folders.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PathsConfig {
+    /// Received acquisitions, kept until their reports are delivered.
+    pub spool: PathBuf,
+    /// Reports.
+    pub output: PathBuf,
+    /// The status file the diagnostics CLI reads.
+    pub status: PathBuf,
+}
+
+/// Report identity and destination.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ReportConfig {
+    /// UID root of this installation.
+    pub uid_root: String,
+    /// `AET@host:port` of the PACS, if any.
+    #[serde(default)]
+    pub pacs: Option<String>,
+    /// Device serial number in the reports.
+    #[serde(default = "default_serial")]
+    pub device_serial: String,
+    /// Tube output at the reference point, mGy/mAs (from the QC).
+    pub tube_output_mgy_per_mas: f64,
+}
+
+fn default_serial() -> String {
+    "UNSET".into()
+}
+
+/// The whole file.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    /// Frames.
+    pub frames: FramesConfig,
+    /// Modbus.
+    pub modbus: ModbusConfig,
+    /// Reconstruction and dose.
+    pub recon: ReconConfig,
+    /// Folders.
+    pub paths: PathsConfig,
+    /// Reports.
+    pub report: ReportConfig,
+}
+
+impl Config {
+    /// Read and validate. Relative paths are taken from the file's folder.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let mut c: Config = toml::from_str(&text).map_err(|e| ConfigError::Parse {
+            path: path.to_path_buf(),
+            reason: e.to_string(),
+        })?;
+        let base = path.parent().unwrap_or(Path::new("."));
+        let abs = |p: &mut PathBuf| {
+            if p.is_relative() {
+                *p = base.join(&*p);
+            }
+        };
+        abs(&mut c.paths.spool);
+        abs(&mut c.paths.output);
+        abs(&mut c.paths.status);
+        if let Some(m) = c.recon.model.as_mut() {
+            abs(m);
+        }
+        c.validate(path)?;
+        Ok(c)
+    }
+
+    fn validate(&self, path: &Path) -> Result<(), ConfigError> {
+        let bad = |key: &'static str, reason: String| ConfigError::Invalid {
+            path: path.to_path_buf(),
+            key,
+            reason,
+        };
+        match self.frames.transport.as_str() {
+            "tcp" => {
+                let a = self.frames.address.as_deref().ok_or_else(|| {
+                    bad("frames.address", "required with transport = \"tcp\"".into())
+                })?;
+                if !a.contains(':') {
+                    return Err(bad("frames.address", format!("{a:?} is not host:port")));
+                }
+            }
+            "serial" => {
+                if self.frames.port.is_none() {
+                    return Err(bad(
+                        "frames.port",
+                        "required with transport = \"serial\"".into(),
+                    ));
+                }
+                if self.frames.baud < 1200 {
+                    return Err(bad(
+                        "frames.baud",
+                        format!("{} is below 1200", self.frames.baud),
+                    ));
+                }
+            }
+            t => {
+                return Err(bad(
+                    "frames.transport",
+                    format!("{t:?}: expected \"tcp\" or \"serial\""),
+                ))
+            }
+        }
+        if !(self.frames.idle_timeout_s > 0.0 && self.frames.idle_timeout_s <= 3600.0) {
+            return Err(bad(
+                "frames.idle_timeout_s",
+                "must be in (0, 3600] s".into(),
+            ));
+        }
+        if ![1, 2, 4].contains(&self.frames.binning) {
+            return Err(bad(
+                "frames.binning",
+                format!("{}: expected 1, 2 or 4", self.frames.binning),
+            ));
+        }
+        match self.modbus.transport.as_str() {
+            "tcp" => {
+                self.modbus_addr(path)?;
+            }
+            "off" => {}
+            t => {
+                return Err(bad(
+                    "modbus.transport",
+                    format!("{t:?}: expected \"tcp\" or \"off\""),
+                ))
+            }
+        }
+        if self.modbus.timeout_ms == 0 || self.modbus.attempts == 0 {
+            return Err(bad(
+                "modbus.timeout_ms",
+                "timeout and attempts must be positive".into(),
+            ));
+        }
+        if !(self.modbus.thickness_tolerance_mm > 0.0 && self.modbus.thickness_tolerance_mm < 20.0)
+        {
+            return Err(bad(
+                "modbus.thickness_tolerance_mm",
+                "must be in (0, 20) mm".into(),
+            ));
+        }
+        match self.recon.reconstructor.as_str() {
+            "dbtor" => {
+                let m = self.recon.model.as_ref().ok_or_else(|| {
+                    bad(
+                        "recon.model",
+                        "required with reconstructor = \"dbtor\"".into(),
+                    )
+                })?;
+                if !m.join("manifest.json").is_file() {
+                    return Err(bad(
+                        "recon.model",
+                        format!("{} has no manifest.json", m.display()),
+                    ));
+                }
+                self.recon
+                    .precision
+                    .parse::<dbt_dbtor::Precision>()
+                    .map_err(|e| bad("recon.precision", e))?;
+            }
+            "mltr" => {
+                if self.recon.mltr_iterations == 0 {
+                    return Err(bad("recon.mltr_iterations", "must be positive".into()));
+                }
+            }
+            r => {
+                return Err(bad(
+                    "recon.reconstructor",
+                    format!("{r:?}: expected \"dbtor\" or \"mltr\""),
+                ))
+            }
+        }
+        if !(self.recon.dose_uncertainty > 0.0 && self.recon.dose_uncertainty <= 0.5) {
+            return Err(bad("recon.dose_uncertainty", "must be in (0, 0.5]".into()));
+        }
+        if let Some(p) = &self.report.pacs {
+            dbt_pacs::PacsConfig::parse(p).map_err(|e| bad("report.pacs", e.to_string()))?;
+        }
+        dbt_dicom::UidSource::new(&self.report.uid_root, 1)
+            .map_err(|e| bad("report.uid_root", e.to_string()))?;
+        if !(self.report.tube_output_mgy_per_mas > 0.0
+            && self.report.tube_output_mgy_per_mas < 10.0)
+        {
+            return Err(bad(
+                "report.tube_output_mgy_per_mas",
+                "must be in (0, 10) mGy/mAs".into(),
+            ));
+        }
+        Ok(())
+    }
+
+    /// The Modbus server address (transport tcp).
+    pub fn modbus_addr(&self, path: &Path) -> Result<SocketAddr, ConfigError> {
+        let a = self
+            .modbus
+            .address
+            .as_deref()
+            .ok_or_else(|| ConfigError::Invalid {
+                path: path.to_path_buf(),
+                key: "modbus.address",
+                reason: "required with transport = \"tcp\"".into(),
+            })?;
+        a.parse().map_err(|e| ConfigError::Invalid {
+            path: path.to_path_buf(),
+            key: "modbus.address",
+            reason: format!("{a:?}: {e} (an IP address and port)"),
+        })
+    }
+
+    /// The idle timeout of the frame link.
+    pub fn idle_timeout(&self) -> Duration {
+        Duration::from_secs_f64(self.frames.idle_timeout_s)
+    }
+}

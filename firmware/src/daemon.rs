@@ -1,0 +1,621 @@
+//! The acquisition daemon: receive from the gantry, spool, process, deliver,
+//! and keep a status file for the diagnostics CLI.
+//!
+//! Spool (under `paths.spool`):
+//! ```text
+//! tmp/<id>/        being written (removed at start: never complete)
+//! incoming/<id>/   received and durable (acquisition.json, counts.f32, gantry.json); not yet reported
+//! done/<id>/       reported (result.json added)
+//! faulted/<id>/    not reportable (fault.json says why); kept for the service engineer
+//! ```
+//! An acquisition is written to `tmp/`, every file and the folder are
+//! fsynced, and only then renamed into `incoming/` (and that folder fsynced),
+//! so a crash or power loss leaves either nothing or a complete acquisition.
+//! At start every `incoming/` entry is processed first. Processing an entry
+//! is idempotent: the report file names come from the entry id and the DICOM
+//! UIDs from a seed fixed by the id, so an entry processed again after a crash
+//! (between delivery and the move to `done/`) rewrites the same two reports:
+//! every acquisition is reported exactly once.
+
+use crate::config::Config;
+use crate::link::{receive, receive_from, to_acquisition, LinkError};
+use crate::modbus::{read_registers, ModbusLink};
+use crate::pipeline::{process, reports, PipelineOptions};
+use dbt_dicom::{Equipment, UidSource};
+use dbt_geometry::Geometry;
+use dbt_store::acquisition::{read_acquisition, write_acquisition, Acquisition};
+use serde::Serialize;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+/// Faults kept in the status file.
+const MAX_FAULTS: usize = 50;
+
+/// One reported fault.
+#[derive(Debug, Clone, Serialize)]
+pub struct FaultRecord {
+    /// Unix time, s.
+    pub at_unix: u64,
+    /// Spool entry, if one exists.
+    pub acquisition: Option<String>,
+    /// `link`, `modbus`, `thickness`, `processing`, `delivery`, `spool`.
+    pub kind: String,
+    /// What happened.
+    pub message: String,
+}
+
+/// The status file's content.
+#[derive(Debug, Clone, Serialize)]
+pub struct Status {
+    /// Format tag.
+    pub format: &'static str,
+    /// Daemon version.
+    pub version: &'static str,
+    /// Process id.
+    pub pid: u32,
+    /// Start time, unix s.
+    pub started_unix: u64,
+    /// Last update, unix s.
+    pub updated_unix: u64,
+    /// `starting`, `recovering`, `waiting`, `receiving`, `processing`, `stopping`, `stopped`.
+    pub state: String,
+    /// Entry being worked on.
+    pub current: Option<String>,
+    /// Reconstructor in use.
+    pub reconstructor: String,
+    /// Acquisitions reported since start.
+    pub processed: u64,
+    /// Entries recovered from the spool at start.
+    pub recovered: u64,
+    /// Spool entries waiting.
+    pub incoming: usize,
+    /// The last acquisitions' results (most recent last, up to 10).
+    pub recent: Vec<serde_json::Value>,
+    /// The last faults (most recent last).
+    pub faults: Vec<FaultRecord>,
+}
+
+/// Errors that stop the daemon (everything else is a fault record).
+#[derive(Debug, thiserror::Error)]
+pub enum DaemonError {
+    /// The spool or status folder is unusable.
+    #[error("{path}: {source}")]
+    Io {
+        /// Where.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The model could not be loaded.
+    #[error("model: {0}")]
+    Model(#[from] dbt_dbtor::DbtorError),
+    /// Bad configuration.
+    #[error(transparent)]
+    Config(#[from] crate::config::ConfigError),
+    /// Geometry.
+    #[error("geometry: {0}")]
+    Geometry(#[from] dbt_geometry::GeometryError),
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> DaemonError + '_ {
+    move |source| DaemonError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+fn now_unix() -> u64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_secs())
+        .unwrap_or(0)
+}
+
+fn fsync_dir(dir: &Path) -> std::io::Result<()> {
+    std::fs::File::open(dir)?.sync_all()
+}
+
+/// Write `bytes` to `path` durably: temp file, fsync, rename, fsync folder.
+pub fn write_durable(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let tmp = path.with_extension("tmp");
+    {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+    }
+    std::fs::rename(&tmp, path)?;
+    if let Some(d) = path.parent() {
+        fsync_dir(d)?;
+    }
+    Ok(())
+}
+
+/// The daemon.
+pub struct Daemon {
+    cfg: Config,
+    config_path: PathBuf,
+    geom: Geometry,
+    opts: PipelineOptions,
+    stop: Arc<AtomicBool>,
+    status: Status,
+}
+
+impl Daemon {
+    /// Prepare: folders, model (checksums verified), status file.
+    pub fn new(
+        cfg: Config,
+        config_path: PathBuf,
+        stop: Arc<AtomicBool>,
+    ) -> Result<Self, DaemonError> {
+        let geom = Geometry::paper().binned(cfg.frames.binning)?;
+        let mut opts = PipelineOptions {
+            mltr_iterations: cfg.recon.mltr_iterations,
+            dose_uncertainty: cfg.recon.dose_uncertainty,
+            ..PipelineOptions::default()
+        };
+        let reconstructor = if cfg.recon.reconstructor == "dbtor" {
+            let dir = cfg.recon.model.clone().unwrap_or_default();
+            let precision = cfg
+                .recon
+                .precision
+                .parse()
+                .unwrap_or(dbt_dbtor::Precision::Fp32);
+            let m = dbt_dbtor::Dbtor::load(&dir, precision)?;
+            let name = format!("DBToR {} ({precision})", m.manifest().name);
+            opts.dbtor = Some(Arc::new(m));
+            name
+        } else {
+            format!("MLTR {} iterations", cfg.recon.mltr_iterations)
+        };
+        for sub in ["tmp", "incoming", "done", "faulted"] {
+            let d = cfg.paths.spool.join(sub);
+            std::fs::create_dir_all(&d).map_err(io(&d))?;
+        }
+        // A tmp entry was never complete: the gantry still holds it.
+        let tmp = cfg.paths.spool.join("tmp");
+        for e in std::fs::read_dir(&tmp).map_err(io(&tmp))?.flatten() {
+            tracing::warn!(entry = %e.path().display(), "removing an incomplete spool entry");
+            let _ = std::fs::remove_dir_all(e.path());
+        }
+        std::fs::create_dir_all(&cfg.paths.output).map_err(io(&cfg.paths.output))?;
+        if let Some(d) = cfg.paths.status.parent() {
+            std::fs::create_dir_all(d).map_err(io(d))?;
+        }
+        let status = Status {
+            format: "dbtor-status/1",
+            version: env!("CARGO_PKG_VERSION"),
+            pid: std::process::id(),
+            started_unix: now_unix(),
+            updated_unix: now_unix(),
+            state: "starting".into(),
+            current: None,
+            reconstructor,
+            processed: 0,
+            recovered: 0,
+            incoming: 0,
+            recent: vec![],
+            faults: vec![],
+        };
+        let mut d = Self {
+            cfg,
+            config_path,
+            geom,
+            opts,
+            stop,
+            status,
+        };
+        d.publish("starting", None);
+        Ok(d)
+    }
+
+    fn publish(&mut self, state: &str, current: Option<&str>) {
+        self.status.state = state.into();
+        self.status.current = current.map(String::from);
+        self.status.updated_unix = now_unix();
+        self.status.incoming = self.incoming().map(|v| v.len()).unwrap_or(0);
+        let path = self.cfg.paths.status.clone();
+        match serde_json::to_vec_pretty(&self.status) {
+            Ok(bytes) => {
+                if let Err(e) = write_durable(&path, &bytes) {
+                    tracing::error!(path = %path.display(), %e, "cannot write the status file");
+                }
+            }
+            Err(e) => tracing::error!(%e, "cannot encode the status"),
+        }
+    }
+
+    fn fault(&mut self, acquisition: Option<&str>, kind: &str, message: String) {
+        tracing::error!(acquisition, kind, %message, "fault");
+        self.status.faults.push(FaultRecord {
+            at_unix: now_unix(),
+            acquisition: acquisition.map(String::from),
+            kind: kind.into(),
+            message,
+        });
+        if self.status.faults.len() > MAX_FAULTS {
+            self.status.faults.remove(0);
+        }
+        let state = self.status.state.clone();
+        let current = self.status.current.clone();
+        self.publish(&state, current.as_deref());
+    }
+
+    fn incoming(&self) -> std::io::Result<Vec<String>> {
+        let mut v: Vec<String> = std::fs::read_dir(self.cfg.paths.spool.join("incoming"))?
+            .flatten()
+            .filter(|e| e.path().is_dir())
+            .filter_map(|e| e.file_name().to_str().map(String::from))
+            .collect();
+        v.sort();
+        Ok(v)
+    }
+
+    /// Run until SIGTERM (the stop flag): recover the spool, then receive and
+    /// process acquisitions. With `once`, return after one acquisition.
+    pub fn run(&mut self, once: bool) -> Result<(), DaemonError> {
+        let _span = tracing::info_span!("daemon", config = %self.config_path.display()).entered();
+        self.publish("recovering", None);
+        let pending = self.incoming().map_err(io(&self.cfg.paths.spool))?;
+        if !pending.is_empty() {
+            tracing::info!(entries = pending.len(), "recovering spooled acquisitions");
+        }
+        for id in pending {
+            if self.stop.load(Ordering::SeqCst) {
+                break;
+            }
+            self.process_entry(&id);
+            self.status.recovered += 1;
+        }
+        while !self.stop.load(Ordering::SeqCst) {
+            self.publish("waiting", None);
+            match self.receive_one() {
+                Ok(Some(id)) => {
+                    self.process_entry(&id);
+                    if once {
+                        break;
+                    }
+                }
+                Ok(None) => {}
+                Err(()) => {
+                    if once {
+                        break;
+                    }
+                }
+            }
+        }
+        self.publish("stopped", None);
+        Ok(())
+    }
+
+    /// Wait for the gantry, receive one acquisition, spool it. `Ok(None)`:
+    /// nothing arrived (or stop); `Err`: a fault was recorded.
+    fn receive_one(&mut self) -> Result<Option<String>, ()> {
+        let idle = self.cfg.idle_timeout();
+        let received = if self.cfg.frames.transport == "tcp" {
+            let addr = self.cfg.frames.address.clone().unwrap_or_default();
+            let mut stream = loop {
+                if self.stop.load(Ordering::SeqCst) {
+                    return Ok(None);
+                }
+                match std::net::TcpStream::connect(&addr) {
+                    Ok(s) => break s,
+                    Err(e) => {
+                        tracing::trace!(%addr, %e, "gantry frame server not reachable");
+                        std::thread::sleep(Duration::from_millis(200));
+                    }
+                }
+            };
+            let gantry = self.read_gantry();
+            self.publish("receiving", None);
+            (receive(&mut stream, idle), gantry)
+        } else {
+            let port = self.cfg.frames.port.clone().unwrap_or_default();
+            let opened = serialport::new(&port, self.cfg.frames.baud)
+                .timeout(Duration::from_millis(200))
+                .open();
+            let mut s = match opened {
+                Ok(s) => s,
+                Err(e) => {
+                    self.fault(None, "link", format!("opening serial line {port}: {e}"));
+                    std::thread::sleep(Duration::from_secs(1));
+                    return Err(());
+                }
+            };
+            let gantry = self.read_gantry();
+            self.publish("receiving", None);
+            (receive_from(&mut s, idle), gantry)
+        };
+        let ((rx, stats), gantry) = match received {
+            (Ok(r), g) => (r, g),
+            (Err(LinkError::Incomplete(missing)), _) if missing.is_empty() => return Ok(None),
+            (Err(e), _) => {
+                self.fault(None, "link", format!("acquisition not received: {e} (nothing spooled; the gantry keeps it for a resend)"));
+                return Err(());
+            }
+        };
+        let acq = match to_acquisition(&rx, &self.geom, self.cfg.report.tube_output_mgy_per_mas) {
+            Ok(a) => a,
+            Err(e) => {
+                self.fault(None, "link", format!("acquisition rejected: {e}"));
+                return Err(());
+            }
+        };
+        let ms = SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map(|d| d.as_millis())
+            .unwrap_or(0);
+        let safe: String = acq
+            .header
+            .patient
+            .id
+            .chars()
+            .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
+            .take(32)
+            .collect();
+        let id = format!("{ms:013}-{safe}");
+        let gantry_json = serde_json::json!({
+            "link": {"frames": stats.frames, "crc_errors": stats.crc_errors, "naks": stats.naks,
+                     "garbage_bytes": stats.garbage_bytes, "saturated_pixels": rx.saturated},
+            "modbus": gantry,
+        });
+        match self.spool(&id, &acq, &gantry_json) {
+            Ok(()) => {
+                tracing::info!(acquisition = %id, slices = acq.header.slices, "spooled");
+                Ok(Some(id))
+            }
+            Err(e) => {
+                self.fault(Some(&id), "spool", format!("cannot spool: {e}"));
+                Err(())
+            }
+        }
+    }
+
+    /// The registers at the start of the sweep, as JSON (`null` when Modbus is off, an error object when unreadable).
+    fn read_gantry(&mut self) -> serde_json::Value {
+        if self.cfg.modbus.transport != "tcp" {
+            return serde_json::Value::Null;
+        }
+        let addr = match self.cfg.modbus_addr(&self.config_path) {
+            Ok(a) => a,
+            Err(e) => return serde_json::json!({"error": e.to_string()}),
+        };
+        let link = ModbusLink {
+            unit: self.cfg.modbus.unit,
+            base: self.cfg.modbus.base,
+            timeout: Duration::from_millis(self.cfg.modbus.timeout_ms),
+            attempts: self.cfg.modbus.attempts,
+            ..ModbusLink::new(addr)
+        };
+        match read_registers(&link) {
+            Ok(r) => serde_json::json!({"thickness_mm": r.thickness_mm, "kvp": r.kvp,
+                "mas_per_projection": r.mas_per_projection, "projections": r.projections,
+                "anode_filter": r.anode_filter, "laterality": r.laterality.to_string(),
+                "view": r.view, "fault": r.fault, "force_n": r.force_n}),
+            Err(e) => serde_json::json!({"error": e.to_string()}),
+        }
+    }
+
+    fn spool(
+        &self,
+        id: &str,
+        acq: &Acquisition,
+        gantry: &serde_json::Value,
+    ) -> std::io::Result<()> {
+        let tmp = self.cfg.paths.spool.join("tmp").join(id);
+        let dst = self.cfg.paths.spool.join("incoming").join(id);
+        let _ = std::fs::remove_dir_all(&tmp);
+        write_acquisition(&tmp, acq).map_err(std::io::Error::other)?;
+        write_durable(
+            &tmp.join("gantry.json"),
+            &serde_json::to_vec_pretty(gantry).map_err(std::io::Error::other)?,
+        )?;
+        for f in ["acquisition.json", "counts.f32"] {
+            std::fs::File::open(tmp.join(f))?.sync_all()?;
+        }
+        fsync_dir(&tmp)?;
+        std::fs::rename(&tmp, &dst)?;
+        fsync_dir(&self.cfg.paths.spool.join("incoming"))?;
+        fsync_dir(&self.cfg.paths.spool.join("tmp"))
+    }
+
+    fn move_entry(&mut self, id: &str, to: &str, note_name: &str, note: &serde_json::Value) {
+        let src = self.cfg.paths.spool.join("incoming").join(id);
+        let res = serde_json::to_vec_pretty(note)
+            .map_err(std::io::Error::other)
+            .and_then(|b| write_durable(&src.join(note_name), &b))
+            .and_then(|_| {
+                let dst = self.cfg.paths.spool.join(to).join(id);
+                let _ = std::fs::remove_dir_all(&dst);
+                std::fs::rename(&src, &dst)
+            })
+            .and_then(|_| fsync_dir(&self.cfg.paths.spool.join(to)));
+        if let Err(e) = res {
+            self.fault(Some(id), "spool", format!("cannot move to {to}/: {e}"));
+        }
+    }
+
+    /// Check, process and deliver one spooled acquisition.
+    fn process_entry(&mut self, id: &str) {
+        let _span = tracing::info_span!("acquisition", id).entered();
+        self.publish("processing", Some(id));
+        let dir = self.cfg.paths.spool.join("incoming").join(id);
+        let acq = match read_acquisition(&dir) {
+            Ok(a) => a,
+            Err(e) => {
+                let msg = format!("spooled acquisition unreadable: {e}");
+                self.fault(Some(id), "spool", msg.clone());
+                self.move_entry(
+                    id,
+                    "faulted",
+                    "fault.json",
+                    &serde_json::json!({"kind": "spool", "message": msg}),
+                );
+                return;
+            }
+        };
+        // Thickness: the register at exposure time against the header.
+        let gantry: serde_json::Value = std::fs::read(dir.join("gantry.json"))
+            .ok()
+            .and_then(|b| serde_json::from_slice(&b).ok())
+            .unwrap_or(serde_json::Value::Null);
+        if self.cfg.modbus.transport == "tcp" {
+            let reg = gantry["modbus"]["thickness_mm"].as_f64();
+            let header = acq.header.thickness_mm;
+            let msg = match reg {
+                None => Some(format!(
+                    "no Modbus thickness at exposure time ({}); header says {header} mm",
+                    gantry["modbus"]["error"].as_str().unwrap_or("not read")
+                )),
+                Some(r) if (r - header).abs() > self.cfg.modbus.thickness_tolerance_mm => Some(format!(
+                    "thickness disagreement: Modbus register {r:.1} mm, acquisition header {header:.1} mm (tolerance {} mm)",
+                    self.cfg.modbus.thickness_tolerance_mm
+                )),
+                Some(_) => None,
+            };
+            if let Some(msg) = msg {
+                self.fault(Some(id), "thickness", msg.clone());
+                self.move_entry(
+                    id,
+                    "faulted",
+                    "fault.json",
+                    &serde_json::json!({"kind": "thickness", "message": msg}),
+                );
+                return;
+            }
+        }
+        let t0 = Instant::now();
+        let res = match process(&acq, &self.opts) {
+            Ok(r) => r,
+            Err(e) => {
+                let msg = e.to_string();
+                self.fault(Some(id), "processing", msg.clone());
+                self.move_entry(
+                    id,
+                    "faulted",
+                    "fault.json",
+                    &serde_json::json!({"kind": "processing", "message": msg}),
+                );
+                return;
+            }
+        };
+        // UIDs fixed by the entry: a re-run after a crash rewrites the same reports.
+        let seed: u64 = id
+            .split('-')
+            .next()
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(1);
+        let delivered = (|| -> Result<serde_json::Value, String> {
+            let mut uids =
+                UidSource::new(&self.cfg.report.uid_root, seed).map_err(|e| e.to_string())?;
+            let equipment = Equipment {
+                manufacturer: "DBToR".into(),
+                model: "DBToR gantry PC".into(),
+                serial: self.cfg.report.device_serial.clone(),
+                software_version: env!("CARGO_PKG_VERSION").into(),
+                device_uid: format!("{}.9.1", self.cfg.report.uid_root),
+            };
+            let (date, time) = dicom_now();
+            let (dose, dens) = reports(&acq, &res, &equipment, &mut uids, &date, &time)
+                .map_err(|e| e.to_string())?;
+            let outbox = dbt_pacs::Outbox::open(
+                &self.cfg.paths.output,
+                &self.cfg.paths.output.join("outbox"),
+            )
+            .map_err(|e| e.to_string())?;
+            let pacs = match &self.cfg.report.pacs {
+                Some(p) => Some(dbt_pacs::PacsConfig::parse(p).map_err(|e| e.to_string())?),
+                None => None,
+            };
+            let mut waiting = Vec::new();
+            for (name, r) in [("dose-sr", &dose), ("density-sr", &dens)] {
+                let bytes = r.to_bytes().map_err(|e| e.to_string())?;
+                let rep = outbox
+                    .deliver(&format!("{id}-{name}"), &bytes, pacs.as_ref())
+                    .map_err(|e| e.to_string())?;
+                waiting.extend(
+                    rep.waiting
+                        .into_iter()
+                        .map(|(p, e)| format!("{}: {e}", p.display())),
+                );
+            }
+            Ok(serde_json::json!({
+                "acquisition": id,
+                "patient_id": acq.header.patient.id,
+                "reconstructor": res.reconstructor,
+                "glandularity_labels": res.density.glandularity_labels,
+                "glandularity_partial_volume": res.density.glandularity_partial_volume,
+                "mgd_mgy": res.mgd_mgy,
+                "model_mgd_mgy": res.model_mgd_mgy,
+                "seconds": t0.elapsed().as_secs_f64(),
+                "finished_unix": now_unix(),
+                "reports": [format!("{id}-dose-sr.dcm"), format!("{id}-density-sr.dcm")],
+                "pacs_waiting": waiting,
+            }))
+        })();
+        match delivered {
+            Ok(summary) => {
+                if let Some(w) = summary["pacs_waiting"].as_array().filter(|w| !w.is_empty()) {
+                    self.fault(
+                        Some(id),
+                        "delivery",
+                        format!("reports kept in the outbox for a later send: {w:?}"),
+                    );
+                }
+                tracing::info!(
+                    acquisition = id,
+                    mgd_mgy = res.mgd_mgy,
+                    g = res.density.glandularity_labels,
+                    "reported"
+                );
+                self.move_entry(id, "done", "result.json", &summary);
+                self.status.processed += 1;
+                self.status.recent.push(summary);
+                if self.status.recent.len() > 10 {
+                    self.status.recent.remove(0);
+                }
+            }
+            Err(msg) => {
+                // Left in incoming/: retried at the next start.
+                self.fault(Some(id), "delivery", msg);
+            }
+        }
+        self.publish("processed", Some(id));
+    }
+}
+
+fn dicom_now() -> (String, String) {
+    // Civil date from unix days (proleptic Gregorian, UTC).
+    let secs = now_unix();
+    let days = (secs / 86_400) as i64;
+    let rem = secs % 86_400;
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let y = yoe + era * 400;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = if m <= 2 { y + 1 } else { y };
+    (
+        format!("{y:04}{m:02}{d:02}"),
+        format!("{:02}{:02}{:02}", rem / 3600, (rem / 60) % 60, rem % 60),
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn civil_date() {
+        let (d, t) = dicom_now();
+        assert_eq!(d.len(), 8);
+        assert_eq!(t.len(), 6);
+        assert!(d.as_str() >= "20240101");
+    }
+}

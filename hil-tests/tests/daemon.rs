@@ -1,0 +1,316 @@
+//! The daemon (`dbtor-daemon`) as a separate process beside host-sim's frame
+//! server and Modbus server, over loopback TCP: an acquisition is spooled,
+//! processed and reported; SIGKILL in the middle of processing and a restart
+//! report it exactly once; SIGTERM stops it cleanly; a thickness disagreement
+//! between the Modbus register and the acquisition header is a fault, not a
+//! report; a bad configuration is refused naming the key.
+
+use hil_tests::{free_port, workspace_bin};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+fn acquire(dir: &Path) -> (PathBuf, f64) {
+    let acq = dir.join("acq");
+    let st = Command::new(workspace_bin("host-sim"))
+        .args([
+            "acquire",
+            "--index",
+            "1",
+            "--binning",
+            "4",
+            "--noise",
+            "N8",
+            "--out",
+        ])
+        .arg(&acq)
+        .output()
+        .unwrap();
+    assert!(
+        st.status.success(),
+        "{}",
+        String::from_utf8_lossy(&st.stderr)
+    );
+    let h: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(acq.join("acquisition.json")).unwrap()).unwrap();
+    (acq, h["thickness_mm"].as_f64().unwrap())
+}
+
+struct Gantry {
+    modbus: Child,
+    stream: Child,
+    frames: String,
+    registers: String,
+}
+
+impl Drop for Gantry {
+    fn drop(&mut self) {
+        let _ = self.modbus.kill();
+        let _ = self.stream.kill();
+        let _ = self.modbus.wait();
+        let _ = self.stream.wait();
+    }
+}
+
+fn gantry(acq: &Path, thickness_mm: f64) -> Gantry {
+    let (fp, mp) = (free_port(), free_port());
+    let frames = format!("127.0.0.1:{fp}");
+    let registers = format!("127.0.0.1:{mp}");
+    let modbus = Command::new(workspace_bin("host-sim"))
+        .args([
+            "modbus",
+            "--listen",
+            &registers,
+            "--thickness-mm",
+            &format!("{thickness_mm:.1}"),
+        ])
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let stream = Command::new(workspace_bin("host-sim"))
+        .args(["stream", "--acq"])
+        .arg(acq)
+        .args(["--listen", &frames])
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    Gantry {
+        modbus,
+        stream,
+        frames,
+        registers,
+    }
+}
+
+fn config(dir: &Path, g: &Gantry, iterations: usize) -> PathBuf {
+    let text = format!(
+        r#"
+[frames]
+transport = "tcp"
+address = "{}"
+idle_timeout_s = 20
+binning = 4
+
+[modbus]
+transport = "tcp"
+address = "{}"
+timeout_ms = 500
+attempts = 3
+thickness_tolerance_mm = 1.0
+
+[recon]
+reconstructor = "mltr"
+mltr_iterations = {iterations}
+dose_uncertainty = 0.2
+
+[paths]
+spool = "spool"
+output = "output"
+status = "run/status.json"
+
+[report]
+uid_root = "1.2.826.0.1.3680043.10.543.1"
+tube_output_mgy_per_mas = 0.11
+"#,
+        g.frames, g.registers
+    );
+    let p = dir.join("dbtor.toml");
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+fn daemon(cfg: &Path, extra: &[&str]) -> Child {
+    Command::new(workspace_bin("dbtor-daemon"))
+        .arg("--config")
+        .arg(cfg)
+        .args(extra)
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap()
+}
+
+fn status(dir: &Path) -> serde_json::Value {
+    std::fs::read(dir.join("run/status.json"))
+        .ok()
+        .and_then(|b| serde_json::from_slice(&b).ok())
+        .unwrap_or(serde_json::Value::Null)
+}
+
+fn wait_for(
+    dir: &Path,
+    what: &str,
+    limit: Duration,
+    f: impl Fn(&serde_json::Value) -> bool,
+) -> serde_json::Value {
+    let t0 = Instant::now();
+    loop {
+        let s = status(dir);
+        if f(&s) {
+            return s;
+        }
+        assert!(
+            t0.elapsed() < limit,
+            "timed out waiting for {what}; status: {s}"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+fn entries(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .map(|r| {
+            r.flatten()
+                .filter_map(|e| e.file_name().to_str().map(String::from))
+                .collect()
+        })
+        .unwrap_or_default();
+    v.sort();
+    v
+}
+
+fn sigterm(child: &mut Child) -> std::process::ExitStatus {
+    let ok = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(ok.success());
+    let t0 = Instant::now();
+    loop {
+        if let Some(st) = child.try_wait().unwrap() {
+            return st;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "no exit after SIGTERM"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+#[test]
+fn sigkill_mid_processing_then_restart_reports_exactly_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let (acq, thickness) = acquire(dir.path());
+    let g = gantry(&acq, thickness);
+    let cfg = config(dir.path(), &g, 20);
+    let mut d = daemon(&cfg, &[]);
+    let s = wait_for(dir.path(), "processing", Duration::from_secs(120), |s| {
+        s["state"] == "processing"
+    });
+    let id = s["current"].as_str().unwrap().to_string();
+    d.kill().unwrap(); // SIGKILL
+    d.wait().unwrap();
+    assert_eq!(
+        entries(&dir.path().join("spool/incoming")),
+        vec![id.clone()],
+        "the acquisition must survive in the spool"
+    );
+    assert!(entries(&dir.path().join("spool/done")).is_empty());
+
+    // Restart: the spooled acquisition is processed first.
+    let mut d = daemon(&cfg, &[]);
+    let s = wait_for(dir.path(), "recovery", Duration::from_secs(180), |s| {
+        s["processed"] == 1 && s["state"] == "waiting"
+    });
+    assert_eq!(s["recovered"], 1, "{s}");
+    let st = sigterm(&mut d);
+    assert!(st.success(), "{st:?}");
+    assert_eq!(status(dir.path())["state"], "stopped");
+
+    assert!(entries(&dir.path().join("spool/incoming")).is_empty());
+    assert_eq!(entries(&dir.path().join("spool/done")), vec![id.clone()]);
+    let reports: Vec<String> = entries(&dir.path().join("output"))
+        .into_iter()
+        .filter(|n| n.ends_with(".dcm"))
+        .collect();
+    assert_eq!(
+        reports,
+        vec![format!("{id}-density-sr.dcm"), format!("{id}-dose-sr.dcm")]
+    );
+    let result: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(dir.path().join("spool/done").join(&id).join("result.json")).unwrap(),
+    )
+    .unwrap();
+    assert!(result["mgd_mgy"].as_f64().unwrap() > 0.0, "{result}");
+    // The reports read back.
+    for r in &reports {
+        let out = Command::new(workspace_bin("dbtor-diag"))
+            .arg("report")
+            .arg(dir.path().join("output").join(r))
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    // The diagnostics CLI reads the status file.
+    let out = Command::new(workspace_bin("dbtor-diag"))
+        .args(["status", "--json", "--config"])
+        .arg(&cfg)
+        .output()
+        .unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["status"]["processed"], 1, "{v}");
+}
+
+#[test]
+fn thickness_disagreement_is_a_fault_not_a_report() {
+    let dir = tempfile::tempdir().unwrap();
+    let (acq, thickness) = acquire(dir.path());
+    let g = gantry(&acq, thickness + 5.0);
+    let cfg = config(dir.path(), &g, 2);
+    let st = daemon(&cfg, &["--once"]).wait().unwrap();
+    assert!(st.success());
+    let s = status(dir.path());
+    let faults = s["faults"].as_array().unwrap();
+    assert!(
+        faults
+            .iter()
+            .any(|f| f["kind"] == "thickness"
+                && f["message"].as_str().unwrap().contains("disagreement")),
+        "{s}"
+    );
+    assert_eq!(entries(&dir.path().join("spool/faulted")).len(), 1);
+    assert!(entries(&dir.path().join("output"))
+        .iter()
+        .all(|n| !n.ends_with(".dcm")));
+    // diag exits 1 when the last acquisition faulted.
+    let out = Command::new(workspace_bin("dbtor-diag"))
+        .args(["status", "--config"])
+        .arg(&cfg)
+        .output()
+        .unwrap();
+    assert_eq!(
+        out.status.code(),
+        Some(1),
+        "{}",
+        String::from_utf8_lossy(&out.stdout)
+    );
+    assert!(String::from_utf8_lossy(&out.stdout).contains("thickness"));
+}
+
+#[test]
+fn bad_configuration_is_refused_naming_the_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let g = Gantry {
+        modbus: Command::new("true").spawn().unwrap(),
+        stream: Command::new("true").spawn().unwrap(),
+        frames: "127.0.0.1:1".into(),
+        registers: "not-an-address".into(),
+    };
+    let cfg = config(dir.path(), &g, 2);
+    let out = Command::new(workspace_bin("dbtor-daemon"))
+        .arg("--config")
+        .arg(&cfg)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("modbus.address"), "{err}");
+    assert!(
+        !dir.path().join("spool").exists(),
+        "nothing may start on a bad configuration"
+    );
+}
