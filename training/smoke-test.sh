@@ -12,15 +12,16 @@ PY=${PYTHON:-python3}
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
 cargo build --release --locked -q -p host-sim -p dbtor-firmware
-./target/release/host-sim dataset --out "$tmp/ds" --slices 1100 --test-phantoms 0 --levels N8 --binning 4 2>/dev/null
+./target/release/host-sim dataset --out "$tmp/ds" --slices 1500 --test-phantoms 0 --levels N8 --binning 4 2>/dev/null
 cd training
 common=(--data "$tmp/ds" --out "$tmp/run" --iters 4 --batch 2 --blocks 2 --val-every 2 --log-every 1)
 $PY -m dbtor.train "${common[@]}" --stop-at 2
 $PY -m dbtor.train "${common[@]}" | tee "$tmp/second.log"
 grep -q "resumed at iteration 2" "$tmp/second.log" || { echo "smoke test: the second run did not resume"; exit 1; }
 [ "$(tail -n +2 "$tmp/run/curve.csv" | wc -l)" -ge 4 ] || { echo "smoke test: curve.csv is short"; exit 1; }
-$PY -m dbtor.export --run "$tmp/run" --data "$tmp/ds" --out "$tmp/model" --calibration 2 --fixtures 1
+mkdir -p "$tmp/model"
 $PY -m dbtor.plot --run "$tmp/run" --out "$tmp/model/training-curve.png"
+$PY -m dbtor.export --run "$tmp/run" --data "$tmp/ds" --out "$tmp/model" --calibration 2 --fixtures 1
 cd ..
 ./target/release/dbtor-diag model "$tmp/model"
 echo "training smoke test passed"

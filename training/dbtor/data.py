@@ -21,6 +21,10 @@ class Split:
             have = [k for k in arrays if k.startswith("sino-")]
             raise ValueError(f"{root}/{name}: no noise level {level!r} (have {have})")
 
+        if arrays["images"]["shape"][0] == 0:
+            raise ValueError(f"{root}/{name}: the split is empty (export more slices: validation "
+                             "takes every tenth phantom)")
+
         def mm(a):
             return np.memmap(os.path.join(root, name, a["file"]), dtype=a["dtype"], mode="r",
                              shape=tuple(a["shape"]))
@@ -29,8 +33,6 @@ class Split:
         self.masks = mm(arrays["masks"])
         self.sinos = mm(arrays[key])
         self.n = self.images.shape[0]
-        if self.n == 0:
-            raise ValueError(f"{root}/{name}: the split is empty")
 
     def batch(self, idx):
         idx = np.sort(np.asarray(idx))
