@@ -155,7 +155,7 @@ impl ModelManifest {
                 m.channels
             )));
         }
-        if m.blocks.is_empty() || m.blocks.len() % 2 != 0 {
+        if m.blocks.is_empty() || !m.blocks.len().is_multiple_of(2) {
             return Err(bad(format!(
                 "{} blocks: expected dual/primal pairs",
                 m.blocks.len()
