@@ -113,3 +113,48 @@ fn registers_are_read_decoded_and_faults_named() {
         assert!(text.contains(want), "{fault}: {text}");
     }
 }
+
+/// The firmware's client against a third-party server: pymodbus
+/// (`hil-tests/peers/pymodbus_gantry.py`, the register map encoded
+/// independently in Python; `.ci/run` installs pymodbus).
+#[test]
+fn firmware_client_reads_a_pymodbus_server() {
+    let port = free_port();
+    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("peers/pymodbus_gantry.py");
+    let server = Command::new("python3")
+        .arg(&script)
+        .args([&port.to_string(), "47.3"])
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("python3 (with pymodbus: pip install -r hil-tests/peers/requirements.txt)");
+    let _server = Sim(server);
+    let t = Instant::now();
+    while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+        assert!(
+            t.elapsed() < Duration::from_secs(30),
+            "the pymodbus server did not start (is pymodbus installed?)"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let out = Command::new(workspace_bin("dbtor-diag"))
+        .args(["modbus", &format!("127.0.0.1:{port}"), "--json"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let r = &v["registers"];
+    assert_eq!(r["thickness_mm"], 47.3);
+    assert_eq!(r["force_n"], 123.4);
+    assert_eq!(r["kvp"], 29.0);
+    assert_eq!(r["mas_per_projection"], 2.15);
+    assert_eq!(r["anode_filter"], "W/Rh");
+    assert_eq!(r["angles_deg"], serde_json::json!([-24.0, 24.0]));
+    assert_eq!(r["laterality"], "L");
+    assert_eq!(r["view"], "MLO");
+    assert_eq!(r["state"], "Exposing");
+}
