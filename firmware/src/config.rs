@@ -76,11 +76,17 @@ fn default_binning() -> usize {
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct ModbusConfig {
-    /// `tcp` or `off` (no cross-check of the thickness: reported at start).
+    /// `tcp`, `rtu` (serial line) or `off` (no thickness cross-check).
     pub transport: String,
-    /// `host:port`.
+    /// `host:port` (tcp).
     #[serde(default)]
     pub address: Option<String>,
+    /// Serial line (rtu).
+    #[serde(default)]
+    pub port: Option<String>,
+    /// Baud rate (rtu, 8N1).
+    #[serde(default = "default_modbus_baud")]
+    pub baud: u32,
     /// Unit id.
     #[serde(default = "default_unit")]
     pub unit: u8,
@@ -99,6 +105,9 @@ pub struct ModbusConfig {
     pub thickness_tolerance_mm: f64,
 }
 
+fn default_modbus_baud() -> u32 {
+    19_200
+}
 fn default_unit() -> u8 {
     1
 }
@@ -266,14 +275,14 @@ impl Config {
             ));
         }
         match self.modbus.transport.as_str() {
-            "tcp" => {
-                self.modbus_addr(path)?;
+            "tcp" | "rtu" => {
+                self.modbus_endpoint(path)?;
             }
             "off" => {}
             t => {
                 return Err(bad(
                     "modbus.transport",
-                    format!("{t:?}: expected \"tcp\" or \"off\""),
+                    format!("{t:?}: expected \"tcp\", \"rtu\" or \"off\""),
                 ))
             }
         }
@@ -340,22 +349,41 @@ impl Config {
         Ok(())
     }
 
-    /// The Modbus server address (transport tcp).
-    pub fn modbus_addr(&self, path: &Path) -> Result<SocketAddr, ConfigError> {
+    /// The Modbus server (transport tcp or rtu).
+    pub fn modbus_endpoint(&self, path: &Path) -> Result<crate::modbus::Endpoint, ConfigError> {
+        let bad = |key: &'static str, reason: String| ConfigError::Invalid {
+            path: path.to_path_buf(),
+            key,
+            reason,
+        };
+        if self.modbus.transport == "rtu" {
+            let p =
+                self.modbus.port.clone().ok_or_else(|| {
+                    bad("modbus.port", "required with transport = \"rtu\"".into())
+                })?;
+            if self.modbus.baud < 1200 {
+                return Err(bad(
+                    "modbus.baud",
+                    format!("{} is below 1200", self.modbus.baud),
+                ));
+            }
+            return Ok(crate::modbus::Endpoint::Rtu {
+                path: p,
+                baud: self.modbus.baud,
+            });
+        }
         let a = self
             .modbus
             .address
             .as_deref()
-            .ok_or_else(|| ConfigError::Invalid {
-                path: path.to_path_buf(),
-                key: "modbus.address",
-                reason: "required with transport = \"tcp\"".into(),
-            })?;
-        a.parse().map_err(|e| ConfigError::Invalid {
-            path: path.to_path_buf(),
-            key: "modbus.address",
-            reason: format!("{a:?}: {e} (an IP address and port)"),
-        })
+            .ok_or_else(|| bad("modbus.address", "required with transport = \"tcp\"".into()))?;
+        let addr: SocketAddr = a.parse().map_err(|e| {
+            bad(
+                "modbus.address",
+                format!("{a:?}: {e} (an IP address and port)"),
+            )
+        })?;
+        Ok(crate::modbus::Endpoint::Tcp(addr))
     }
 
     /// The idle timeout of the frame link.

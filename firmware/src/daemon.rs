@@ -375,10 +375,10 @@ impl Daemon {
 
     /// The registers at the start of the sweep, as JSON (`null` when Modbus is off, an error object when unreadable).
     fn read_gantry(&mut self) -> serde_json::Value {
-        if self.cfg.modbus.transport != "tcp" {
+        if self.cfg.modbus.transport == "off" {
             return serde_json::Value::Null;
         }
-        let addr = match self.cfg.modbus_addr(&self.config_path) {
+        let endpoint = match self.cfg.modbus_endpoint(&self.config_path) {
             Ok(a) => a,
             Err(e) => return serde_json::json!({"error": e.to_string()}),
         };
@@ -387,7 +387,7 @@ impl Daemon {
             base: self.cfg.modbus.base,
             timeout: Duration::from_millis(self.cfg.modbus.timeout_ms),
             attempts: self.cfg.modbus.attempts,
-            ..ModbusLink::new(addr)
+            ..ModbusLink::with_endpoint(endpoint)
         };
         match read_registers(&link) {
             Ok(r) => serde_json::json!({"thickness_mm": r.thickness_mm, "kvp": r.kvp,
@@ -461,7 +461,7 @@ impl Daemon {
             .ok()
             .and_then(|b| serde_json::from_slice(&b).ok())
             .unwrap_or(serde_json::Value::Null);
-        if self.cfg.modbus.transport == "tcp" {
+        if self.cfg.modbus.transport != "off" {
             let reg = gantry["modbus"]["thickness_mm"].as_f64();
             let header = acq.header.thickness_mm;
             let msg = match reg {

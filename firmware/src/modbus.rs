@@ -1,15 +1,37 @@
-//! The firmware's Modbus client (GANTRY_INTERFACE.md section 1) over TCP:
-//! read the gantry controller's holding registers with a timeout on every
-//! call (tokio-modbus has none of its own) and retries with doubling
-//! back-off, then decode them with `dbt_gantry::registers`. RTU on a serial
-//! line comes with the daemon (issue #8).
+//! The firmware's Modbus client (GANTRY_INTERFACE.md section 1) over TCP or
+//! RTU on a serial line: read the gantry controller's holding registers with
+//! a timeout on every call (tokio-modbus has none of its own) and retries
+//! with doubling back-off, then decode them with `dbt_gantry::registers`.
 
 use dbt_gantry::registers::{decode, RegisterError, Registers, COUNT};
 use std::net::SocketAddr;
 use std::time::Duration;
 use thiserror::Error;
-use tokio_modbus::client::{tcp, Reader};
+use tokio_modbus::client::{rtu, tcp, Reader};
 use tokio_modbus::Slave;
+
+/// Where the registers are.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Endpoint {
+    /// Modbus TCP.
+    Tcp(SocketAddr),
+    /// Modbus RTU on a serial line (8N1).
+    Rtu {
+        /// Device path.
+        path: String,
+        /// Baud rate.
+        baud: u32,
+    },
+}
+
+impl std::fmt::Display for Endpoint {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Tcp(a) => write!(f, "tcp://{a}"),
+            Self::Rtu { path, baud } => write!(f, "rtu://{path}@{baud}"),
+        }
+    }
+}
 
 /// Modbus faults, each naming what failed.
 #[derive(Debug, Error)]
@@ -18,7 +40,7 @@ pub enum ModbusError {
     #[error("Modbus {addr}: no answer within {timeout_ms} ms after {attempts} attempts")]
     Timeout {
         /// Server address.
-        addr: SocketAddr,
+        addr: Endpoint,
         /// Per-call timeout.
         timeout_ms: u64,
         /// Attempts made.
@@ -28,7 +50,7 @@ pub enum ModbusError {
     #[error("Modbus {addr}: {reason}")]
     Transport {
         /// Server address.
-        addr: SocketAddr,
+        addr: Endpoint,
         /// What failed.
         reason: String,
     },
@@ -36,7 +58,7 @@ pub enum ModbusError {
     #[error("Modbus {addr}: exception response {exception}")]
     Exception {
         /// Server address.
-        addr: SocketAddr,
+        addr: Endpoint,
         /// The exception.
         exception: String,
     },
@@ -46,10 +68,10 @@ pub enum ModbusError {
 }
 
 /// How to reach the registers.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub struct ModbusLink {
     /// Server address.
-    pub addr: SocketAddr,
+    pub addr: Endpoint,
     /// Unit (slave) id.
     pub unit: u8,
     /// Address of register 0 of the map.
@@ -65,6 +87,11 @@ pub struct ModbusLink {
 impl ModbusLink {
     /// Defaults: unit 1, base 0, 1 s timeout, 3 attempts, 100 ms back-off.
     pub fn new(addr: SocketAddr) -> Self {
+        Self::with_endpoint(Endpoint::Tcp(addr))
+    }
+
+    /// The same defaults for any endpoint.
+    pub fn with_endpoint(addr: Endpoint) -> Self {
         Self {
             addr,
             unit: 1,
@@ -77,14 +104,21 @@ impl ModbusLink {
 }
 
 async fn read_once(link: &ModbusLink) -> Result<Vec<u16>, ModbusError> {
-    let addr = link.addr;
+    let addr = link.addr.clone();
     let transport = |e: &dyn std::fmt::Display| ModbusError::Transport {
-        addr,
+        addr: addr.clone(),
         reason: e.to_string(),
     };
-    let mut ctx = tcp::connect_slave(addr, Slave(link.unit))
-        .await
-        .map_err(|e| transport(&e))?;
+    let mut ctx = match &link.addr {
+        Endpoint::Tcp(a) => tcp::connect_slave(*a, Slave(link.unit))
+            .await
+            .map_err(|e| transport(&e))?,
+        Endpoint::Rtu { path, baud } => {
+            let port = tokio_serial::SerialStream::open(&tokio_serial::new(path, *baud))
+                .map_err(|e| transport(&format!("opening {path}: {e}")))?;
+            rtu::attach_slave(port, Slave(link.unit))
+        }
+    };
     match ctx.read_holding_registers(link.base, COUNT as u16).await {
         Ok(Ok(words)) => Ok(words),
         Ok(Err(exc)) => Err(ModbusError::Exception {
@@ -101,7 +135,7 @@ pub fn read_registers(link: &ModbusLink) -> Result<Registers, ModbusError> {
         .enable_all()
         .build()
         .map_err(|e| ModbusError::Transport {
-            addr: link.addr,
+            addr: link.addr.clone(),
             reason: e.to_string(),
         })?;
     rt.block_on(async {
@@ -115,7 +149,7 @@ pub fn read_registers(link: &ModbusLink) -> Result<Registers, ModbusError> {
                 Ok(Err(e)) => last = Some(e),
                 Err(_) => {
                     last = Some(ModbusError::Timeout {
-                        addr: link.addr,
+                        addr: link.addr.clone(),
                         timeout_ms: link.timeout.as_millis() as u64,
                         attempts: attempt,
                     })
@@ -128,7 +162,7 @@ pub fn read_registers(link: &ModbusLink) -> Result<Registers, ModbusError> {
             }
         }
         Err(last.unwrap_or(ModbusError::Timeout {
-            addr: link.addr,
+            addr: link.addr.clone(),
             timeout_ms: link.timeout.as_millis() as u64,
             attempts: link.attempts,
         }))

@@ -158,3 +158,112 @@ fn firmware_client_reads_a_pymodbus_server() {
     assert_eq!(r["view"], "MLO");
     assert_eq!(r["state"], "Exposing");
 }
+
+/// A pseudo-terminal pair made by socat (Debian; `.ci/run` installs it).
+struct PtyPair {
+    socat: Child,
+    a: std::path::PathBuf,
+    b: std::path::PathBuf,
+}
+
+impl Drop for PtyPair {
+    fn drop(&mut self) {
+        let _ = self.socat.kill();
+        let _ = self.socat.wait();
+    }
+}
+
+fn pty_pair(dir: &std::path::Path) -> PtyPair {
+    let (a, b) = (dir.join("tty-gantry"), dir.join("tty-firmware"));
+    let socat = Command::new("socat")
+        .arg(format!("pty,raw,echo=0,link={}", a.display()))
+        .arg(format!("pty,raw,echo=0,link={}", b.display()))
+        .spawn()
+        .expect("socat not found: apt-get install socat");
+    let t = Instant::now();
+    while !(a.exists() && b.exists()) {
+        assert!(
+            t.elapsed() < Duration::from_secs(10),
+            "socat made no pty pair"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    PtyPair { socat, a, b }
+}
+
+/// Read over RTU, retrying while the server opens its end of the line.
+fn diag_rtu(tty: &std::path::Path) -> std::process::Output {
+    let t = Instant::now();
+    loop {
+        let out = Command::new(workspace_bin("dbtor-diag"))
+            .arg("modbus")
+            .arg("--rtu")
+            .arg(tty)
+            .arg("--json")
+            .output()
+            .unwrap();
+        if out.status.success() || t.elapsed() > Duration::from_secs(20) {
+            return out;
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    }
+}
+
+/// Modbus RTU on a pty pair: host-sim's RTU server read by the firmware's
+/// client and by mbpoll (`-m rtu`), and a pymodbus RTU server read by the
+/// firmware's client.
+#[test]
+fn rtu_over_a_pty_pair() {
+    let dir = tempfile::tempdir().unwrap();
+    {
+        let pty = pty_pair(dir.path());
+        let _sim = Sim(Command::new(workspace_bin("host-sim"))
+            .args(["modbus", "--serial"])
+            .arg(&pty.a)
+            .args(["--thickness-mm", "61.7"])
+            .spawn()
+            .unwrap());
+        let out = diag_rtu(&pty.b);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stdout)
+        );
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        assert_eq!(v["registers"]["thickness_mm"], 61.7);
+        assert_eq!(v["registers"]["state"], "Exposing");
+        let mb = Command::new("mbpoll")
+            .args([
+                "-m", "rtu", "-b", "19200", "-P", "none", "-a", "1", "-r", "1", "-c", "13", "-1",
+            ])
+            .arg(&pty.b)
+            .output()
+            .expect("mbpoll not found: apt-get install mbpoll");
+        let text = String::from_utf8_lossy(&mb.stdout);
+        assert!(mb.status.success(), "{text}");
+        assert!(text.contains("[3]: \t617"), "{text}");
+    }
+    {
+        let dir2 = tempfile::tempdir().unwrap();
+        let pty = pty_pair(dir2.path());
+        let script =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("peers/pymodbus_gantry.py");
+        let _server = Sim(Command::new("python3")
+            .arg(&script)
+            .arg(&pty.a)
+            .arg("47.3")
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap());
+        let out = diag_rtu(&pty.b);
+        assert!(
+            out.status.success(),
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        assert_eq!(v["registers"]["thickness_mm"], 47.3);
+        assert_eq!(v["registers"]["view"], "MLO");
+    }
+}

@@ -77,9 +77,15 @@ enum Cmd {
     },
     /// Serve the gantry controller's Modbus registers on TCP until killed.
     Modbus {
-        /// Address to listen on, e.g. 127.0.0.1:1502.
+        /// Modbus TCP: address to listen on, e.g. 127.0.0.1:1502.
         #[arg(long)]
-        listen: String,
+        listen: Option<String>,
+        /// Modbus RTU instead: the serial line, e.g. /dev/ttyS1 or a pty.
+        #[arg(long)]
+        serial: Option<String>,
+        /// Baud rate of the serial line (8N1).
+        #[arg(long, default_value_t = 19200)]
+        baud: u32,
         /// Compressed thickness, mm.
         #[arg(long, default_value_t = 45.3)]
         thickness_mm: f64,
@@ -235,6 +241,8 @@ fn main() -> Result<()> {
         }
         Cmd::Modbus {
             listen,
+            serial,
+            baud,
             thickness_mm,
             state,
             base,
@@ -280,12 +288,22 @@ fn main() -> Result<()> {
                 base,
                 fault,
             };
-            let addr: std::net::SocketAddr = listen
-                .parse()
-                .with_context(|| format!("--listen {listen}"))?;
             let rt = tokio::runtime::Runtime::new()?;
-            eprintln!("host-sim: Modbus TCP on {addr}");
-            rt.block_on(serve(addr, service))?;
+            match (listen, serial) {
+                (Some(listen), None) => {
+                    let addr: std::net::SocketAddr = listen
+                        .parse()
+                        .with_context(|| format!("--listen {listen}"))?;
+                    eprintln!("host-sim: Modbus TCP on {addr}");
+                    rt.block_on(serve(addr, service))?;
+                }
+                (None, Some(path)) => {
+                    eprintln!("host-sim: Modbus RTU on {path} at {baud} baud, 8N1");
+                    rt.block_on(host_sim::modbus::serve_rtu(&path, baud, service))
+                        .with_context(|| format!("Modbus RTU on {path}"))?;
+                }
+                _ => bail!("give --listen HOST:PORT (Modbus TCP) or --serial PATH (Modbus RTU)"),
+            }
         }
         Cmd::Dataset {
             out,

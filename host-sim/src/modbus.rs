@@ -73,3 +73,10 @@ pub async fn serve(addr: SocketAddr, service: GantryService) -> std::io::Result<
         .serve(&on_connected, |err| eprintln!("host-sim modbus: {err}"))
         .await
 }
+
+/// Serve `service` as Modbus RTU on the serial line `path` (8N1) until the
+/// process ends.
+pub async fn serve_rtu(path: &str, baud: u32, service: GantryService) -> std::io::Result<()> {
+    let server = tokio_modbus::server::rtu::Server::new_from_path(path, baud)?;
+    server.serve_forever(Arc::new(service)).await
+}

@@ -5,7 +5,7 @@
 //! dbtor-diag geometry [--geometry FILE.toml] [--binning N]
 //! dbtor-diag report FILE.dcm [--json]     # the values of a dose or density SR
 //! dbtor-diag echo AET@host:port            # DICOM C-ECHO to the PACS
-//! dbtor-diag modbus HOST:PORT [--unit N] [--base N] [--json]   # read and decode the gantry registers
+//! dbtor-diag modbus (HOST:PORT | --rtu PATH [--baud 19200]) [--unit N] [--base N] [--json]   # read and decode the gantry registers
 //! dbtor-diag model DIR [--precision fp32|int8] [--json]   # checksums + stored fixtures of a DBToR model
 //! dbtor-diag status (--config FILE | --status FILE) [--json]  # the daemon's state, results and faults
 //! dbtor-diag config FILE                   # validate a daemon configuration and print it
@@ -295,8 +295,17 @@ fn run() -> Result<bool> {
             let mut it = rest.iter();
             let mut addr = None;
             let (mut unit, mut base) = (1u8, 0u16);
+            let (mut rtu, mut baud) = (None::<String>, 19_200u32);
             while let Some(a) = it.next() {
                 match a.as_str() {
+                    "--rtu" => rtu = Some(it.next().context("--rtu needs a serial line")?.clone()),
+                    "--baud" => {
+                        baud = it
+                            .next()
+                            .context("--baud needs a number")?
+                            .parse()
+                            .context("--baud")?
+                    }
                     "--unit" => {
                         unit = it
                             .next()
@@ -316,11 +325,16 @@ fn run() -> Result<bool> {
                     other => bail!("unknown argument `{other}`"),
                 }
             }
-            let addr = addr.context("modbus needs HOST:PORT")?;
-            let sock: std::net::SocketAddr = addr
-                .parse()
-                .with_context(|| format!("`{addr}` is not HOST:PORT"))?;
-            let mut link = dbtor_firmware::modbus::ModbusLink::new(sock);
+            let endpoint = match (rtu, addr) {
+                (Some(path), None) => dbtor_firmware::modbus::Endpoint::Rtu { path, baud },
+                (None, Some(addr)) => dbtor_firmware::modbus::Endpoint::Tcp(
+                    addr.parse()
+                        .with_context(|| format!("`{addr}` is not HOST:PORT"))?,
+                ),
+                _ => bail!("modbus needs HOST:PORT (TCP) or --rtu PATH [--baud N] (RTU)"),
+            };
+            let addr = endpoint.to_string();
+            let mut link = dbtor_firmware::modbus::ModbusLink::with_endpoint(endpoint);
             link.unit = unit;
             link.base = base;
             match dbtor_firmware::modbus::read_registers(&link) {
