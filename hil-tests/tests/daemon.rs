@@ -314,3 +314,133 @@ fn bad_configuration_is_refused_naming_the_key() {
         "nothing may start on a bad configuration"
     );
 }
+
+/// The same daemon with the gantry on serial lines only: frames on one socat
+/// pty pair, Modbus RTU on another. A clean acquisition is reported.
+#[test]
+fn clean_acquisition_over_serial_lines() {
+    let dir = tempfile::tempdir().unwrap();
+    let (acq, thickness) = acquire(dir.path());
+    let pair = |name: &str| {
+        let (a, b) = (
+            dir.path().join(format!("{name}-gantry")),
+            dir.path().join(format!("{name}-pc")),
+        );
+        let socat = Command::new("socat")
+            .arg(format!("pty,raw,echo=0,link={}", a.display()))
+            .arg(format!("pty,raw,echo=0,link={}", b.display()))
+            .spawn()
+            .expect("socat not found: apt-get install socat");
+        let t = Instant::now();
+        while !(a.exists() && b.exists()) {
+            assert!(
+                t.elapsed() < Duration::from_secs(10),
+                "socat made no pty pair"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        (socat, a, b)
+    };
+    let (socat_f, frames_gantry, frames_pc) = pair("frames");
+    let (socat_m, modbus_gantry, modbus_pc) = pair("modbus");
+    let modbus = Command::new(workspace_bin("host-sim"))
+        .args(["modbus", "--serial"])
+        .arg(&modbus_gantry)
+        .args(["--thickness-mm", &format!("{thickness:.1}")])
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let text = format!(
+        r#"
+[frames]
+transport = "serial"
+port = "{}"
+idle_timeout_s = 20
+binning = 4
+
+[modbus]
+transport = "rtu"
+port = "{}"
+baud = 19200
+timeout_ms = 1000
+
+[recon]
+reconstructor = "mltr"
+mltr_iterations = 2
+dose_uncertainty = 0.2
+
+[paths]
+spool = "spool"
+output = "output"
+status = "run/status.json"
+
+[report]
+uid_root = "1.2.826.0.1.3680043.10.543.1"
+tube_output_mgy_per_mas = 0.11
+"#,
+        frames_pc.display(),
+        modbus_pc.display()
+    );
+    let cfg = dir.path().join("dbtor.toml");
+    std::fs::write(&cfg, text).unwrap();
+    let mut d = daemon(&cfg, &["--once"]);
+    // The daemon opens its ends first; then the gantry streams.
+    std::thread::sleep(Duration::from_millis(500));
+    let stream = Command::new(workspace_bin("host-sim"))
+        .args(["stream", "--acq"])
+        .arg(&acq)
+        .arg("--serial")
+        .arg(&frames_gantry)
+        .args(["--fault", "corrupt:2", "--fault", "drop:5"])
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let t0 = Instant::now();
+    let st = loop {
+        if let Some(st) = d.try_wait().unwrap() {
+            break st;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(180),
+            "daemon did not finish; status {}",
+            status(dir.path())
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    for mut c in [stream, modbus] {
+        let _ = c.kill();
+        let _ = c.wait();
+    }
+    for mut s in [socat_f, socat_m] {
+        let _ = s.kill();
+        let _ = s.wait();
+    }
+    assert!(st.success(), "{st:?}");
+    let s = status(dir.path());
+    assert_eq!(s["processed"], 1, "{s}");
+    assert!(s["faults"].as_array().unwrap().is_empty(), "{s}");
+    let reports = entries(&dir.path().join("output"))
+        .into_iter()
+        .filter(|n| n.ends_with(".dcm"))
+        .count();
+    assert_eq!(reports, 2);
+    let done = entries(&dir.path().join("spool/done"));
+    let gantry: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(
+            dir.path()
+                .join("spool/done")
+                .join(&done[0])
+                .join("gantry.json"),
+        )
+        .unwrap(),
+    )
+    .unwrap();
+    assert!(
+        (gantry["modbus"]["thickness_mm"].as_f64().unwrap() - thickness).abs() < 0.06,
+        "{gantry}"
+    );
+    assert!(
+        gantry["link"]["crc_errors"].as_u64().unwrap() >= 1,
+        "{gantry}"
+    );
+}
