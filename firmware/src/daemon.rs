@@ -18,7 +18,7 @@
 //! every acquisition is reported exactly once.
 
 use crate::config::Config;
-use crate::link::{receive, receive_from, to_acquisition, LinkError};
+use crate::link::{data_fault, receive, receive_from, to_acquisition, LinkError};
 use crate::modbus::{read_registers, ModbusLink};
 use crate::pipeline::{process, reports, PipelineOptions};
 use dbt_dicom::{Equipment, UidSource};
@@ -360,6 +360,7 @@ impl Daemon {
             "link": {"frames": stats.frames, "crc_errors": stats.crc_errors, "naks": stats.naks,
                      "garbage_bytes": stats.garbage_bytes, "saturated_pixels": rx.saturated},
             "modbus": gantry,
+            "data_fault": data_fault(&rx),
         });
         match self.spool(&id, &acq, &gantry_json) {
             Ok(()) => {
@@ -461,6 +462,16 @@ impl Daemon {
             .ok()
             .and_then(|b| serde_json::from_slice(&b).ok())
             .unwrap_or(serde_json::Value::Null);
+        if let Some(msg) = gantry["data_fault"].as_str().map(String::from) {
+            self.fault(Some(id), "data", msg.clone());
+            self.move_entry(
+                id,
+                "faulted",
+                "fault.json",
+                &serde_json::json!({"kind": "data", "message": msg}),
+            );
+            return;
+        }
         if self.cfg.modbus.transport != "off" {
             let reg = gantry["modbus"]["thickness_mm"].as_f64();
             let header = acq.header.thickness_mm;

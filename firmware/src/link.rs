@@ -28,6 +28,9 @@ pub enum LinkError {
     /// The stream ended before the acquisition was complete.
     #[error("the stream ended before the acquisition was complete (views {0:?} missing; all views are listed if the header never arrived)")]
     Incomplete(Vec<u16>),
+    /// The data cannot be used (e.g. a flat field that is not a positive number).
+    #[error("data: {0}")]
+    Data(String),
     /// The acquisition does not fit the configured geometry.
     #[error("acquisition does not fit the configured geometry: {0}")]
     Geometry(String),
@@ -147,6 +150,25 @@ pub fn receive_from<S: Read + Write>(
 
 /// The processing's input from a received acquisition: detector rows are
 /// coronal slices (spaced one pixel apart), columns detector elements.
+/// Faults of the data that do not stop the reception but make the acquisition
+/// unfit for a report: detector saturation (a count at 65535 is a lower bound,
+/// its line integral unknown). `None` when the data are usable.
+pub fn data_fault(r: &Received) -> Option<String> {
+    if r.saturated == 0 {
+        return None;
+    }
+    let views: Vec<u16> = r
+        .projections
+        .iter()
+        .filter(|p| p.counts.contains(&u16::MAX))
+        .map(|p| p.view)
+        .collect();
+    Some(format!(
+        "{} pixels saturated at 65535 in views {views:?}: their line integrals are unknown",
+        r.saturated
+    ))
+}
+
 /// `tube_output_mgy_per_mas` is the site's calibration (configuration).
 pub fn to_acquisition(
     r: &Received,
@@ -168,6 +190,19 @@ pub fn to_acquisition(
             h.columns,
             geom.n_det()
         )));
+    }
+    for p in &r.projections {
+        if let Some((k, f)) = p
+            .flat
+            .iter()
+            .enumerate()
+            .find(|(_, f)| !(f.is_finite() && **f > 0.0))
+        {
+            return Err(LinkError::Data(format!(
+                "flat field of view {} at element {k} is {f}: not a positive number",
+                p.view
+            )));
+        }
     }
     let flux = r.projections[0].flat[0];
     if r.projections

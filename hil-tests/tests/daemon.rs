@@ -444,3 +444,59 @@ tube_output_mgy_per_mas = 0.11
         "{gantry}"
     );
 }
+
+/// Data faults with valid CRCs: detector saturation in one projection is a
+/// `data` fault (the acquisition is kept in `spool/faulted`, no report); a NaN
+/// flat field is refused at reception with the view and element named.
+#[test]
+fn saturated_counts_and_nan_flat_field_are_faults_not_reports() {
+    for (fault, kind, words) in [
+        ("saturate:4", "data", "saturated at 65535 in views [3]"),
+        ("nanflat:2", "link", "flat field NaN"),
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        let (acq, thickness) = acquire(dir.path());
+        let (fp, mp) = (free_port(), free_port());
+        let g = Gantry {
+            modbus: Command::new(workspace_bin("host-sim"))
+                .args([
+                    "modbus",
+                    "--listen",
+                    &format!("127.0.0.1:{mp}"),
+                    "--thickness-mm",
+                    &format!("{thickness:.1}"),
+                ])
+                .stderr(Stdio::null())
+                .spawn()
+                .unwrap(),
+            stream: Command::new(workspace_bin("host-sim"))
+                .args(["stream", "--acq"])
+                .arg(&acq)
+                .args(["--listen", &format!("127.0.0.1:{fp}"), "--fault", fault])
+                .stderr(Stdio::null())
+                .spawn()
+                .unwrap(),
+            frames: format!("127.0.0.1:{fp}"),
+            registers: format!("127.0.0.1:{mp}"),
+        };
+        let cfg = config(dir.path(), &g, 2);
+        let st = daemon(&cfg, &["--once"]).wait().unwrap();
+        assert!(st.success(), "{fault}");
+        let s = status(dir.path());
+        let f = &s["faults"].as_array().unwrap()[0];
+        assert_eq!(f["kind"], kind, "{fault}: {s}");
+        assert!(
+            f["message"].as_str().unwrap().contains(words),
+            "{fault}: {s}"
+        );
+        assert_eq!(s["processed"], 0);
+        assert!(
+            entries(&dir.path().join("output"))
+                .iter()
+                .all(|n| !n.ends_with(".dcm")),
+            "{fault}"
+        );
+        let kept = entries(&dir.path().join("spool/faulted")).len();
+        assert_eq!(kept, usize::from(kind == "data"), "{fault}");
+    }
+}

@@ -71,7 +71,7 @@ enum Cmd {
         /// Baud rate of the serial line.
         #[arg(long, default_value_t = 921_600)]
         baud: u32,
-        /// Faults: corrupt:SEQ, drop:SEQ, dup:SEQ, reorder:A,B, cut:SEQ (repeatable).
+        /// Faults: corrupt:SEQ, drop:SEQ, dup:SEQ, reorder:A,B, cut:SEQ, saturate:SEQ, nanflat:SEQ (repeatable).
         #[arg(long)]
         fault: Vec<String>,
     },

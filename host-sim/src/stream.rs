@@ -22,6 +22,11 @@ pub enum Fault {
     Reorder(u32, u32),
     /// Pull the cable: close the connection before frame `seq`.
     Cut(u32),
+    /// Detector saturation: 32 counts of projection frame `seq` at 65535
+    /// (a data fault with a valid CRC).
+    Saturate(u32),
+    /// A flat field of projection frame `seq` that is NaN (valid CRC).
+    NanFlat(u32),
 }
 
 impl Fault {
@@ -40,6 +45,8 @@ impl Fault {
             "drop" => Ok(Fault::Drop(n(v)?)),
             "dup" => Ok(Fault::Duplicate(n(v)?)),
             "cut" => Ok(Fault::Cut(n(v)?)),
+            "saturate" => Ok(Fault::Saturate(n(v)?)),
+            "nanflat" => Ok(Fault::NanFlat(n(v)?)),
             "reorder" => {
                 let (a, b) = v
                     .split_once(',')
@@ -47,7 +54,7 @@ impl Fault {
                 Ok(Fault::Reorder(n(a)?, n(b)?))
             }
             _ => Err(format!(
-                "fault `{s}`: kind must be corrupt, drop, dup, reorder or cut"
+                "fault `{s}`: kind must be corrupt, drop, dup, reorder, cut, saturate or nanflat"
             )),
         }
     }
@@ -129,6 +136,29 @@ pub fn serve_stream<S: Read + Write>(
     faults: &[Fault],
     idle_timeout: Duration,
 ) -> std::io::Result<usize> {
+    // Data faults: the frames themselves are wrong (valid CRC), resends too.
+    let mut owned: Vec<Frame> = frames.to_vec();
+    for f in faults {
+        match *f {
+            Fault::Saturate(q) => {
+                if let Some(Frame::Projection(p)) = owned.get_mut(q as usize) {
+                    let n = p.counts.len();
+                    for c in p.counts.iter_mut().skip(n / 2).take(32) {
+                        *c = u16::MAX;
+                    }
+                }
+            }
+            Fault::NanFlat(q) => {
+                if let Some(Frame::Projection(p)) = owned.get_mut(q as usize) {
+                    if let Some(v) = p.flat.get_mut(0) {
+                        *v = f32::NAN;
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+    let frames = &owned[..];
     let mut order: Vec<u32> = (0..frames.len() as u32).collect();
     for f in faults {
         match *f {
@@ -146,7 +176,7 @@ pub fn serve_stream<S: Read + Write>(
                     order.swap(i, j);
                 }
             }
-            Fault::Corrupt(_) => {}
+            Fault::Corrupt(_) | Fault::Saturate(_) | Fault::NanFlat(_) => {}
             Fault::Cut(q) => {
                 if let Some(i) = order.iter().position(|&x| x == q) {
                     order.truncate(i);
