@@ -360,6 +360,7 @@ impl Daemon {
             "link": {"frames": stats.frames, "crc_errors": stats.crc_errors, "naks": stats.naks,
                      "garbage_bytes": stats.garbage_bytes, "saturated_pixels": rx.saturated},
             "modbus": gantry,
+            "modbus_end": self.read_gantry(),
             "data_fault": data_fault(&rx),
         });
         match self.spool(&id, &acq, &gantry_json) {
@@ -474,8 +475,14 @@ impl Daemon {
         }
         if self.cfg.modbus.transport != "off" {
             let reg = gantry["modbus"]["thickness_mm"].as_f64();
+            let end = gantry["modbus_end"]["thickness_mm"].as_f64();
             let header = acq.header.thickness_mm;
+            let tol = self.cfg.modbus.thickness_tolerance_mm;
             let msg = match reg {
+                Some(r) if end.is_some_and(|e| (e - r).abs() > tol) => Some(format!(
+                    "thickness changed during the sweep: Modbus register {r:.1} mm at the start, {:.1} mm at the end (tolerance {tol} mm)",
+                    end.unwrap_or(f64::NAN)
+                )),
                 None => Some(format!(
                     "no Modbus thickness at exposure time ({}); header says {header} mm",
                     gantry["modbus"]["error"].as_str().unwrap_or("not read")

@@ -500,3 +500,56 @@ fn saturated_counts_and_nan_flat_field_are_faults_not_reports() {
         assert_eq!(kept, usize::from(kind == "data"), "{fault}");
     }
 }
+
+/// Absurd or changing thickness readings: 0 mm, 200 mm, and a compression
+/// that changes during the sweep are `thickness` faults, never reports.
+#[test]
+fn absurd_or_changing_thickness_is_a_fault() {
+    for (extra, words) in [
+        (vec!["--thickness-mm", "0"], "disagreement"),
+        (vec!["--thickness-mm", "200"], "disagreement"),
+        (
+            vec!["--thickness-then-mm", "30"],
+            "changed during the sweep",
+        ),
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        let (acq, thickness) = acquire(dir.path());
+        let (fp, mp) = (free_port(), free_port());
+        let t = format!("{thickness:.1}");
+        let mut args = vec!["modbus", "--listen"];
+        let listen = format!("127.0.0.1:{mp}");
+        args.push(&listen);
+        if extra[0] != "--thickness-mm" {
+            args.extend(["--thickness-mm", &t]);
+        }
+        args.extend(extra.iter().copied());
+        let g = Gantry {
+            modbus: Command::new(workspace_bin("host-sim"))
+                .args(&args)
+                .stderr(Stdio::null())
+                .spawn()
+                .unwrap(),
+            stream: Command::new(workspace_bin("host-sim"))
+                .args(["stream", "--acq"])
+                .arg(&acq)
+                .args(["--listen", &format!("127.0.0.1:{fp}")])
+                .stderr(Stdio::null())
+                .spawn()
+                .unwrap(),
+            frames: format!("127.0.0.1:{fp}"),
+            registers: listen.clone(),
+        };
+        let cfg = config(dir.path(), &g, 2);
+        assert!(daemon(&cfg, &["--once"]).wait().unwrap().success());
+        let s = status(dir.path());
+        let f = &s["faults"].as_array().unwrap()[0];
+        assert_eq!(f["kind"], "thickness", "{extra:?}: {s}");
+        assert!(
+            f["message"].as_str().unwrap().contains(words),
+            "{extra:?}: {s}"
+        );
+        assert_eq!(s["processed"], 0);
+        assert_eq!(entries(&dir.path().join("spool/faulted")).len(), 1);
+    }
+}

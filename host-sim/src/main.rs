@@ -98,6 +98,10 @@ enum Cmd {
         /// Fault: `exception` or `silent`.
         #[arg(long)]
         fault: Option<String>,
+        /// Fault: after the first read the thickness becomes this (mm), as if
+        /// the compression changed during the sweep.
+        #[arg(long)]
+        thickness_then_mm: Option<f64>,
     },
     /// Export a training dataset (see DATASET.md).
     Dataset {
@@ -247,6 +251,7 @@ fn main() -> Result<()> {
             state,
             base,
             fault,
+            thickness_then_mm,
         } => {
             use dbt_gantry::registers::{encode, Registers, State};
             use host_sim::modbus::{serve, GantryService, ModbusFault};
@@ -287,6 +292,8 @@ fn main() -> Result<()> {
                 registers: std::sync::Arc::new(std::sync::Mutex::new(encode(&regs))),
                 base,
                 fault,
+                thickness_then: thickness_then_mm
+                    .map(|t| (t * 10.0).round().clamp(0.0, 65535.0) as u16),
             };
             let rt = tokio::runtime::Runtime::new()?;
             match (listen, serial) {

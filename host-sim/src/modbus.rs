@@ -26,6 +26,9 @@ pub struct GantryService {
     pub base: u16,
     /// Fault to inject.
     pub fault: Option<ModbusFault>,
+    /// After the first read, the thickness register takes this value (0.1
+    /// mm): a compression that changes during the sweep.
+    pub thickness_then: Option<u16>,
 }
 
 impl tokio_modbus::server::Service for GantryService {
@@ -49,7 +52,13 @@ impl tokio_modbus::server::Service for GantryService {
                     let regs = self
                         .registers
                         .lock()
-                        .map(|r| r[lo..lo + n].to_vec())
+                        .map(|mut r| {
+                            let out = r[lo..lo + n].to_vec();
+                            if let Some(t) = self.thickness_then {
+                                r[2] = t;
+                            }
+                            out
+                        })
                         .unwrap_or_default();
                     Ok(Some(Response::ReadHoldingRegisters(regs)))
                 }
