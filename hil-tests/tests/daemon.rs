@@ -501,8 +501,9 @@ fn saturated_counts_and_nan_flat_field_are_faults_not_reports() {
     }
 }
 
-/// Absurd or changing thickness readings: 0 mm, 200 mm, and a compression
-/// that changes during the sweep are `thickness` faults, never reports.
+/// Absurd or changing thickness readings (0 mm, 200 mm, a compression that
+/// changes during the sweep) and an unreadable register (exception response,
+/// silence: the client times out) are `thickness` faults, never reports.
 #[test]
 fn absurd_or_changing_thickness_is_a_fault() {
     for (extra, words) in [
