@@ -212,6 +212,18 @@ def main(argv=None):
             "export_command": " ".join(["python -m dbtor.export"] + (argv or sys.argv[1:])),
         },
     }
+    # The trainer's last validation (validation split, never trained on).
+    curve = os.path.join(a.run, "curve.csv")
+    if os.path.exists(curve):
+        import csv
+        rows = [r for r in csv.DictReader(open(curve)) if r["val_mse"]]
+        if rows:
+            r = rows[-1]
+            manifest["validation"] = {
+                "split": "validation", "slices": 32, "noise": level, "iteration": int(r["iteration"]),
+                "mse_network_units": float(r["val_mse"]), "psnr_db_per_slice_range": float(r["val_psnr_db"]),
+                "note": "from the trainer's curve; the test-set table is dbt-eval baselines --model",
+            }
     if a.validation:
         with open(a.validation) as f:
             manifest["validation"] = json.load(f)
