@@ -34,3 +34,76 @@ pub fn workspace_bin(name: &str) -> std::path::PathBuf {
     assert!(ok, "building {name}");
     dir.join(name)
 }
+
+/// `host-sim acquire` of test phantom `index` (N = 8, binned x4) into `dir/acq`.
+pub fn acquire(dir: &std::path::Path, index: u32) -> std::path::PathBuf {
+    let acq = dir.join("acq");
+    let st = std::process::Command::new(workspace_bin("host-sim"))
+        .args([
+            "acquire",
+            "--index",
+            &index.to_string(),
+            "--binning",
+            "4",
+            "--noise",
+            "N8",
+            "--out",
+        ])
+        .arg(&acq)
+        .output()
+        .expect("running host-sim acquire");
+    assert!(
+        st.status.success(),
+        "{}",
+        String::from_utf8_lossy(&st.stderr)
+    );
+    acq
+}
+
+/// A pseudo-terminal pair made by socat (Debian; `.ci/run` installs it):
+/// `a` for the gantry's end, `b` for the firmware's. Killed on drop.
+pub struct PtyPair {
+    socat: std::process::Child,
+    /// The gantry's end.
+    pub a: std::path::PathBuf,
+    /// The firmware's end.
+    pub b: std::path::PathBuf,
+}
+
+impl Drop for PtyPair {
+    fn drop(&mut self) {
+        let _ = self.socat.kill();
+        let _ = self.socat.wait();
+    }
+}
+
+/// A new pty pair with links `dir/NAME-gantry` and `dir/NAME-pc`.
+pub fn pty_pair(dir: &std::path::Path, name: &str) -> PtyPair {
+    let (a, b) = (
+        dir.join(format!("{name}-gantry")),
+        dir.join(format!("{name}-pc")),
+    );
+    let socat = std::process::Command::new("socat")
+        .arg(format!("pty,raw,echo=0,link={}", a.display()))
+        .arg(format!("pty,raw,echo=0,link={}", b.display()))
+        .spawn()
+        .expect("socat not found: apt-get install socat");
+    let t = std::time::Instant::now();
+    while !(a.exists() && b.exists()) {
+        assert!(t.elapsed().as_secs() < 10, "socat made no pty pair");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    PtyPair { socat, a, b }
+}
+
+/// Wait until something listens on loopback `port` (at most 30 s).
+pub fn wait_for_port(port: u16, what: &str) {
+    let t = std::time::Instant::now();
+    while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+        assert!(
+            t.elapsed().as_secs() < 30,
+            "{what} did not start listening on port {port}"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+}

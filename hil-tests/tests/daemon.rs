@@ -5,32 +5,14 @@
 //! between the Modbus register and the acquisition header is a fault, not a
 //! report; a bad configuration is refused naming the key.
 
-use hil_tests::{free_port, workspace_bin};
+use hil_tests::{free_port, pty_pair, workspace_bin};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
+/// Test phantom 1 acquired, with its compressed thickness.
 fn acquire(dir: &Path) -> (PathBuf, f64) {
-    let acq = dir.join("acq");
-    let st = Command::new(workspace_bin("host-sim"))
-        .args([
-            "acquire",
-            "--index",
-            "1",
-            "--binning",
-            "4",
-            "--noise",
-            "N8",
-            "--out",
-        ])
-        .arg(&acq)
-        .output()
-        .unwrap();
-    assert!(
-        st.status.success(),
-        "{}",
-        String::from_utf8_lossy(&st.stderr)
-    );
+    let acq = hil_tests::acquire(dir, 1);
     let h: serde_json::Value =
         serde_json::from_slice(&std::fs::read(acq.join("acquisition.json")).unwrap()).unwrap();
     (acq, h["thickness_mm"].as_f64().unwrap())
@@ -321,31 +303,13 @@ fn bad_configuration_is_refused_naming_the_key() {
 fn clean_acquisition_over_serial_lines() {
     let dir = tempfile::tempdir().unwrap();
     let (acq, thickness) = acquire(dir.path());
-    let pair = |name: &str| {
-        let (a, b) = (
-            dir.path().join(format!("{name}-gantry")),
-            dir.path().join(format!("{name}-pc")),
-        );
-        let socat = Command::new("socat")
-            .arg(format!("pty,raw,echo=0,link={}", a.display()))
-            .arg(format!("pty,raw,echo=0,link={}", b.display()))
-            .spawn()
-            .expect("socat not found: apt-get install socat");
-        let t = Instant::now();
-        while !(a.exists() && b.exists()) {
-            assert!(
-                t.elapsed() < Duration::from_secs(10),
-                "socat made no pty pair"
-            );
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        (socat, a, b)
-    };
-    let (socat_f, frames_gantry, frames_pc) = pair("frames");
-    let (socat_m, modbus_gantry, modbus_pc) = pair("modbus");
+    let frames = pty_pair(dir.path(), "frames");
+    let regs = pty_pair(dir.path(), "modbus");
+    let (frames_gantry, frames_pc) = (&frames.a, &frames.b);
+    let (modbus_gantry, modbus_pc) = (&regs.a, &regs.b);
     let modbus = Command::new(workspace_bin("host-sim"))
         .args(["modbus", "--serial"])
-        .arg(&modbus_gantry)
+        .arg(modbus_gantry)
         .args(["--thickness-mm", &format!("{thickness:.1}")])
         .stderr(Stdio::null())
         .spawn()
@@ -390,7 +354,7 @@ tube_output_mgy_per_mas = 0.11
         .args(["stream", "--acq"])
         .arg(&acq)
         .arg("--serial")
-        .arg(&frames_gantry)
+        .arg(frames_gantry)
         .args(["--fault", "corrupt:2", "--fault", "drop:5"])
         .stderr(Stdio::null())
         .spawn()
@@ -411,10 +375,7 @@ tube_output_mgy_per_mas = 0.11
         let _ = c.kill();
         let _ = c.wait();
     }
-    for mut s in [socat_f, socat_m] {
-        let _ = s.kill();
-        let _ = s.wait();
-    }
+    drop((frames, regs));
     assert!(st.success(), "{st:?}");
     let s = status(dir.path());
     assert_eq!(s["processed"], 1, "{s}");

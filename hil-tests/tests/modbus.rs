@@ -4,7 +4,7 @@
 //! Injected faults (exception responses, silence) give named failures and
 //! exit status 1, never made-up values.
 
-use hil_tests::{free_port, workspace_bin};
+use hil_tests::{free_port, pty_pair, wait_for_port, workspace_bin};
 use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
@@ -29,14 +29,7 @@ fn start(port: u16, extra: &[&str]) -> Sim {
         .args(extra)
         .spawn()
         .unwrap();
-    let t = Instant::now();
-    while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
-        assert!(
-            t.elapsed() < Duration::from_secs(20),
-            "host-sim modbus did not start"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    wait_for_port(port, "host-sim modbus");
     Sim(child)
 }
 
@@ -128,14 +121,7 @@ fn firmware_client_reads_a_pymodbus_server() {
         .spawn()
         .expect("python3 (with pymodbus: pip install -r hil-tests/peers/requirements.txt)");
     let _server = Sim(server);
-    let t = Instant::now();
-    while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
-        assert!(
-            t.elapsed() < Duration::from_secs(30),
-            "the pymodbus server did not start (is pymodbus installed?)"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    wait_for_port(port, "the pymodbus server (is pymodbus installed?)");
     let out = Command::new(workspace_bin("dbtor-diag"))
         .args(["modbus", &format!("127.0.0.1:{port}"), "--json"])
         .output()
@@ -157,38 +143,6 @@ fn firmware_client_reads_a_pymodbus_server() {
     assert_eq!(r["laterality"], "L");
     assert_eq!(r["view"], "MLO");
     assert_eq!(r["state"], "Exposing");
-}
-
-/// A pseudo-terminal pair made by socat (Debian; `.ci/run` installs it).
-struct PtyPair {
-    socat: Child,
-    a: std::path::PathBuf,
-    b: std::path::PathBuf,
-}
-
-impl Drop for PtyPair {
-    fn drop(&mut self) {
-        let _ = self.socat.kill();
-        let _ = self.socat.wait();
-    }
-}
-
-fn pty_pair(dir: &std::path::Path) -> PtyPair {
-    let (a, b) = (dir.join("tty-gantry"), dir.join("tty-firmware"));
-    let socat = Command::new("socat")
-        .arg(format!("pty,raw,echo=0,link={}", a.display()))
-        .arg(format!("pty,raw,echo=0,link={}", b.display()))
-        .spawn()
-        .expect("socat not found: apt-get install socat");
-    let t = Instant::now();
-    while !(a.exists() && b.exists()) {
-        assert!(
-            t.elapsed() < Duration::from_secs(10),
-            "socat made no pty pair"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    PtyPair { socat, a, b }
 }
 
 /// Read over RTU, retrying while the server opens its end of the line.
@@ -216,7 +170,7 @@ fn diag_rtu(tty: &std::path::Path) -> std::process::Output {
 fn rtu_over_a_pty_pair() {
     let dir = tempfile::tempdir().unwrap();
     {
-        let pty = pty_pair(dir.path());
+        let pty = pty_pair(dir.path(), "modbus");
         let _sim = Sim(Command::new(workspace_bin("host-sim"))
             .args(["modbus", "--serial"])
             .arg(&pty.a)
@@ -245,7 +199,7 @@ fn rtu_over_a_pty_pair() {
     }
     {
         let dir2 = tempfile::tempdir().unwrap();
-        let pty = pty_pair(dir2.path());
+        let pty = pty_pair(dir2.path(), "modbus");
         let script =
             std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("peers/pymodbus_gantry.py");
         let _server = Sim(Command::new("python3")

@@ -4,8 +4,8 @@
 //! yield exactly the acquisition that was sent; a pulled cable yields a named
 //! fault and nothing spooled.
 
-use hil_tests::{free_port, workspace_bin};
-use std::path::{Path, PathBuf};
+use hil_tests::{acquire, free_port, pty_pair, workspace_bin};
+use std::path::Path;
 use std::process::Command;
 
 fn transfer(acq: &Path, out: &Path, faults: &[&str]) -> (bool, String) {
@@ -30,31 +30,6 @@ fn transfer(acq: &Path, out: &Path, faults: &[&str]) -> (bool, String) {
         rx.status.success(),
         String::from_utf8_lossy(&rx.stderr).to_string() + &String::from_utf8_lossy(&rx.stdout),
     )
-}
-
-/// `host-sim acquire` of test phantom `index` (N = 8, binned x4) into `dir/acq`.
-fn acquire(dir: &Path, index: u32) -> PathBuf {
-    let acq = dir.join("acq");
-    let st = Command::new(workspace_bin("host-sim"))
-        .args([
-            "acquire",
-            "--index",
-            &index.to_string(),
-            "--binning",
-            "4",
-            "--noise",
-            "N8",
-            "--out",
-        ])
-        .arg(&acq)
-        .output()
-        .unwrap();
-    assert!(
-        st.status.success(),
-        "{}",
-        String::from_utf8_lossy(&st.stderr)
-    );
-    acq
 }
 
 #[test]
@@ -98,25 +73,13 @@ fn faults_are_repaired_or_reported() {
 fn serial_line_over_a_pty_pair() {
     let dir = tempfile::tempdir().unwrap();
     let acq = acquire(dir.path(), 4);
-    let (a, b) = (
-        dir.path().join("tty-gantry"),
-        dir.path().join("tty-firmware"),
-    );
-    let mut socat = Command::new("socat")
-        .arg(format!("pty,raw,echo=0,link={}", a.display()))
-        .arg(format!("pty,raw,echo=0,link={}", b.display()))
-        .spawn()
-        .expect("socat not found: apt-get install socat");
-    let t = std::time::Instant::now();
-    while !(a.exists() && b.exists()) {
-        assert!(t.elapsed().as_secs() < 10, "socat made no pty pair");
-        std::thread::sleep(std::time::Duration::from_millis(20));
-    }
+    let pty = pty_pair(dir.path(), "tty");
+    let (a, b) = (&pty.a, &pty.b);
     let mut sim = Command::new(workspace_bin("host-sim"))
         .args(["stream", "--acq"])
         .arg(&acq)
         .arg("--serial")
-        .arg(&a)
+        .arg(a)
         .args([
             "--fault",
             "corrupt:0",
@@ -132,7 +95,7 @@ fn serial_line_over_a_pty_pair() {
     let out = dir.path().join("rx");
     let rx = Command::new(workspace_bin("dbtor-receive"))
         .arg("--serial")
-        .arg(&b)
+        .arg(b)
         .arg("--out")
         .arg(&out)
         .args(["--timeout-s", "20"])
@@ -141,8 +104,7 @@ fn serial_line_over_a_pty_pair() {
     // The receiver's output is what counts; do not wait on the gantry.
     let _ = sim.kill();
     let _ = sim.wait();
-    let _ = socat.kill();
-    let _ = socat.wait();
+    drop(pty);
     assert!(
         rx.status.success(),
         "{}",
