@@ -9,11 +9,11 @@
 #  3. host-sim stream | dbtor-receive: the gantry's projection stream
 #     (GANTRY_INTERFACE.md) over loopback TCP, two processes; the firmware
 #     acknowledges every frame and spools the acquisition atomically.
-#  4. dbtor-process: per-slice reconstruction, tissue classification,
-#     glandularity, Monte Carlo MGD (25 views, patient-specific and model
-#     breast, 1 % uncertainty), dose SR and density SR to the output folder.
-#     The reconstructor is MLTR (the paper's baseline) until the trained DBToR
-#     model ships (issue #4): density and dose are therefore MLTR-quality.
+#  4. dbtor-process: per-slice DBToR reconstruction with the shipped model
+#     (models/dbtor-x4, checksums verified at load; DBTOR_PRECISION=fp32|int8,
+#     default fp32: int8 costs SSIM at this training stage, eval/README.md), tissue classification, glandularity, Monte Carlo MGD (25
+#     views, patient-specific and model breast, 1 % uncertainty), dose SR and
+#     density SR to the output folder.
 #  5. Validation: every report is read back (dbtor-diag report) and, where
 #     installed, checked with dciodvfy and dsrdump (apt-get install dicom3tools
 #     dcmtk; .ci/run installs them).
@@ -32,7 +32,8 @@ PORT=$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0));
 SIM=$!
 ./target/release/dbtor-receive --connect "127.0.0.1:$PORT" --out "$OUT/spool/acquisition-1"
 wait "$SIM"
-./target/release/dbtor-process "$OUT/spool/acquisition-1" --out "$OUT/reports" "$@" > "$OUT/summary.json"
+./target/release/dbtor-process "$OUT/spool/acquisition-1" --out "$OUT/reports" \
+    --model models/dbtor-x4 --precision "${DBTOR_PRECISION:-fp32}" "$@" > "$OUT/summary.json"
 python3 - "$OUT/summary.json" "$OUT/gantry-acquisition/acquisition.json" <<'PY' || cat "$OUT/summary.json"
 import json, sys
 d = json.load(open(sys.argv[1]))

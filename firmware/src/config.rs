@@ -142,7 +142,7 @@ pub struct ReconConfig {
 }
 
 fn default_precision() -> String {
-    "int8".into()
+    "fp32".into()
 }
 fn default_iterations() -> usize {
     100
