@@ -235,6 +235,25 @@ fn sigkill_mid_processing_then_restart_reports_exactly_once() {
         .unwrap();
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["status"]["processed"], 1, "{v}");
+    // The service engineer's offline replay of the spooled acquisition
+    // reproduces the reported glandularity (same reconstructor and options).
+    let out = Command::new(workspace_bin("dbtor-diag"))
+        .arg("replay")
+        .arg(dir.path().join("spool/done").join(&id))
+        .args(["--iterations", "20", "--dose-uncertainty", "0.2", "--json"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(
+        v["glandularity_labels"], v["stored_result"]["glandularity_labels"],
+        "{v}"
+    );
+    assert_eq!(v["mgd_mgy"], v["stored_result"]["mgd_mgy"], "{v}");
 }
 
 #[test]

@@ -9,6 +9,9 @@
 //! dbtor-diag model DIR [--precision fp32|int8] [--json]   # checksums + stored fixtures of a DBToR model
 //! dbtor-diag status (--config FILE | --status FILE) [--json]  # the daemon's state, results and faults
 //! dbtor-diag config FILE                   # validate a daemon configuration and print it
+//! dbtor-diag replay ENTRY [--model DIR [--precision P]] [--iterations N] [--dose-uncertainty U] [--json]
+//!                                          # reprocess a spooled acquisition offline (nothing is sent)
+//! dbtor-diag bench [--model DIR] [--reps N] [--json]   # projector and DBToR slice timings on this PC
 //! ```
 //! Exit codes: 0 all checks passed, 1 a check failed, 2 bad usage or input.
 
@@ -46,11 +49,23 @@ fn load_geometry(args: &[String]) -> Result<Geometry> {
     Ok(g.binned(binning)?)
 }
 
+/// `--key value` from `rest`.
+fn opt<'a>(rest: &'a [String], key: &str) -> Option<&'a String> {
+    rest.iter()
+        .position(|a| a == key)
+        .and_then(|i| rest.get(i + 1))
+}
+
+fn median_ms(mut v: Vec<f64>) -> f64 {
+    v.sort_by(|a, b| a.total_cmp(b));
+    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+}
+
 fn run() -> Result<bool> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let Some(cmd) = args.first() else {
         bail!(
-            "usage: dbtor-diag <selftest|geometry|report|echo|modbus|model|status|config> [--geometry FILE.toml] [--binning N] [--json] [FILE.dcm | AET@host:port | HOST:PORT]"
+            "usage: dbtor-diag <selftest|geometry|report|echo|modbus|model|status|config|replay|bench> [--geometry FILE.toml] [--binning N] [--json] [FILE.dcm | AET@host:port | HOST:PORT]"
         );
     };
     let rest = &args[1..];
@@ -193,6 +208,160 @@ fn run() -> Result<bool> {
                 }
             }
             Ok(healthy)
+        }
+        "replay" => {
+            let entry = rest
+                .first()
+                .filter(|a| !a.starts_with("--"))
+                .context("usage: dbtor-diag replay ENTRY [--model DIR [--precision P]] [--iterations N] [--json]")?;
+            let entry = std::path::Path::new(entry);
+            let acq = dbt_store::acquisition::read_acquisition(entry)?;
+            let mut opts = dbtor_firmware::pipeline::PipelineOptions::default();
+            if let Some(n) = opt(rest, "--iterations") {
+                opts.mltr_iterations = n.parse().context("--iterations")?;
+            }
+            if let Some(u) = opt(rest, "--dose-uncertainty") {
+                opts.dose_uncertainty = u.parse().context("--dose-uncertainty")?;
+            }
+            if let Some(dir) = opt(rest, "--model") {
+                let p: dbt_dbtor::Precision = opt(rest, "--precision")
+                    .map(|s| s.parse())
+                    .unwrap_or(Ok(dbt_dbtor::Precision::Fp32))
+                    .map_err(anyhow::Error::msg)?;
+                opts.dbtor = Some(std::sync::Arc::new(dbt_dbtor::Dbtor::load(
+                    std::path::Path::new(dir),
+                    p,
+                )?));
+            }
+            let t = std::time::Instant::now();
+            eprintln!(
+                "replaying {} ({} slices) ...",
+                entry.display(),
+                acq.header.slices
+            );
+            let r = dbtor_firmware::pipeline::process(&acq, &opts)?;
+            let stored: Option<serde_json::Value> = std::fs::read(entry.join("result.json"))
+                .ok()
+                .and_then(|b| serde_json::from_slice(&b).ok());
+            let out = serde_json::json!({
+                "entry": entry.display().to_string(),
+                "reconstructor": r.reconstructor,
+                "seconds": t.elapsed().as_secs_f64(),
+                "glandularity_labels": r.density.glandularity_labels,
+                "glandularity_partial_volume": r.density.glandularity_partial_volume,
+                "mgd_mgy": r.mgd_mgy,
+                "model_mgd_mgy": r.model_mgd_mgy,
+                "stored_result": stored,
+            });
+            if json {
+                println!("{out}");
+            } else {
+                println!(
+                    "replay of {} ({}, {:.1} s)",
+                    entry.display(),
+                    r.reconstructor,
+                    t.elapsed().as_secs_f64()
+                );
+                let st = |k: &str| {
+                    stored
+                        .as_ref()
+                        .and_then(|v| v[k].as_f64())
+                        .map(|x| format!("{x:.3}"))
+                        .unwrap_or("-".into())
+                };
+                println!("{:<28} {:>10} {:>10}", "", "replay", "stored");
+                println!(
+                    "{:<28} {:>10.3} {:>10}",
+                    "glandularity (labels)",
+                    r.density.glandularity_labels,
+                    st("glandularity_labels")
+                );
+                println!(
+                    "{:<28} {:>10.3} {:>10}",
+                    "glandularity (partial vol.)",
+                    r.density.glandularity_partial_volume,
+                    st("glandularity_partial_volume")
+                );
+                println!(
+                    "{:<28} {:>10.3} {:>10}",
+                    "MGD, mGy",
+                    r.mgd_mgy,
+                    st("mgd_mgy")
+                );
+                println!(
+                    "{:<28} {:>10.3} {:>10}",
+                    "model-breast MGD, mGy",
+                    r.model_mgd_mgy,
+                    st("model_mgd_mgy")
+                );
+            }
+            Ok(true)
+        }
+        "bench" => {
+            let reps: usize = opt(rest, "--reps")
+                .map(|s| s.parse())
+                .unwrap_or(Ok(5))
+                .context("--reps")?;
+            let g = Geometry::paper();
+            let p = dbt_projector::Projector::new(&g);
+            let x = vec![0.05f32; g.n_pixels()];
+            let mut y = vec![0f32; g.n_rays()];
+            let mut back = vec![0f32; g.n_pixels()];
+            let (mut fw, mut ad) = (Vec::new(), Vec::new());
+            for _ in 0..reps.max(1) {
+                let t = std::time::Instant::now();
+                p.forward(&x, &mut y)?;
+                fw.push(t.elapsed().as_secs_f64() * 1e3);
+                let t = std::time::Instant::now();
+                p.adjoint(&y, &mut back)?;
+                ad.push(t.elapsed().as_secs_f64() * 1e3);
+            }
+            let mut rows = vec![
+                (
+                    "projector forward, paper geometry".to_string(),
+                    median_ms(fw),
+                ),
+                (
+                    "projector adjoint, paper geometry".to_string(),
+                    median_ms(ad),
+                ),
+            ];
+            if let Some(dir) = opt(rest, "--model") {
+                let dir = std::path::Path::new(dir);
+                for prec in [dbt_dbtor::Precision::Fp32, dbt_dbtor::Precision::Int8] {
+                    let m = dbt_dbtor::Dbtor::load(dir, prec)?;
+                    let mg = m.geometry().clone();
+                    let g0 = vec![1.0f32; mg.n_rays()];
+                    let mut v = Vec::new();
+                    for k in 0..reps.max(1) {
+                        eprint!("\rDBToR {prec}: slice {}/{}", k + 1, reps.max(1));
+                        let t = std::time::Instant::now();
+                        m.reconstruct(&g0, 45.0)?;
+                        v.push(t.elapsed().as_secs_f64() * 1e3);
+                    }
+                    eprintln!();
+                    rows.push((
+                        format!(
+                            "DBToR slice {prec}, {}x{} px",
+                            mg.image.columns, mg.image.rows
+                        ),
+                        median_ms(v),
+                    ));
+                }
+            }
+            if json {
+                let o: serde_json::Map<String, serde_json::Value> = rows
+                    .iter()
+                    .map(|(k, v)| (k.clone(), serde_json::json!(v)))
+                    .collect();
+                println!("{}", serde_json::json!({"reps": reps, "median_ms": o}));
+            } else {
+                println!("{:<44} {:>12}", "operation (median of reps)", "ms");
+                for (k, v) in &rows {
+                    println!("{k:<44} {v:>12.2}");
+                }
+            }
+            Ok(true)
         }
         "model" => {
             let dir = rest
