@@ -8,17 +8,21 @@ pub fn free_port() -> u16 {
         .unwrap_or(0)
 }
 
-/// A workspace binary (`host-sim`, or one of the firmware's), (re)built first:
-/// `cargo test` does not rebuild other packages' binaries, and a stale one
-/// would test old code. A no-op when fresh (cargo does not hold the build
-/// lock while tests run).
+/// A workspace binary (`host-sim`, or one of the firmware's), (re)built first
+/// in release mode: `cargo test` does not rebuild other packages' binaries,
+/// and a stale one would test old code; release, because the processes run
+/// real reconstructions and Monte Carlo (the unoptimised build is 20x slower)
+/// and it is the build that ships (the main job and the smoke test build it
+/// too). A no-op when fresh (cargo does not hold the build lock while tests
+/// run).
 pub fn workspace_bin(name: &str) -> std::path::PathBuf {
     let exe = std::env::current_exe().expect("test executable path");
     let dir = exe
         .parent()
         .and_then(|d| d.parent())
-        .expect("target profile folder")
-        .to_path_buf();
+        .and_then(|d| d.parent())
+        .expect("target folder")
+        .join("release");
     let pkg = if name == "host-sim" {
         "host-sim"
     } else {
@@ -26,10 +30,7 @@ pub fn workspace_bin(name: &str) -> std::path::PathBuf {
     };
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
     let mut c = std::process::Command::new(cargo);
-    c.args(["build", "-q", "-p", pkg, "--bin", name]);
-    if dir.ends_with("release") {
-        c.arg("--release");
-    }
+    c.args(["build", "-q", "--release", "-p", pkg, "--bin", name]);
     let ok = c.status().map(|s| s.success()).unwrap_or(false);
     assert!(ok, "building {name}");
     dir.join(name)
