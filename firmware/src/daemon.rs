@@ -439,6 +439,13 @@ impl Daemon {
         }
     }
 
+    /// Record a fault for entry `id` and keep it in `faulted/` with the reason.
+    fn reject(&mut self, id: &str, kind: &str, msg: String) {
+        self.fault(Some(id), kind, msg.clone());
+        let note = serde_json::json!({"kind": kind, "message": msg});
+        self.move_entry(id, "faulted", "fault.json", &note);
+    }
+
     /// Check, process and deliver one spooled acquisition.
     fn process_entry(&mut self, id: &str) {
         let _span = tracing::info_span!("acquisition", id).entered();
@@ -448,13 +455,7 @@ impl Daemon {
             Ok(a) => a,
             Err(e) => {
                 let msg = format!("spooled acquisition unreadable: {e}");
-                self.fault(Some(id), "spool", msg.clone());
-                self.move_entry(
-                    id,
-                    "faulted",
-                    "fault.json",
-                    &serde_json::json!({"kind": "spool", "message": msg}),
-                );
+                self.reject(id, "spool", msg);
                 return;
             }
         };
@@ -464,13 +465,7 @@ impl Daemon {
             .and_then(|b| serde_json::from_slice(&b).ok())
             .unwrap_or(serde_json::Value::Null);
         if let Some(msg) = gantry["data_fault"].as_str().map(String::from) {
-            self.fault(Some(id), "data", msg.clone());
-            self.move_entry(
-                id,
-                "faulted",
-                "fault.json",
-                &serde_json::json!({"kind": "data", "message": msg}),
-            );
+            self.reject(id, "data", msg);
             return;
         }
         if self.cfg.modbus.transport != "off" {
@@ -494,13 +489,7 @@ impl Daemon {
                 Some(_) => None,
             };
             if let Some(msg) = msg {
-                self.fault(Some(id), "thickness", msg.clone());
-                self.move_entry(
-                    id,
-                    "faulted",
-                    "fault.json",
-                    &serde_json::json!({"kind": "thickness", "message": msg}),
-                );
+                self.reject(id, "thickness", msg);
                 return;
             }
         }
@@ -509,13 +498,7 @@ impl Daemon {
             Ok(r) => r,
             Err(e) => {
                 let msg = e.to_string();
-                self.fault(Some(id), "processing", msg.clone());
-                self.move_entry(
-                    id,
-                    "faulted",
-                    "fault.json",
-                    &serde_json::json!({"kind": "processing", "message": msg}),
-                );
+                self.reject(id, "processing", msg);
                 return;
             }
         };
