@@ -103,8 +103,9 @@ pub struct Dbtor {
     root: PathBuf,
     precision: Precision,
     projector: Projector,
-    /// In execution order: dual 0, primal 0, dual 1, ...
-    plans: Vec<Plan>,
+    /// In execution order: dual 0, primal 0, dual 1, ..., with the file each
+    /// was loaded from (for error messages).
+    plans: Vec<(Plan, PathBuf)>,
 }
 
 impl std::fmt::Debug for Dbtor {
@@ -155,7 +156,7 @@ impl Dbtor {
                 .map_err(fail)?
                 .into_runnable()
                 .map_err(fail)?;
-            plans.push(plan);
+            plans.push((plan, path));
         }
         tracing::info!(model = %manifest.name, %precision, blocks = plans.len(), "DBToR model loaded");
         Ok(Self {
@@ -192,16 +193,15 @@ impl Dbtor {
         let b = &self.manifest.blocks[k];
         let c = self.manifest.state_channels;
         let (h, w) = shape;
-        let path = || self.root.join(&b.fp32);
+        let (plan, file) = &self.plans[k];
+        let path = || file.clone();
         let fail = |e: TractError| DbtorError::Block {
             path: path(),
             reason: format!("{e:#}"),
         };
         let st = Tensor::from_shape(&[1, c, h, w], state).map_err(fail)?;
         let ax = Tensor::from_shape(&[1, b.aux_channels, h, w], aux).map_err(fail)?;
-        let out = self.plans[k]
-            .run(tvec![st.into(), ax.into()])
-            .map_err(fail)?;
+        let out = plan.run(tvec![st.into(), ax.into()]).map_err(fail)?;
         let view = out[0].to_plain_array_view::<f32>().map_err(fail)?;
         if view.len() != c * h * w {
             return Err(DbtorError::Block {

@@ -168,10 +168,6 @@ fn load_models(dir: Option<&std::path::Path>, precisions: &str) -> Result<Vec<(S
     Ok(out)
 }
 
-fn line_for_model(counts: &[f32], flux: f64) -> Vec<f32> {
-    dbt_acquisition::log_transform(counts, flux)
-}
-
 fn main() -> Result<()> {
     tracing_subscriber::fmt()
         .with_env_filter(
@@ -516,7 +512,10 @@ fn main() -> Result<()> {
                 "phantom (0..0.09 /mm), sinogram, MLTR 100 it. (same window), FBP (own window)",
             );
             if let Some(m) = &model {
-                let x = m.reconstruct(&line_for_model(&s.counts[0], s.flux[0]), s.thickness_mm)?;
+                let x = m.reconstruct(
+                    &dbt_acquisition::log_transform(&s.counts[0], s.flux[0]),
+                    s.thickness_mm,
+                )?;
                 let diff: Vec<f32> = x.iter().zip(&s.mu).map(|(a, b)| a - b).collect();
                 panels.push(Panel {
                     data: x,
