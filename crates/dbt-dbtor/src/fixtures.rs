@@ -7,7 +7,8 @@
 //!   unit (`x_scale`, about 0.04 /mm, so a few 1e-6 /mm). Both compute the same
 //!   graph and differ only in summation order (CSR vs matrix-free projector,
 //!   MKL vs tract convolutions): about 1e-6 relative per step over 20 blocks.
-//! - int8 against onnxruntime on the same QDQ files. The two runtimes may
+//! - int8 against onnxruntime on the same QDQ files (tract's and the fast
+//!   path's integer kernels alike). The runtimes may
 //!   round a requantised activation one step apart (and such a step then
 //!   travels through the later blocks), so they are not compared to each
 //!   other directly but by their distance to the fp32 network they
@@ -105,7 +106,8 @@ pub fn check_fixtures(model: &Dbtor, dir: &Path) -> Result<Vec<FixtureCheck>, Db
                     rms_to_truth_per_mm: rms(&x, &truth),
                     pass: d / xs < FP32_TOL_NETWORK_UNITS,
                     rule: format!(
-                        "max |tract - PyTorch| = {:.2e} network units < {FP32_TOL_NETWORK_UNITS:.0e}",
+                        "max |{} - PyTorch| = {:.2e} network units < {FP32_TOL_NETWORK_UNITS:.0e}",
+                        model.engine(),
                         d / xs
                     ),
                 }
@@ -122,7 +124,8 @@ pub fn check_fixtures(model: &Dbtor, dir: &Path) -> Result<Vec<FixtureCheck>, Db
                     rms_to_truth_per_mm: e_tract,
                     pass: d_tract <= 1.5 * d_ort && e_tract <= 1.05 * e_ort,
                     rule: format!(
-                        "RMS to fp32: tract int8 {d_tract:.2e} vs ort int8 {d_ort:.2e} /mm (limit 1.5x); error to phantom {e_tract:.3e} vs ort's {e_ort:.3e} /mm (limit 1.05x)"
+                        "RMS to fp32: {} int8 {d_tract:.2e} vs ort int8 {d_ort:.2e} /mm (limit 1.5x); error to phantom {e_tract:.3e} vs ort's {e_ort:.3e} /mm (limit 1.05x)",
+                        model.engine()
                     ),
                 }
             }

@@ -11,6 +11,7 @@
 //! operator is `P / ||P||`; `g_n = (g - g_mean) / g_std`; the output is
 //! `f[0] * x_scale` in 1/mm.
 
+mod fast;
 mod fixtures;
 mod manifest;
 
@@ -18,6 +19,7 @@ pub use fixtures::{check_fixtures, FixtureCheck, FP32_TOL_NETWORK_UNITS};
 
 pub use manifest::{sha256_file, BlockEntry, Fixture, ModelManifest, Normalisation, Role, FORMAT};
 
+use dbt_conv::{Fp32Block, Fp32Workspace, Int8Block, Int8Workspace, Kernel};
 use dbt_geometry::Geometry;
 use dbt_projector::Projector;
 use std::path::{Path, PathBuf};
@@ -95,17 +97,81 @@ impl std::fmt::Display for Precision {
     }
 }
 
+/// Which executor runs the blocks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Engine {
+    /// tract-onnx: any graph; the reference executor.
+    Tract,
+    /// `dbt-conv`: the fused kernels (AVX-512 FMA / VNNI where the CPU has
+    /// them, portable otherwise) on the weights read out of the same files.
+    Fast,
+}
+
+impl std::str::FromStr for Engine {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "tract" => Ok(Self::Tract),
+            "fast" => Ok(Self::Fast),
+            other => Err(format!("unknown engine {other:?} (fast or tract)")),
+        }
+    }
+}
+
+impl std::fmt::Display for Engine {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Tract => "tract",
+            Self::Fast => "fast",
+        })
+    }
+}
+
 type Plan = std::sync::Arc<TypedSimplePlan>;
+
+enum Blocks {
+    /// tract plans with the file each was loaded from (for error messages).
+    Tract(Vec<(Plan, PathBuf)>),
+    Fp32(Vec<(Fp32Block, PathBuf)>),
+    Int8(Vec<(Int8Block, PathBuf)>),
+}
+
+enum Workspaces {
+    None,
+    Fp32 {
+        dual: Fp32Workspace,
+        primal: Fp32Workspace,
+    },
+    Int8 {
+        dual: Int8Workspace,
+        primal: Int8Workspace,
+    },
+}
+
+/// Every buffer one slice needs, made on the first slice and reused: after
+/// it, the fast engine allocates nothing per slice.
+struct Buffers {
+    gn: Vec<f32>,
+    mask: Vec<f32>,
+    pm: Vec<f32>,
+    h: Vec<f32>,
+    f: Vec<f32>,
+    aux_d: Vec<f32>,
+    aux_p: Vec<f32>,
+    ws: Workspaces,
+}
 
 /// A loaded, verified model ready to reconstruct slices.
 pub struct Dbtor {
     manifest: ModelManifest,
     root: PathBuf,
     precision: Precision,
+    engine: Engine,
     projector: Projector,
-    /// In execution order: dual 0, primal 0, dual 1, ..., with the file each
-    /// was loaded from (for error messages).
-    plans: Vec<(Plan, PathBuf)>,
+    /// In execution order: dual 0, primal 0, dual 1, ...
+    blocks: Blocks,
+    buffers: std::sync::Mutex<Option<Box<Buffers>>>,
 }
 
 impl std::fmt::Debug for Dbtor {
@@ -114,58 +180,208 @@ impl std::fmt::Debug for Dbtor {
             .field("model", &self.manifest.name)
             .field("root", &self.root)
             .field("precision", &self.precision)
-            .field("blocks", &self.plans.len())
+            .field("engine", &self.engine)
+            .field("blocks", &self.manifest.blocks.len())
             .finish()
     }
 }
 
 impl Dbtor {
+    /// [`Dbtor::load_with`] the tract engine (the reference).
+    pub fn load(dir: &Path, precision: Precision) -> Result<Self, DbtorError> {
+        Self::load_with(dir, precision, Engine::Tract)
+    }
+
     /// Load the model in `dir` (manifest.json and the files it names), verify
     /// every checksum, and prepare the blocks of `precision` for the model's
-    /// geometry.
-    pub fn load(dir: &Path, precision: Precision) -> Result<Self, DbtorError> {
+    /// geometry on `engine`.
+    pub fn load_with(dir: &Path, precision: Precision, engine: Engine) -> Result<Self, DbtorError> {
         let manifest = ModelManifest::load(dir)?;
         manifest.verify_files(dir)?;
-        let g = &manifest.geometry;
+        let g = manifest.geometry.clone();
+        Self::load_on(dir, manifest, precision, engine, &g)
+    }
+
+    /// As [`Dbtor::load_with`], but run the (fully convolutional) blocks on
+    /// another geometry: for benchmarks at the paper's full size with a model
+    /// trained binned. The normalisation stays the model's.
+    pub fn load_for_geometry(
+        dir: &Path,
+        precision: Precision,
+        engine: Engine,
+        geometry: &Geometry,
+    ) -> Result<Self, DbtorError> {
+        let manifest = ModelManifest::load(dir)?;
+        manifest.verify_files(dir)?;
+        let mut m = manifest;
+        m.geometry = geometry.clone();
+        let g = geometry.clone();
+        Self::load_on(dir, m, precision, engine, &g)
+    }
+
+    fn load_on(
+        dir: &Path,
+        manifest: ModelManifest,
+        precision: Precision,
+        engine: Engine,
+        g: &Geometry,
+    ) -> Result<Self, DbtorError> {
         let (rows, cols) = (g.image.rows, g.image.columns);
         let (views, det) = (g.n_views(), g.n_det());
         let c = manifest.state_channels;
-        let mut plans = Vec::with_capacity(manifest.blocks.len());
-        for b in &manifest.blocks {
+        let files = manifest.blocks.iter().map(|b| {
             let rel = match precision {
                 Precision::Fp32 => &b.fp32,
                 Precision::Int8 => &b.int8,
             };
-            let path = dir.join(rel);
-            let (h, w) = match b.role {
-                Role::Dual => (views, det),
-                Role::Primal => (rows, cols),
-            };
-            let fail = |e: TractError| DbtorError::Block {
+            (b, dir.join(rel))
+        });
+        let conv_err = |path: &Path| {
+            let path = path.to_path_buf();
+            move |e: dbt_conv::ConvError| DbtorError::Block {
                 path: path.clone(),
-                reason: format!("{e:#}"),
-            };
-            let plan = tract_onnx::onnx()
-                .model_for_path(&path)
-                .map_err(fail)?
-                .with_input_fact(0, f32::fact([1, c, h, w]).into())
-                .map_err(fail)?
-                .with_input_fact(1, f32::fact([1, b.aux_channels, h, w]).into())
-                .map_err(fail)?
-                .into_optimized()
-                .map_err(fail)?
-                .into_runnable()
-                .map_err(fail)?;
-            plans.push((plan, path));
-        }
-        tracing::info!(model = %manifest.name, %precision, blocks = plans.len(), "DBToR model loaded");
-        Ok(Self {
+                reason: format!("fast path: {e}"),
+            }
+        };
+        let blocks = match (engine, precision) {
+            (Engine::Tract, _) => {
+                let mut plans = Vec::with_capacity(manifest.blocks.len());
+                for (b, path) in files {
+                    let (h, w) = match b.role {
+                        Role::Dual => (views, det),
+                        Role::Primal => (rows, cols),
+                    };
+                    let fail = |e: TractError| DbtorError::Block {
+                        path: path.clone(),
+                        reason: format!("{e:#}"),
+                    };
+                    let plan = tract_onnx::onnx()
+                        .model_for_path(&path)
+                        .map_err(fail)?
+                        .with_input_fact(0, f32::fact([1, c, h, w]).into())
+                        .map_err(fail)?
+                        .with_input_fact(1, f32::fact([1, b.aux_channels, h, w]).into())
+                        .map_err(fail)?
+                        .into_optimized()
+                        .map_err(fail)?
+                        .into_runnable()
+                        .map_err(fail)?;
+                    plans.push((plan, path));
+                }
+                Blocks::Tract(plans)
+            }
+            (Engine::Fast, Precision::Fp32) => {
+                let mut v = Vec::new();
+                for (b, path) in files {
+                    let w = fast::fp32_block(&path, c, b.aux_channels)?;
+                    let blk = Fp32Block::new(&w, Kernel::best_fp32()).map_err(conv_err(&path))?;
+                    v.push((blk, path));
+                }
+                Blocks::Fp32(v)
+            }
+            (Engine::Fast, Precision::Int8) => {
+                let mut v = Vec::new();
+                for (b, path) in files {
+                    let w = fast::int8_block(&path, c, b.aux_channels)?;
+                    let blk = Int8Block::new(&w, Kernel::best_int8()).map_err(conv_err(&path))?;
+                    v.push((blk, path));
+                }
+                Blocks::Int8(v)
+            }
+        };
+        let s = Self {
             projector: Projector::new(g),
             manifest,
             root: dir.to_path_buf(),
             precision,
-            plans,
+            engine,
+            blocks,
+            buffers: std::sync::Mutex::new(None),
+        };
+        tracing::info!(model = %s.manifest.name, %precision, %engine, kernel = s.kernel().unwrap_or("tract"), blocks = s.manifest.blocks.len(), "DBToR model loaded");
+        Ok(s)
+    }
+
+    /// The executor.
+    pub fn engine(&self) -> Engine {
+        self.engine
+    }
+
+    /// The fast path's kernel ("avx512" or "portable"), `None` on tract.
+    pub fn kernel(&self) -> Option<&'static str> {
+        match &self.blocks {
+            Blocks::Tract(_) => None,
+            Blocks::Fp32(v) => v.first().map(|b| b.0.kernel().name()),
+            Blocks::Int8(v) => v.first().map(|b| b.0.kernel().name()),
+        }
+    }
+
+    fn new_buffers(&self) -> Box<Buffers> {
+        let g = &self.manifest.geometry;
+        let (n_img, n_sino) = (g.n_pixels(), g.n_rays());
+        let c = self.manifest.state_channels;
+        let (rows, cols, views, det) = (g.image.rows, g.image.columns, g.n_views(), g.n_det());
+        let ws = match &self.blocks {
+            Blocks::Tract(_) => Workspaces::None,
+            Blocks::Fp32(v) => {
+                let find = |role| {
+                    v.iter()
+                        .zip(&self.manifest.blocks)
+                        .find(|(_, e)| e.role == role)
+                        .map(|(b, _)| &b.0)
+                };
+                match (find(Role::Dual), find(Role::Primal)) {
+                    (Some(d), Some(p)) => Workspaces::Fp32 {
+                        dual: Fp32Workspace::new(d, views, det),
+                        primal: Fp32Workspace::new(p, rows, cols),
+                    },
+                    _ => Workspaces::None,
+                }
+            }
+            Blocks::Int8(v) => {
+                let find = |role| {
+                    v.iter()
+                        .zip(&self.manifest.blocks)
+                        .find(|(_, e)| e.role == role)
+                        .map(|(b, _)| &b.0)
+                };
+                match (find(Role::Dual), find(Role::Primal)) {
+                    (Some(d), Some(p)) => Workspaces::Int8 {
+                        dual: Int8Workspace::new(d, views, det),
+                        primal: Int8Workspace::new(p, rows, cols),
+                    },
+                    _ => Workspaces::None,
+                }
+            }
+        };
+        Box::new(Buffers {
+            gn: vec![0.0; n_sino],
+            mask: vec![0.0; n_img],
+            pm: vec![0.0; n_sino],
+            h: vec![0.0; c * n_sino],
+            f: vec![0.0; c * n_img],
+            aux_d: vec![0.0; 3 * n_sino],
+            aux_p: vec![0.0; 2 * n_img],
+            ws,
         })
+    }
+
+    /// Bytes of the per-slice buffers (state, aux, workspaces).
+    pub fn slice_buffer_bytes(&self) -> usize {
+        let b = self.new_buffers();
+        let floats = b.gn.len()
+            + b.mask.len()
+            + b.pm.len()
+            + b.h.len()
+            + b.f.len()
+            + b.aux_d.len()
+            + b.aux_p.len();
+        4 * floats
+            + match &b.ws {
+                Workspaces::None => 0,
+                Workspaces::Fp32 { dual, primal } => dual.bytes() + primal.bytes(),
+                Workspaces::Int8 { dual, primal } => dual.bytes() + primal.bytes(),
+            }
     }
 
     /// The manifest.
@@ -183,39 +399,85 @@ impl Dbtor {
         self.precision
     }
 
+    /// `state <- block k(state, aux)` on an `h x w` grid.
     fn run_block(
         &self,
         k: usize,
-        state: &[f32],
+        state: &mut [f32],
         aux: &[f32],
-        shape: (usize, usize),
-    ) -> Result<Vec<f32>, DbtorError> {
+        ws: &mut Workspaces,
+    ) -> Result<(), DbtorError> {
         let b = &self.manifest.blocks[k];
-        let c = self.manifest.state_channels;
-        let (h, w) = shape;
-        let (plan, file) = &self.plans[k];
-        let path = || file.clone();
-        let fail = |e: TractError| DbtorError::Block {
-            path: path(),
-            reason: format!("{e:#}"),
+        let g = &self.manifest.geometry;
+        let (h, w) = match b.role {
+            Role::Dual => (g.n_views(), g.n_det()),
+            Role::Primal => (g.image.rows, g.image.columns),
         };
-        let st = Tensor::from_shape(&[1, c, h, w], state).map_err(fail)?;
-        let ax = Tensor::from_shape(&[1, b.aux_channels, h, w], aux).map_err(fail)?;
-        let out = plan.run(tvec![st.into(), ax.into()]).map_err(fail)?;
-        let view = out[0].to_plain_array_view::<f32>().map_err(fail)?;
-        if view.len() != c * h * w {
-            return Err(DbtorError::Block {
-                path: path(),
-                reason: format!("output has {} values, expected {}", view.len(), c * h * w),
-            });
+        let c = self.manifest.state_channels;
+        let conv_fail = |path: &Path, e: dbt_conv::ConvError| DbtorError::Block {
+            path: path.to_path_buf(),
+            reason: format!("fast path: {e}"),
+        };
+        match (&self.blocks, ws, b.role) {
+            (Blocks::Tract(plans), _, _) => {
+                let (plan, file) = &plans[k];
+                let fail = |e: TractError| DbtorError::Block {
+                    path: file.clone(),
+                    reason: format!("{e:#}"),
+                };
+                let st = Tensor::from_shape(&[1, c, h, w], state).map_err(fail)?;
+                let ax = Tensor::from_shape(&[1, b.aux_channels, h, w], aux).map_err(fail)?;
+                let out = plan.run(tvec![st.into(), ax.into()]).map_err(fail)?;
+                let view = out[0].to_plain_array_view::<f32>().map_err(fail)?;
+                if view.len() != state.len() {
+                    return Err(DbtorError::Block {
+                        path: file.clone(),
+                        reason: format!(
+                            "output has {} values, expected {}",
+                            view.len(),
+                            state.len()
+                        ),
+                    });
+                }
+                state.iter_mut().zip(view.iter()).for_each(|(s, v)| *s = *v);
+                Ok(())
+            }
+            (Blocks::Fp32(v), Workspaces::Fp32 { dual, primal }, role) => {
+                let ws = if role == Role::Dual { dual } else { primal };
+                v[k].0
+                    .run(ws, state, aux)
+                    .map_err(|e| conv_fail(&v[k].1, e))
+            }
+            (Blocks::Int8(v), Workspaces::Int8 { dual, primal }, role) => {
+                let ws = if role == Role::Dual { dual } else { primal };
+                v[k].0
+                    .run(ws, state, aux)
+                    .map_err(|e| conv_fail(&v[k].1, e))
+            }
+            _ => Err(DbtorError::Input(
+                "internal: workspaces do not match the engine".into(),
+            )),
         }
-        Ok(view.iter().copied().collect())
     }
 
     /// Reconstruct one coronal slice from its log-transformed sinogram `g`
     /// (`ln(b / y)`, view-major, on the model's geometry) and the compressed
     /// thickness. Returns attenuation in 1/mm, row-major on the model's image.
     pub fn reconstruct(&self, g: &[f32], thickness_mm: f64) -> Result<Vec<f32>, DbtorError> {
+        let mut out = vec![0.0f32; self.manifest.geometry.n_pixels()];
+        self.reconstruct_into(g, thickness_mm, &mut out)?;
+        Ok(out)
+    }
+
+    /// [`Dbtor::reconstruct`] into `out` (the model's image size). With the
+    /// fast engine nothing is allocated after the first slice: the buffers
+    /// are kept between calls (one set; a concurrent call makes its own).
+    pub fn reconstruct_into(
+        &self,
+        g: &[f32],
+        thickness_mm: f64,
+        out: &mut [f32],
+    ) -> Result<(), DbtorError> {
         let geom = &self.manifest.geometry;
         let n_img = geom.n_pixels();
         let n_sino = geom.n_rays();
@@ -226,6 +488,12 @@ impl Dbtor {
                 n_sino,
                 geom.n_views(),
                 geom.n_det()
+            )));
+        }
+        if out.len() != n_img {
+            return Err(DbtorError::Input(format!(
+                "output has room for {} pixels, the model's image has {n_img}",
+                out.len()
             )));
         }
         if let Some(i) = g.iter().position(|v| !v.is_finite()) {
@@ -239,47 +507,87 @@ impl Dbtor {
                 "thickness {thickness_mm} mm is not a positive number"
             )));
         }
+        let taken = self
+            .buffers
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .take();
+        let mut bufs = match taken {
+            Some(b) => b,
+            None => self.new_buffers(),
+        };
+        // The slice runs on a worker of rayon's pool, so that the parallel
+        // loops inside it queue their jobs on the workers' own deques (which
+        // stop growing after the first slice) instead of pushing each one
+        // through the pool's injector from outside (which allocates a block
+        // every 63 jobs). One job is injected per slice.
+        let span = tracing::Span::current();
+        let r = rayon::scope(|_| span.in_scope(|| self.run_slice(&mut bufs, g, thickness_mm, out)));
+        *self.buffers.lock().unwrap_or_else(|e| e.into_inner()) = Some(bufs);
+        r
+    }
+
+    fn run_slice(
+        &self,
+        b: &mut Buffers,
+        g: &[f32],
+        thickness_mm: f64,
+        out: &mut [f32],
+    ) -> Result<(), DbtorError> {
+        let geom = &self.manifest.geometry;
+        let (n_img, n_sino) = (geom.n_pixels(), geom.n_rays());
         let n = &self.manifest.normalisation;
-        let c = self.manifest.state_channels;
         let ch = &self.manifest.channels;
         let inv_norm = (1.0 / n.operator_norm) as f32;
         let (g_mean, g_std) = (n.g_mean as f32, n.g_std as f32);
-        let gn: Vec<f32> = g.iter().map(|&v| (v - g_mean) / g_std).collect();
-        let mask = dbt_phantom::thickness_mask(geom, thickness_mm);
-        let mut pm = vec![0.0f32; n_sino];
-        self.project(&mask, &mut pm, inv_norm)?;
-
-        let mut h = vec![0.0f32; c * n_sino];
-        let mut f = vec![0.0f32; c * n_img];
-        let mut aux_d = vec![0.0f32; 3 * n_sino];
-        let mut aux_p = vec![0.0f32; 2 * n_img];
-        aux_d[n_sino..2 * n_sino].copy_from_slice(&gn);
-        aux_d[2 * n_sino..].copy_from_slice(&pm);
-        aux_p[n_img..].copy_from_slice(&mask);
-        let sino_shape = (geom.n_views(), geom.n_det());
-        let img_shape = (geom.image.rows, geom.image.columns);
-        for (k, b) in self.manifest.blocks.iter().enumerate() {
-            let _s = tracing::trace_span!("block", role = ?b.role, index = b.index).entered();
-            match b.role {
+        let Buffers {
+            gn,
+            mask,
+            pm,
+            h,
+            f,
+            aux_d,
+            aux_p,
+            ws,
+        } = b;
+        for (d, v) in gn.iter_mut().zip(g) {
+            *d = (v - g_mean) / g_std;
+        }
+        // The thickness mask (dbt_phantom::thickness_mask, in place).
+        let inside = geom.rows_within_thickness(thickness_mm);
+        let cols = geom.image.columns;
+        let first = (geom.image.rows - inside) * cols;
+        mask[..first].fill(0.0);
+        mask[first..].fill(1.0);
+        self.project(mask, pm, inv_norm)?;
+        h.fill(0.0);
+        f.fill(0.0);
+        aux_d[n_sino..2 * n_sino].copy_from_slice(gn);
+        aux_d[2 * n_sino..].copy_from_slice(pm);
+        aux_p[n_img..].copy_from_slice(mask);
+        for (k, blk) in self.manifest.blocks.iter().enumerate() {
+            let _s = tracing::trace_span!("block", role = ?blk.role, index = blk.index).entered();
+            match blk.role {
                 Role::Dual => {
                     let fc = &f[ch.projected * n_img..(ch.projected + 1) * n_img];
-                    let (pf, _) = aux_d.split_at_mut(n_sino);
-                    self.project(fc, pf, inv_norm)?;
-                    h = self.run_block(k, &h, &aux_d, sino_shape)?;
+                    self.project(fc, &mut aux_d[..n_sino], inv_norm)?;
+                    self.run_block(k, h, aux_d, ws)?;
                 }
                 Role::Primal => {
                     let hc = &h[ch.backprojected * n_sino..(ch.backprojected + 1) * n_sino];
-                    let (bh, _) = aux_p.split_at_mut(n_img);
-                    self.backproject(hc, bh, inv_norm)?;
-                    f = self.run_block(k, &f, &aux_p, img_shape)?;
+                    self.backproject(hc, &mut aux_p[..n_img], inv_norm)?;
+                    self.run_block(k, f, aux_p, ws)?;
                 }
             }
         }
         let xs = n.x_scale_per_mm as f32;
-        Ok(f[ch.output * n_img..(ch.output + 1) * n_img]
-            .iter()
-            .map(|v| v * xs)
-            .collect())
+        for (o, v) in out
+            .iter_mut()
+            .zip(&f[ch.output * n_img..(ch.output + 1) * n_img])
+        {
+            *o = v * xs;
+        }
+        Ok(())
     }
 
     fn project(&self, img: &[f32], out: &mut [f32], scale: f32) -> Result<(), DbtorError> {

@@ -3,21 +3,21 @@
 //! written by `training/dbtor/export.py`), and the refusal of tampered or
 //! incomplete model folders.
 
-use dbt_dbtor::{check_fixtures, Dbtor, DbtorError, ModelManifest, Precision};
+use dbt_dbtor::{check_fixtures, Dbtor, DbtorError, Engine, ModelManifest, Precision};
 use std::path::{Path, PathBuf};
 
 fn model_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/dbtor-x4")
 }
 
-fn check(p: Precision) {
+fn check(p: Precision, e: Engine) {
     let dir = model_dir();
-    let m = Dbtor::load(&dir, p).unwrap();
+    let m = Dbtor::load_with(&dir, p, e).unwrap();
     let checks = check_fixtures(&m, &dir).unwrap();
     assert!(!checks.is_empty(), "the model has no fixtures");
     for c in &checks {
         eprintln!(
-            "{} {}: {} -> {}",
+            "{} {} {e}: {} -> {}",
             c.name,
             c.precision,
             c.rule,
@@ -30,13 +30,101 @@ fn check(p: Precision) {
 /// fp32: tract + Rust projector against PyTorch (tolerance in `fixtures.rs`).
 #[test]
 fn fp32_matches_pytorch() {
-    check(Precision::Fp32);
+    check(Precision::Fp32, Engine::Tract);
+}
+
+/// fp32: the fast path + Rust projector against PyTorch, same tolerance.
+#[test]
+fn fast_fp32_matches_pytorch() {
+    check(Precision::Fp32, Engine::Fast);
+}
+
+/// int8: the fast path's integer kernels against onnxruntime, same rule.
+#[test]
+fn fast_int8_matches_onnxruntime() {
+    check(Precision::Int8, Engine::Fast);
+}
+
+/// The fast path against tract on the same files and inputs (the fixture
+/// sinograms): fp32 max relative error 1e-4 of the image's range (both sum
+/// the same products in another order: ~1e-6 per block over 20 blocks);
+/// int8: the runtimes may round a requantized activation one step apart and
+/// such a step travels through the later blocks, so the fast path must be no
+/// further from tract or onnxruntime than those two are from each other
+/// (x 1.5), with the same RMS error to the phantom within 5 %.
+#[test]
+fn fast_path_matches_tract() {
+    let dir = model_dir();
+    let m = ModelManifest::load(&dir).unwrap();
+    let fx = &m.fixtures[0];
+    let g = &m.geometry;
+    let read = |k: &str, n: usize| -> Vec<f32> {
+        let b = std::fs::read(dir.join(&fx.files[k])).unwrap();
+        assert_eq!(b.len(), 4 * n);
+        b.chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect()
+    };
+    let sino = read("sinogram", g.n_rays());
+    let truth = read("truth", g.n_pixels());
+    let rms = |a: &[f32], b: &[f32]| {
+        (a.iter()
+            .zip(b)
+            .map(|(x, y)| ((x - y) as f64).powi(2))
+            .sum::<f64>()
+            / a.len() as f64)
+            .sqrt()
+    };
+    let run = |p, e| {
+        Dbtor::load_with(&dir, p, e)
+            .unwrap()
+            .reconstruct(&sino, fx.thickness_mm)
+            .unwrap()
+    };
+    let (t32, f32_) = (
+        run(Precision::Fp32, Engine::Tract),
+        run(Precision::Fp32, Engine::Fast),
+    );
+    let range = t32.iter().fold(0.0f32, |m, v| m.max(v.abs())) as f64;
+    let worst = t32
+        .iter()
+        .zip(&f32_)
+        .map(|(a, b)| (a - b).abs() as f64)
+        .fold(0.0, f64::max);
+    eprintln!(
+        "fp32: max |fast - tract| = {:.2e} of range {range:.3e} /mm",
+        worst
+    );
+    assert!(
+        worst <= 1e-4 * range,
+        "fp32 fast vs tract: {worst:e} > 1e-4 x {range:e}"
+    );
+    let (t8, f8) = (
+        run(Precision::Int8, Engine::Tract),
+        run(Precision::Int8, Engine::Fast),
+    );
+    let (et, ef) = (rms(&t8, &truth), rms(&f8, &truth));
+    let ort = read("ort_int8", g.n_pixels());
+    let (d_ft, d_to, d_fo) = (rms(&f8, &t8), rms(&t8, &ort), rms(&f8, &ort));
+    eprintln!(
+        "int8: RMS to phantom tract {et:.4e}, fast {ef:.4e}; RMS fast-tract {d_ft:.3e}, tract-ort {d_to:.3e}, fast-ort {d_fo:.3e} /mm"
+    );
+    assert!(
+        ef <= 1.05 * et,
+        "int8 fast error to phantom {ef:e} vs tract's {et:e}"
+    );
+    // Three int8 runtimes on one QDQ graph: the fast path is no further from
+    // either of the others than they are from each other (x 1.5).
+    assert!(
+        d_ft.max(d_fo) <= 1.5 * d_to,
+        "int8 fast vs tract {d_ft:e}, vs ort {d_fo:e}; tract vs ort {d_to:e}"
+    );
 }
 
 /// int8: tract against onnxruntime on the same QDQ files.
 #[test]
 fn int8_matches_onnxruntime() {
-    check(Precision::Int8);
+    check(Precision::Int8, Engine::Tract);
 }
 
 fn copy_model(to: &Path) {

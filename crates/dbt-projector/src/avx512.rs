@@ -158,13 +158,37 @@ struct RowRays {
 /// Requires AVX-512F. `out` holds whole rows starting at row `i0`.
 #[target_feature(enable = "avx512f")]
 pub(crate) unsafe fn adjoint_rows(t: &RayTable, sino: &[f32], i0: usize, out: &mut [f32]) {
-    let (nx, n_det) = (t.nx, t.n_det);
+    let n_det = t.n_det;
     let n = n_det + 2 * PAD;
-    let mut s = RowRays {
-        j: vec![NO_PIXEL; n],
-        c0: vec![0.0; n],
-        c1: vec![0.0; n],
-    };
+    // Per-thread scratch, reset (not reallocated) on every call: after the
+    // first call on a thread the adjoint allocates nothing (the DBToR slice
+    // loop's no-allocation rule).
+    thread_local! {
+        static SCRATCH: std::cell::RefCell<RowRays> = const {
+            std::cell::RefCell::new(RowRays { j: Vec::new(), c0: Vec::new(), c1: Vec::new() })
+        };
+    }
+    SCRATCH.with(|cell| {
+        let mut s = cell.borrow_mut();
+        s.j.clear();
+        s.j.resize(n, NO_PIXEL);
+        s.c0.clear();
+        s.c0.resize(n, 0.0);
+        s.c1.clear();
+        s.c1.resize(n, 0.0);
+        adjoint_rows_with(t, sino, i0, out, &mut s);
+    });
+}
+
+#[target_feature(enable = "avx512f")]
+unsafe fn adjoint_rows_with(
+    t: &RayTable,
+    sino: &[f32],
+    i0: usize,
+    out: &mut [f32],
+    s: &mut RowRays,
+) {
+    let (nx, n_det) = (t.nx, t.n_det);
     out.fill(0.0);
     for (di, row_out) in out.chunks_exact_mut(nx).enumerate() {
         let i = i0 + di;
@@ -172,8 +196,8 @@ pub(crate) unsafe fn adjoint_rows(t: &RayTable, sino: &[f32], i0: usize, out: &m
             let map = t.inv_map[v * t.nz + i];
             let ys = &sino[v * n_det..(v + 1) * n_det];
             if map.count > 0 {
-                ray_pass(t, v, i, ys, &mut s);
-                pixel_pass(t, &map, &s, row_out);
+                ray_pass(t, v, i, ys, s);
+                pixel_pass(t, &map, s, row_out);
             }
             if t.view_has_slow[v] {
                 for k in 0..n_det {

@@ -1,0 +1,508 @@
+//! fp32 blocks: packing, the workspace, the tile kernels and the block loop.
+
+use crate::{BlockWeights, Conv3x3, ConvError, Kernel};
+use rayon::prelude::*;
+
+/// Lanes of an AVX-512 vector of f32.
+pub(crate) const L: usize = 16;
+/// Output channels per register group: 4 vectors.
+const GROUP: usize = 4 * L;
+/// Pixels per tile when a group of 64 channels is in registers
+/// (5 x 4 = 20 accumulators; 5 divides the widths of the paper's grids,
+/// 1000, 1280 and their binned 250, 320, 500, 640).
+const NP_WIDE: usize = 5;
+/// Pixels per tile when one vector of channels is in registers.
+const NP_NARROW: usize = 10;
+
+/// One convolution, packed `[tap][in][out padded to 16]`.
+#[derive(Clone, Debug)]
+pub(crate) struct Packed {
+    pub cin: usize,
+    pub ocp: usize,
+    pub w: Vec<f32>,
+    pub bias: Vec<f32>,
+    pub slope: Option<Vec<f32>>,
+}
+
+pub(crate) fn pack(l: &Conv3x3) -> Packed {
+    let ocp = l.out_ch.div_ceil(L) * L;
+    let mut w = vec![0.0f32; 9 * l.in_ch * ocp];
+    for o in 0..l.out_ch {
+        for i in 0..l.in_ch {
+            for t in 0..9 {
+                w[(t * l.in_ch + i) * ocp + o] = l.weight[(o * l.in_ch + i) * 9 + t];
+            }
+        }
+    }
+    let mut bias = vec![0.0f32; ocp];
+    bias[..l.out_ch].copy_from_slice(&l.bias);
+    let slope = l.prelu.as_ref().map(|p| {
+        let mut s = vec![1.0f32; ocp];
+        s[..l.out_ch].copy_from_slice(p);
+        s
+    });
+    Packed {
+        cin: l.in_ch,
+        ocp,
+        w,
+        bias,
+        slope,
+    }
+}
+
+/// A DBToR block ready for the fp32 fast path.
+#[derive(Clone, Debug)]
+pub struct Fp32Block {
+    state_ch: usize,
+    aux_ch: usize,
+    layers: [Packed; 3],
+    kernel: Kernel,
+    flops_per_pixel: f64,
+}
+
+/// Buffers of one block run on an `h x w` grid, made once and reused: no
+/// allocation happens in [`Fp32Block::run`].
+#[derive(Clone, Debug)]
+pub struct Fp32Workspace {
+    h: usize,
+    w: usize,
+    widths: [usize; 4],
+    x0: Vec<f32>,
+    a1: Vec<f32>,
+    a2: Vec<f32>,
+    out: Vec<f32>,
+}
+
+impl Fp32Workspace {
+    /// Buffers for `block` on an `h x w` grid.
+    pub fn new(block: &Fp32Block, h: usize, w: usize) -> Self {
+        let [l1, l2, l3] = &block.layers;
+        let padded = (h + 2) * (w + 2);
+        Self {
+            h,
+            w,
+            widths: [l1.cin, l1.ocp, l2.ocp, l3.ocp],
+            x0: vec![0.0; padded * l1.cin],
+            a1: vec![0.0; padded * l1.ocp],
+            a2: vec![0.0; padded * l2.ocp],
+            out: vec![0.0; h * w * l3.ocp],
+        }
+    }
+
+    /// Bytes held.
+    pub fn bytes(&self) -> usize {
+        4 * (self.x0.len() + self.a1.len() + self.a2.len() + self.out.len())
+    }
+}
+
+impl Fp32Block {
+    /// Pack checked weights for `kernel`.
+    pub fn new(b: &BlockWeights, kernel: Kernel) -> Result<Self, ConvError> {
+        b.check()?;
+        if kernel == Kernel::Avx512 && Kernel::best_fp32() != Kernel::Avx512 {
+            return Err(ConvError::Shape(
+                "the AVX-512 kernel was asked for on a CPU without AVX-512F".into(),
+            ));
+        }
+        Ok(Self {
+            state_ch: b.state_ch,
+            aux_ch: b.aux_ch,
+            layers: [pack(&b.layers[0]), pack(&b.layers[1]), pack(&b.layers[2])],
+            kernel,
+            flops_per_pixel: b.flops(1, 1),
+        })
+    }
+
+    /// The kernel in use.
+    pub fn kernel(&self) -> Kernel {
+        self.kernel
+    }
+
+    /// Floating-point operations of one run on `h x w`.
+    pub fn flops(&self, h: usize, w: usize) -> f64 {
+        self.flops_per_pixel * (h * w) as f64
+    }
+
+    /// `state <- state + block(cat(state, aux))`, both channel-major
+    /// (`c x h x w`), on the workspace's grid.
+    pub fn run(
+        &self,
+        ws: &mut Fp32Workspace,
+        state: &mut [f32],
+        aux: &[f32],
+    ) -> Result<(), ConvError> {
+        let (h, w) = (ws.h, ws.w);
+        let n = h * w;
+        let [l1, l2, l3] = &self.layers;
+        if ws.widths != [l1.cin, l1.ocp, l2.ocp, l3.ocp] {
+            return Err(ConvError::Shape(
+                "the workspace was made for a block of other widths".into(),
+            ));
+        }
+        if state.len() != self.state_ch * n || aux.len() != self.aux_ch * n {
+            return Err(ConvError::Shape(format!(
+                "state has {} values and aux {}, the block needs {} and {} ({h} x {w})",
+                state.len(),
+                aux.len(),
+                self.state_ch * n,
+                self.aux_ch * n
+            )));
+        }
+        let (sc, c0) = (self.state_ch, l1.cin);
+        // cat(state, aux) into the padded channels-last input.
+        // (Rows are sliced out, not skipped: rayon's `skip` spawns a heap job.)
+        let rl = (w + 2) * c0;
+        ws.x0[rl..(h + 1) * rl]
+            .par_chunks_mut(rl)
+            .enumerate()
+            .for_each(|(r, row)| {
+                for ch in 0..c0 {
+                    let src = if ch < sc {
+                        &state[(ch * h + r) * w..(ch * h + r + 1) * w]
+                    } else {
+                        let a = ch - sc;
+                        &aux[(a * h + r) * w..(a * h + r + 1) * w]
+                    };
+                    for (x, v) in src.iter().enumerate() {
+                        row[(x + 1) * c0 + ch] = *v;
+                    }
+                }
+            });
+        conv(self.kernel, l1, &ws.x0, c0, h, w, &mut ws.a1, true);
+        conv(self.kernel, l2, &ws.a1, l1.ocp, h, w, &mut ws.a2, true);
+        conv(self.kernel, l3, &ws.a2, l2.ocp, h, w, &mut ws.out, false);
+        let (out, o3) = (&ws.out, l3.ocp);
+        state.par_chunks_mut(w).enumerate().for_each(|(k, row)| {
+            let (ch, r) = (k / h, k % h);
+            for (x, v) in row.iter_mut().enumerate() {
+                *v += out[(r * w + x) * o3 + ch];
+            }
+        });
+        Ok(())
+    }
+}
+
+/// One layer over the whole grid: `inp` is padded channels-last with channel
+/// stride `cs`; the output is padded channels-last (`padded`) or dense
+/// `h x w x ocp`, with bias and PReLU applied.
+#[allow(clippy::too_many_arguments)]
+fn conv(
+    kernel: Kernel,
+    p: &Packed,
+    inp: &[f32],
+    cs: usize,
+    h: usize,
+    w: usize,
+    out: &mut [f32],
+    padded: bool,
+) {
+    let ocp = p.ocp;
+    let (row_len, px0, skip) = if padded {
+        ((w + 2) * ocp, ocp, 1)
+    } else {
+        (w * ocp, 0, 0)
+    };
+    let rs = (w + 2) * cs;
+    debug_assert!(inp.len() >= (h + 2) * rs);
+    debug_assert!(p.cin <= cs);
+    out[skip * row_len..(skip + h) * row_len]
+        .par_chunks_mut(row_len)
+        .enumerate()
+        .for_each(|(r, orow)| {
+            let mut tile = [0.0f32; NP_NARROW * GROUP];
+            let mut g0 = 0;
+            while g0 < ocp {
+                let gw = if ocp - g0 >= GROUP { GROUP } else { L };
+                let mut x = 0;
+                while x < w {
+                    let np = match gw {
+                        GROUP => NP_WIDE.min(w - x),
+                        _ => NP_NARROW.min(w - x),
+                    };
+                    let base = r * rs + x * cs;
+                    run_tile(kernel, gw, np, inp, base, rs, cs, p, g0, &mut tile);
+                    epilogue(p, g0, gw, np, &tile, &mut orow[px0 + x * ocp..]);
+                    x += np;
+                }
+                g0 += gw;
+            }
+        });
+}
+
+/// Bias and PReLU on a tile of `np` pixels x `gw` channels, written at
+/// `out[p * ocp + g0 + j]`.
+#[inline]
+fn epilogue(p: &Packed, g0: usize, gw: usize, np: usize, tile: &[f32], out: &mut [f32]) {
+    let bias = &p.bias[g0..g0 + gw];
+    for px in 0..np {
+        let t = &tile[px * gw..(px + 1) * gw];
+        let o = &mut out[px * p.ocp + g0..px * p.ocp + g0 + gw];
+        match &p.slope {
+            Some(s) => {
+                let s = &s[g0..g0 + gw];
+                for j in 0..gw {
+                    let v = t[j] + bias[j];
+                    o[j] = if v < 0.0 { v * s[j] } else { v };
+                }
+            }
+            None => {
+                for j in 0..gw {
+                    o[j] = t[j] + bias[j];
+                }
+            }
+        }
+    }
+}
+
+macro_rules! dispatch_np {
+    ($f:ident, $nb:literal, $np:expr, $($arg:expr),*) => {
+        match $np {
+            1 => $f::<$nb, 1>($($arg),*),
+            2 => $f::<$nb, 2>($($arg),*),
+            3 => $f::<$nb, 3>($($arg),*),
+            4 => $f::<$nb, 4>($($arg),*),
+            5 => $f::<$nb, 5>($($arg),*),
+            6 => $f::<$nb, 6>($($arg),*),
+            7 => $f::<$nb, 7>($($arg),*),
+            8 => $f::<$nb, 8>($($arg),*),
+            9 => $f::<$nb, 9>($($arg),*),
+            _ => $f::<$nb, 10>($($arg),*),
+        }
+    };
+}
+
+/// Accumulate one tile (no bias) into `tile[p * gw + j]`.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn run_tile(
+    kernel: Kernel,
+    gw: usize,
+    np: usize,
+    inp: &[f32],
+    base: usize,
+    rs: usize,
+    cs: usize,
+    p: &Packed,
+    g0: usize,
+    tile: &mut [f32],
+) {
+    // Bounds the kernels rely on: every tap of the tile is inside `inp`, the
+    // packed weights cover the group, the tile holds np x gw values.
+    assert!(base + 2 * rs + (np + 1) * cs + p.cin <= inp.len());
+    assert!(g0 + gw <= p.ocp && p.w.len() == 9 * p.cin * p.ocp);
+    assert!(np * gw <= tile.len() && (1..=NP_NARROW).contains(&np));
+    match kernel {
+        #[cfg(target_arch = "x86_64")]
+        Kernel::Avx512 => {
+            let (i, wp, t) = (inp[base..].as_ptr(), p.w[g0..].as_ptr(), tile.as_mut_ptr());
+            // SAFETY: AVX-512F was detected when the block was made
+            // (Fp32Block::new refuses otherwise); the asserts above bound
+            // every address the kernel reads and writes.
+            unsafe {
+                if gw == GROUP {
+                    dispatch_np!(tile_avx512, 4, np, i, rs, cs, p.cin, wp, p.ocp, t)
+                } else {
+                    dispatch_np!(tile_avx512, 1, np, i, rs, cs, p.cin, wp, p.ocp, t)
+                }
+            }
+        }
+        _ => {
+            if gw == GROUP {
+                dispatch_np!(
+                    tile_portable,
+                    4,
+                    np,
+                    inp,
+                    base,
+                    rs,
+                    cs,
+                    p.cin,
+                    &p.w,
+                    g0,
+                    p.ocp,
+                    tile
+                )
+            } else {
+                dispatch_np!(
+                    tile_portable,
+                    1,
+                    np,
+                    inp,
+                    base,
+                    rs,
+                    cs,
+                    p.cin,
+                    &p.w,
+                    g0,
+                    p.ocp,
+                    tile
+                )
+            }
+        }
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn tile_portable<const NB: usize, const NP: usize>(
+    inp: &[f32],
+    base: usize,
+    rs: usize,
+    cs: usize,
+    cin: usize,
+    w: &[f32],
+    g0: usize,
+    ocp: usize,
+    tile: &mut [f32],
+) {
+    let mut acc = [[[0.0f32; L]; NB]; NP];
+    for t in 0..9 {
+        let ib = base + (t / 3) * rs + (t % 3) * cs;
+        for ic in 0..cin {
+            let wr = &w[(t * cin + ic) * ocp + g0..];
+            for (p, a) in acc.iter_mut().enumerate() {
+                let b = inp[ib + p * cs + ic];
+                for (j, aj) in a.iter_mut().enumerate() {
+                    let wv = &wr[j * L..(j + 1) * L];
+                    for k in 0..L {
+                        aj[k] += b * wv[k];
+                    }
+                }
+            }
+        }
+    }
+    for (p, a) in acc.iter().enumerate() {
+        for (j, aj) in a.iter().enumerate() {
+            tile[(p * NB + j) * L..(p * NB + j + 1) * L].copy_from_slice(aj);
+        }
+    }
+}
+
+/// # Safety
+/// AVX-512F; `inp` valid for every tap of the tile (`2 * rs + (NP + 1) * cs`
+/// values), `w` for `9 * cin * ocp` values from the group's first lane, `out`
+/// for `NP * NB * 16`.
+#[cfg(target_arch = "x86_64")]
+#[allow(clippy::too_many_arguments)]
+#[target_feature(enable = "avx512f")]
+unsafe fn tile_avx512<const NB: usize, const NP: usize>(
+    inp: *const f32,
+    rs: usize,
+    cs: usize,
+    cin: usize,
+    w: *const f32,
+    ocp: usize,
+    out: *mut f32,
+) {
+    use std::arch::x86_64::*;
+    let mut acc = [[_mm512_setzero_ps(); NB]; NP];
+    for t in 0..9 {
+        let ib = inp.add((t / 3) * rs + (t % 3) * cs);
+        let wb = w.add(t * cin * ocp);
+        for ic in 0..cin {
+            let wr = wb.add(ic * ocp);
+            let mut wv = [_mm512_setzero_ps(); NB];
+            for (j, v) in wv.iter_mut().enumerate() {
+                *v = _mm512_loadu_ps(wr.add(j * L));
+            }
+            for (p, a) in acc.iter_mut().enumerate() {
+                let b = _mm512_set1_ps(*ib.add(p * cs + ic));
+                for (j, aj) in a.iter_mut().enumerate() {
+                    *aj = _mm512_fmadd_ps(b, wv[j], *aj);
+                }
+            }
+        }
+    }
+    for (p, a) in acc.iter().enumerate() {
+        for (j, aj) in a.iter().enumerate() {
+            _mm512_storeu_ps(out.add((p * NB + j) * L), *aj);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::reference_block;
+    use crate::testutil::{random_block, random_vec};
+
+    fn max_rel(a: &[f32], b: &[f32]) -> f64 {
+        let scale = b
+            .iter()
+            .fold(0.0f64, |m, v| m.max(v.abs() as f64))
+            .max(1e-30);
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs() as f64)
+            .fold(0.0, f64::max)
+            / scale
+    }
+
+    fn check(kernel: Kernel, sc: usize, ac: usize, hidden: usize, h: usize, w: usize) {
+        let b = random_block(sc, ac, hidden, 7 + h as u64);
+        let state = random_vec(sc * h * w, 1);
+        let aux = random_vec(ac * h * w, 2);
+        let want = reference_block(&b, &state, &aux, h, w).unwrap();
+        let fb = Fp32Block::new(&b, kernel).unwrap();
+        let mut ws = Fp32Workspace::new(&fb, h, w);
+        let mut got = state.clone();
+        fb.run(&mut ws, &mut got, &aux).unwrap();
+        // f32 accumulation over up to 64 x 9 = 576 products against the f64
+        // reference: relative error ~ sqrt(576) * 6e-8 per layer, three layers.
+        let e = max_rel(&got, &want);
+        assert!(
+            e < 1e-5,
+            "{kernel:?} {sc}+{ac}->{hidden} {h}x{w}: max rel error {e:e}"
+        );
+        // A second run on the same workspace gives the same answer (the
+        // padded borders stay zero).
+        let mut again = state.clone();
+        fb.run(&mut ws, &mut again, &aux).unwrap();
+        assert_eq!(again, got);
+    }
+
+    #[test]
+    fn portable_matches_definition() {
+        check(Kernel::Portable, 5, 2, 64, 9, 13);
+        check(Kernel::Portable, 5, 3, 64, 4, 25);
+        check(Kernel::Portable, 5, 3, 16, 3, 7);
+        check(Kernel::Portable, 2, 1, 48, 5, 11);
+    }
+
+    #[test]
+    fn avx512_matches_definition() {
+        if Kernel::best_fp32() != Kernel::Avx512 {
+            eprintln!("no AVX-512F here: kernel not tested");
+            return;
+        }
+        check(Kernel::Avx512, 5, 2, 64, 9, 13);
+        check(Kernel::Avx512, 5, 3, 64, 4, 25);
+        check(Kernel::Avx512, 5, 3, 16, 3, 7);
+        check(Kernel::Avx512, 2, 1, 48, 5, 11);
+        check(Kernel::Avx512, 5, 2, 64, 1, 1);
+    }
+
+    #[test]
+    fn shapes_are_checked() {
+        let b = random_block(5, 2, 16, 1);
+        let fb = Fp32Block::new(&b, Kernel::Portable).unwrap();
+        let mut ws = Fp32Workspace::new(&fb, 3, 4);
+        let mut s = vec![0.0; 5 * 12];
+        let e = fb.run(&mut ws, &mut s, &[0.0; 23]).unwrap_err();
+        assert!(e.to_string().contains("aux 23"), "{e}");
+        let other = Fp32Block::new(&random_block(5, 3, 16, 1), Kernel::Portable).unwrap();
+        let e = other.run(&mut ws, &mut s, &[0.0; 36]).unwrap_err();
+        assert!(e.to_string().contains("workspace"), "{e}");
+        let mut bad = b.clone();
+        bad.layers[1].bias.pop();
+        let e = Fp32Block::new(&bad, Kernel::Portable).unwrap_err();
+        assert!(e.to_string().contains("layer 2: bias has 15 values"), "{e}");
+        let mut bad = b.clone();
+        bad.layers[2].out_ch = 4;
+        assert!(Fp32Block::new(&bad, Kernel::Portable).is_err());
+        let mut bad = b;
+        bad.layers[0].weight[3] = f32::NAN;
+        let e = Fp32Block::new(&bad, Kernel::Portable).unwrap_err();
+        assert!(e.to_string().contains("not finite"), "{e}");
+    }
+}

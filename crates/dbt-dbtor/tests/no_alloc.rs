@@ -1,0 +1,52 @@
+//! The fast engine allocates nothing per slice once warmed up (issue #5):
+//! every heap allocation of this test binary is counted over ten warmed-up
+//! slices of each precision. The one allowance: each slice is handed to
+//! rayon's pool as one job through its injector queue, which allocates a
+//! block of 63 slots when one fills, so ten slices may allocate once.
+
+use dbt_dbtor::{Dbtor, Engine, Precision};
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::path::Path;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+struct Counting;
+static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
+        ALLOCATIONS.fetch_add(1, Ordering::SeqCst);
+        System.alloc(l)
+    }
+    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
+        System.dealloc(p, l)
+    }
+    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
+        ALLOCATIONS.fetch_add(1, Ordering::SeqCst);
+        System.realloc(p, l, n)
+    }
+}
+
+#[global_allocator]
+static A: Counting = Counting;
+
+#[test]
+fn no_allocation_per_slice_after_warm_up() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/dbtor-x4");
+    for p in [Precision::Fp32, Precision::Int8] {
+        let m = Dbtor::load_with(&dir, p, Engine::Fast).unwrap();
+        let g = m.geometry().clone();
+        let sino: Vec<f32> = (0..g.n_rays())
+            .map(|i| 2.0 + (i % 7) as f32 * 0.1)
+            .collect();
+        let mut out = vec![0.0f32; g.n_pixels()];
+        m.reconstruct_into(&sino, 50.0, &mut out).unwrap();
+        let before = ALLOCATIONS.load(Ordering::SeqCst);
+        for k in 0..10 {
+            m.reconstruct_into(&sino, 40.0 + k as f64, &mut out)
+                .unwrap();
+        }
+        let made = ALLOCATIONS.load(Ordering::SeqCst) - before;
+        assert!(made <= 1, "{p}: {made} allocations in ten warmed-up slices");
+        assert!(out.iter().all(|v| v.is_finite()));
+    }
+}
