@@ -133,6 +133,10 @@ pub struct ReconConfig {
     /// `fp32` or `int8`.
     #[serde(default = "default_precision")]
     pub precision: String,
+    /// `fast` (the fused kernels of dbt-conv, the default) or `tract` (the
+    /// reference executor, any ONNX graph).
+    #[serde(default = "default_engine")]
+    pub engine: String,
     /// MLTR iterations (for mltr).
     #[serde(default = "default_iterations")]
     pub mltr_iterations: usize,
@@ -143,6 +147,9 @@ pub struct ReconConfig {
 
 fn default_precision() -> String {
     "fp32".into()
+}
+fn default_engine() -> String {
+    "fast".into()
 }
 fn default_iterations() -> usize {
     100
@@ -317,6 +324,10 @@ impl Config {
                     .precision
                     .parse::<dbt_dbtor::Precision>()
                     .map_err(|e| bad("recon.precision", e))?;
+                self.recon
+                    .engine
+                    .parse::<dbt_dbtor::Engine>()
+                    .map_err(|e| bad("recon.engine", e))?;
             }
             "mltr" => {
                 if self.recon.mltr_iterations == 0 {
@@ -389,5 +400,45 @@ impl Config {
     /// The idle timeout of the frame link.
     pub fn idle_timeout(&self) -> Duration {
         Duration::from_secs_f64(self.frames.idle_timeout_s)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The shipped example with the model pointed at the repository's.
+    fn example(edit: impl Fn(String) -> String) -> Result<Config, ConfigError> {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        let text = std::fs::read_to_string(root.join("config/dbtor.toml")).unwrap();
+        let model = root.join("../models/dbtor-x4");
+        let text = text.replace(
+            "\"/usr/share/dbtor/models/dbtor-x4\"",
+            &format!("{:?}", model.display().to_string()),
+        );
+        let t = tempfile::tempdir().unwrap();
+        let p = t.path().join("dbtor.toml");
+        std::fs::write(&p, edit(text)).unwrap();
+        Config::load(&p)
+    }
+
+    #[test]
+    fn engine_is_validated_and_defaults_to_fast() {
+        let c = example(|t| t).unwrap();
+        assert_eq!(c.recon.engine, "fast");
+        let c = example(|t| t.replace("engine = \"fast\"", "engine = \"tract\"")).unwrap();
+        assert_eq!(c.recon.engine, "tract");
+        let c = example(|t| {
+            t.lines()
+                .filter(|l| !l.starts_with("engine"))
+                .collect::<Vec<_>>()
+                .join("\n")
+        })
+        .unwrap();
+        assert_eq!(c.recon.engine, "fast");
+        let e = example(|t| t.replace("engine = \"fast\"", "engine = \"warp\""))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("recon.engine") && e.contains("warp"), "{e}");
     }
 }

@@ -163,8 +163,9 @@ impl Daemon {
                 .precision
                 .parse()
                 .unwrap_or(dbt_dbtor::Precision::Fp32);
-            let m = dbt_dbtor::Dbtor::load(&dir, precision)?;
-            let name = format!("DBToR {} ({precision})", m.manifest().name);
+            let engine = cfg.recon.engine.parse().unwrap_or(dbt_dbtor::Engine::Fast);
+            let m = dbt_dbtor::Dbtor::load_with(&dir, precision, engine)?;
+            let name = format!("DBToR {} ({precision}, {engine})", m.manifest().name);
             opts.dbtor = Some(Arc::new(m));
             name
         } else {

@@ -146,7 +146,12 @@ pub fn process(acq: &Acquisition, opts: &PipelineOptions) -> Result<ProcessResul
         }
     }
     let reconstructor = match &opts.dbtor {
-        Some(m) => format!("DBToR {} ({})", m.manifest().name, m.precision()),
+        Some(m) => format!(
+            "DBToR {} ({}, {})",
+            m.manifest().name,
+            m.precision(),
+            m.engine()
+        ),
         None => format!("MLTR {} iterations", opts.mltr_iterations),
     };
     for (d, counts) in acq.counts.iter().enumerate() {

@@ -31,6 +31,8 @@ pub struct FixtureCheck {
     pub name: String,
     /// Precision run.
     pub precision: Precision,
+    /// Executor.
+    pub engine: crate::Engine,
     /// Max abs difference to the reference of that precision, 1/mm.
     pub max_abs_per_mm: f64,
     /// RMS difference to that reference, 1/mm.
@@ -101,6 +103,7 @@ pub fn check_fixtures(model: &Dbtor, dir: &Path) -> Result<Vec<FixtureCheck>, Db
                 FixtureCheck {
                     name: fx.name.clone(),
                     precision: Precision::Fp32,
+                    engine: model.engine(),
                     max_abs_per_mm: d,
                     rms_per_mm: rms(&x, &fp32),
                     rms_to_truth_per_mm: rms(&x, &truth),
@@ -119,6 +122,7 @@ pub fn check_fixtures(model: &Dbtor, dir: &Path) -> Result<Vec<FixtureCheck>, Db
                 FixtureCheck {
                     name: fx.name.clone(),
                     precision: Precision::Int8,
+                    engine: model.engine(),
                     max_abs_per_mm: max_abs(&x, &ort),
                     rms_per_mm: rms(&x, &ort),
                     rms_to_truth_per_mm: e_tract,

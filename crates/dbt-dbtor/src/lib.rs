@@ -97,6 +97,17 @@ impl std::fmt::Display for Precision {
     }
 }
 
+/// Where the time of one slice went ([`Dbtor::profile_slice`]).
+#[derive(Debug, Clone, Default, serde::Serialize)]
+pub struct SliceProfile {
+    /// Per block, in execution order (dual 0, primal 0, ...), ms.
+    pub block_ms: Vec<f64>,
+    /// All projections and backprojections of the slice, ms.
+    pub projector_ms: f64,
+    /// The whole slice, ms.
+    pub total_ms: f64,
+}
+
 /// Which executor runs the blocks.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -366,6 +377,32 @@ impl Dbtor {
         })
     }
 
+    /// Floating-point operations of each block on this geometry (2 per
+    /// multiply-add), from the fast path's weights; `None` on tract.
+    pub fn block_flops(&self) -> Option<Vec<f64>> {
+        let g = &self.manifest.geometry;
+        let hw = |r: Role| match r {
+            Role::Dual => (g.n_views(), g.n_det()),
+            Role::Primal => (g.image.rows, g.image.columns),
+        };
+        let roles = self.manifest.blocks.iter().map(|b| hw(b.role));
+        match &self.blocks {
+            Blocks::Tract(_) => None,
+            Blocks::Fp32(v) => Some(
+                v.iter()
+                    .zip(roles)
+                    .map(|(b, (h, w))| b.0.flops(h, w))
+                    .collect(),
+            ),
+            Blocks::Int8(v) => Some(
+                v.iter()
+                    .zip(roles)
+                    .map(|(b, (h, w))| b.0.ops(h, w))
+                    .collect(),
+            ),
+        }
+    }
+
     /// Bytes of the per-slice buffers (state, aux, workspaces).
     pub fn slice_buffer_bytes(&self) -> usize {
         let b = self.new_buffers();
@@ -478,6 +515,34 @@ impl Dbtor {
         thickness_mm: f64,
         out: &mut [f32],
     ) -> Result<(), DbtorError> {
+        self.slice(g, thickness_mm, out, None)
+    }
+
+    /// Reconstruct one slice (as [`Dbtor::reconstruct`]) timing every block
+    /// and the projector: for benchmarks and the service CLI.
+    pub fn profile_slice(
+        &self,
+        g: &[f32],
+        thickness_mm: f64,
+    ) -> Result<(Vec<f32>, SliceProfile), DbtorError> {
+        let mut out = vec![0.0f32; self.manifest.geometry.n_pixels()];
+        let mut p = SliceProfile {
+            block_ms: vec![0.0; self.manifest.blocks.len()],
+            ..SliceProfile::default()
+        };
+        let t = std::time::Instant::now();
+        self.slice(g, thickness_mm, &mut out, Some(&mut p))?;
+        p.total_ms = t.elapsed().as_secs_f64() * 1e3;
+        Ok((out, p))
+    }
+
+    fn slice(
+        &self,
+        g: &[f32],
+        thickness_mm: f64,
+        out: &mut [f32],
+        prof: Option<&mut SliceProfile>,
+    ) -> Result<(), DbtorError> {
         let geom = &self.manifest.geometry;
         let n_img = geom.n_pixels();
         let n_sino = geom.n_rays();
@@ -522,7 +587,9 @@ impl Dbtor {
         // through the pool's injector from outside (which allocates a block
         // every 63 jobs). One job is injected per slice.
         let span = tracing::Span::current();
-        let r = rayon::scope(|_| span.in_scope(|| self.run_slice(&mut bufs, g, thickness_mm, out)));
+        let r = rayon::scope(|_| {
+            span.in_scope(|| self.run_slice(&mut bufs, g, thickness_mm, out, prof))
+        });
         *self.buffers.lock().unwrap_or_else(|e| e.into_inner()) = Some(bufs);
         r
     }
@@ -533,7 +600,10 @@ impl Dbtor {
         g: &[f32],
         thickness_mm: f64,
         out: &mut [f32],
+        mut prof: Option<&mut SliceProfile>,
     ) -> Result<(), DbtorError> {
+        use std::time::Instant;
+        let ms = |t: Instant| t.elapsed().as_secs_f64() * 1e3;
         let geom = &self.manifest.geometry;
         let (n_img, n_sino) = (geom.n_pixels(), geom.n_rays());
         let n = &self.manifest.normalisation;
@@ -567,17 +637,25 @@ impl Dbtor {
         aux_p[n_img..].copy_from_slice(mask);
         for (k, blk) in self.manifest.blocks.iter().enumerate() {
             let _s = tracing::trace_span!("block", role = ?blk.role, index = blk.index).entered();
+            let t0 = Instant::now();
             match blk.role {
                 Role::Dual => {
                     let fc = &f[ch.projected * n_img..(ch.projected + 1) * n_img];
                     self.project(fc, &mut aux_d[..n_sino], inv_norm)?;
-                    self.run_block(k, h, aux_d, ws)?;
                 }
                 Role::Primal => {
                     let hc = &h[ch.backprojected * n_sino..(ch.backprojected + 1) * n_sino];
                     self.backproject(hc, &mut aux_p[..n_img], inv_norm)?;
-                    self.run_block(k, f, aux_p, ws)?;
                 }
+            }
+            let t1 = Instant::now();
+            match blk.role {
+                Role::Dual => self.run_block(k, h, aux_d, ws)?,
+                Role::Primal => self.run_block(k, f, aux_p, ws)?,
+            }
+            if let Some(p) = prof.as_deref_mut() {
+                p.projector_ms += ms(t0) - ms(t1);
+                p.block_ms[k] = ms(t1);
             }
         }
         let xs = n.x_scale_per_mm as f32;

@@ -36,6 +36,10 @@ enum Cmd {
         /// Precisions of the model to run (comma separated: fp32, int8).
         #[arg(long, default_value = "fp32,int8")]
         precisions: String,
+        /// Executor of the model's blocks: fast (the fused kernels) or tract
+        /// (the reference).
+        #[arg(long, default_value = "fast")]
+        engine: String,
         /// Test-set phantoms.
         #[arg(long, default_value_t = 5)]
         phantoms: usize,
@@ -115,6 +119,10 @@ enum Cmd {
         /// Model precision (fp32 or int8).
         #[arg(long, default_value = "fp32")]
         precision: String,
+        /// Executor of the model's blocks: fast (the fused kernels) or tract
+        /// (the reference).
+        #[arg(long, default_value = "fast")]
+        engine: String,
     },
     /// PNG of a test slice: phantom, sinogram, MLTR, FBP.
     Picture {
@@ -157,12 +165,18 @@ fn write_png(path: &PathBuf, pixels: &[u8], w: usize, h: usize) -> Result<()> {
 }
 
 /// Load a model folder at each precision asked for, named `DBToR fp32`, ...
-fn load_models(dir: Option<&std::path::Path>, precisions: &str) -> Result<Vec<(String, Dbtor)>> {
+fn load_models(
+    dir: Option<&std::path::Path>,
+    precisions: &str,
+    engine: &str,
+) -> Result<Vec<(String, Dbtor)>> {
     let Some(dir) = dir else { return Ok(vec![]) };
+    let engine: dbt_dbtor::Engine = engine.parse().map_err(anyhow::Error::msg)?;
     let mut out = Vec::new();
     for p in precisions.split(',').filter(|p| !p.is_empty()) {
         let p: Precision = p.parse().map_err(anyhow::Error::msg)?;
-        let m = Dbtor::load(dir, p).with_context(|| format!("loading {} ({p})", dir.display()))?;
+        let m = Dbtor::load_with(dir, p, engine)
+            .with_context(|| format!("loading {} ({p}, {engine})", dir.display()))?;
         out.push((format!("DBToR {p}"), m));
     }
     Ok(out)
@@ -180,13 +194,14 @@ fn main() -> Result<()> {
             binning,
             model,
             precisions,
+            engine,
             phantoms,
             slices,
             iterations,
             levels,
             json,
         } => {
-            let loaded = load_models(model.as_deref(), &precisions)?;
+            let loaded = load_models(model.as_deref(), &precisions, &engine)?;
             let geometry = match (loaded.first(), binning) {
                 (Some((_, m)), None) => m.geometry().clone(),
                 (Some((name, m)), Some(b)) => {
@@ -329,11 +344,12 @@ fn main() -> Result<()> {
             out,
             model,
             precision,
+            engine,
         } => {
             use dbt_eval::accuracy::{run_case, summarise, test_phantoms};
             let g = Geometry::paper().binned(binning)?;
             let noise = NoiseLevel::parse(&noise)?;
-            let dbtor = load_models(model.as_deref(), &precision)?
+            let dbtor = load_models(model.as_deref(), &precision, &engine)?
                 .pop()
                 .map(|(_, m)| std::sync::Arc::new(m));
             let opts = dbtor_firmware::pipeline::PipelineOptions {
@@ -458,7 +474,9 @@ fn main() -> Result<()> {
             noise,
             model,
         } => {
-            let model = load_models(model.as_deref(), "fp32")?.pop().map(|(_, m)| m);
+            let model = load_models(model.as_deref(), "fp32", "fast")?
+                .pop()
+                .map(|(_, m)| m);
             let g = match &model {
                 Some(m) => m.geometry().clone(),
                 None => Geometry::paper().binned(binning)?,

@@ -213,7 +213,7 @@ fn run() -> Result<bool> {
             let entry = rest
                 .first()
                 .filter(|a| !a.starts_with("--"))
-                .context("usage: dbtor-diag replay ENTRY [--model DIR [--precision P]] [--iterations N] [--json]")?;
+                .context("usage: dbtor-diag replay ENTRY [--model DIR [--precision P] [--engine E]] [--iterations N] [--json]")?;
             let entry = std::path::Path::new(entry);
             let acq = dbt_store::acquisition::read_acquisition(entry)?;
             let mut opts = dbtor_firmware::pipeline::PipelineOptions::default();
@@ -228,9 +228,14 @@ fn run() -> Result<bool> {
                     .map(|s| s.parse())
                     .unwrap_or(Ok(dbt_dbtor::Precision::Fp32))
                     .map_err(anyhow::Error::msg)?;
-                opts.dbtor = Some(std::sync::Arc::new(dbt_dbtor::Dbtor::load(
+                let e: dbt_dbtor::Engine = opt(rest, "--engine")
+                    .map(|s| s.parse())
+                    .unwrap_or(Ok(dbt_dbtor::Engine::Fast))
+                    .map_err(anyhow::Error::msg)?;
+                opts.dbtor = Some(std::sync::Arc::new(dbt_dbtor::Dbtor::load_with(
                     std::path::Path::new(dir),
                     p,
+                    e,
                 )?));
             }
             let t = std::time::Instant::now();
@@ -328,13 +333,18 @@ fn run() -> Result<bool> {
             ];
             if let Some(dir) = opt(rest, "--model") {
                 let dir = std::path::Path::new(dir);
-                for prec in [dbt_dbtor::Precision::Fp32, dbt_dbtor::Precision::Int8] {
-                    let m = dbt_dbtor::Dbtor::load(dir, prec)?;
+                for (prec, engine) in [
+                    (dbt_dbtor::Precision::Fp32, dbt_dbtor::Engine::Fast),
+                    (dbt_dbtor::Precision::Int8, dbt_dbtor::Engine::Fast),
+                    (dbt_dbtor::Precision::Fp32, dbt_dbtor::Engine::Tract),
+                    (dbt_dbtor::Precision::Int8, dbt_dbtor::Engine::Tract),
+                ] {
+                    let m = dbt_dbtor::Dbtor::load_with(dir, prec, engine)?;
                     let mg = m.geometry().clone();
                     let g0 = vec![1.0f32; mg.n_rays()];
                     let mut v = Vec::new();
                     for k in 0..reps.max(1) {
-                        eprint!("\rDBToR {prec}: slice {}/{}", k + 1, reps.max(1));
+                        eprint!("\rDBToR {prec} {engine}: slice {}/{}", k + 1, reps.max(1));
                         let t = std::time::Instant::now();
                         m.reconstruct(&g0, 45.0)?;
                         v.push(t.elapsed().as_secs_f64() * 1e3);
@@ -342,7 +352,7 @@ fn run() -> Result<bool> {
                     eprintln!();
                     rows.push((
                         format!(
-                            "DBToR slice {prec}, {}x{} px",
+                            "DBToR slice {prec} {engine}, {}x{} px",
                             mg.image.columns, mg.image.rows
                         ),
                         median_ms(v),
@@ -379,15 +389,18 @@ fn run() -> Result<bool> {
                 };
             let dir = std::path::Path::new(dir);
             let mut all = Vec::new();
-            for p in precisions {
+            let runs = precisions
+                .iter()
+                .flat_map(|p| [dbt_dbtor::Engine::Fast, dbt_dbtor::Engine::Tract].map(|e| (*p, e)));
+            for (p, e) in runs {
                 let t = std::time::Instant::now();
                 // Loading verifies every SHA-256 of the manifest first.
-                let m = dbt_dbtor::Dbtor::load(dir, p)
-                    .with_context(|| format!("loading {} ({p})", dir.display()))?;
+                let m = dbt_dbtor::Dbtor::load_with(dir, p, e)
+                    .with_context(|| format!("loading {} ({p}, {e})", dir.display()))?;
                 let checks = dbt_dbtor::check_fixtures(&m, dir)?;
                 if !json {
                     println!(
-                        "{} ({p}): {} files verified, {} fixtures, {:.1} s",
+                        "{} ({p}, {e}): {} files verified, {} fixtures, {:.1} s",
                         m.manifest().name,
                         m.manifest().sha256.len(),
                         checks.len(),

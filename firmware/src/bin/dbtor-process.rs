@@ -31,6 +31,7 @@ fn main() -> Result<()> {
     let mut opts = PipelineOptions::default();
     let mut model = None;
     let mut precision = dbt_dbtor::Precision::Fp32;
+    let mut engine = dbt_dbtor::Engine::Fast;
     let mut it = args.iter();
     while let Some(a) = it.next() {
         let mut val = |name: &str| {
@@ -49,6 +50,12 @@ fn main() -> Result<()> {
                     .map_err(anyhow::Error::msg)
                     .context("--precision")?
             }
+            "--engine" => {
+                engine = val("--engine")?
+                    .parse()
+                    .map_err(anyhow::Error::msg)
+                    .context("--engine")?
+            }
             "--iterations" => {
                 opts.mltr_iterations = val("--iterations")?.parse().context("--iterations")?
             }
@@ -65,7 +72,7 @@ fn main() -> Result<()> {
         acq_dir.context("usage: dbtor-process ACQ_DIR --out DIR [--pacs AET@host:port]")?;
     let out = out.context("--out DIR is required")?;
     if let Some(dir) = &model {
-        let m = dbt_dbtor::Dbtor::load(dir, precision)
+        let m = dbt_dbtor::Dbtor::load_with(dir, precision, engine)
             .with_context(|| format!("loading the DBToR model {}", dir.display()))?;
         opts.dbtor = Some(std::sync::Arc::new(m));
     }

@@ -1,0 +1,452 @@
+//! DBToR slice benchmark (issue #5): one run measures, on the same ONNX block
+//! files of a shipped model, tract fp32 and int8, onnxruntime fp32 and int8
+//! (the PyPI peer, `bench/peers/ort_blocks.py`, blocks only), and the fast
+//! path fp32 and int8, at the paper's full geometry and at the model's own,
+//! with per-block and per-slice medians, GFLOP/s, ratios, the distance to
+//! this CPU's measured peak (the physical floor) and the slice buffers.
+//!
+//! ```text
+//! cargo run --release -p dbt-bench --bin dbtor-bench -- [--model DIR] [--reps N]
+//!     [--geometry paper|model|both] [--out FILE.json] [--no-peers] [--no-tract]
+//! ```
+//! The blocks are fully convolutional: at the paper geometry the trained
+//! model's blocks run unchanged on the 1000 x 300 image and 25 x 1280
+//! sinogram. onnxruntime runs the blocks alone; its slice time adds the
+//! projector time measured for the fast fp32 variant in the same run (the
+//! same projector would serve it), which is stated in the table.
+
+use anyhow::{bail, Context, Result};
+use dbt_dbtor::{Dbtor, Engine, Precision, Role, SliceProfile};
+use dbt_geometry::Geometry;
+use dbt_projector::Projector;
+use serde_json::{json, Map, Value};
+use std::path::PathBuf;
+use std::process::Command;
+use std::time::Instant;
+
+struct Args {
+    model: PathBuf,
+    reps: usize,
+    geometry: String,
+    out: PathBuf,
+    peers: bool,
+    tract: bool,
+}
+
+fn parse_args() -> Result<Args> {
+    let mut a = Args {
+        model: PathBuf::from("models/dbtor-x4"),
+        reps: 5,
+        geometry: "both".into(),
+        out: PathBuf::from("bench/results/dbtor.json"),
+        peers: true,
+        tract: true,
+    };
+    let mut it = std::env::args().skip(1);
+    while let Some(arg) = it.next() {
+        let mut val = |name: &str| it.next().with_context(|| format!("{name} needs a value"));
+        match arg.as_str() {
+            "--model" => a.model = PathBuf::from(val("--model")?),
+            "--reps" => a.reps = val("--reps")?.parse().context("--reps")?,
+            "--geometry" => a.geometry = val("--geometry")?,
+            "--out" => a.out = PathBuf::from(val("--out")?),
+            "--no-peers" => a.peers = false,
+            "--no-tract" => a.tract = false,
+            "-h" | "--help" => {
+                println!("usage: dbtor-bench [--model DIR] [--reps N] [--geometry paper|model|both] [--out FILE.json] [--no-peers] [--no-tract]");
+                std::process::exit(0);
+            }
+            other => bail!("unknown argument `{other}` (see --help)"),
+        }
+    }
+    if !matches!(a.geometry.as_str(), "paper" | "model" | "both") {
+        bail!(
+            "--geometry must be paper, model or both, not {:?}",
+            a.geometry
+        );
+    }
+    if a.reps == 0 {
+        bail!("--reps must be at least 1");
+    }
+    Ok(a)
+}
+
+/// Peak rate of this CPU on 2 threads: fp32 FMA (GFLOP/s) and int8 VNNI
+/// (GOP/s), from register-only loops (no memory traffic).
+fn measured_peaks() -> (f64, f64) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx512vnni")
+            && std::arch::is_x86_feature_detected!("avx512f")
+        {
+            let iters = 20_000_000u64;
+            let run = |int8: bool| {
+                let t = Instant::now();
+                std::thread::scope(|s| {
+                    for _ in 0..2 {
+                        s.spawn(move || {
+                            // SAFETY: features detected above.
+                            unsafe {
+                                if int8 {
+                                    peak::vnni(iters);
+                                } else {
+                                    peak::fma(iters);
+                                }
+                            }
+                        });
+                    }
+                });
+                let secs = t.elapsed().as_secs_f64();
+                // 24 vectors per iteration; 16 lanes x 2 flops (fp32) or
+                // 16 lanes x 4 products x 2 ops (int8), 2 threads.
+                let per = if int8 { 24.0 * 128.0 } else { 24.0 * 32.0 };
+                2.0 * iters as f64 * per / secs / 1e9
+            };
+            let _ = run(false);
+            return (run(false), run(true));
+        }
+    }
+    (f64::NAN, f64::NAN)
+}
+
+#[cfg(target_arch = "x86_64")]
+mod peak {
+    use std::arch::x86_64::*;
+
+    #[target_feature(enable = "avx512f")]
+    pub unsafe fn fma(iters: u64) {
+        let a = _mm512_set1_ps(0.999_999);
+        let b = _mm512_set1_ps(1e-7);
+        let mut acc = [_mm512_set1_ps(1.0); 24];
+        for _ in 0..iters {
+            for v in acc.iter_mut() {
+                *v = _mm512_fmadd_ps(*v, a, b);
+            }
+        }
+        let mut s = _mm512_setzero_ps();
+        for v in acc {
+            s = _mm512_add_ps(s, v);
+        }
+        std::hint::black_box(_mm512_reduce_add_ps(s));
+    }
+
+    #[target_feature(enable = "avx512f,avx512vnni")]
+    pub unsafe fn vnni(iters: u64) {
+        let a = _mm512_set1_epi8(3);
+        let b = _mm512_set1_epi8(-2);
+        let mut acc = [_mm512_setzero_si512(); 24];
+        for _ in 0..iters {
+            for v in acc.iter_mut() {
+                *v = _mm512_dpbusd_epi32(*v, a, b);
+            }
+        }
+        let mut s = _mm512_setzero_si512();
+        for v in acc {
+            s = _mm512_add_epi32(s, v);
+        }
+        std::hint::black_box(_mm512_reduce_add_epi32(s));
+    }
+}
+
+struct Variant {
+    name: String,
+    slice_ms: f64,
+    dual_ms: f64,
+    primal_ms: f64,
+    projector_ms: f64,
+    ops: f64,
+    load_s: f64,
+    buffers_mb: Option<f64>,
+    note: String,
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(|a, b| a.total_cmp(b));
+    let n = v.len();
+    if n == 0 {
+        f64::NAN
+    } else if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+fn role_median(d: &Dbtor, profs: &[SliceProfile], role: Role) -> f64 {
+    let ks: Vec<usize> = d
+        .manifest()
+        .blocks
+        .iter()
+        .enumerate()
+        .filter(|(_, b)| b.role == role)
+        .map(|(k, _)| k)
+        .collect();
+    median(
+        profs
+            .iter()
+            .flat_map(|p| ks.iter().map(|&k| p.block_ms[k]))
+            .collect(),
+    )
+}
+
+fn rms(a: &[f32], b: &[f32]) -> f64 {
+    (a.iter()
+        .zip(b)
+        .map(|(x, y)| ((x - y) as f64).powi(2))
+        .sum::<f64>()
+        / a.len().max(1) as f64)
+        .sqrt()
+}
+
+fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Result<Value> {
+    let (rows, cols, views, det) = (g.image.rows, g.image.columns, g.n_views(), g.n_det());
+    println!("\n== {label}: image {cols} x {rows}, sinogram {views} x {det} ==");
+    // A realistic input: the line integrals of a 50 mm breast of soft tissue
+    // (0.05 /mm) with a denser inner region.
+    let thickness = 50.0_f64.min(0.8 * rows as f64 * g.image.pixel_mm);
+    let mut img = dbt_phantom::thickness_mask(g, thickness);
+    for (k, v) in img.iter_mut().enumerate() {
+        let (r, c) = (k / cols, k % cols);
+        *v *= if (r * 7 + c * 3) % 11 < 4 {
+            0.065
+        } else {
+            0.048
+        };
+    }
+    let mut sino = vec![0.0f32; g.n_rays()];
+    Projector::new(g).forward(&img, &mut sino)?;
+
+    let roles: Vec<Role> = dbt_dbtor::ModelManifest::load(&a.model)?
+        .blocks
+        .iter()
+        .map(|b| b.role)
+        .collect();
+    let mut variants: Vec<Variant> = Vec::new();
+    let mut outputs: Vec<(String, Vec<f32>)> = Vec::new();
+    let mut flops = None;
+    let mut fast_projector_ms = f64::NAN;
+    let combos: Vec<(Engine, Precision)> = [
+        (Engine::Fast, Precision::Fp32),
+        (Engine::Fast, Precision::Int8),
+        (Engine::Tract, Precision::Fp32),
+        (Engine::Tract, Precision::Int8),
+    ]
+    .into_iter()
+    .filter(|(e, _)| a.tract || *e == Engine::Fast)
+    .collect();
+    for (engine, precision) in combos {
+        let name = format!("{engine} {precision}");
+        let t = Instant::now();
+        let d = Dbtor::load_for_geometry(&a.model, precision, engine, g)
+            .with_context(|| format!("loading {name}"))?;
+        let load_s = t.elapsed().as_secs_f64();
+        if flops.is_none() {
+            flops = d.block_flops().map(|v| v.iter().sum::<f64>());
+        }
+        let (first, _) = d.profile_slice(&sino, thickness)?; // warm-up
+        let mut profs = Vec::new();
+        for k in 0..a.reps {
+            eprint!("\r  {name}: slice {}/{}   ", k + 1, a.reps);
+            profs.push(d.profile_slice(&sino, thickness)?.1);
+        }
+        eprintln!();
+        let slice_ms = median(profs.iter().map(|p| p.total_ms).collect());
+        let projector_ms = median(profs.iter().map(|p| p.projector_ms).collect());
+        if engine == Engine::Fast && precision == Precision::Fp32 {
+            fast_projector_ms = projector_ms;
+        }
+        variants.push(Variant {
+            name: name.clone(),
+            slice_ms,
+            dual_ms: role_median(&d, &profs, Role::Dual),
+            primal_ms: role_median(&d, &profs, Role::Primal),
+            projector_ms,
+            ops: flops.unwrap_or(f64::NAN),
+            load_s,
+            buffers_mb: (engine == Engine::Fast).then(|| d.slice_buffer_bytes() as f64 / 1e6),
+            note: d
+                .kernel()
+                .map(|k| format!("kernel {k}"))
+                .unwrap_or_default(),
+        });
+        outputs.push((name, first));
+    }
+    if a.peers {
+        for precision in ["fp32", "int8"] {
+            let out = Command::new("python3")
+                .args(["bench/peers/ort_blocks.py", "--model"])
+                .arg(&a.model)
+                .args(["--precision", precision, "--reps", &a.reps.to_string()])
+                .args(["--dual", &views.to_string(), &det.to_string()])
+                .args(["--primal", &rows.to_string(), &cols.to_string()])
+                .output()
+                .context(
+                    "running bench/peers/ort_blocks.py (pip install -r training/requirements.txt)",
+                )?;
+            if !out.status.success() {
+                bail!(
+                    "onnxruntime peer failed: {}",
+                    String::from_utf8_lossy(&out.stderr)
+                );
+            }
+            let v: Value = serde_json::from_slice(&out.stdout).context("peer output")?;
+            let ms: Vec<f64> = v["block_ms"]
+                .as_array()
+                .context("peer block_ms")?
+                .iter()
+                .filter_map(|x| x.as_f64())
+                .collect();
+            let of_role = |role: Role| -> Vec<f64> {
+                ms.iter()
+                    .zip(&roles)
+                    .filter(|(_, r)| **r == role)
+                    .map(|(m, _)| *m)
+                    .collect()
+            };
+            let (dual, primal) = (of_role(Role::Dual), of_role(Role::Primal));
+            variants.push(Variant {
+                name: format!("ort {precision}"),
+                slice_ms: ms.iter().sum::<f64>() + fast_projector_ms,
+                dual_ms: median(dual),
+                primal_ms: median(primal),
+                projector_ms: fast_projector_ms,
+                ops: flops.unwrap_or(f64::NAN),
+                load_s: v["load_s"].as_f64().unwrap_or(f64::NAN),
+                buffers_mb: None,
+                note: format!(
+                    "onnxruntime {} blocks + Rust projector",
+                    v["onnxruntime"].as_str().unwrap_or("?")
+                ),
+            });
+        }
+    }
+    let ort_best = variants
+        .iter()
+        .filter(|v| v.name.starts_with("ort"))
+        .map(|v| v.slice_ms)
+        .fold(f64::INFINITY, f64::min);
+    println!(
+        "{:<12} {:>10} {:>9} {:>10} {:>9} {:>9} {:>8} {:>8} {:>8} {:>9}  note",
+        "variant",
+        "slice ms",
+        "dual ms",
+        "primal ms",
+        "proj ms",
+        "G(FL)OP/s",
+        "x floor",
+        "vs ort",
+        "load s",
+        "bufs MB"
+    );
+    let mut rows_json = Vec::new();
+    for v in &variants {
+        let int8 = v.name.ends_with("int8");
+        let peak = if int8 { peaks.1 } else { peaks.0 };
+        let rate = v.ops / ((v.slice_ms - v.projector_ms) * 1e-3) / 1e9;
+        let floor_ms = v.ops / (peak * 1e9) * 1e3;
+        let x_floor = v.slice_ms / floor_ms;
+        let vs_ort = ort_best / v.slice_ms;
+        println!(
+            "{:<12} {:>10.1} {:>9.2} {:>10.2} {:>9.1} {:>9.1} {:>8.2} {:>8.2} {:>8.2} {:>9}  {}",
+            v.name,
+            v.slice_ms,
+            v.dual_ms,
+            v.primal_ms,
+            v.projector_ms,
+            rate,
+            x_floor,
+            vs_ort,
+            v.load_s,
+            v.buffers_mb
+                .map(|b| format!("{b:.1}"))
+                .unwrap_or("-".into()),
+            v.note
+        );
+        rows_json.push(json!({
+            "variant": v.name, "slice_ms": v.slice_ms, "dual_block_ms": v.dual_ms,
+            "primal_block_ms": v.primal_ms, "projector_ms": v.projector_ms,
+            "gops_blocks": rate, "floor_ms": floor_ms, "x_floor": x_floor,
+            "speedup_vs_best_ort": vs_ort, "load_s": v.load_s,
+            "slice_buffers_mb": v.buffers_mb, "note": v.note,
+        }));
+    }
+    // Agreement with the reference executor on this input.
+    let mut agreement = Map::new();
+    if let Some((_, reference)) = outputs.iter().find(|(n, _)| n == "tract fp32") {
+        let range = reference.iter().fold(0.0f32, |m, v| m.max(v.abs())) as f64;
+        for (n, o) in &outputs {
+            let max = o
+                .iter()
+                .zip(reference)
+                .map(|(x, y)| (x - y).abs() as f64)
+                .fold(0.0, f64::max);
+            agreement.insert(
+                n.clone(),
+                json!({"max_abs_vs_tract_fp32_rel": max / range, "rms_vs_tract_fp32_per_mm": rms(o, reference)}),
+            );
+            println!(
+                "  {n:<12} vs tract fp32: max |diff| = {:.2e} of the image's range, RMS {:.2e} /mm",
+                max / range,
+                rms(o, reference)
+            );
+        }
+    }
+    let by = |n: &str| {
+        variants
+            .iter()
+            .find(|v| v.name == n)
+            .map(|v| v.slice_ms)
+            .unwrap_or(f64::NAN)
+    };
+    Ok(json!({
+        "geometry": g.describe(),
+        "image": [cols, rows], "sinogram": [views, det],
+        "block_flops_per_slice": flops,
+        "slice_ms_fast_int8": by("fast int8"), "slice_ms_fast_fp32": by("fast fp32"),
+        "slice_ms_tract_fp32": by("tract fp32"), "slice_ms_tract_int8": by("tract int8"),
+        "slice_ms_ort_fp32": by("ort fp32"), "slice_ms_ort_int8": by("ort int8"),
+        "variants": rows_json,
+        "agreement": agreement,
+    }))
+}
+
+fn main() -> Result<()> {
+    let a = parse_args()?;
+    let model_geometry = dbt_dbtor::ModelManifest::load(&a.model)?.geometry;
+    let peaks = measured_peaks();
+    println!(
+        "measured peak on 2 threads: fp32 FMA {:.1} GFLOP/s, int8 VNNI {:.1} GOP/s",
+        peaks.0, peaks.1
+    );
+    let mut out = Map::new();
+    out.insert("model".into(), json!(a.model));
+    out.insert("reps".into(), json!(a.reps));
+    out.insert("threads".into(), json!(rayon::current_num_threads()));
+    out.insert("peak_fp32_gflops".into(), json!(peaks.0));
+    out.insert("peak_int8_gops".into(), json!(peaks.1));
+    if a.geometry != "model" {
+        let paper = Geometry::paper();
+        let v = bench_geometry(&a, "paper geometry", &paper, peaks)?;
+        for k in [
+            "slice_ms_fast_int8",
+            "slice_ms_fast_fp32",
+            "slice_ms_tract_fp32",
+            "slice_ms_tract_int8",
+            "slice_ms_ort_fp32",
+            "slice_ms_ort_int8",
+        ] {
+            out.insert(k.into(), v[k].clone());
+        }
+        out.insert("paper".into(), v);
+    }
+    if a.geometry != "paper" {
+        let v = bench_geometry(&a, "model geometry", &model_geometry, peaks)?;
+        out.insert("model_geometry".into(), v);
+    }
+    if let Some(dir) = a.out.parent() {
+        std::fs::create_dir_all(dir)?;
+    }
+    std::fs::write(&a.out, serde_json::to_string_pretty(&Value::Object(out))?)?;
+    println!("\nwrote {}", a.out.display());
+    Ok(())
+}
