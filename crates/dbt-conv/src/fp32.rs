@@ -131,8 +131,28 @@ impl Fp32Block {
         state: &mut [f32],
         aux: &[f32],
     ) -> Result<(), ConvError> {
-        let (h, w) = (ws.h, ws.w);
-        let n = h * w;
+        self.run_rows(ws, state, aux, 0)
+    }
+
+    /// As [`Fp32Block::run`], on the rows `r0..h` of the grid only, as if
+    /// they were the whole image (zero padding above row `r0`); the rows
+    /// above are left as they are. For cropping the primal work to the
+    /// rows where the breast can be.
+    pub fn run_rows(
+        &self,
+        ws: &mut Fp32Workspace,
+        state: &mut [f32],
+        aux: &[f32],
+        r0: usize,
+    ) -> Result<(), ConvError> {
+        let (hf, w) = (ws.h, ws.w);
+        let n = hf * w;
+        if r0 >= hf {
+            return Err(ConvError::Shape(format!(
+                "first row {r0} is not inside the {hf} rows"
+            )));
+        }
+        let h = hf - r0;
         let [l1, l2, l3] = &self.layers;
         if ws.widths != [l1.cin, l1.ocp, l2.ocp, l3.ocp] {
             return Err(ConvError::Shape(
@@ -141,7 +161,7 @@ impl Fp32Block {
         }
         if state.len() != self.state_ch * n || aux.len() != self.aux_ch * n {
             return Err(ConvError::Shape(format!(
-                "state has {} values and aux {}, the block needs {} and {} ({h} x {w})",
+                "state has {} values and aux {}, the block needs {} and {} ({hf} x {w})",
                 state.len(),
                 aux.len(),
                 self.state_ch * n,
@@ -152,16 +172,22 @@ impl Fp32Block {
         // cat(state, aux) into the padded channels-last input.
         // (Rows are sliced out, not skipped: rayon's `skip` spawns a heap job.)
         let rl = (w + 2) * c0;
+        // The row below the last one computed is the bottom zero border (an
+        // interior row of the buffers when rows are cropped).
+        for (buf, c) in [(&mut ws.x0, c0), (&mut ws.a1, l1.ocp), (&mut ws.a2, l2.ocp)] {
+            buf[(h + 1) * (w + 2) * c..(h + 2) * (w + 2) * c].fill(0.0);
+        }
         ws.x0[rl..(h + 1) * rl]
             .par_chunks_mut(rl)
             .enumerate()
             .for_each(|(r, row)| {
+                let r = r + r0;
                 for ch in 0..c0 {
                     let src = if ch < sc {
-                        &state[(ch * h + r) * w..(ch * h + r + 1) * w]
+                        &state[(ch * hf + r) * w..(ch * hf + r + 1) * w]
                     } else {
                         let a = ch - sc;
-                        &aux[(a * h + r) * w..(a * h + r + 1) * w]
+                        &aux[(a * hf + r) * w..(a * hf + r + 1) * w]
                     };
                     for (x, v) in src.iter().enumerate() {
                         row[(x + 1) * c0 + ch] = *v;
@@ -173,7 +199,11 @@ impl Fp32Block {
         conv(self.kernel, l3, &ws.a2, l2.ocp, h, w, &mut ws.out, false);
         let (out, o3) = (&ws.out, l3.ocp);
         state.par_chunks_mut(w).enumerate().for_each(|(k, row)| {
-            let (ch, r) = (k / h, k % h);
+            let (ch, r) = (k / hf, k % hf);
+            if r < r0 {
+                return;
+            }
+            let r = r - r0;
             for (x, v) in row.iter_mut().enumerate() {
                 *v += out[(r * w + x) * o3 + ch];
             }
@@ -480,6 +510,37 @@ mod tests {
         check(Kernel::Avx512, 5, 3, 16, 3, 7);
         check(Kernel::Avx512, 2, 1, 48, 5, 11);
         check(Kernel::Avx512, 5, 2, 64, 1, 1);
+    }
+
+    #[test]
+    fn cropped_rows_are_the_block_on_the_sub_image() {
+        let (sc, ac, h, w, r0) = (5, 2, 9, 13, 4);
+        let b = random_block(sc, ac, 16, 3);
+        let state = random_vec(sc * h * w, 1);
+        let aux = random_vec(ac * h * w, 2);
+        let rows = |v: &[f32], c: usize| -> Vec<f32> {
+            (0..c)
+                .flat_map(|ch| v[(ch * h + r0) * w..(ch + 1) * h * w].to_vec())
+                .collect()
+        };
+        let want = reference_block(&b, &rows(&state, sc), &rows(&aux, ac), h - r0, w).unwrap();
+        for k in [Kernel::Portable, Kernel::best_fp32()] {
+            let fb = Fp32Block::new(&b, k).unwrap();
+            let mut ws = Fp32Workspace::new(&fb, h, w);
+            // A full run first leaves data in the rows the cropped run uses
+            // as its bottom border.
+            let mut s = state.clone();
+            fb.run(&mut ws, &mut s, &aux).unwrap();
+            let mut got = state.clone();
+            fb.run_rows(&mut ws, &mut got, &aux, r0).unwrap();
+            assert_eq!(
+                &got[..r0 * w],
+                &state[..r0 * w],
+                "rows above the crop changed"
+            );
+            assert!(max_rel(&rows(&got, sc), &want) < 1e-5);
+            assert!(fb.run_rows(&mut ws, &mut got, &aux, h).is_err());
+        }
     }
 
     #[test]

@@ -379,8 +379,26 @@ impl Int8Block {
         state: &mut [f32],
         aux: &[f32],
     ) -> Result<(), ConvError> {
-        let (h, w) = (ws.h, ws.w);
-        let n = h * w;
+        self.run_rows(ws, state, aux, 0)
+    }
+
+    /// As [`Int8Block::run`] on the rows `r0..h` only (see
+    /// [`crate::Fp32Block::run_rows`]).
+    pub fn run_rows(
+        &self,
+        ws: &mut Int8Workspace,
+        state: &mut [f32],
+        aux: &[f32],
+        r0: usize,
+    ) -> Result<(), ConvError> {
+        let (hf, w) = (ws.h, ws.w);
+        let n = hf * w;
+        if r0 >= hf {
+            return Err(ConvError::Shape(format!(
+                "first row {r0} is not inside the {hf} rows"
+            )));
+        }
+        let h = hf - r0;
         let [l1, l2, l3] = &self.layers;
         if ws.widths != [l1.cin4, l1.ocp, l2.ocp, l3.ocp] {
             return Err(ConvError::Shape(
@@ -389,7 +407,7 @@ impl Int8Block {
         }
         if state.len() != self.state_ch * n || aux.len() != self.aux_ch * n {
             return Err(ConvError::Shape(format!(
-                "state has {} values and aux {}, the block needs {} and {} ({h} x {w})",
+                "state has {} values and aux {}, the block needs {} and {} ({hf} x {w})",
                 state.len(),
                 aux.len(),
                 self.state_ch * n,
@@ -409,6 +427,7 @@ impl Int8Block {
             .par_chunks_mut(rl)
             .enumerate()
             .for_each(|(r, row)| {
+                let r = r + r0;
                 for ch in 0..c4 {
                     if ch >= l1.cin {
                         for x in 0..w {
@@ -417,10 +436,10 @@ impl Int8Block {
                         continue;
                     }
                     let (src, q) = if ch < sc {
-                        (&state[(ch * h + r) * w..(ch * h + r + 1) * w], qs)
+                        (&state[(ch * hf + r) * w..(ch * hf + r + 1) * w], qs)
                     } else {
                         let a = ch - sc;
-                        (&aux[(a * h + r) * w..(a * h + r + 1) * w], qa)
+                        (&aux[(a * hf + r) * w..(a * hf + r + 1) * w], qa)
                     };
                     let mut buf = [0u8; CHUNK];
                     for (k, part) in src.chunks(CHUNK).enumerate() {
@@ -452,7 +471,11 @@ impl Int8Block {
         );
         let (out, o3, qr, kernel) = (&ws.out, l3.ocp, self.q_result, self.kernel);
         state.par_chunks_mut(w).enumerate().for_each(|(k, row)| {
-            let (ch, r) = (k / h, k % h);
+            let (ch, r) = (k / hf, k % hf);
+            if r < r0 {
+                return;
+            }
+            let r = r - r0;
             let mut add = [0.0f32; CHUNK];
             for (c, part) in row.chunks_mut(CHUNK).enumerate() {
                 for (e, a) in add[..part.len()].iter_mut().enumerate() {
@@ -1075,6 +1098,41 @@ mod tests {
         check(5, 3, 16, 3, 7);
         check(2, 1, 48, 5, 11);
         check(5, 2, 64, 1, 1);
+    }
+
+    #[test]
+    fn cropped_rows_are_the_block_on_the_sub_image() {
+        let (sc, ac, h, w, r0) = (5, 2, 9, 21, 3);
+        let b = random_int8(sc, ac, 16, 5);
+        let state = random_vec(sc * h * w, 1);
+        let aux = random_vec(ac * h * w, 2);
+        let rows = |v: &[f32], c: usize| -> Vec<f32> {
+            (0..c)
+                .flat_map(|ch| v[(ch * h + r0) * w..(ch + 1) * h * w].to_vec())
+                .collect()
+        };
+        let want = run(
+            &b,
+            Kernel::Portable,
+            &rows(&state, sc),
+            &rows(&aux, ac),
+            h - r0,
+            w,
+        );
+        for k in [Kernel::Portable, Kernel::best_int8()] {
+            let blk = Int8Block::new(&b, k).unwrap();
+            let mut ws = Int8Workspace::new(&blk, h, w);
+            let mut s = state.clone();
+            blk.run(&mut ws, &mut s, &aux).unwrap();
+            let mut got = state.clone();
+            blk.run_rows(&mut ws, &mut got, &aux, r0).unwrap();
+            assert_eq!(
+                &got[..r0 * w],
+                &state[..r0 * w],
+                "rows above the crop changed"
+            );
+            assert_eq!(rows(&got, sc), want);
+        }
     }
 
     #[test]

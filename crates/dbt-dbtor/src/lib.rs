@@ -183,6 +183,9 @@ pub struct Dbtor {
     /// In execution order: dual 0, primal 0, dual 1, ...
     blocks: Blocks,
     buffers: std::sync::Mutex<Option<Box<Buffers>>>,
+    /// Primal blocks run only from this many rows above the breast (fast
+    /// engine); `None`: on the whole image.
+    crop_margin: Option<usize>,
 }
 
 impl std::fmt::Debug for Dbtor {
@@ -308,9 +311,30 @@ impl Dbtor {
             engine,
             blocks,
             buffers: std::sync::Mutex::new(None),
+            crop_margin: None,
         };
         tracing::info!(model = %s.manifest.name, %precision, %engine, kernel = s.kernel().unwrap_or("tract"), blocks = s.manifest.blocks.len(), "DBToR model loaded");
         Ok(s)
+    }
+
+    /// Crop the primal blocks to the rows the thickness mask says can hold
+    /// breast, plus `margin` rows above (fast engine only; the rows above
+    /// stay zero). This changes the network's function (the blocks see a
+    /// zero border where they saw empty image): its effect on accuracy is
+    /// measured by `dbt-eval baselines --crop-margin N` (eval/README.md).
+    pub fn with_crop(mut self, margin: Option<usize>) -> Result<Self, DbtorError> {
+        if margin.is_some() && self.engine != Engine::Fast {
+            return Err(DbtorError::Input(
+                "cropping the primal blocks needs the fast engine".into(),
+            ));
+        }
+        self.crop_margin = margin;
+        Ok(self)
+    }
+
+    /// The crop margin, if cropping.
+    pub fn crop_margin(&self) -> Option<usize> {
+        self.crop_margin
     }
 
     /// The executor.
@@ -443,6 +467,7 @@ impl Dbtor {
         state: &mut [f32],
         aux: &[f32],
         ws: &mut Workspaces,
+        r0: usize,
     ) -> Result<(), DbtorError> {
         let b = &self.manifest.blocks[k];
         let g = &self.manifest.geometry;
@@ -480,15 +505,23 @@ impl Dbtor {
                 Ok(())
             }
             (Blocks::Fp32(v), Workspaces::Fp32 { dual, primal }, role) => {
-                let ws = if role == Role::Dual { dual } else { primal };
+                let (ws, r0) = if role == Role::Dual {
+                    (dual, 0)
+                } else {
+                    (primal, r0)
+                };
                 v[k].0
-                    .run(ws, state, aux)
+                    .run_rows(ws, state, aux, r0)
                     .map_err(|e| conv_fail(&v[k].1, e))
             }
             (Blocks::Int8(v), Workspaces::Int8 { dual, primal }, role) => {
-                let ws = if role == Role::Dual { dual } else { primal };
+                let (ws, r0) = if role == Role::Dual {
+                    (dual, 0)
+                } else {
+                    (primal, r0)
+                };
                 v[k].0
-                    .run(ws, state, aux)
+                    .run_rows(ws, state, aux, r0)
                     .map_err(|e| conv_fail(&v[k].1, e))
             }
             _ => Err(DbtorError::Input(
@@ -629,6 +662,10 @@ impl Dbtor {
         let first = (geom.image.rows - inside) * cols;
         mask[..first].fill(0.0);
         mask[first..].fill(1.0);
+        let r0 = self
+            .crop_margin
+            .map(|m| (first / cols).saturating_sub(m).min(geom.image.rows - 1))
+            .unwrap_or(0);
         self.project(mask, pm, inv_norm)?;
         h.fill(0.0);
         f.fill(0.0);
@@ -650,8 +687,8 @@ impl Dbtor {
             }
             let t1 = Instant::now();
             match blk.role {
-                Role::Dual => self.run_block(k, h, aux_d, ws)?,
-                Role::Primal => self.run_block(k, f, aux_p, ws)?,
+                Role::Dual => self.run_block(k, h, aux_d, ws, 0)?,
+                Role::Primal => self.run_block(k, f, aux_p, ws, r0)?,
             }
             if let Some(p) = prof.as_deref_mut() {
                 p.projector_ms += ms(t0) - ms(t1);

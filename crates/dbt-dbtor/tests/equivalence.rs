@@ -199,3 +199,31 @@ fn bad_input_is_refused() {
     assert!(msg.contains("sample 17"), "{msg}");
     assert!(m.reconstruct(&vec![0.0; n], 0.0).is_err());
 }
+
+/// Cropping the primal blocks: refused on tract; on the fast engine the
+/// rows above the crop stay zero and the output differs from the uncropped
+/// one (the reason the firmware does not crop: eval/README.md).
+#[test]
+fn crop_is_fast_only_and_leaves_the_rows_above_empty() {
+    let dir = model_dir();
+    let t = Dbtor::load(&dir, Precision::Fp32).unwrap();
+    assert!(t.with_crop(Some(4)).is_err());
+    let full = Dbtor::load_with(&dir, Precision::Fp32, Engine::Fast).unwrap();
+    let crop = Dbtor::load_with(&dir, Precision::Fp32, Engine::Fast)
+        .unwrap()
+        .with_crop(Some(2))
+        .unwrap();
+    let g = full.geometry().clone();
+    let sino: Vec<f32> = (0..g.n_rays())
+        .map(|i| 1.5 + (i % 5) as f32 * 0.1)
+        .collect();
+    let thickness = 30.0;
+    let a = full.reconstruct(&sino, thickness).unwrap();
+    let b = crop.reconstruct(&sino, thickness).unwrap();
+    let inside = g.rows_within_thickness(thickness);
+    let r0 = g.image.rows - inside - 2;
+    let cols = g.image.columns;
+    assert!(b[..r0 * cols].iter().all(|v| *v == 0.0));
+    assert!(a[..r0 * cols].iter().any(|v| *v != 0.0));
+    assert!(b[r0 * cols..].iter().any(|v| *v != 0.0));
+}

@@ -40,6 +40,10 @@ enum Cmd {
         /// (the reference).
         #[arg(long, default_value = "fast")]
         engine: String,
+        /// Crop the primal blocks to the breast's rows plus this margin
+        /// (fast engine; default: the whole image).
+        #[arg(long)]
+        crop_margin: Option<usize>,
         /// Test-set phantoms.
         #[arg(long, default_value_t = 5)]
         phantoms: usize,
@@ -123,6 +127,10 @@ enum Cmd {
         /// (the reference).
         #[arg(long, default_value = "fast")]
         engine: String,
+        /// Crop the primal blocks to the breast's rows plus this margin
+        /// (fast engine; default: the whole image).
+        #[arg(long)]
+        crop_margin: Option<usize>,
     },
     /// PNG of a test slice: phantom, sinogram, MLTR, FBP.
     Picture {
@@ -169,6 +177,7 @@ fn load_models(
     dir: Option<&std::path::Path>,
     precisions: &str,
     engine: &str,
+    crop_margin: Option<usize>,
 ) -> Result<Vec<(String, Dbtor)>> {
     let Some(dir) = dir else { return Ok(vec![]) };
     let engine: dbt_dbtor::Engine = engine.parse().map_err(anyhow::Error::msg)?;
@@ -176,7 +185,8 @@ fn load_models(
     for p in precisions.split(',').filter(|p| !p.is_empty()) {
         let p: Precision = p.parse().map_err(anyhow::Error::msg)?;
         let m = Dbtor::load_with(dir, p, engine)
-            .with_context(|| format!("loading {} ({p}, {engine})", dir.display()))?;
+            .with_context(|| format!("loading {} ({p}, {engine})", dir.display()))?
+            .with_crop(crop_margin)?;
         out.push((format!("DBToR {p}"), m));
     }
     Ok(out)
@@ -195,13 +205,14 @@ fn main() -> Result<()> {
             model,
             precisions,
             engine,
+            crop_margin,
             phantoms,
             slices,
             iterations,
             levels,
             json,
         } => {
-            let loaded = load_models(model.as_deref(), &precisions, &engine)?;
+            let loaded = load_models(model.as_deref(), &precisions, &engine, crop_margin)?;
             let geometry = match (loaded.first(), binning) {
                 (Some((_, m)), None) => m.geometry().clone(),
                 (Some((name, m)), Some(b)) => {
@@ -345,11 +356,12 @@ fn main() -> Result<()> {
             model,
             precision,
             engine,
+            crop_margin,
         } => {
             use dbt_eval::accuracy::{run_case, summarise, test_phantoms};
             let g = Geometry::paper().binned(binning)?;
             let noise = NoiseLevel::parse(&noise)?;
-            let dbtor = load_models(model.as_deref(), &precision, &engine)?
+            let dbtor = load_models(model.as_deref(), &precision, &engine, crop_margin)?
                 .pop()
                 .map(|(_, m)| std::sync::Arc::new(m));
             let opts = dbtor_firmware::pipeline::PipelineOptions {
@@ -474,7 +486,7 @@ fn main() -> Result<()> {
             noise,
             model,
         } => {
-            let model = load_models(model.as_deref(), "fp32", "fast")?
+            let model = load_models(model.as_deref(), "fp32", "fast", None)?
                 .pop()
                 .map(|(_, m)| m);
             let g = match &model {
