@@ -117,12 +117,13 @@ enum Cmd {
         /// Output folder (accuracy.json, bland-altman-*.png).
         #[arg(long, default_value = "eval/results/accuracy")]
         out: PathBuf,
-        /// Reconstruct with this DBToR model (default: MLTR).
+        /// The DBToR model (needed for the fp32 and int8 reconstructors).
         #[arg(long)]
         model: Option<PathBuf>,
-        /// Model precision (fp32 or int8).
-        #[arg(long, default_value = "fp32")]
-        precision: String,
+        /// Reconstructors to compare on the same acquisitions (comma
+        /// separated: mltr, fp32, int8; default: fp32 with --model, else mltr).
+        #[arg(long)]
+        reconstructors: Option<String>,
         /// Executor of the model's blocks: fast (the fused kernels) or tract
         /// (the reference).
         #[arg(long, default_value = "fast")]
@@ -354,22 +355,44 @@ fn main() -> Result<()> {
             dose_uncertainty,
             out,
             model,
-            precision,
+            reconstructors,
             engine,
             crop_margin,
         } => {
-            use dbt_eval::accuracy::{run_case, summarise, test_phantoms};
+            use dbt_eval::accuracy::{run_cases, summarise, test_phantoms, Case};
             let g = Geometry::paper().binned(binning)?;
             let noise = NoiseLevel::parse(&noise)?;
-            let dbtor = load_models(model.as_deref(), &precision, &engine, crop_margin)?
-                .pop()
-                .map(|(_, m)| std::sync::Arc::new(m));
-            let opts = dbtor_firmware::pipeline::PipelineOptions {
-                dbtor,
-                mltr_iterations: iterations,
-                dose_uncertainty,
-                seed: 1,
-            };
+            let list = reconstructors
+                .unwrap_or_else(|| if model.is_some() { "fp32" } else { "mltr" }.to_string());
+            let mut recs: Vec<(String, dbtor_firmware::pipeline::PipelineOptions)> = Vec::new();
+            for r in list.split(',').map(str::trim).filter(|r| !r.is_empty()) {
+                let (label, dbtor) = match r {
+                    "mltr" => (format!("MLTR {iterations} iterations"), None),
+                    "fp32" | "int8" => {
+                        anyhow::ensure!(model.is_some(), "--reconstructors {r} needs --model");
+                        let m = load_models(model.as_deref(), r, &engine, crop_margin)?
+                            .pop()
+                            .map(|(_, m)| m)
+                            .context("no model loaded")?;
+                        (
+                            format!("DBToR {} ({r}, {engine})", m.manifest().name),
+                            Some(std::sync::Arc::new(m)),
+                        )
+                    }
+                    other => anyhow::bail!("unknown reconstructor {other:?} (mltr, fp32, int8)"),
+                };
+                recs.push((
+                    label,
+                    dbtor_firmware::pipeline::PipelineOptions {
+                        dbtor,
+                        mltr_iterations: iterations,
+                        dose_uncertainty,
+                        seed: 1,
+                    },
+                ));
+            }
+            anyhow::ensure!(!recs.is_empty(), "no reconstructor given");
+            let opts: Vec<_> = recs.iter().map(|(_, o)| o.clone()).collect();
             let inputs: Vec<anyhow::Result<(String, dbt_phantom::LabelVolume)>> = match &phantom {
                 Some(p) => vec![dbt_store::load_external_phantom(p)
                     .map_err(anyhow::Error::from)
@@ -377,101 +400,102 @@ fn main() -> Result<()> {
                     .map(|v| (p.display().to_string(), v))],
                 None => test_phantoms(&g, phantoms).collect(),
             };
-            let mut cases = Vec::new();
+            let mut cases: Vec<Vec<Case>> = vec![Vec::new(); recs.len()];
             for (k, item) in inputs.into_iter().enumerate() {
                 let (name, vol) = item?;
-                let c = run_case(name, &vol, &g, noise, &opts, 1000 + k as u64)?;
-                eprintln!(
-                    "{}: T {:.1} mm, G true {:.3} labels {:.3} pv {:.3}; MGD true {:.3} est {:.3} model {:.3} mGy ({:.0} s)",
-                    c.phantom, c.thickness_mm, c.g_true, c.g_labels, c.g_partial_volume, c.mgd_true, c.mgd_est, c.mgd_model, c.seconds
-                );
-                cases.push(c);
+                let cs = run_cases(name, &vol, &g, noise, &opts, 1000 + k as u64)?;
+                for ((label, _), (c, all)) in recs.iter().zip(cs.into_iter().zip(cases.iter_mut()))
+                {
+                    eprintln!(
+                        "{} [{label}]: T {:.1} mm, G true {:.3} labels {:.3} pv {:.3}; MGD true {:.3} est {:.3} model {:.3} mGy ({:.0} s)",
+                        c.phantom, c.thickness_mm, c.g_true, c.g_labels, c.g_partial_volume, c.mgd_true, c.mgd_est, c.mgd_model, c.seconds
+                    );
+                    all.push(c);
+                }
             }
-            let summary = summarise(&cases);
             std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-            println!("| quantity | bias | sd | 95 % limits | max abs | p (bias) | n |\n|---|---|---|---|---|---|---|");
-            let mut plots = serde_json::Map::new();
-            for (name, a, diffs, means) in [
-                (
-                    "glandularity, labels (pp)",
-                    summary.glandularity_labels_pp,
-                    cases
-                        .iter()
-                        .map(|c| 100.0 * (c.g_labels - c.g_true))
-                        .collect::<Vec<_>>(),
-                    cases
-                        .iter()
-                        .map(|c| 50.0 * (c.g_labels + c.g_true))
-                        .collect::<Vec<_>>(),
-                ),
-                (
-                    "glandularity, partial volume (pp)",
-                    summary.glandularity_partial_volume_pp,
-                    cases
-                        .iter()
-                        .map(|c| 100.0 * (c.g_partial_volume - c.g_true))
-                        .collect(),
-                    cases
-                        .iter()
-                        .map(|c| 50.0 * (c.g_partial_volume + c.g_true))
-                        .collect(),
-                ),
-                (
-                    "MGD, patient-specific (%)",
-                    summary.mgd_percent,
-                    cases
-                        .iter()
-                        .map(|c| 100.0 * (c.mgd_est / c.mgd_true - 1.0))
-                        .collect(),
-                    cases
-                        .iter()
-                        .map(|c| 0.5 * (c.mgd_est + c.mgd_true))
-                        .collect(),
-                ),
-                (
-                    "MGD, model breast (%)",
-                    summary.model_mgd_percent,
-                    cases
-                        .iter()
-                        .map(|c| 100.0 * (c.mgd_model / c.mgd_true - 1.0))
-                        .collect(),
-                    cases
-                        .iter()
-                        .map(|c| 0.5 * (c.mgd_model + c.mgd_true))
-                        .collect(),
-                ),
-            ] {
-                println!(
-                    "| {name} | {:+.2} | {:.2} | [{:+.2}, {:+.2}] | {:.2} | {:.3} | {} |",
-                    a.bias, a.sd, a.loa[0], a.loa[1], a.max_abs, a.p_value, a.n
-                );
-                let file = format!(
-                    "bland-altman-{}.png",
-                    name.split(' ')
-                        .next()
-                        .unwrap_or("x")
-                        .trim_end_matches(',')
-                        .to_lowercase()
-                        + if name.contains("partial") {
-                            "-pv"
-                        } else if name.contains("model") {
-                            "-model"
-                        } else {
-                            ""
-                        }
-                );
-                let (px, w, h, ranges) =
-                    dbt_eval::picture::bland_altman(&means, &diffs, a.bias, a.loa);
-                write_png(&out.join(&file), &px, w, h)?;
-                plots.insert(file, serde_json::json!({"quantity": name, "x_range_mean": [ranges[0], ranges[1]], "y_range_difference": [ranges[2], ranges[3]]}));
+            println!("| reconstructor | quantity | bias | sd | 95 % limits | max abs | p (bias) | n |\n|---|---|---|---|---|---|---|---|");
+            let mut results = Vec::new();
+            for ((label, _), cases) in recs.iter().zip(&cases) {
+                let summary = summarise(cases);
+                let tag = if label.starts_with("MLTR") {
+                    "mltr".to_string()
+                } else if label.contains("(int8") {
+                    "dbtor-int8".to_string()
+                } else {
+                    "dbtor-fp32".to_string()
+                };
+                let mut plots = serde_json::Map::new();
+                type Pick = fn(&Case) -> (f64, f64);
+                let rows: [(&str, &str, dbt_eval::accuracy::Agreement, Pick); 4] = [
+                    (
+                        "glandularity, labels (pp)",
+                        "glandularity",
+                        summary.glandularity_labels_pp,
+                        |c| {
+                            (
+                                100.0 * (c.g_labels - c.g_true),
+                                50.0 * (c.g_labels + c.g_true),
+                            )
+                        },
+                    ),
+                    (
+                        "glandularity, partial volume (pp)",
+                        "glandularity-pv",
+                        summary.glandularity_partial_volume_pp,
+                        |c| {
+                            (
+                                100.0 * (c.g_partial_volume - c.g_true),
+                                50.0 * (c.g_partial_volume + c.g_true),
+                            )
+                        },
+                    ),
+                    (
+                        "MGD, patient-specific (%)",
+                        "mgd",
+                        summary.mgd_percent,
+                        |c| {
+                            (
+                                100.0 * (c.mgd_est / c.mgd_true - 1.0),
+                                0.5 * (c.mgd_est + c.mgd_true),
+                            )
+                        },
+                    ),
+                    (
+                        "MGD, model breast (%)",
+                        "mgd-model",
+                        summary.model_mgd_percent,
+                        |c| {
+                            (
+                                100.0 * (c.mgd_model / c.mgd_true - 1.0),
+                                0.5 * (c.mgd_model + c.mgd_true),
+                            )
+                        },
+                    ),
+                ];
+                for (name, short, a, pick) in rows {
+                    println!(
+                        "| {label} | {name} | {:+.2} | {:.2} | [{:+.2}, {:+.2}] | {:.2} | {:.3} | {} |",
+                        a.bias, a.sd, a.loa[0], a.loa[1], a.max_abs, a.p_value, a.n
+                    );
+                    let (diffs, means): (Vec<f64>, Vec<f64>) = cases.iter().map(pick).unzip();
+                    let file = format!("bland-altman-{tag}-{short}.png");
+                    let (px, w, h, ranges) =
+                        dbt_eval::picture::bland_altman(&means, &diffs, a.bias, a.loa);
+                    write_png(&out.join(&file), &px, w, h)?;
+                    plots.insert(file, serde_json::json!({"quantity": name, "x_range_mean": [ranges[0], ranges[1]], "y_range_difference": [ranges[2], ranges[3]]}));
+                }
+                results.push(serde_json::json!({
+                    "reconstructor": label,
+                    "cases": cases,
+                    "summary": summary,
+                    "plots": plots,
+                }));
             }
             let json = serde_json::json!({
-                "reconstructor": format!("MLTR {iterations} iterations"),
                 "noise": noise.name(),
                 "geometry": g.describe(),
-                "cases": cases,
-                "summary": summary,
-                "plots": plots,
+                "reconstructors": results,
             });
             std::fs::write(
                 out.join("accuracy.json"),
