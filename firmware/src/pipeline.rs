@@ -107,6 +107,32 @@ pub struct ProcessResult {
 
 /// Reconstruct, classify, and compute density and dose.
 pub fn process(acq: &Acquisition, opts: &PipelineOptions) -> Result<ProcessResult, PipelineError> {
+    process_with_progress(acq, opts, &mut |_| {})
+}
+
+/// Where [`process_with_progress`] is.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Stage {
+    /// Slice `done` of `total` reconstructed.
+    Slice {
+        /// Slices reconstructed so far.
+        done: usize,
+        /// Slices in the acquisition.
+        total: usize,
+    },
+    /// Tissue classification and density.
+    Classification,
+    /// The Monte Carlo dose runs.
+    Dose,
+}
+
+/// [`process`], calling `progress` after each slice and at each later stage
+/// (for the service CLI's progress display).
+pub fn process_with_progress(
+    acq: &Acquisition,
+    opts: &PipelineOptions,
+    progress: &mut dyn FnMut(Stage),
+) -> Result<ProcessResult, PipelineError> {
     let h = &acq.header;
     let g = &h.geometry;
     let _span =
@@ -172,10 +198,16 @@ pub fn process(acq: &Acquisition, opts: &PipelineOptions) -> Result<ProcessResul
             let dst = (d * nv + v) * cols;
             mu[dst..dst + cols].copy_from_slice(&img[r * cols..(r + 1) * cols]);
         }
+        progress(Stage::Slice {
+            done: d + 1,
+            total: acq.counts.len(),
+        });
     }
+    progress(Stage::Classification);
     let dims = [cols, nv, nd];
     let classification = classify(&mu, dims, &ClassifyOptions::default())?;
     let dens = density(&mu, &classification.labels, g.image.pixel_mm);
+    progress(Stage::Dose);
     let tube = dbt_dose::xray::paper_spectrum(h.thickness_mm)?;
     let spectrum = tube
         .spectrum

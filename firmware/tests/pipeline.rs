@@ -5,7 +5,7 @@ use dbt_acquisition::NoiseLevel;
 use dbt_dicom::{read_values, Equipment, UidSource};
 use dbt_geometry::Geometry;
 use dbt_phantom::{generate, PhantomSpec};
-use dbtor_firmware::pipeline::{process, reports, PipelineOptions};
+use dbtor_firmware::pipeline::{process, process_with_progress, reports, PipelineOptions, Stage};
 use host_sim::{simulate_acquisition, Technique};
 
 #[test]
@@ -36,7 +36,15 @@ fn acquisition_to_reports() {
         dose_uncertainty: 0.05,
         seed: 1,
     };
-    let res = process(&acq, &opts).unwrap();
+    let mut stages = Vec::new();
+    let res = process_with_progress(&acq, &opts, &mut |s| stages.push(s)).unwrap();
+    // Progress: every slice in order, then classification, then dose.
+    let n = acq.counts.len();
+    let want: Vec<Stage> = (1..=n)
+        .map(|done| Stage::Slice { done, total: n })
+        .chain([Stage::Classification, Stage::Dose])
+        .collect();
+    assert_eq!(stages, want);
     assert_eq!(res.dims[2], vol.n_coronal());
     assert_eq!(res.dims[1], g.rows_within_thickness(32.0));
     let d = res.density;

@@ -244,7 +244,24 @@ fn run() -> Result<bool> {
                 entry.display(),
                 acq.header.slices
             );
-            let r = dbtor_firmware::pipeline::process(&acq, &opts)?;
+            let mut last = std::time::Instant::now();
+            let r = dbtor_firmware::pipeline::process_with_progress(&acq, &opts, &mut |st| {
+                use dbtor_firmware::pipeline::Stage;
+                match st {
+                    // At most a few updates a second on the terminal.
+                    Stage::Slice { done, total } => {
+                        if done == total || last.elapsed().as_millis() >= 200 {
+                            last = std::time::Instant::now();
+                            eprint!(
+                                "\r  slice {done}/{total} ({:.0} %)   ",
+                                100.0 * done as f64 / total.max(1) as f64
+                            );
+                        }
+                    }
+                    Stage::Classification => eprint!("\n  classification and density ... "),
+                    Stage::Dose => eprintln!("done\n  Monte Carlo dose ..."),
+                }
+            })?;
             let stored: Option<serde_json::Value> = std::fs::read(entry.join("result.json"))
                 .ok()
                 .and_then(|b| serde_json::from_slice(&b).ok());
