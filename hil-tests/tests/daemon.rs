@@ -64,25 +64,21 @@ fn gantry(acq: &Path, thickness_mm: f64) -> Gantry {
     }
 }
 
-fn config(dir: &Path, g: &Gantry, iterations: usize) -> PathBuf {
+/// A daemon configuration in `dir` from its frames, Modbus and recon
+/// sections; the paths and report sections are common to every test.
+fn write_config(dir: &Path, frames: &str, modbus: &str, recon: &str) -> PathBuf {
     let text = format!(
         r#"
 [frames]
-transport = "tcp"
-address = "{}"
+{frames}
 idle_timeout_s = 20
 binning = 4
 
 [modbus]
-transport = "tcp"
-address = "{}"
-timeout_ms = 500
-attempts = 3
-thickness_tolerance_mm = 1.0
+{modbus}
 
 [recon]
-reconstructor = "mltr"
-mltr_iterations = {iterations}
+{recon}
 dose_uncertainty = 0.2
 
 [paths]
@@ -93,12 +89,23 @@ status = "run/status.json"
 [report]
 uid_root = "1.2.826.0.1.3680043.10.543.1"
 tube_output_mgy_per_mas = 0.11
-"#,
-        g.frames, g.registers
+"#
     );
     let p = dir.join("dbtor.toml");
     std::fs::write(&p, text).unwrap();
     p
+}
+
+fn config(dir: &Path, g: &Gantry, iterations: usize) -> PathBuf {
+    write_config(
+        dir,
+        &format!("transport = \"tcp\"\naddress = \"{}\"", g.frames),
+        &format!(
+            "transport = \"tcp\"\naddress = \"{}\"\ntimeout_ms = 500\nattempts = 3\nthickness_tolerance_mm = 1.0",
+            g.registers
+        ),
+        &format!("reconstructor = \"mltr\"\nmltr_iterations = {iterations}"),
+    )
 }
 
 fn daemon(cfg: &Path, extra: &[&str]) -> Child {
@@ -333,39 +340,20 @@ fn clean_acquisition_over_serial_lines() {
         .stderr(Stdio::null())
         .spawn()
         .unwrap();
-    let text = format!(
-        r#"
-[frames]
-transport = "serial"
-port = "{}"
-idle_timeout_s = 20
-binning = 4
-
-[modbus]
-transport = "rtu"
-port = "{}"
-baud = 19200
-timeout_ms = 1000
-
-[recon]
-reconstructor = "mltr"
-mltr_iterations = 2
-dose_uncertainty = 0.2
-
-[paths]
-spool = "spool"
-output = "output"
-status = "run/status.json"
-
-[report]
-uid_root = "1.2.826.0.1.3680043.10.543.1"
-tube_output_mgy_per_mas = 0.11
-"#,
-        frames_pc.display(),
-        modbus_pc.display()
+    // The shipped model on the fast engine: the gantry PC's configuration.
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/dbtor-x4");
+    let cfg = write_config(
+        dir.path(),
+        &format!("transport = \"serial\"\nport = \"{}\"", frames_pc.display()),
+        &format!(
+            "transport = \"rtu\"\nport = \"{}\"\nbaud = 19200\ntimeout_ms = 1000",
+            modbus_pc.display()
+        ),
+        &format!(
+            "reconstructor = \"dbtor\"\nmodel = {:?}\nprecision = \"int8\"\nengine = \"fast\"",
+            model.display().to_string()
+        ),
     );
-    let cfg = dir.path().join("dbtor.toml");
-    std::fs::write(&cfg, text).unwrap();
     let mut d = daemon(&cfg, &["--once"]);
     // The daemon opens its ends first; then the gantry streams.
     std::thread::sleep(Duration::from_millis(500));
@@ -399,6 +387,11 @@ tube_output_mgy_per_mas = 0.11
     let s = status(dir.path());
     assert_eq!(s["processed"], 1, "{s}");
     assert!(s["faults"].as_array().unwrap().is_empty(), "{s}");
+    let rec = s["recent"][0]["reconstructor"].as_str().unwrap_or_default();
+    assert!(
+        rec.starts_with("DBToR") && rec.ends_with("(int8, fast)"),
+        "{s}"
+    );
     let reports = entries(&dir.path().join("output"))
         .into_iter()
         .filter(|n| n.ends_with(".dcm"))
