@@ -16,6 +16,7 @@
 //! same projector would serve it), which is stated in the table.
 
 use anyhow::{bail, Context, Result};
+use dbt_bench::median;
 use dbt_dbtor::{Dbtor, Engine, Precision, Role, SliceProfile};
 use dbt_geometry::Geometry;
 use dbt_projector::Projector;
@@ -160,18 +161,6 @@ struct Variant {
     note: String,
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(|a, b| a.total_cmp(b));
-    let n = v.len();
-    if n == 0 {
-        f64::NAN
-    } else if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
-}
-
 fn role_median(d: &Dbtor, profs: &[SliceProfile], role: Role) -> f64 {
     let ks: Vec<usize> = d
         .manifest()
@@ -189,13 +178,9 @@ fn role_median(d: &Dbtor, profs: &[SliceProfile], role: Role) -> f64 {
     )
 }
 
+/// RMS difference, 1/mm.
 fn rms(a: &[f32], b: &[f32]) -> f64 {
-    (a.iter()
-        .zip(b)
-        .map(|(x, y)| ((x - y) as f64).powi(2))
-        .sum::<f64>()
-        / a.len().max(1) as f64)
-        .sqrt()
+    dbt_metrics::mse(a, b).sqrt()
 }
 
 fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Result<Value> {

@@ -1,18 +1,9 @@
 //! fp32 blocks: packing, the workspace, the tile kernels and the block loop.
 
-use crate::{BlockWeights, Conv3x3, ConvError, Kernel};
+use crate::{
+    check_run, for_each_tile, BlockWeights, Conv3x3, ConvError, Kernel, GROUP, L, NP_NARROW,
+};
 use rayon::prelude::*;
-
-/// Lanes of an AVX-512 vector of f32.
-pub(crate) const L: usize = 16;
-/// Output channels per register group: 4 vectors.
-const GROUP: usize = 4 * L;
-/// Pixels per tile when a group of 64 channels is in registers
-/// (5 x 4 = 20 accumulators; 5 divides the widths of the paper's grids,
-/// 1000, 1280 and their binned 250, 320, 500, 640).
-const NP_WIDE: usize = 5;
-/// Pixels per tile when one vector of channels is in registers.
-const NP_NARROW: usize = 10;
 
 /// One convolution, packed `[tap][in][out padded to 16]`.
 #[derive(Clone, Debug)]
@@ -146,28 +137,14 @@ impl Fp32Block {
         r0: usize,
     ) -> Result<(), ConvError> {
         let (hf, w) = (ws.h, ws.w);
-        let n = hf * w;
-        if r0 >= hf {
-            return Err(ConvError::Shape(format!(
-                "first row {r0} is not inside the {hf} rows"
-            )));
-        }
-        let h = hf - r0;
         let [l1, l2, l3] = &self.layers;
-        if ws.widths != [l1.cin, l1.ocp, l2.ocp, l3.ocp] {
-            return Err(ConvError::Shape(
-                "the workspace was made for a block of other widths".into(),
-            ));
-        }
-        if state.len() != self.state_ch * n || aux.len() != self.aux_ch * n {
-            return Err(ConvError::Shape(format!(
-                "state has {} values and aux {}, the block needs {} and {} ({hf} x {w})",
-                state.len(),
-                aux.len(),
-                self.state_ch * n,
-                self.aux_ch * n
-            )));
-        }
+        let h = check_run(
+            (hf, w),
+            r0,
+            ws.widths == [l1.cin, l1.ocp, l2.ocp, l3.ocp],
+            (state.len(), aux.len()),
+            (self.state_ch, self.aux_ch),
+        )?;
         let (sc, c0) = (self.state_ch, l1.cin);
         // cat(state, aux) into the padded channels-last input.
         // (Rows are sliced out, not skipped: rayon's `skip` spawns a heap job.)
@@ -240,22 +217,11 @@ fn conv(
         .enumerate()
         .for_each(|(r, orow)| {
             let mut tile = [0.0f32; NP_NARROW * GROUP];
-            let mut g0 = 0;
-            while g0 < ocp {
-                let gw = if ocp - g0 >= GROUP { GROUP } else { L };
-                let mut x = 0;
-                while x < w {
-                    let np = match gw {
-                        GROUP => NP_WIDE.min(w - x),
-                        _ => NP_NARROW.min(w - x),
-                    };
-                    let base = r * rs + x * cs;
-                    run_tile(kernel, gw, np, inp, base, rs, cs, p, g0, &mut tile);
-                    epilogue(p, g0, gw, np, &tile, &mut orow[px0 + x * ocp..]);
-                    x += np;
-                }
-                g0 += gw;
-            }
+            for_each_tile(ocp, w, |g0, gw, x, np| {
+                let base = r * rs + x * cs;
+                run_tile(kernel, gw, np, inp, base, rs, cs, p, g0, &mut tile);
+                epilogue(p, g0, gw, np, &tile, &mut orow[px0 + x * ocp..]);
+            });
         });
 }
 
@@ -282,23 +248,6 @@ fn epilogue(p: &Packed, g0: usize, gw: usize, np: usize, tile: &[f32], out: &mut
             }
         }
     }
-}
-
-macro_rules! dispatch_np {
-    ($f:ident, $nb:literal, $np:expr, $($arg:expr),*) => {
-        match $np {
-            1 => $f::<$nb, 1>($($arg),*),
-            2 => $f::<$nb, 2>($($arg),*),
-            3 => $f::<$nb, 3>($($arg),*),
-            4 => $f::<$nb, 4>($($arg),*),
-            5 => $f::<$nb, 5>($($arg),*),
-            6 => $f::<$nb, 6>($($arg),*),
-            7 => $f::<$nb, 7>($($arg),*),
-            8 => $f::<$nb, 8>($($arg),*),
-            9 => $f::<$nb, 9>($($arg),*),
-            _ => $f::<$nb, 10>($($arg),*),
-        }
-    };
 }
 
 /// Accumulate one tile (no bias) into `tile[p * gw + j]`.
@@ -491,12 +440,20 @@ mod tests {
         assert_eq!(again, got);
     }
 
+    /// The shapes both kernels are checked on: hidden widths of 4 and 1
+    /// register groups and 48 (3 single vectors), widths with and without a
+    /// tail of pixels, and a single pixel.
+    fn check_shapes(kernel: Kernel) {
+        check(kernel, 5, 2, 64, 9, 13);
+        check(kernel, 5, 3, 64, 4, 25);
+        check(kernel, 5, 3, 16, 3, 7);
+        check(kernel, 2, 1, 48, 5, 11);
+        check(kernel, 5, 2, 64, 1, 1);
+    }
+
     #[test]
     fn portable_matches_definition() {
-        check(Kernel::Portable, 5, 2, 64, 9, 13);
-        check(Kernel::Portable, 5, 3, 64, 4, 25);
-        check(Kernel::Portable, 5, 3, 16, 3, 7);
-        check(Kernel::Portable, 2, 1, 48, 5, 11);
+        check_shapes(Kernel::Portable);
     }
 
     #[test]
@@ -505,11 +462,7 @@ mod tests {
             eprintln!("no AVX-512F here: kernel not tested");
             return;
         }
-        check(Kernel::Avx512, 5, 2, 64, 9, 13);
-        check(Kernel::Avx512, 5, 3, 64, 4, 25);
-        check(Kernel::Avx512, 5, 3, 16, 3, 7);
-        check(Kernel::Avx512, 2, 1, 48, 5, 11);
-        check(Kernel::Avx512, 5, 2, 64, 1, 1);
+        check_shapes(Kernel::Avx512);
     }
 
     #[test]

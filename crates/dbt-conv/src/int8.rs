@@ -26,14 +26,8 @@
 //! int8 runtimes do: rarely, a value within an ulp of a rounding tie rounds
 //! the other way than the definition; the tests bound the effect.
 
-use crate::fp32::L;
-use crate::{ConvError, Kernel};
+use crate::{check_run, for_each_tile, group_width, ConvError, Kernel, GROUP, L, NP_NARROW};
 use rayon::prelude::*;
-
-/// Output channels per register group: 4 vectors of 16 i32.
-const GROUP: usize = 4 * L;
-const NP_WIDE: usize = 5;
-const NP_NARROW: usize = 10;
 
 /// Scale and zero point of an int8 tensor.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -412,28 +406,14 @@ impl Int8Block {
         r0: usize,
     ) -> Result<(), ConvError> {
         let (hf, w) = (ws.h, ws.w);
-        let n = hf * w;
-        if r0 >= hf {
-            return Err(ConvError::Shape(format!(
-                "first row {r0} is not inside the {hf} rows"
-            )));
-        }
-        let h = hf - r0;
         let [l1, l2, l3] = &self.layers;
-        if ws.widths != [l1.cin4, l1.ocp, l2.ocp, l3.ocp] {
-            return Err(ConvError::Shape(
-                "the workspace was made for a block of other widths".into(),
-            ));
-        }
-        if state.len() != self.state_ch * n || aux.len() != self.aux_ch * n {
-            return Err(ConvError::Shape(format!(
-                "state has {} values and aux {}, the block needs {} and {} ({hf} x {w})",
-                state.len(),
-                aux.len(),
-                self.state_ch * n,
-                self.aux_ch * n
-            )));
-        }
+        let h = check_run(
+            (hf, w),
+            r0,
+            ws.widths == [l1.cin4, l1.ocp, l2.ocp, l3.ocp],
+            (state.len(), aux.len()),
+            (self.state_ch, self.aux_ch),
+        )?;
         // Borders (and channel padding) hold the byte of real zero of each
         // buffer's quantization, which differs from block to block.
         fill_border(&mut ws.x0, h, w, l1.cin4, pad_byte(l1.q_in));
@@ -638,29 +618,21 @@ fn conv(kernel: Kernel, p: &PackedI8, inp: &[u8], cs: usize, h: usize, w: usize,
     let ocp = p.ocp;
     let row = |r: usize, dst: &mut dyn FnMut(usize, usize, &[i32])| {
         let mut tile = [0i32; NP_NARROW * GROUP];
-        let mut g0 = 0;
-        while g0 < ocp {
-            let gw = if ocp - g0 >= GROUP { GROUP } else { L };
-            let mut x = 0;
-            while x < w {
-                let np = if gw == GROUP { NP_WIDE } else { NP_NARROW }.min(w - x);
-                run_tile(
-                    kernel,
-                    gw,
-                    np,
-                    inp,
-                    r * rs + x * cs,
-                    rs,
-                    cs,
-                    p,
-                    g0,
-                    &mut tile,
-                );
-                dst(x, g0, &tile[..np * gw]);
-                x += np;
-            }
-            g0 += gw;
-        }
+        for_each_tile(ocp, w, |g0, gw, x, np| {
+            run_tile(
+                kernel,
+                gw,
+                np,
+                inp,
+                r * rs + x * cs,
+                rs,
+                cs,
+                p,
+                g0,
+                &mut tile,
+            );
+            dst(x, g0, &tile[..np * gw]);
+        });
     };
     match out {
         Out::Bytes(o) => {
@@ -687,14 +659,6 @@ fn conv(kernel: Kernel, p: &PackedI8, inp: &[u8], cs: usize, h: usize, w: usize,
     }
 }
 
-fn group_width(p: &PackedI8, g0: usize) -> usize {
-    if p.ocp - g0 >= GROUP {
-        GROUP
-    } else {
-        L
-    }
-}
-
 /// Conv output -> Q/DQ -> PReLU -> Q -> byte, at `out[(x + px) * ocp + g0 + j]`.
 fn epilogue_bytes(kernel: Kernel, p: &PackedI8, x: usize, g0: usize, tile: &[i32], out: &mut [u8]) {
     match kernel {
@@ -712,7 +676,7 @@ fn epilogue_bytes(kernel: Kernel, p: &PackedI8, x: usize, g0: usize, tile: &[i32
 #[target_feature(enable = "avx512f,avx512bw")]
 unsafe fn epilogue_bytes_avx512(p: &PackedI8, x: usize, g0: usize, tile: &[i32], out: &mut [u8]) {
     use std::arch::x86_64::*;
-    let gw = group_width(p, g0);
+    let gw = group_width(p.ocp, g0);
     let qo = p.q_out;
     let qa = p.q_act.unwrap_or(qo);
     let (so, zo) = (
@@ -762,7 +726,7 @@ unsafe fn epilogue_bytes_avx512(p: &PackedI8, x: usize, g0: usize, tile: &[i32],
 
 #[inline(always)]
 fn epilogue_bytes_impl(p: &PackedI8, x: usize, g0: usize, tile: &[i32], out: &mut [u8]) {
-    let gw = group_width(p, g0);
+    let gw = group_width(p.ocp, g0);
     let qo = p.q_out;
     let qa = p.q_act.unwrap_or(qo);
     let (io, ia) = (1.0 / qo.scale, 1.0 / qa.scale);
@@ -804,7 +768,7 @@ unsafe fn epilogue_floats_avx512(p: &PackedI8, x: usize, g0: usize, tile: &[i32]
 
 #[inline(always)]
 fn epilogue_floats_impl(p: &PackedI8, x: usize, g0: usize, tile: &[i32], out: &mut [f32]) {
-    let gw = group_width(p, g0);
+    let gw = group_width(p.ocp, g0);
     let io = 1.0 / p.q_out.scale;
     let (corr, scale, bias) = (
         &p.corr[g0..g0 + gw],
@@ -819,23 +783,6 @@ fn epilogue_floats_impl(p: &PackedI8, x: usize, g0: usize, tile: &[i32], out: &m
                 .fake_rcp((t[j] - corr[j]) as f32 * scale[j] + bias[j], io);
         }
     }
-}
-
-macro_rules! dispatch_np {
-    ($f:ident, $nb:literal, $np:expr, $($arg:expr),*) => {
-        match $np {
-            1 => $f::<$nb, 1>($($arg),*),
-            2 => $f::<$nb, 2>($($arg),*),
-            3 => $f::<$nb, 3>($($arg),*),
-            4 => $f::<$nb, 4>($($arg),*),
-            5 => $f::<$nb, 5>($($arg),*),
-            6 => $f::<$nb, 6>($($arg),*),
-            7 => $f::<$nb, 7>($($arg),*),
-            8 => $f::<$nb, 8>($($arg),*),
-            9 => $f::<$nb, 9>($($arg),*),
-            _ => $f::<$nb, 10>($($arg),*),
-        }
-    };
 }
 
 #[allow(clippy::too_many_arguments)]

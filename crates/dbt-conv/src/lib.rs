@@ -23,6 +23,94 @@
 //! the reference the AVX-512 kernel is tested against, both being tested
 //! against a direct transcription of the convolution's definition.
 
+/// Lanes of an AVX-512 vector of f32 or i32.
+pub(crate) const L: usize = 16;
+/// Output channels per register group: 4 vectors.
+pub(crate) const GROUP: usize = 4 * L;
+/// Pixels per tile when a group of 64 channels is in registers
+/// (5 x 4 = 20 accumulators; 5 divides the widths of the paper's grids,
+/// 1000, 1280 and their binned 250, 320, 500, 640).
+pub(crate) const NP_WIDE: usize = 5;
+/// Pixels per tile when one vector of channels is in registers.
+pub(crate) const NP_NARROW: usize = 10;
+
+/// Width of the channel group starting at `g0` of `ocp` (padded) channels:
+/// 64 while that many remain, else one vector.
+pub(crate) fn group_width(ocp: usize, g0: usize) -> usize {
+    if ocp - g0 >= GROUP {
+        GROUP
+    } else {
+        L
+    }
+}
+
+/// The tiles of one output row of width `w`, in order: for each channel
+/// group `(g0, gw)`, runs of `np` pixels from `x`. Both precisions walk a row
+/// this way.
+pub(crate) fn for_each_tile(ocp: usize, w: usize, mut f: impl FnMut(usize, usize, usize, usize)) {
+    let mut g0 = 0;
+    while g0 < ocp {
+        let gw = group_width(ocp, g0);
+        let per = if gw == GROUP { NP_WIDE } else { NP_NARROW };
+        let mut x = 0;
+        while x < w {
+            let np = per.min(w - x);
+            f(g0, gw, x, np);
+            x += np;
+        }
+        g0 += gw;
+    }
+}
+
+/// Instantiate the tile kernel `$f::<NB, NP>` for a run-time `np` in 1..=10.
+macro_rules! dispatch_np {
+    ($f:ident, $nb:literal, $np:expr, $($arg:expr),*) => {
+        match $np {
+            1 => $f::<$nb, 1>($($arg),*),
+            2 => $f::<$nb, 2>($($arg),*),
+            3 => $f::<$nb, 3>($($arg),*),
+            4 => $f::<$nb, 4>($($arg),*),
+            5 => $f::<$nb, 5>($($arg),*),
+            6 => $f::<$nb, 6>($($arg),*),
+            7 => $f::<$nb, 7>($($arg),*),
+            8 => $f::<$nb, 8>($($arg),*),
+            9 => $f::<$nb, 9>($($arg),*),
+            _ => $f::<$nb, 10>($($arg),*),
+        }
+    };
+}
+
+/// The checks every block run makes before touching its workspace: the
+/// first row inside the grid, the workspace made for this block's widths,
+/// state and aux of the grid's size. Returns the rows to compute.
+pub(crate) fn check_run(
+    (hf, w): (usize, usize),
+    r0: usize,
+    widths_match: bool,
+    (state_len, aux_len): (usize, usize),
+    (state_ch, aux_ch): (usize, usize),
+) -> Result<usize, ConvError> {
+    let n = hf * w;
+    if r0 >= hf {
+        return Err(ConvError::Shape(format!(
+            "first row {r0} is not inside the {hf} rows"
+        )));
+    }
+    if !widths_match {
+        return Err(ConvError::Shape(
+            "the workspace was made for a block of other widths".into(),
+        ));
+    }
+    if state_len != state_ch * n || aux_len != aux_ch * n {
+        return Err(ConvError::Shape(format!(
+            "state has {state_len} values and aux {aux_len}, the block needs {} and {} ({hf} x {w})",
+            state_ch * n,
+            aux_ch * n
+        )));
+    }
+    Ok(hf - r0)
+}
+
 mod fp32;
 mod int8;
 

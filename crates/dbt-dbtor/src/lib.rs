@@ -173,6 +173,50 @@ struct Buffers {
     ws: Workspaces,
 }
 
+impl Buffers {
+    fn bytes(&self) -> usize {
+        let floats = [
+            &self.gn,
+            &self.mask,
+            &self.pm,
+            &self.h,
+            &self.f,
+            &self.aux_d,
+            &self.aux_p,
+        ]
+        .iter()
+        .map(|v| v.len())
+        .sum::<usize>();
+        4 * floats
+            + match &self.ws {
+                Workspaces::None => 0,
+                Workspaces::Fp32 { dual, primal } => dual.bytes() + primal.bytes(),
+                Workspaces::Int8 { dual, primal } => dual.bytes() + primal.bytes(),
+            }
+    }
+}
+
+/// The grid a block of `role` runs on: the sinogram (views x elements) for
+/// the dual blocks, the image (rows x columns) for the primal ones.
+fn grid(g: &Geometry, role: Role) -> (usize, usize) {
+    match role {
+        Role::Dual => (g.n_views(), g.n_det()),
+        Role::Primal => (g.image.rows, g.image.columns),
+    }
+}
+
+/// The first loaded block of `role` (all blocks of a role share widths).
+fn first_of_role<'a, T>(
+    v: &'a [(T, PathBuf)],
+    entries: &[BlockEntry],
+    role: Role,
+) -> Option<&'a T> {
+    v.iter()
+        .zip(entries)
+        .find(|(_, e)| e.role == role)
+        .map(|(b, _)| &b.0)
+}
+
 /// A loaded, verified model ready to reconstruct slices.
 pub struct Dbtor {
     manifest: ModelManifest,
@@ -240,8 +284,6 @@ impl Dbtor {
         engine: Engine,
         g: &Geometry,
     ) -> Result<Self, DbtorError> {
-        let (rows, cols) = (g.image.rows, g.image.columns);
-        let (views, det) = (g.n_views(), g.n_det());
         let c = manifest.state_channels;
         let files = manifest.blocks.iter().map(|b| {
             let rel = match precision {
@@ -261,10 +303,7 @@ impl Dbtor {
             (Engine::Tract, _) => {
                 let mut plans = Vec::with_capacity(manifest.blocks.len());
                 for (b, path) in files {
-                    let (h, w) = match b.role {
-                        Role::Dual => (views, det),
-                        Role::Primal => (rows, cols),
-                    };
+                    let (h, w) = grid(g, b.role);
                     let fail = |e: TractError| DbtorError::Block {
                         path: path.clone(),
                         reason: format!("{e:#}"),
@@ -355,39 +394,30 @@ impl Dbtor {
         let g = &self.manifest.geometry;
         let (n_img, n_sino) = (g.n_pixels(), g.n_rays());
         let c = self.manifest.state_channels;
-        let (rows, cols, views, det) = (g.image.rows, g.image.columns, g.n_views(), g.n_det());
+        let ((views, det), (rows, cols)) = (grid(g, Role::Dual), grid(g, Role::Primal));
+        let e = &self.manifest.blocks;
         let ws = match &self.blocks {
             Blocks::Tract(_) => Workspaces::None,
-            Blocks::Fp32(v) => {
-                let find = |role| {
-                    v.iter()
-                        .zip(&self.manifest.blocks)
-                        .find(|(_, e)| e.role == role)
-                        .map(|(b, _)| &b.0)
-                };
-                match (find(Role::Dual), find(Role::Primal)) {
-                    (Some(d), Some(p)) => Workspaces::Fp32 {
-                        dual: Fp32Workspace::new(d, views, det),
-                        primal: Fp32Workspace::new(p, rows, cols),
-                    },
-                    _ => Workspaces::None,
-                }
-            }
-            Blocks::Int8(v) => {
-                let find = |role| {
-                    v.iter()
-                        .zip(&self.manifest.blocks)
-                        .find(|(_, e)| e.role == role)
-                        .map(|(b, _)| &b.0)
-                };
-                match (find(Role::Dual), find(Role::Primal)) {
-                    (Some(d), Some(p)) => Workspaces::Int8 {
-                        dual: Int8Workspace::new(d, views, det),
-                        primal: Int8Workspace::new(p, rows, cols),
-                    },
-                    _ => Workspaces::None,
-                }
-            }
+            Blocks::Fp32(v) => match (
+                first_of_role(v, e, Role::Dual),
+                first_of_role(v, e, Role::Primal),
+            ) {
+                (Some(d), Some(p)) => Workspaces::Fp32 {
+                    dual: Fp32Workspace::new(d, views, det),
+                    primal: Fp32Workspace::new(p, rows, cols),
+                },
+                _ => Workspaces::None,
+            },
+            Blocks::Int8(v) => match (
+                first_of_role(v, e, Role::Dual),
+                first_of_role(v, e, Role::Primal),
+            ) {
+                (Some(d), Some(p)) => Workspaces::Int8 {
+                    dual: Int8Workspace::new(d, views, det),
+                    primal: Int8Workspace::new(p, rows, cols),
+                },
+                _ => Workspaces::None,
+            },
         };
         Box::new(Buffers {
             gn: vec![0.0; n_sino],
@@ -405,11 +435,7 @@ impl Dbtor {
     /// multiply-add), from the fast path's weights; `None` on tract.
     pub fn block_flops(&self) -> Option<Vec<f64>> {
         let g = &self.manifest.geometry;
-        let hw = |r: Role| match r {
-            Role::Dual => (g.n_views(), g.n_det()),
-            Role::Primal => (g.image.rows, g.image.columns),
-        };
-        let roles = self.manifest.blocks.iter().map(|b| hw(b.role));
+        let roles = self.manifest.blocks.iter().map(|b| grid(g, b.role));
         match &self.blocks {
             Blocks::Tract(_) => None,
             Blocks::Fp32(v) => Some(
@@ -427,22 +453,14 @@ impl Dbtor {
         }
     }
 
-    /// Bytes of the per-slice buffers (state, aux, workspaces).
+    /// Bytes of the per-slice buffers (state, aux, workspaces). The buffers
+    /// are made if no slice has made them yet, and kept for the next slice.
     pub fn slice_buffer_bytes(&self) -> usize {
-        let b = self.new_buffers();
-        let floats = b.gn.len()
-            + b.mask.len()
-            + b.pm.len()
-            + b.h.len()
-            + b.f.len()
-            + b.aux_d.len()
-            + b.aux_p.len();
-        4 * floats
-            + match &b.ws {
-                Workspaces::None => 0,
-                Workspaces::Fp32 { dual, primal } => dual.bytes() + primal.bytes(),
-                Workspaces::Int8 { dual, primal } => dual.bytes() + primal.bytes(),
-            }
+        self.buffers
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .get_or_insert_with(|| self.new_buffers())
+            .bytes()
     }
 
     /// The manifest.
@@ -470,11 +488,7 @@ impl Dbtor {
         r0: usize,
     ) -> Result<(), DbtorError> {
         let b = &self.manifest.blocks[k];
-        let g = &self.manifest.geometry;
-        let (h, w) = match b.role {
-            Role::Dual => (g.n_views(), g.n_det()),
-            Role::Primal => (g.image.rows, g.image.columns),
-        };
+        let (h, w) = grid(&self.manifest.geometry, b.role);
         let c = self.manifest.state_channels;
         let conv_fail = |path: &Path, e: dbt_conv::ConvError| DbtorError::Block {
             path: path.to_path_buf(),
