@@ -89,60 +89,104 @@ unsafe fn forward_block(t: &RayTable, img: &[f32], rb: usize) -> [f32; L] {
     let sx = _mm512_loadu_ps(t.sx.as_ptr().add(rb));
     let len = _mm512_loadu_ps(t.len.as_ptr().add(rb));
     let inv = _mm512_loadu_ps(t.inv.as_ptr().add(rb));
-    let row_lo = _mm512_loadu_si512(t.row_lo.as_ptr().add(rb) as *const __m512i);
-    let row_hi = _mm512_loadu_si512(t.row_hi.as_ptr().add(rb) as *const __m512i);
     let i_start = t.row_lo[rb..rb + L].iter().copied().min().unwrap_or(0) as usize;
-    let i_end = t.row_hi[rb..rb + L].iter().copied().max().unwrap_or(0) as usize;
-    let jmin = _mm512_set1_ps(-1.0);
-    let jmax = _mm512_set1_ps(nx as f32 - 1.0);
-    let ione = _mm512_set1_epi32(1);
+    let i_end = (t.row_hi[rb..rb + L].iter().copied().max().unwrap_or(0) as usize).max(i_start);
+    let v = rb / t.n_det;
+    let (fa, fb) = t.fwd_rows[v * t.blocks_per_view() + (rb - v * t.n_det) / L];
+    let (fa, fb) = if fa < fb {
+        (fa as usize, fb as usize)
+    } else {
+        (i_end, i_end)
+    };
     let mut acc = _mm512_setzero_ps();
-    for i in i_start..i_end.max(i_start) {
-        let fi = _mm512_set1_ps(i as f32);
-        let (lo, jf, w0, w1) = weights16(x_top, sx, len, inv, fi);
-        let ii = _mm512_set1_epi32(i as i32);
-        let valid = _mm512_cmpge_epi32_mask(ii, row_lo) & _mm512_cmplt_epi32_mask(ii, row_hi);
-        let jc = _mm512_cvttps_epi32(_mm512_min_ps(_mm512_max_ps(jf, jmin), jmax));
-        let j_first = _mm512_cvtsi512_si32(jc);
-        let j_last = lane(jc, 15);
-        let row = img.as_ptr().add(i * nx);
-        if j_last + 1 - j_first <= 31 {
-            let base = j_first as i64;
-            let m_lo = window_mask(base, nx as i64);
-            let m_hi = window_mask(base + 16, nx as i64);
-            // Masked-off elements are not accessed (AVX-512 fault suppression),
-            // so the window may start one pixel left of the row.
-            let p = row.wrapping_offset(base as isize);
-            let win_lo = _mm512_maskz_loadu_ps(m_lo, p);
-            let win_hi = _mm512_maskz_loadu_ps(m_hi, p.wrapping_add(16));
-            let idx0 = _mm512_sub_epi32(jc, _mm512_set1_epi32(j_first));
-            let idx1 = _mm512_add_epi32(idx0, ione);
-            let v0 = _mm512_permutex2var_ps(win_lo, idx0, win_hi);
-            let v1 = _mm512_permutex2var_ps(win_lo, idx1, win_hi);
-            acc = _mm512_fmadd_ps(_mm512_maskz_mov_ps(valid, w0), v0, acc);
-            acc = _mm512_fmadd_ps(_mm512_maskz_mov_ps(valid, w1), v1, acc);
-        } else {
-            // Rays too far apart for one window (not met at DBT geometries).
-            let mut lo_a = [0f32; L];
-            _mm512_storeu_ps(lo_a.as_mut_ptr(), lo);
-            let mut add = [0f32; L];
-            for (k, a) in add.iter_mut().enumerate() {
-                if valid & (1 << k) != 0 {
-                    let (j, w0, w1) = fast_weights(lo_a[k], t.len[rb + k], t.inv[rb + k]);
-                    if j >= 0 {
-                        *a += w0 * img[i * nx + j as usize];
-                    }
-                    if j + 1 < nx as i32 {
-                        *a += w1 * img[i * nx + (j + 1) as usize];
-                    }
-                }
-            }
-            acc = _mm512_add_ps(acc, _mm512_loadu_ps(add.as_ptr()));
-        }
+    for i in (i_start..fa.min(i_end)).chain(fb.max(i_start)..i_end) {
+        acc = forward_row_general(t, img, rb, (x_top, sx, len, inv), i, acc);
     }
+    // Fast rows: every ray inside, pixels in one in-bounds 32-pixel window
+    // (verified at construction, `RayTable::forward_fast_rows`). Two
+    // accumulators keep the dependency chain at one FMA per row.
+    let ione = _mm512_set1_epi32(1);
+    let (mut acc0, mut acc1) = (_mm512_setzero_ps(), _mm512_setzero_ps());
+    let mut fi = _mm512_set1_ps(fa as f32);
+    let one = _mm512_set1_ps(1.0);
+    for i in fa..fb {
+        let (_, jf, w0, w1) = weights16(x_top, sx, len, inv, fi);
+        let jc = _mm512_cvttps_epi32(jf);
+        let base = _mm512_cvtsi512_si32(jc);
+        let p = img.as_ptr().add(i * nx + base as usize);
+        let win_lo = _mm512_loadu_ps(p);
+        let win_hi = _mm512_loadu_ps(p.add(16));
+        let idx0 = _mm512_sub_epi32(jc, _mm512_set1_epi32(base));
+        let v0 = _mm512_permutex2var_ps(win_lo, idx0, win_hi);
+        let v1 = _mm512_permutex2var_ps(win_lo, _mm512_add_epi32(idx0, ione), win_hi);
+        acc0 = _mm512_fmadd_ps(w0, v0, acc0);
+        acc1 = _mm512_fmadd_ps(w1, v1, acc1);
+        fi = _mm512_add_ps(fi, one);
+    }
+    acc = _mm512_add_ps(acc, _mm512_add_ps(acc0, acc1));
     let mut res = [0f32; L];
     _mm512_storeu_ps(res.as_mut_ptr(), acc);
     res
+}
+
+/// One row of a forward block where some rays may be outside the image or the
+/// pixels may not fit one in-bounds window: masked loads and validity masks.
+#[inline(always)]
+unsafe fn forward_row_general(
+    t: &RayTable,
+    img: &[f32],
+    rb: usize,
+    (x_top, sx, len, inv): (__m512, __m512, __m512, __m512),
+    i: usize,
+    acc: __m512,
+) -> __m512 {
+    let nx = t.nx;
+    let row_lo = _mm512_loadu_si512(t.row_lo.as_ptr().add(rb) as *const __m512i);
+    let row_hi = _mm512_loadu_si512(t.row_hi.as_ptr().add(rb) as *const __m512i);
+    let jmin = _mm512_set1_ps(-1.0);
+    let jmax = _mm512_set1_ps(nx as f32 - 1.0);
+    let ione = _mm512_set1_epi32(1);
+    let fi = _mm512_set1_ps(i as f32);
+    let (lo, jf, w0, w1) = weights16(x_top, sx, len, inv, fi);
+    let ii = _mm512_set1_epi32(i as i32);
+    let valid = _mm512_cmpge_epi32_mask(ii, row_lo) & _mm512_cmplt_epi32_mask(ii, row_hi);
+    let jc = _mm512_cvttps_epi32(_mm512_min_ps(_mm512_max_ps(jf, jmin), jmax));
+    let j_first = _mm512_cvtsi512_si32(jc);
+    let j_last = lane(jc, 15);
+    let row = img.as_ptr().add(i * nx);
+    if j_last + 1 - j_first <= 31 {
+        let base = j_first as i64;
+        let m_lo = window_mask(base, nx as i64);
+        let m_hi = window_mask(base + 16, nx as i64);
+        // Masked-off elements are not accessed (AVX-512 fault suppression),
+        // so the window may start one pixel left of the row.
+        let p = row.wrapping_offset(base as isize);
+        let win_lo = _mm512_maskz_loadu_ps(m_lo, p);
+        let win_hi = _mm512_maskz_loadu_ps(m_hi, p.wrapping_add(16));
+        let idx0 = _mm512_sub_epi32(jc, _mm512_set1_epi32(j_first));
+        let idx1 = _mm512_add_epi32(idx0, ione);
+        let v0 = _mm512_permutex2var_ps(win_lo, idx0, win_hi);
+        let v1 = _mm512_permutex2var_ps(win_lo, idx1, win_hi);
+        let acc = _mm512_fmadd_ps(_mm512_maskz_mov_ps(valid, w0), v0, acc);
+        _mm512_fmadd_ps(_mm512_maskz_mov_ps(valid, w1), v1, acc)
+    } else {
+        // Rays too far apart for one window (not met at DBT geometries).
+        let mut lo_a = [0f32; L];
+        _mm512_storeu_ps(lo_a.as_mut_ptr(), lo);
+        let mut add = [0f32; L];
+        for (k, a) in add.iter_mut().enumerate() {
+            if valid & (1 << k) != 0 {
+                let (j, w0, w1) = fast_weights(lo_a[k], t.len[rb + k], t.inv[rb + k]);
+                if j >= 0 {
+                    *a += w0 * img[i * nx + j as usize];
+                }
+                if j + 1 < nx as i32 {
+                    *a += w1 * img[i * nx + (j + 1) as usize];
+                }
+            }
+        }
+        _mm512_add_ps(acc, _mm512_loadu_ps(add.as_ptr()))
+    }
 }
 
 /// Per-task scratch of the pixel-driven adjoint: each ray's pixel index and its

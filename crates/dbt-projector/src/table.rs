@@ -85,6 +85,11 @@ pub(crate) struct RayTable {
     pub view_has_slow: Vec<bool>,
     /// Inverse maps, `n_views * nz`, view-major.
     pub inv_map: Vec<InvMap>,
+    /// Per block of 16 rays (`v * n_det.div_ceil(16) + k / 16`, SIMD views
+    /// only): the rows `[lo, hi)` in which all 16 rays are inside the image and
+    /// their pixels lie in one unmasked 32-pixel window of the row (the SIMD
+    /// forward kernel's fast rows). Empty where that never holds.
+    pub fwd_rows: Vec<(u32, u32)>,
 }
 
 /// Row segment `(lo, hi)` of a ray in row `i`, in column units.
@@ -151,6 +156,7 @@ impl RayTable {
             view_simd: vec![true; n_views],
             view_has_slow: vec![false; n_views],
             inv_map: vec![InvMap::default(); n_views * nz],
+            fwd_rows: Vec::new(),
         };
         for v in 0..n_views {
             for k in 0..n_det {
@@ -196,7 +202,55 @@ impl RayTable {
             t.view_simd[v] = !t.view_has_slow[v] && t.pixel_index_monotone(v);
         }
         t.build_inverse_maps(g);
+        t.fwd_rows = t.forward_fast_rows();
         t
+    }
+
+    /// Blocks of 16 rays per view (the last one may be partial).
+    pub fn blocks_per_view(&self) -> usize {
+        self.n_det.div_ceil(16)
+    }
+
+    /// The fast rows of every block (see [`RayTable::fwd_rows`]), found by
+    /// evaluating, row by row, exactly the pixel indices the SIMD kernel
+    /// computes; the kernel relies on them without further checks.
+    fn forward_fast_rows(&self) -> Vec<(u32, u32)> {
+        let bpv = self.blocks_per_view();
+        (0..self.n_views * bpv)
+            .into_par_iter()
+            .map(|b| {
+                let (v, k0) = (b / bpv, (b % bpv) * 16);
+                if !self.view_simd[v] || k0 + 16 > self.n_det {
+                    return (0, 0);
+                }
+                let r0 = v * self.n_det + k0;
+                let fast = |i: usize| {
+                    let j = |k: usize| {
+                        let r = r0 + k;
+                        self.touches_row(r, i)
+                            .then(|| segment(self.x_top[r], self.sx[r], i).0.floor() as i64)
+                    };
+                    let js: Option<Vec<i64>> = (0..16).map(j).collect();
+                    match js {
+                        Some(js) => {
+                            let (first, last) = (js[0], js[15]);
+                            first >= 0
+                                && first + 32 <= self.nx as i64
+                                && last + 1 - first <= 31
+                                && js.windows(2).all(|w| w[1] >= w[0])
+                        }
+                        None => false,
+                    }
+                };
+                match (0..self.nz).find(|&i| fast(i)) {
+                    None => (0, 0),
+                    Some(lo) => {
+                        let hi = (lo..self.nz).find(|&i| !fast(i)).unwrap_or(self.nz);
+                        (lo as u32, hi as u32)
+                    }
+                }
+            })
+            .collect()
     }
 
     /// Whether ray `r` crosses the image in row `i`.
