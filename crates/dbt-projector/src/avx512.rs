@@ -6,14 +6,18 @@
 //! * Forward: 16 neighbouring rays of one view per vector, walking down the
 //!   rows. In a row the 16 rays touch a run of at most ~20 neighbouring pixels,
 //!   so the two pixels each ray needs are fetched with two in-register permutes
-//!   from a 32-pixel window of the row (no gathers).
-//! * Adjoint: pixel-driven, so that every output pixel is written once. For each
-//!   (view, row) a ray pass computes every ray's pixel index and its two
-//!   weighted contributions; a pixel pass then collects, for 16 pixels at a time,
-//!   the contributions of the few candidate rays given by the row's inverse map
-//!   (verified at construction to cover every contributing ray).
+//!   from a 32-pixel window of the row (no gathers). In the block's fast rows
+//!   (all rays inside, window in bounds; found at construction) the loads are
+//!   unmasked and there are no per-row checks.
+//! * Adjoint: pixel-driven, so that every output pixel is written once. Per
+//!   task (a band of rows), view by view and row by row: a ray pass computes
+//!   every ray's first pixel `j` and its two weighted contributions (to `j` and
+//!   `j + 1`); a pixel pass then collects, for 16 pixels at a time, the few
+//!   candidate rays whose first pixel each is (given by the row's inverse map,
+//!   verified at construction to cover them), adds their first contributions
+//!   and carries their second ones one pixel right with a lane shift.
 
-use crate::table::{fast_weights, segment, InvMap, RayTable, NO_PIXEL, PAD};
+use crate::table::{fast_weights, left_edge_c1, segment, InvMap, RayTable, NO_PIXEL, PAD};
 use std::arch::x86_64::*;
 
 const L: usize = 16;
@@ -191,39 +195,66 @@ unsafe fn forward_row_general(
 
 /// Per-task scratch of the pixel-driven adjoint: each ray's pixel index and its
 /// two weighted contributions for the current (view, row), padded with
-/// non-contributing entries on both sides.
+/// non-contributing entries on both sides; and the row's inverse map evaluated
+/// at every 16-pixel block (value, slope).
 struct RowRays {
     j: Vec<i32>,
     c0: Vec<f32>,
     c1: Vec<f32>,
+    rb: Vec<f32>,
+    sb: Vec<f32>,
+    /// `floor(rb)` as an integer (the first candidate before `off1`).
+    r0: Vec<i32>,
+}
+
+impl RowRays {
+    const fn new() -> Self {
+        RowRays {
+            j: Vec::new(),
+            c0: Vec::new(),
+            c1: Vec::new(),
+            rb: Vec::new(),
+            sb: Vec::new(),
+            r0: Vec::new(),
+        }
+    }
+
+    fn reset(&mut self, n: usize, nb: usize) {
+        self.j.clear();
+        self.j.resize(n, NO_PIXEL);
+        self.c0.clear();
+        self.c0.resize(n, 0.0);
+        self.c1.clear();
+        self.c1.resize(n, 0.0);
+        self.rb.resize(nb, 0.0);
+        self.sb.resize(nb, 0.0);
+        self.r0.resize(nb, 0);
+    }
 }
 
 /// # Safety
 /// Requires AVX-512F. `out` holds whole rows starting at row `i0`.
 #[target_feature(enable = "avx512f")]
 pub(crate) unsafe fn adjoint_rows(t: &RayTable, sino: &[f32], i0: usize, out: &mut [f32]) {
-    let n_det = t.n_det;
-    let n = n_det + 2 * PAD;
+    let n = t.n_det + 2 * PAD;
+    let nb = t.nx.div_ceil(L).next_multiple_of(L);
     // Per-thread scratch, reset (not reallocated) on every call: after the
     // first call on a thread the adjoint allocates nothing (the DBToR slice
     // loop's no-allocation rule).
     thread_local! {
-        static SCRATCH: std::cell::RefCell<RowRays> = const {
-            std::cell::RefCell::new(RowRays { j: Vec::new(), c0: Vec::new(), c1: Vec::new() })
-        };
+        static SCRATCH: std::cell::RefCell<RowRays> =
+            const { std::cell::RefCell::new(RowRays::new()) };
     }
     SCRATCH.with(|cell| {
         let mut s = cell.borrow_mut();
-        s.j.clear();
-        s.j.resize(n, NO_PIXEL);
-        s.c0.clear();
-        s.c0.resize(n, 0.0);
-        s.c1.clear();
-        s.c1.resize(n, 0.0);
+        s.reset(n, nb);
         adjoint_rows_with(t, sino, i0, out, &mut s);
     });
 }
 
+/// View-major over the task's rows: one view's ray parameters stay in L1
+/// while its rows are visited (measured 12 % faster than row-major); each
+/// pixel still sums the views in order.
 #[target_feature(enable = "avx512f")]
 unsafe fn adjoint_rows_with(
     t: &RayTable,
@@ -234,11 +265,11 @@ unsafe fn adjoint_rows_with(
 ) {
     let (nx, n_det) = (t.nx, t.n_det);
     out.fill(0.0);
-    for (di, row_out) in out.chunks_exact_mut(nx).enumerate() {
-        let i = i0 + di;
-        for v in 0..t.n_views {
+    for v in 0..t.n_views {
+        let ys = &sino[v * n_det..(v + 1) * n_det];
+        for (di, row_out) in out.chunks_exact_mut(nx).enumerate() {
+            let i = i0 + di;
             let map = t.inv_map[v * t.nz + i];
-            let ys = &sino[v * n_det..(v + 1) * n_det];
             if map.count > 0 {
                 ray_pass(t, v, i, ys, s);
                 pixel_pass(t, &map, s, row_out);
@@ -266,8 +297,34 @@ unsafe fn ray_pass(t: &RayTable, v: usize, i: usize, ys: &[f32], s: &mut RowRays
     let map = &t.inv_map[v * t.nz + i];
     let (k_lo, k_hi) = (map.ray_lo as usize, map.ray_hi as usize);
     let zero = _mm512_setzero_ps();
+    let has_slow = t.view_has_slow[v];
+    // Whole blocks of rays that all touch the row (and are all fast).
+    let (ia, ib) = if has_slow {
+        (0, 0)
+    } else {
+        (k_lo.next_multiple_of(L), k_hi / L * L)
+    };
     let mut k = 0;
     while k + L <= n_det {
+        if k == ia && ia < ib {
+            let (jp, c0p, c1p) = (s.j.as_mut_ptr(), s.c0.as_mut_ptr(), s.c1.as_mut_ptr());
+            for k in (ia..ib).step_by(L) {
+                let r = base + k;
+                let (_, jf, w0, w1) = weights16(
+                    _mm512_loadu_ps(t.x_top.as_ptr().add(r)),
+                    _mm512_loadu_ps(t.sx.as_ptr().add(r)),
+                    _mm512_loadu_ps(t.len.as_ptr().add(r)),
+                    _mm512_loadu_ps(t.inv.as_ptr().add(r)),
+                    fi,
+                );
+                let y = _mm512_loadu_ps(ys.as_ptr().add(k));
+                _mm512_storeu_si512(jp.add(PAD + k) as *mut __m512i, _mm512_cvttps_epi32(jf));
+                _mm512_storeu_ps(c0p.add(PAD + k), _mm512_mul_ps(w0, y));
+                _mm512_storeu_ps(c1p.add(PAD + k), _mm512_mul_ps(w1, y));
+            }
+            k = ib;
+            continue;
+        }
         if k + L <= k_lo || k >= k_hi {
             // No ray of this block touches the row: mark it empty (the scratch
             // is reused across rows and must not keep stale entries).
@@ -357,6 +414,21 @@ fn pixel_scalar(map: &InvMap, s: &RowRays, n_det: usize, j: usize) -> f32 {
     acc
 }
 
+/// The second contributions of the rays whose first pixel is `j` (one-sided
+/// candidates, `InvMap::start1`), for the pixel pass's carry into pixel `j + 1`.
+#[inline(always)]
+fn slot_c1_scalar(map: &InvMap, s: &RowRays, n_det: usize, j: usize) -> f32 {
+    let start = map.start1(j) as i64;
+    let mut acc = 0.0f32;
+    for k in 0..map.count1 as i64 {
+        let r = start + k;
+        if r >= 0 && r < n_det as i64 && s.j[PAD + r as usize] == j as i32 {
+            acc += s.c1[PAD + r as usize];
+        }
+    }
+    acc
+}
+
 /// 32 consecutive entries of the row's ray scratch, in registers.
 struct Window {
     jl: __m512i,
@@ -367,94 +439,193 @@ struct Window {
     c1h: __m512,
 }
 
-/// Add, for 16 pixels `jv`, the contributions of the candidate rays at window
-/// positions `idx` to two independent accumulators (first and second pixel of
-/// each ray), keeping the dependency chains short.
+/// For 16 pixels `jv`, the sums over the rays whose first pixel it is (window
+/// positions `idx .. idx + n`) of their first (`.0`) and second (`.1`)
+/// contributions.
 #[inline(always)]
-unsafe fn collect_step(
+unsafe fn collect_first(w: &Window, idx: __m512i, jv: __m512i, n: i32) -> (__m512, __m512) {
+    let mut acc = (_mm512_setzero_ps(), _mm512_setzero_ps());
+    for k in 0..n {
+        acc = collect_one(w, _mm512_add_epi32(idx, _mm512_set1_epi32(k)), jv, acc);
+    }
+    acc
+}
+
+/// One candidate step of [`collect_first`]: window position `id`.
+#[inline(always)]
+unsafe fn collect_one(
     w: &Window,
-    idx: __m512i,
+    id: __m512i,
     jv: __m512i,
-    acc: (__m512, __m512),
+    (a0, a1): (__m512, __m512),
 ) -> (__m512, __m512) {
-    let jr = _mm512_permutex2var_epi32(w.jl, idx, w.jh);
-    let c0 = _mm512_permutex2var_ps(w.c0l, idx, w.c0h);
-    let c1 = _mm512_permutex2var_ps(w.c1l, idx, w.c1h);
-    let m0 = _mm512_cmpeq_epi32_mask(jr, jv);
-    let m1 = _mm512_cmpeq_epi32_mask(_mm512_add_epi32(jr, _mm512_set1_epi32(1)), jv);
+    let jr = _mm512_permutex2var_epi32(w.jl, id, w.jh);
+    let c0 = _mm512_permutex2var_ps(w.c0l, id, w.c0h);
+    let c1 = _mm512_permutex2var_ps(w.c1l, id, w.c1h);
+    let m = _mm512_cmpeq_epi32_mask(jr, jv);
     (
-        _mm512_mask_add_ps(acc.0, m0, acc.0, c0),
-        _mm512_mask_add_ps(acc.1, m1, acc.1, c1),
+        _mm512_mask_add_ps(a0, m, a0, c0),
+        _mm512_mask_add_ps(a1, m, a1, c1),
     )
 }
 
-/// Contributions of candidates `idx + k`, `k < n`, to 16 pixels.
-#[inline(always)]
-unsafe fn collect_n(w: &Window, idx: __m512i, jv: __m512i, n: i32) -> __m512 {
-    let mut acc = (_mm512_setzero_ps(), _mm512_setzero_ps());
-    for k in 0..n {
-        acc = collect_step(w, _mm512_add_epi32(idx, _mm512_set1_epi32(k)), jv, acc);
+/// `InvMap::block` at blocks `0, 16, 32, ...` (16 blocks per vector, the same
+/// IEEE operations, so the same values).
+#[target_feature(enable = "avx512f")]
+unsafe fn block_values(map: &InvMap, rb: &mut [f32], sb: &mut [f32], r0: &mut [i32]) {
+    let lanes = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+    let (a, b) = (_mm512_set1_ps(map.a), _mm512_set1_ps(map.b));
+    let (c, d, e) = (
+        _mm512_set1_ps(map.c),
+        _mm512_set1_ps(map.d),
+        _mm512_set1_ps(map.e),
+    );
+    let one = _mm512_set1_ps(1.0);
+    for q in (0..rb.len().min(sb.len()).min(r0.len())).step_by(L) {
+        let blocks = _mm512_add_epi32(_mm512_set1_epi32(q as i32), lanes);
+        let x = _mm512_cvtepi32_ps(_mm512_slli_epi32::<4>(blocks));
+        let inv = _mm512_div_ps(one, _mm512_add_ps(_mm512_mul_ps(c, x), d));
+        let val = _mm512_mul_ps(_mm512_add_ps(_mm512_mul_ps(a, x), b), inv);
+        let slope = _mm512_mul_ps(_mm512_mul_ps(e, inv), inv);
+        _mm512_storeu_ps(rb.as_mut_ptr().add(q), val);
+        _mm512_storeu_ps(sb.as_mut_ptr().add(q), slope);
+        _mm512_storeu_si512(
+            r0.as_mut_ptr().add(q) as *mut __m512i,
+            _mm512_cvttps_epi32(floor_ps(val)),
+        );
     }
-    _mm512_add_ps(acc.0, acc.1)
 }
 
+/// Pixel pass: blocks in the map's fit range collect, for each pixel, the
+/// rays whose first pixel it is (first contributions to the pixel, second
+/// ones carried to the next pixel); other pixels use the scalar two-sided
+/// candidates.
 #[target_feature(enable = "avx512f")]
-unsafe fn pixel_pass(t: &RayTable, map: &InvMap, s: &RowRays, row_out: &mut [f32]) {
+unsafe fn pixel_pass(t: &RayTable, map: &InvMap, s: &mut RowRays, row_out: &mut [f32]) {
     let (nx, n_det) = (t.nx, t.n_det);
-    let count = map.count as i32;
+    let count1 = map.count1 as i32;
     let lanes = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
     let lanes_f = _mm512_cvtepi32_ps(lanes);
-    let off = _mm512_set1_epi32(map.off);
-    let lim = _mm512_set1_ps(1.0e9);
-    let mut jb = 0;
-    while jb + L <= nx {
-        let jv = _mm512_add_epi32(_mm512_set1_epi32(jb as i32), lanes);
-        // Same operations as InvMap::start.
-        let (rb, sb) = map.block(jb);
-        let r = _mm512_add_ps(
-            _mm512_set1_ps(rb),
-            _mm512_mul_ps(lanes_f, _mm512_set1_ps(sb)),
-        );
-        let r = floor_ps(r);
-        let r = _mm512_max_ps(
-            _mm512_min_ps(r, lim),
-            _mm512_sub_ps(_mm512_setzero_ps(), lim),
-        );
-        let start = _mm512_sub_epi32(_mm512_cvttps_epi32(r), off);
-        let first = _mm512_cvtsi512_si32(start);
-        let last = lane(start, 15);
-        let fits = map.monotone
-            && first >= -(PAD as i32)
-            && first + 32 <= (n_det + PAD) as i32
-            && last + count - 1 - first <= 31;
-        if fits {
-            let e = (PAD as i32 + first) as usize;
-            let jl = _mm512_loadu_si512(s.j.as_ptr().add(e) as *const __m512i);
-            let jh = _mm512_loadu_si512(s.j.as_ptr().add(e + 16) as *const __m512i);
-            let c0l = _mm512_loadu_ps(s.c0.as_ptr().add(e));
-            let c0h = _mm512_loadu_ps(s.c0.as_ptr().add(e + 16));
-            let c1l = _mm512_loadu_ps(s.c1.as_ptr().add(e));
-            let c1h = _mm512_loadu_ps(s.c1.as_ptr().add(e + 16));
-            let idx = _mm512_sub_epi32(start, _mm512_set1_epi32(first));
-            let w = Window {
-                jl,
-                jh,
-                c0l,
-                c0h,
-                c1l,
-                c1h,
-            };
-            let acc = collect_n(&w, idx, jv, count);
-            let o = row_out.as_mut_ptr().add(jb);
-            _mm512_storeu_ps(o, _mm512_add_ps(_mm512_loadu_ps(o), acc));
+    let one = _mm512_set1_epi32(1);
+    let (fit_lo, fit_hi) = (map.fit_lo as usize, map.fit_hi as usize);
+    if fit_lo < fit_hi {
+        let (rbs, sbs, r0s) = (&mut s.rb, &mut s.sb, &mut s.r0);
+        block_values(map, rbs, sbs, r0s);
+    }
+    let s = &*s;
+    for j in 0..(fit_lo * L).min(nx) {
+        row_out[j] += pixel_scalar(map, s, n_det, j);
+    }
+    if fit_lo < fit_hi {
+        // Second contributions into the first pixel of the range.
+        let jb = fit_lo * L;
+        let carry = if jb == 0 {
+            left_edge_c1(map, &s.j, &s.c1)
         } else {
-            for j in jb..jb + L {
-                row_out[j] += pixel_scalar(map, s, n_det, j);
+            slot_c1_scalar(map, s, n_det, jb - 1)
+        };
+        let mut prev = _mm512_set1_ps(carry);
+        let (jp, c0p, c1p) = (s.j.as_ptr(), s.c0.as_ptr(), s.c1.as_ptr());
+        let (rbp, sbp, r0p) = (s.rb.as_ptr(), s.sb.as_ptr(), s.r0.as_ptr());
+        let mut jv = _mm512_add_epi32(_mm512_set1_epi32(jb as i32), lanes);
+        let step = _mm512_set1_epi32(L as i32);
+        for b in fit_lo..fit_hi {
+            // Checked at construction (`InvMap::block_fits`): finite, in
+            // range, non-decreasing, one window; lane 0 is floor(rb) exactly.
+            let rb = _mm512_set1_ps(*rbp.add(b));
+            let sb = _mm512_set1_ps(*sbp.add(b));
+            let r0 = *r0p.add(b);
+            let rf = _mm512_cvttps_epi32(floor_ps(_mm512_add_ps(rb, _mm512_mul_ps(lanes_f, sb))));
+            let e = (PAD as i32 + r0 - map.off1) as usize;
+            let idx = _mm512_sub_epi32(rf, _mm512_set1_epi32(r0));
+            let w = Window {
+                jl: _mm512_loadu_si512(jp.add(e) as *const __m512i),
+                jh: _mm512_loadu_si512(jp.add(e + 16) as *const __m512i),
+                c0l: _mm512_loadu_ps(c0p.add(e)),
+                c0h: _mm512_loadu_ps(c0p.add(e + 16)),
+                c1l: _mm512_loadu_ps(c1p.add(e)),
+                c1h: _mm512_loadu_ps(c1p.add(e + 16)),
+            };
+            let (a0, a1) = if count1 == 2 {
+                let (a0, a1) = collect_one(&w, idx, jv, (_mm512_setzero_ps(), _mm512_setzero_ps()));
+                collect_one(&w, _mm512_add_epi32(idx, one), jv, (a0, a1))
+            } else {
+                collect_first(&w, idx, jv, count1)
+            };
+            // Lane l gets a1 of pixel jb + l - 1 (lane 15 of the previous block).
+            let carried = _mm512_castsi512_ps(_mm512_alignr_epi32::<15>(
+                _mm512_castps_si512(a1),
+                _mm512_castps_si512(prev),
+            ));
+            prev = a1;
+            let o = row_out.as_mut_ptr().add(b * L);
+            let sum = _mm512_add_ps(a0, carried);
+            if b * L + L <= nx {
+                _mm512_storeu_ps(o, _mm512_add_ps(_mm512_loadu_ps(o), sum));
+            } else {
+                // The last, partial block: lanes past the row are neither read
+                // nor written (fault suppression).
+                let m = ((1u32 << (nx - b * L)) - 1) as u16;
+                _mm512_mask_storeu_ps(o, m, _mm512_add_ps(_mm512_maskz_loadu_ps(m, o), sum));
+            }
+            jv = _mm512_add_epi32(jv, step);
+        }
+    }
+    for (j, o) in row_out.iter_mut().enumerate().skip(fit_hi.max(fit_lo) * L) {
+        // Past the fit range (empty when the range reaches the row's end).
+        *o += pixel_scalar(map, s, n_det, j);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dbt_geometry::Geometry;
+    use rand::{Rng, SeedableRng};
+
+    /// The geometries of the projector tests have every pixel block in the
+    /// SIMD pass; cutting the fit ranges by hand exercises the scalar pixels
+    /// before and after them and the carry into the first SIMD block from a
+    /// scalar pixel (`slot_c1_scalar`). A sub-range of a verified range is
+    /// itself valid.
+    #[test]
+    fn cut_fit_ranges_match_the_scalar_adjoint() {
+        if !std::arch::is_x86_feature_detected!("avx512f") {
+            return;
+        }
+        let odd = Geometry::from_toml_str(
+            "source_to_center_mm = 400.0\nsource_to_detector_mm = 470.0\n\
+             [views]\ncount = 9\nfirst_deg = -21.0\nlast_deg = 17.0\n\
+             [detector]\nelements = 331\npitch_mm = 0.61\n\
+             [image]\ncolumns = 203\nrows = 77\npixel_mm = 0.37\n",
+        )
+        .unwrap();
+        for g in [Geometry::paper().binned(4).unwrap(), odd] {
+            let base = RayTable::new(&g);
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+            let y: Vec<f32> = (0..g.n_rays()).map(|_| rng.random::<f32>()).collect();
+            let mut reference = vec![0.0; g.n_pixels()];
+            base.adjoint_rows_scalar(&y, 0, &mut reference);
+            for (cut_lo, cut_hi) in [(0, 0), (1, 0), (3, 2), (0, 1), (usize::MAX, 0)] {
+                let mut t = base.clone();
+                for m in &mut t.inv_map {
+                    let lo = (m.fit_lo as usize)
+                        .saturating_add(cut_lo)
+                        .min(m.fit_hi as usize);
+                    let hi = (m.fit_hi as usize).saturating_sub(cut_hi).max(lo);
+                    m.fit_lo = lo as u32;
+                    m.fit_hi = hi as u32;
+                }
+                let mut out = vec![0.0; g.n_pixels()];
+                // SAFETY: AVX-512F detected above.
+                unsafe { adjoint_rows(&t, &y, 0, &mut out) };
+                for (k, (p, q)) in out.iter().zip(&reference).enumerate() {
+                    assert!(
+                        (p - q).abs() <= 1e-5 * q.abs().max(1.0),
+                        "cut ({cut_lo}, {cut_hi}) pixel {k}: {p} vs {q}"
+                    );
+                }
             }
         }
-        jb += L;
-    }
-    for (j, o) in row_out.iter_mut().enumerate().skip(jb) {
-        *o += pixel_scalar(map, s, n_det, j);
     }
 }

@@ -22,10 +22,14 @@ pub(crate) const NO_PIXEL: i32 = i32::MIN / 2;
 /// The inverse map of one (view, row): the fractional index of the ray through
 /// the left edge of pixel `j` at the top of the row is the Moebius function
 /// `(a j + b) / (c j + d)`. It is evaluated exactly at the first pixel `jb` of
-/// each block of 16 and continued linearly with its derivative there (one pair
-/// of scalar divisions per block, identical in the scalar and SIMD code);
-/// candidate rays for pixel `j` are `floor(that) - off .. + count`, with `off`
-/// and `count` verified at construction against the exact contributions.
+/// each block of 16 and continued linearly with its derivative there (the
+/// same operations in the scalar and SIMD code); candidate rays are
+/// `floor(that) - off .. + count`, with `off` and `count` verified at
+/// construction against the exact contributions. Two candidate sets share the
+/// map: `(off, count)` covers every ray contributing to pixel `j` (first or
+/// second pixel of the ray; the scalar fallback), `(off1, count1)` only the
+/// rays whose first pixel is `j` (the SIMD pass, which adds their second
+/// contributions to pixel `j + 1`).
 #[derive(Debug, Clone, Copy, Default)]
 pub(crate) struct InvMap {
     pub a: f32,
@@ -40,27 +44,68 @@ pub(crate) struct InvMap {
     /// this row.
     pub ray_lo: u32,
     pub ray_hi: u32,
-    /// Candidate starts are non-decreasing in `j` (enables windowed gathers).
-    pub monotone: bool,
+    /// Candidates of the rays whose first pixel is `j`.
+    pub off1: i32,
+    pub count1: u32,
+    /// Blocks of 16 pixels `fit_lo .. fit_hi` (block `b` = pixels `16 b ..
+    /// min(16 b + 16, nx)`) where the SIMD pixel pass applies without checks: the
+    /// view's pixel index is monotone along the detector, and the block's
+    /// `(off1, count1)` candidate starts are finite, non-decreasing, and all
+    /// in one 32-entry window of the padded ray scratch.
+    pub fit_lo: u32,
+    pub fit_hi: u32,
 }
 
 impl InvMap {
-    /// Value and slope of the map at block start `jb` (a multiple of 16).
+    /// Value and slope of the map at block start `jb` (a multiple of 16), with
+    /// one division (the SIMD code repeats these operations exactly).
     #[inline(always)]
     pub fn block(&self, jb: usize) -> (f32, f32) {
         let x = jb as f32;
-        let den = self.c * x + self.d;
-        ((self.a * x + self.b) / den, self.e / (den * den))
+        let q = 1.0 / (self.c * x + self.d);
+        ((self.a * x + self.b) * q, (self.e * q) * q)
     }
 
     /// First candidate ray of pixel `j` (see the type's documentation).
     #[inline(always)]
     pub fn start(&self, j: usize) -> i32 {
+        self.start_off(j, self.off)
+    }
+
+    /// First one-sided candidate of pixel `j` (`off1`).
+    #[inline(always)]
+    pub fn start1(&self, j: usize) -> i32 {
+        self.start_off(j, self.off1)
+    }
+
+    #[inline(always)]
+    fn start_off(&self, j: usize, off: i32) -> i32 {
         let (rb, sb) = self.block(j & !15);
         let r = rb + ((j & 15) as f32) * sb;
-        // Saturating conversion, clamped as the SIMD code does; the result is
-        // covered by the `count` verification (`RayTable::build_inverse_maps`).
-        (r.floor().clamp(-1.0e9, 1.0e9) as i32).saturating_sub(self.off)
+        // Saturating conversion; the result is covered by the `count`
+        // verification (`RayTable::build_inverse_maps`).
+        (r.floor().clamp(-1.0e9, 1.0e9) as i32).saturating_sub(off)
+    }
+
+    /// Whether block `b` qualifies for the unchecked SIMD pixel pass (see
+    /// `fit_lo`), computed with the SIMD kernel's arithmetic: lane `l` is
+    /// `floor(rb + l * sb)`, converted by truncation, minus `off1`.
+    fn block_fits(&self, b: usize, n_det: usize) -> bool {
+        let (rb, sb) = self.block(16 * b);
+        let mut starts = [0i64; 16];
+        for (l, st) in starts.iter_mut().enumerate() {
+            let r = (rb + (l as f32) * sb).floor();
+            if !r.is_finite() || r.abs() >= 1.0e9 {
+                return false;
+            }
+            *st = r as i64 - self.off1 as i64;
+        }
+        let (first, last) = (starts[0], starts[15]);
+        starts.windows(2).all(|w| w[1] >= w[0])
+            && first == rb.floor() as i64 - self.off1 as i64
+            && first >= -(PAD as i64)
+            && first + 32 <= (n_det + PAD) as i64
+            && last + self.count1 as i64 - 1 - first <= 31
     }
 }
 
@@ -90,6 +135,50 @@ pub(crate) struct RayTable {
     /// their pixels lie in one unmasked 32-pixel window of the row (the SIMD
     /// forward kernel's fast rows). Empty where that never holds.
     pub fwd_rows: Vec<(u32, u32)>,
+}
+
+/// The smallest `(off, count)` such that the candidates `start(j) - off ..
+/// + count` (with `off = 0` in `m`) cover the rays `need.0[j] ..= need.1[j]`
+/// of every pixel; `None` if no pixel needs any ray.
+fn candidate_window(m: &InvMap, need: &(Vec<i64>, Vec<i64>)) -> Option<(i32, u32)> {
+    let est = |j: usize| m.start_off(j, 0) as i64;
+    let mut off = i64::MIN;
+    for (j, &lo) in need.0.iter().enumerate() {
+        if lo != i64::MAX {
+            off = off.max(est(j) - lo);
+        }
+    }
+    if off == i64::MIN {
+        return None;
+    }
+    let mut count = 0i64;
+    for (j, &hi) in need.1.iter().enumerate() {
+        if hi != i64::MIN {
+            count = count.max(hi - (est(j) - off) + 1);
+        }
+    }
+    Some((
+        off.clamp(i32::MIN as i64 / 4, i32::MAX as i64 / 4) as i32,
+        count.clamp(0, 1 << 20) as u32,
+    ))
+}
+
+/// The second contributions (to pixel 0) of the rays whose first pixel is `-1`,
+/// from the ray scratch `(j, c1)` (indexed `PAD + k`, `NO_PIXEL` for rays
+/// outside the row). In a view whose pixel index is non-decreasing along the
+/// detector these are the first valid rays of the row, so the scan stops at
+/// the first ray inside the image.
+#[inline]
+pub(crate) fn left_edge_c1(map: &InvMap, j: &[i32], c1: &[f32]) -> f32 {
+    let mut acc = 0.0f32;
+    for k in map.ray_lo as usize..map.ray_hi as usize {
+        match j[PAD + k] {
+            -1 => acc += c1[PAD + k],
+            jk if jk >= 0 => break,
+            _ => {}
+        }
+    }
+    acc
 }
 
 /// Row segment `(lo, hi)` of a ray in row `i`, in column units.
@@ -302,7 +391,7 @@ impl RayTable {
                 let th = g.angle_rad(v);
                 let (s, c) = th.sin_cos();
                 let (sxm, szm) = g.source_mm(v);
-                let z = z_top - i as f64 * p;
+                let z = z_top - (i as f64 + 0.5) * p;
                 // lateral(X) = c p X + l0, depth(X) = -s p X + d0
                 let l0 = (x_min - sxm) * c - (z - szm) * s;
                 let d0 = -((x_min - sxm) * s + (z - szm) * c);
@@ -323,7 +412,10 @@ impl RayTable {
                     count: 0,
                     ray_lo: 0,
                     ray_hi: 0,
-                    monotone: true,
+                    off1: 0,
+                    count1: 0,
+                    fit_lo: 0,
+                    fit_hi: 0,
                 };
                 let touches = |k: usize| self.touches_row(v * n_det + k, i);
                 if let (Some(first), Some(last)) =
@@ -332,37 +424,44 @@ impl RayTable {
                     m.ray_lo = first as u32;
                     m.ray_hi = last as u32 + 1;
                 }
-                // Which rays each pixel needs, from the exact contributions.
-                let mut need_min = vec![i64::MAX; nx];
-                let mut need_max = vec![i64::MIN; nx];
+                // Which rays each pixel needs, from the exact contributions:
+                // all contributing rays, and those whose first pixel it is.
+                let mut need = (vec![i64::MAX; nx], vec![i64::MIN; nx]);
+                let mut need1 = (vec![i64::MAX; nx], vec![i64::MIN; nx]);
+                let add = |need: &mut (Vec<i64>, Vec<i64>), j: i64, k: usize| {
+                    if (0..nx as i64).contains(&j) {
+                        let u = j as usize;
+                        need.0[u] = need.0[u].min(k as i64);
+                        need.1[u] = need.1[u].max(k as i64);
+                    }
+                };
                 self.fast_contributions(v, i, |k, j, w0, w1| {
-                    for (jj, w) in [(j as i64, w0), (j as i64 + 1, w1)] {
-                        if w != 0.0 && (0..nx as i64).contains(&jj) {
-                            let u = jj as usize;
-                            need_min[u] = need_min[u].min(k as i64);
-                            need_max[u] = need_max[u].max(k as i64);
-                        }
+                    let j = j as i64;
+                    if w0 != 0.0 {
+                        add(&mut need, j, k);
                     }
+                    if w1 != 0.0 {
+                        add(&mut need, j + 1, k);
+                    }
+                    add(&mut need1, j, k);
                 });
-                let est = |j: usize| m.start(j) as i64; // off = 0 here
-                let mut off = i64::MIN;
-                for j in 0..nx {
-                    if need_min[j] != i64::MAX {
-                        off = off.max(est(j) - need_min[j]);
-                    }
-                }
-                if off == i64::MIN {
+                let Some((off, count)) = candidate_window(&m, &need) else {
                     return m; // no contributions in this row: count 0
-                }
-                let mut count = 0i64;
-                for j in 0..nx {
-                    if need_max[j] != i64::MIN {
-                        count = count.max(need_max[j] - (est(j) - off) + 1);
+                };
+                m.off = off;
+                m.count = count;
+                if let Some((off1, count1)) = candidate_window(&m, &need1) {
+                    m.off1 = off1;
+                    m.count1 = count1;
+                    // Including a last partial block (masked in the kernel).
+                    let full = nx.div_ceil(16);
+                    let fits = |b: usize| self.view_simd[v] && m.block_fits(b, n_det);
+                    if let Some(lo) = (0..full).find(|&b| fits(b)) {
+                        let hi = (lo..full).find(|&b| !fits(b)).unwrap_or(full);
+                        m.fit_lo = lo as u32;
+                        m.fit_hi = hi as u32;
                     }
                 }
-                m.off = off.clamp(i32::MIN as i64 / 4, i32::MAX as i64 / 4) as i32;
-                m.count = count.clamp(0, 1 << 20) as u32;
-                m.monotone = (1..nx).all(|j| m.start(j) >= m.start(j - 1));
                 m
             })
             .collect();
