@@ -205,6 +205,9 @@ struct RowRays {
     sb: Vec<f32>,
     /// `floor(rb)` as an integer (the first candidate before `off1`).
     r0: Vec<i32>,
+    /// Scratch index of each block's first candidate, `PAD + r0 - off1`
+    /// (separate from `r0` so that `r0` is broadcast straight from memory).
+    e: Vec<i32>,
 }
 
 impl RowRays {
@@ -216,6 +219,7 @@ impl RowRays {
             rb: Vec::new(),
             sb: Vec::new(),
             r0: Vec::new(),
+            e: Vec::new(),
         }
     }
 
@@ -229,6 +233,7 @@ impl RowRays {
         self.rb.resize(nb, 0.0);
         self.sb.resize(nb, 0.0);
         self.r0.resize(nb, 0);
+        self.e.resize(nb, 0);
     }
 }
 
@@ -472,7 +477,9 @@ unsafe fn collect_one(
 /// `InvMap::block` at blocks `0, 16, 32, ...` (16 blocks per vector, the same
 /// IEEE operations, so the same values).
 #[target_feature(enable = "avx512f")]
-unsafe fn block_values(map: &InvMap, rb: &mut [f32], sb: &mut [f32], r0: &mut [i32]) {
+unsafe fn block_values(map: &InvMap, s: &mut RowRays) {
+    let (rb, sb, r0, eb) = (&mut s.rb, &mut s.sb, &mut s.r0, &mut s.e);
+    let e_off = _mm512_set1_epi32(PAD as i32 - map.off1);
     let lanes = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
     let (a, b) = (_mm512_set1_ps(map.a), _mm512_set1_ps(map.b));
     let (c, d, e) = (
@@ -481,7 +488,7 @@ unsafe fn block_values(map: &InvMap, rb: &mut [f32], sb: &mut [f32], r0: &mut [i
         _mm512_set1_ps(map.e),
     );
     let one = _mm512_set1_ps(1.0);
-    for q in (0..rb.len().min(sb.len()).min(r0.len())).step_by(L) {
+    for q in (0..rb.len().min(sb.len()).min(r0.len()).min(eb.len())).step_by(L) {
         let blocks = _mm512_add_epi32(_mm512_set1_epi32(q as i32), lanes);
         let x = _mm512_cvtepi32_ps(_mm512_slli_epi32::<4>(blocks));
         let inv = _mm512_div_ps(one, _mm512_add_ps(_mm512_mul_ps(c, x), d));
@@ -489,9 +496,11 @@ unsafe fn block_values(map: &InvMap, rb: &mut [f32], sb: &mut [f32], r0: &mut [i
         let slope = _mm512_mul_ps(_mm512_mul_ps(e, inv), inv);
         _mm512_storeu_ps(rb.as_mut_ptr().add(q), val);
         _mm512_storeu_ps(sb.as_mut_ptr().add(q), slope);
+        let first = _mm512_cvttps_epi32(floor_ps(val));
+        _mm512_storeu_si512(r0.as_mut_ptr().add(q) as *mut __m512i, first);
         _mm512_storeu_si512(
-            r0.as_mut_ptr().add(q) as *mut __m512i,
-            _mm512_cvttps_epi32(floor_ps(val)),
+            eb.as_mut_ptr().add(q) as *mut __m512i,
+            _mm512_add_epi32(first, e_off),
         );
     }
 }
@@ -509,8 +518,7 @@ unsafe fn pixel_pass(t: &RayTable, map: &InvMap, s: &mut RowRays, row_out: &mut 
     let one = _mm512_set1_epi32(1);
     let (fit_lo, fit_hi) = (map.fit_lo as usize, map.fit_hi as usize);
     if fit_lo < fit_hi {
-        let (rbs, sbs, r0s) = (&mut s.rb, &mut s.sb, &mut s.r0);
-        block_values(map, rbs, sbs, r0s);
+        block_values(map, s);
     }
     let s = &*s;
     for j in 0..(fit_lo * L).min(nx) {
@@ -526,7 +534,7 @@ unsafe fn pixel_pass(t: &RayTable, map: &InvMap, s: &mut RowRays, row_out: &mut 
         };
         let mut prev = _mm512_set1_ps(carry);
         let (jp, c0p, c1p) = (s.j.as_ptr(), s.c0.as_ptr(), s.c1.as_ptr());
-        let (rbp, sbp, r0p) = (s.rb.as_ptr(), s.sb.as_ptr(), s.r0.as_ptr());
+        let (rbp, sbp, r0p, ep) = (s.rb.as_ptr(), s.sb.as_ptr(), s.r0.as_ptr(), s.e.as_ptr());
         let mut jv = _mm512_add_epi32(_mm512_set1_epi32(jb as i32), lanes);
         let step = _mm512_set1_epi32(L as i32);
         for b in fit_lo..fit_hi {
@@ -534,10 +542,10 @@ unsafe fn pixel_pass(t: &RayTable, map: &InvMap, s: &mut RowRays, row_out: &mut 
             // range, non-decreasing, one window; lane 0 is floor(rb) exactly.
             let rb = _mm512_set1_ps(*rbp.add(b));
             let sb = _mm512_set1_ps(*sbp.add(b));
-            let r0 = *r0p.add(b);
+            let r0 = _mm512_set1_epi32(*r0p.add(b));
             let rf = _mm512_cvttps_epi32(floor_ps(_mm512_add_ps(rb, _mm512_mul_ps(lanes_f, sb))));
-            let e = (PAD as i32 + r0 - map.off1) as usize;
-            let idx = _mm512_sub_epi32(rf, _mm512_set1_epi32(r0));
+            let e = *ep.add(b) as usize;
+            let idx = _mm512_sub_epi32(rf, r0);
             let w = Window {
                 jl: _mm512_loadu_si512(jp.add(e) as *const __m512i),
                 jh: _mm512_loadu_si512(jp.add(e + 16) as *const __m512i),
