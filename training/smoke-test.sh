@@ -4,7 +4,7 @@
 # trained for 4 iterations in two runs (the second resumes from the first's
 # checkpoint), exported (fp32 + int8 QDQ, fixtures, manifest), and the export
 # checked by the firmware's runtime (`dbtor-diag model`: checksums, fp32 vs
-# PyTorch, int8 vs onnxruntime). Needs training/requirements.txt installed and
+# PyTorch, int8 vs onnxruntime); then the same for a 2-iteration LPD (no mask). Needs training/requirements.txt installed and
 # the release binaries (host-sim, dbtor-diag).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -24,4 +24,12 @@ $PY -m dbtor.plot --run "$tmp/run" --out "$tmp/model/training-curve.png"
 $PY -m dbtor.export --run "$tmp/run" --data "$tmp/ds" --out "$tmp/model" --calibration 2 --fixtures 1
 cd ..
 ./target/release/dbtor-diag model "$tmp/model"
+# The LPD baseline (no mask): trained, exported and checked the same way.
+cd training
+$PY -m dbtor.train --data "$tmp/ds" --out "$tmp/lpd-run" --model lpd --iters 2 --batch 2 --blocks 2 \
+    --val-every 2 --log-every 1
+$PY -m dbtor.export --run "$tmp/lpd-run" --data "$tmp/ds" --out "$tmp/lpd" --calibration 2 --fixtures 1
+cd ..
+grep -q '"kind": "lpd"' "$tmp/lpd/manifest.json" || { echo "smoke test: the LPD export is not kind lpd"; exit 1; }
+./target/release/dbtor-diag model "$tmp/lpd"
 echo "training smoke test passed"

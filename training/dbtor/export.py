@@ -73,18 +73,20 @@ class Reader(CalibrationDataReader):
         return next(self.it, None)
 
 
-def run_onnx_chain(files, op, g, m, n_blocks):
+def run_onnx_chain(files, op, g, m, n_blocks, use_mask=True):
     """The unrolled loop with onnxruntime blocks (reference for the int8 fixture)."""
     sessions = [ort.InferenceSession(f, providers=["CPUExecutionProvider"]) for f in files]
     b = g.shape[0]
     h = torch.zeros(b, STATE, *op.sino_shape)
     f = torch.zeros(b, STATE, *op.image_shape)
     with torch.no_grad():
-        pm = op.forward(m)
+        pm = op.forward(m) if use_mask else None
         for i in range(n_blocks):
-            aux = torch.cat([op.forward(f[:, 1:2]), g, pm], 1)
+            pf = op.forward(f[:, 1:2])
+            aux = torch.cat([pf, g, pm], 1) if use_mask else torch.cat([pf, g], 1)
             h = torch.from_numpy(sessions[2 * i].run(None, {"state": h.numpy(), "aux": aux.numpy()})[0])
-            aux = torch.cat([op.adjoint(h[:, 0:1]), m], 1)
+            bh = op.adjoint(h[:, 0:1])
+            aux = torch.cat([bh, m], 1) if use_mask else bh
             f = torch.from_numpy(sessions[2 * i + 1].run(None, {"state": f.numpy(), "aux": aux.numpy()})[0])
     return f[:, 0:1]
 
@@ -104,9 +106,11 @@ def main(argv=None):
     with open(os.path.join(a.run, "run.json")) as f:
         run = json.load(f)
     op = Operator(os.path.join(a.data, "operator"))
-    if ck["model_kind"] != "dbtor":
-        sys.exit("only DBToR models (with the mask) are exported for the firmware")
-    net = PrimalDual(op, blocks=ck["blocks"], use_mask=True)
+    kind = ck["model_kind"]
+    if kind not in ("dbtor", "lpd"):
+        sys.exit(f"cannot export a {kind!r} run with this exporter")
+    use_mask = kind == "dbtor"
+    net = PrimalDual(op, blocks=ck["blocks"], use_mask=use_mask)
     net.load_state_dict(ck["model"])
     net.eval()
     stats = ck["stats"]
@@ -164,7 +168,7 @@ def main(argv=None):
         g, m, _ = tensors((graw, mraw, xraw), stats)
         with torch.no_grad():
             ref = (net(g, m) * stats["x_scale"]).numpy()[0, 0]
-        ref8 = (run_onnx_chain(int8_files, op, g, m, net.n_blocks) * stats["x_scale"]).numpy()[0, 0]
+        ref8 = (run_onnx_chain(int8_files, op, g, m, net.n_blocks, use_mask) * stats["x_scale"]).numpy()[0, 0]
         thickness = val.split["slices"][int(j)]["thickness_mm"]
         stem = f"case{k}"
         files = {}
@@ -186,17 +190,19 @@ def main(argv=None):
     manifest = {
         "format": "dbtor-model/1",
         "name": a.name or os.path.basename(os.path.normpath(a.out)),
-        "kind": "dbtor",
+        "kind": kind,
         "geometry": run["geometry"],
         "state_channels": STATE,
         "channels": {"output": 0, "projected": 1, "backprojected": 0},
-        "block_inputs": {"dual": ["h (5)", "P(f[1])", "g", "P(m)"], "primal": ["f (5)", "P*(h[0])", "m"]},
+        "block_inputs": ({"dual": ["h (5)", "P(f[1])", "g", "P(m)"], "primal": ["f (5)", "P*(h[0])", "m"]}
+                         if use_mask else {"dual": ["h (5)", "P(f[1])", "g"], "primal": ["f (5)", "P*(h[0])"]}),
         "normalisation": {
             "g_mean": stats["g_mean"], "g_std": stats["g_std"], "x_scale_per_mm": stats["x_scale"],
             "operator_norm": op.norm,
             "rule": "g_n = (g - g_mean) / g_std; the network's P and P* are divided by operator_norm; "
-                    "mask m is 0/1 on the image grid (rows within the thickness above the bottom row); "
-                    "output image (1/mm) = f[0] * x_scale_per_mm",
+                    + ("mask m is 0/1 on the image grid (rows within the thickness above the bottom row); "
+                       if use_mask else "no mask (LPD); ")
+                    + "output image (1/mm) = f[0] * x_scale_per_mm",
         },
         "opset": OPSET,
         "blocks": [dict(b, fp32=os.path.relpath(f, a.out), int8=os.path.relpath(q, a.out))

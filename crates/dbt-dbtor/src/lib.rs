@@ -394,6 +394,8 @@ impl Dbtor {
         let g = &self.manifest.geometry;
         let (n_img, n_sino) = (g.n_pixels(), g.n_rays());
         let c = self.manifest.state_channels;
+        // Checked when the manifest was loaded.
+        let (aux_dual, aux_primal) = self.manifest.aux_channels().unwrap_or((3, 2));
         let ((views, det), (rows, cols)) = (grid(g, Role::Dual), grid(g, Role::Primal));
         let e = &self.manifest.blocks;
         let ws = match &self.blocks {
@@ -425,8 +427,8 @@ impl Dbtor {
             pm: vec![0.0; n_sino],
             h: vec![0.0; c * n_sino],
             f: vec![0.0; c * n_img],
-            aux_d: vec![0.0; 3 * n_sino],
-            aux_p: vec![0.0; 2 * n_img],
+            aux_d: vec![0.0; aux_dual * n_sino],
+            aux_p: vec![0.0; aux_primal * n_img],
             ws,
         })
     }
@@ -680,12 +682,14 @@ impl Dbtor {
             .crop_margin
             .map(|m| (first / cols).saturating_sub(m).min(geom.image.rows - 1))
             .unwrap_or(0);
-        self.project(mask, pm, inv_norm)?;
         h.fill(0.0);
         f.fill(0.0);
         aux_d[n_sino..2 * n_sino].copy_from_slice(gn);
-        aux_d[2 * n_sino..].copy_from_slice(pm);
-        aux_p[n_img..].copy_from_slice(mask);
+        if self.manifest.uses_mask() {
+            self.project(mask, pm, inv_norm)?;
+            aux_d[2 * n_sino..].copy_from_slice(pm);
+            aux_p[n_img..].copy_from_slice(mask);
+        }
         for (k, blk) in self.manifest.blocks.iter().enumerate() {
             let _s = tracing::trace_span!("block", role = ?blk.role, index = blk.index).entered();
             let t0 = Instant::now();

@@ -78,7 +78,8 @@ pub struct ModelManifest {
     pub format: String,
     /// Model name.
     pub name: String,
-    /// `dbtor`.
+    /// `dbtor` (the learned primal-dual with the thickness mask) or `lpd`
+    /// (the same network without the mask, the paper's LPD baseline).
     pub kind: String,
     /// Geometry of the input sinogram and output image.
     pub geometry: Geometry,
@@ -123,6 +124,21 @@ pub fn sha256_file(path: &Path) -> Result<String, DbtorError> {
 }
 
 impl ModelManifest {
+    /// Whether the blocks see the thickness mask (`dbtor`) or not (`lpd`).
+    pub fn uses_mask(&self) -> bool {
+        self.kind == "dbtor"
+    }
+
+    /// `aux` channels of the dual and primal blocks for the kind: dual
+    /// `[P(f[1]), g, P(m)]`, primal `[P*(h[0]), m]`; LPD drops the mask terms.
+    pub fn aux_channels(&self) -> Option<(usize, usize)> {
+        match self.kind.as_str() {
+            "dbtor" => Some((3, 2)),
+            "lpd" => Some((2, 1)),
+            _ => None,
+        }
+    }
+
     /// Read and check `dir/manifest.json` (format, block order, channel counts).
     pub fn load(dir: &Path) -> Result<Self, DbtorError> {
         let path = dir.join("manifest.json");
@@ -155,6 +171,12 @@ impl ModelManifest {
                 m.channels
             )));
         }
+        let (aux_dual, aux_primal) = m.aux_channels().ok_or_else(|| {
+            bad(format!(
+                "kind is {:?}, expected \"dbtor\" or \"lpd\"",
+                m.kind
+            ))
+        })?;
         if m.blocks.is_empty() || !m.blocks.len().is_multiple_of(2) {
             return Err(bad(format!(
                 "{} blocks: expected dual/primal pairs",
@@ -163,9 +185,9 @@ impl ModelManifest {
         }
         for (k, b) in m.blocks.iter().enumerate() {
             let (role, aux) = if k % 2 == 0 {
-                (Role::Dual, 3)
+                (Role::Dual, aux_dual)
             } else {
-                (Role::Primal, 2)
+                (Role::Primal, aux_primal)
             };
             if b.role != role || b.index != k / 2 || b.aux_channels != aux {
                 return Err(bad(format!(

@@ -188,6 +188,28 @@ fn edited_manifest_is_refused() {
     assert!(msg.contains("manifest.json"), "{msg}");
 }
 
+/// The kind decides the blocks' aux channels: an unknown kind is refused by
+/// name, and DBToR's blocks (aux 3 / 2) do not pass as LPD's (2 / 1).
+#[test]
+fn kind_is_checked_against_the_blocks() {
+    let t = tempfile::tempdir().unwrap();
+    copy_model(t.path());
+    let p = t.path().join("manifest.json");
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+    for (kind, needle) in [
+        ("unet", "kind is \"unet\""),
+        ("lpd", "expected Dual 0 with 2"),
+    ] {
+        let mut w = v.clone();
+        w["kind"] = kind.into();
+        std::fs::write(&p, serde_json::to_string(&w).unwrap()).unwrap();
+        let msg = Dbtor::load(t.path(), Precision::Fp32)
+            .unwrap_err()
+            .to_string();
+        assert!(msg.contains(needle), "{kind}: {msg}");
+    }
+}
+
 #[test]
 fn bad_input_is_refused() {
     let m = Dbtor::load(&model_dir(), Precision::Fp32).unwrap();
