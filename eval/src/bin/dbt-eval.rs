@@ -36,6 +36,10 @@ enum Cmd {
         /// Precisions of the model to run (comma separated: fp32, int8).
         #[arg(long, default_value = "fp32,int8")]
         precisions: String,
+        /// A trained LPD model folder (the paper's baseline: DBToR without the
+        /// mask), run in fp32 beside the model; same geometry.
+        #[arg(long)]
+        lpd: Option<PathBuf>,
         /// Executor of the model's blocks: fast (the fused kernels) or tract
         /// (the reference).
         #[arg(long, default_value = "fast")]
@@ -173,7 +177,8 @@ fn write_png(path: &PathBuf, pixels: &[u8], w: usize, h: usize) -> Result<()> {
     Ok(())
 }
 
-/// Load a model folder at each precision asked for, named `DBToR fp32`, ...
+/// Load a model folder at each precision asked for, named by its kind and
+/// precision: `DBToR fp32`, `LPD fp32`, ...
 fn load_models(
     dir: Option<&std::path::Path>,
     precisions: &str,
@@ -188,7 +193,11 @@ fn load_models(
         let m = Dbtor::load_with(dir, p, engine)
             .with_context(|| format!("loading {} ({p}, {engine})", dir.display()))?
             .with_crop(crop_margin)?;
-        out.push((format!("DBToR {p}"), m));
+        let kind = match m.manifest().kind.as_str() {
+            "lpd" => "LPD",
+            _ => "DBToR",
+        };
+        out.push((format!("{kind} {p}"), m));
     }
     Ok(out)
 }
@@ -205,6 +214,7 @@ fn main() -> Result<()> {
             binning,
             model,
             precisions,
+            lpd,
             engine,
             crop_margin,
             phantoms,
@@ -213,7 +223,8 @@ fn main() -> Result<()> {
             levels,
             json,
         } => {
-            let loaded = load_models(model.as_deref(), &precisions, &engine, crop_margin)?;
+            let mut loaded = load_models(model.as_deref(), &precisions, &engine, crop_margin)?;
+            loaded.extend(load_models(lpd.as_deref(), "fp32", &engine, crop_margin)?);
             let geometry = match (loaded.first(), binning) {
                 (Some((_, m)), None) => m.geometry().clone(),
                 (Some((name, m)), Some(b)) => {
