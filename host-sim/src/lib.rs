@@ -29,6 +29,9 @@ pub enum SimError {
     /// A file adapter failed.
     #[error(transparent)]
     Store(#[from] dbt_store::StoreError),
+    /// A reconstruction for a derived array failed.
+    #[error(transparent)]
+    Recon(#[from] dbt_recon::ReconError),
     /// Options that cannot work.
     #[error("{0}")]
     Options(String),

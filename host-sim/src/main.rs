@@ -130,6 +130,16 @@ enum Cmd {
         #[arg(long, default_value_t = 4)]
         batch: usize,
     },
+    /// Add the FBP of one noise level's sinograms to every split of a dataset
+    /// (`fbp-<level>`, the U-Net baseline's input; DATASET.md).
+    Fbp {
+        /// The dataset folder.
+        #[arg(long)]
+        data: PathBuf,
+        /// Noise level whose sinograms are reconstructed.
+        #[arg(long, default_value = "N8")]
+        level: String,
+    },
 }
 
 fn load_geometry(path: &Option<PathBuf>, binning: usize) -> Result<Geometry> {
@@ -311,6 +321,13 @@ fn main() -> Result<()> {
                 }
                 _ => bail!("give --listen HOST:PORT (Modbus TCP) or --serial PATH (Modbus RTU)"),
             }
+        }
+        Cmd::Fbp { data, level } => {
+            let t = Instant::now();
+            for (split, n) in host_sim::dataset::add_fbp(&data, &level)? {
+                println!("{split}: fbp-{level} of {n} slices");
+            }
+            println!("{:.0} s", t.elapsed().as_secs_f64());
         }
         Cmd::Dataset {
             out,

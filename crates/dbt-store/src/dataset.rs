@@ -389,6 +389,52 @@ impl Dataset {
         }
         Ok(MappedArray { map, entry, item })
     }
+
+    /// Add (or replace) an array of a split whose file has already been
+    /// written into the split's folder, and rewrite `manifest.json`. The file
+    /// size is checked against the entry's shape first.
+    pub fn register_array(&mut self, split: &str, entry: ArrayEntry) -> Result<(), StoreError> {
+        let path = self.root.join(split).join(&entry.file);
+        let width = match entry.dtype.as_str() {
+            "|u1" => 1,
+            "<f4" => 4,
+            other => {
+                return Err(StoreError::Format {
+                    path,
+                    reason: format!("dtype `{other}`: this writer knows `<f4` and `|u1`"),
+                })
+            }
+        };
+        let want = entry.shape.iter().product::<usize>() * width;
+        let got = std::fs::metadata(&path).map_err(io_err(&path))?.len() as usize;
+        if got != want {
+            return Err(StoreError::Format {
+                path,
+                reason: format!("{got} bytes, shape {:?} needs {want}", entry.shape),
+            });
+        }
+        let root = self.root.clone();
+        let sm = self
+            .manifest
+            .splits
+            .iter_mut()
+            .find(|s| s.name == split)
+            .ok_or_else(|| StoreError::Format {
+                path: root.clone(),
+                reason: format!("no split `{split}`"),
+            })?;
+        sm.arrays.retain(|a| a.name != entry.name);
+        sm.arrays.push(entry);
+        let mpath = root.join("manifest.json");
+        let text =
+            serde_json::to_string_pretty(&self.manifest).map_err(|e| StoreError::Format {
+                path: mpath.clone(),
+                reason: e.to_string(),
+            })?;
+        let tmp = root.join("manifest.json.tmp");
+        std::fs::write(&tmp, text).map_err(io_err(&tmp))?;
+        std::fs::rename(&tmp, &mpath).map_err(io_err(&mpath))
+    }
 }
 
 #[cfg(test)]
@@ -461,6 +507,34 @@ mod tests {
             &lab[..]
         );
         assert!(ds.array("validation", "images").is_err());
+        // A derived array: registered after its file is written, kept by a
+        // reopened manifest; a file of the wrong size is refused.
+        let mut ds = ds;
+        let derived: Vec<u8> = img
+            .iter()
+            .chain(&img)
+            .flat_map(|v| (v * 2.0).to_le_bytes())
+            .collect();
+        std::fs::write(dir.path().join("train").join("twice.f32"), &derived).unwrap();
+        let entry = ArrayEntry {
+            name: "twice".into(),
+            file: "twice.f32".into(),
+            dtype: "<f4".into(),
+            shape: vec![2, g.image.rows, g.image.columns],
+        };
+        ds.register_array("train", entry.clone()).unwrap();
+        let re = Dataset::open(dir.path()).unwrap();
+        assert_eq!(
+            re.array("train", "twice").unwrap().f32s(1).unwrap()[3],
+            img[3] * 2.0
+        );
+        let mut short = entry;
+        short.shape[0] = 3;
+        let e = ds.register_array("train", short).unwrap_err().to_string();
+        assert!(e.contains("twice.f32"), "{e}");
+        assert!(ds
+            .register_array("nope", re.array("train", "twice").unwrap().entry)
+            .is_err());
         // A truncated file is reported with its path.
         let p = dir.path().join("train").join("masks.u8");
         let len = std::fs::metadata(&p).unwrap().len();
