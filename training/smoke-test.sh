@@ -4,14 +4,15 @@
 # trained for 4 iterations in two runs (the second resumes from the first's
 # checkpoint), exported (fp32 + int8 QDQ, fixtures, manifest), and the export
 # checked by the firmware's runtime (`dbtor-diag model`: checksums, fp32 vs
-# PyTorch, int8 vs onnxruntime); then the same for a 2-iteration LPD (no mask). Needs training/requirements.txt installed and
+# PyTorch, int8 vs onnxruntime); then the same for a 2-iteration LPD (no mask),
+# and a 2-iteration U-Net on FBP run once by the evaluation. Needs training/requirements.txt installed and
 # the release binaries (host-sim, dbtor-diag).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
-cargo build --release --locked -q -p host-sim -p dbtor-firmware
+cargo build --release --locked -q -p host-sim -p dbtor-firmware -p dbt-eval
 ./target/release/host-sim dataset --out "$tmp/ds" --slices 1500 --test-phantoms 0 --levels N8 --binning 4 2>/dev/null
 cd training
 common=(--data "$tmp/ds" --out "$tmp/run" --iters 4 --batch 2 --blocks 2 --val-every 2 --log-every 1)
@@ -32,4 +33,15 @@ $PY -m dbtor.export --run "$tmp/lpd-run" --data "$tmp/ds" --out "$tmp/lpd" --cal
 cd ..
 grep -q '"kind": "lpd"' "$tmp/lpd/manifest.json" || { echo "smoke test: the LPD export is not kind lpd"; exit 1; }
 ./target/release/dbtor-diag model "$tmp/lpd"
+# The U-Net baseline on FBP: the FBP array, 2 iterations, export (the exporter
+# checks onnxruntime against PyTorch), and one evaluation slice through the
+# Rust runtime (tract).
+./target/release/host-sim fbp --data "$tmp/ds" --level N8
+cd training
+$PY -m dbtor.train --data "$tmp/ds" --out "$tmp/unet-run" --model unet --iters 2 --batch 2 --val-every 2 --log-every 1
+$PY -m dbtor.export_unet --run "$tmp/unet-run" --data "$tmp/ds" --out "$tmp/unet" --fixtures 1
+cd ..
+./target/release/dbt-eval baselines --unet "$tmp/unet" --phantoms 1 --slices 1 --levels N8 --iterations 2 \
+    --json "$tmp/unet-eval.json" > "$tmp/unet-eval.txt"
+grep -q "| U-Net | N8 |" "$tmp/unet-eval.txt" || { echo "smoke test: no U-Net row"; exit 1; }
 echo "training smoke test passed"

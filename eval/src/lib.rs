@@ -136,11 +136,45 @@ fn to_per_cm(v: &[f32]) -> Vec<f32> {
     v.iter().map(|x| x * 10.0).collect()
 }
 
+/// A learned reconstructor of the table: a primal-dual network (DBToR, LPD)
+/// on the log sinogram, or the U-Net on the FBP.
+#[derive(Debug, Clone, Copy)]
+pub enum Learned<'a> {
+    /// DBToR or LPD (`dbt_dbtor::Dbtor`).
+    PrimalDual(&'a dbt_dbtor::Dbtor),
+    /// The U-Net post-processing the (masked) FBP.
+    Unet(&'a dbt_dbtor::unet::Unet),
+}
+
+impl Learned<'_> {
+    /// The geometry the model was trained for.
+    pub fn geometry(&self) -> &Geometry {
+        match self {
+            Learned::PrimalDual(m) => m.geometry(),
+            Learned::Unet(m) => m.geometry(),
+        }
+    }
+
+    /// Reconstruct from the log sinogram (`line`), the thickness, and the FBP
+    /// of the same slice (the U-Net's input).
+    pub fn reconstruct(
+        &self,
+        line: &[f32],
+        thickness_mm: f64,
+        fbp: &[f32],
+    ) -> anyhow::Result<Vec<f32>> {
+        Ok(match self {
+            Learned::PrimalDual(m) => m.reconstruct(line, thickness_mm)?,
+            Learned::Unet(m) => m.reconstruct(fbp)?,
+        })
+    }
+}
+
 /// Run MLTR, FBP and the given learned models (name, model) on the test set
 /// and tabulate. Each model's geometry must be the evaluation geometry.
 pub fn evaluate_baselines(
     opts: &BaselineOptions,
-    models: &[(String, &dbt_dbtor::Dbtor)],
+    models: &[(String, Learned)],
 ) -> anyhow::Result<BaselineReport> {
     let g = &opts.geometry;
     for (name, m) in models {
@@ -186,7 +220,7 @@ pub fn evaluate_baselines(
                     score(shape, &truth, &to_per_cm(&f))?,
                 ];
                 for (_, model) in models {
-                    let x = model.reconstruct(&line, s.thickness_mm)?;
+                    let x = model.reconstruct(&line, s.thickness_mm, &f)?;
                     out.push(score(shape, &truth, &to_per_cm(&x))?);
                 }
                 Ok(out)

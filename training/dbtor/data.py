@@ -6,7 +6,10 @@ import numpy as np
 
 
 class Split:
-    def __init__(self, root, name, level):
+    """One split; `sinos` holds the network input: the sinograms `sino-<level>`,
+    or with `input="fbp"` their FBP `fbp-<level>` (`host-sim fbp`, U-Net)."""
+
+    def __init__(self, root, name, level, input="sino"):
         with open(os.path.join(root, "manifest.json")) as f:
             self.manifest = json.load(f)
         if self.manifest.get("format") != "dbtor-dataset/1":
@@ -16,10 +19,11 @@ class Split:
             raise ValueError(f"{root}: no split named {name!r}")
         self.split = split
         arrays = {a["name"]: a for a in split["arrays"]}
-        key = f"sino-{level}"
+        key = f"{input}-{level}"
         if key not in arrays:
-            have = [k for k in arrays if k.startswith("sino-")]
-            raise ValueError(f"{root}/{name}: no noise level {level!r} (have {have})")
+            have = [k for k in arrays if k.startswith(input + "-")]
+            hint = " (make it with `host-sim fbp --data DIR --level LEVEL`)" if input == "fbp" else ""
+            raise ValueError(f"{root}/{name}: no array {key!r} (have {have}){hint}")
 
         if arrays["images"]["shape"][0] == 0:
             raise ValueError(f"{root}/{name}: the split is empty (export more slices: validation "

@@ -1,12 +1,16 @@
-"""Train DBToR or LPD; resumable.
+"""Train DBToR, LPD or the U-Net baseline; resumable.
 
-    python -m dbtor.train --data DS --out RUN [--model dbtor|lpd] [--level N8]
+    python -m dbtor.train --data DS --out RUN [--model dbtor|lpd|unet] [--level N8]
         [--iters 100000] [--batch 4] [--blocks 10] [--max-minutes M] [--seed 0]
 
 RUN/checkpoint.pt holds the model, Adam, the cosine schedule, the iteration
 and the RNG states; running the same command again continues from it (the
 options must match: they are stored and checked). RUN/curve.csv gets one line
 per logged step, RUN/run.json the options and normalisation.
+
+The U-Net (unet.py) learns from the FBP of the sinograms (the dataset's
+`fbp-<level>`, made by `host-sim fbp`) instead of the sinograms; its input is
+scaled like the target (g_mean = 0, g_std = x_scale), and --blocks is unused.
 """
 import argparse
 import csv
@@ -23,6 +27,7 @@ import torch
 from .data import Split, statistics
 from .model import PrimalDual
 from .operator import Operator
+from .unet import UNet
 
 FIXED = ("model", "level", "iters", "batch", "blocks", "seed", "lr")
 
@@ -57,7 +62,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", required=True, help="host-sim dataset folder")
     ap.add_argument("--out", required=True, help="run folder (checkpoint, curve)")
-    ap.add_argument("--model", choices=["dbtor", "lpd"], default="dbtor")
+    ap.add_argument("--model", choices=["dbtor", "lpd", "unet"], default="dbtor")
     ap.add_argument("--level", default="N8", help="noise level trained on")
     ap.add_argument("--iters", type=int, default=100000, help="total iterations (cosine schedule length)")
     ap.add_argument("--batch", type=int, default=4)
@@ -74,16 +79,19 @@ def main(argv=None):
         torch.set_num_threads(a.threads)
     os.makedirs(a.out, exist_ok=True)
     op = Operator(os.path.join(a.data, "operator"))
-    train = Split(a.data, "train", a.level)
-    val = Split(a.data, "validation", a.level)
-    if tuple(train.images.shape[1:]) != op.image_shape or tuple(train.sinos.shape[1:]) != op.sino_shape:
+    unet = a.model == "unet"
+    source = "fbp" if unet else "sino"
+    train = Split(a.data, "train", a.level, input=source)
+    val = Split(a.data, "validation", a.level, input=source)
+    in_shape = op.image_shape if unet else op.sino_shape
+    if tuple(train.images.shape[1:]) != op.image_shape or tuple(train.sinos.shape[1:]) != in_shape:
         sys.exit(f"{a.data}: array shapes {train.images.shape[1:]}/{train.sinos.shape[1:]} do not match the operator")
 
     ckpt_path = os.path.join(a.out, "checkpoint.pt")
     run_path = os.path.join(a.out, "run.json")
     opts = {k: getattr(a, k) for k in FIXED}
     torch.manual_seed(a.seed)
-    net = PrimalDual(op, blocks=a.blocks, use_mask=(a.model == "dbtor"))
+    net = UNet() if unet else PrimalDual(op, blocks=a.blocks, use_mask=(a.model == "dbtor"))
     adam = torch.optim.Adam(net.parameters(), lr=a.lr, betas=(0.9, 0.999), eps=1e-8, weight_decay=0)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(adam, T_max=a.iters)
     rng = np.random.default_rng(a.seed)
@@ -101,6 +109,9 @@ def main(argv=None):
         print(f"resumed at iteration {it} ({elapsed / 60:.1f} min trained)", flush=True)
     else:
         stats = statistics(train)
+        if unet:
+            # The FBP input in the target's unit (x_scale), not standardised.
+            stats.update(g_mean=0.0, g_std=stats["x_scale"])
         with open(run_path, "w") as f:
             json.dump({"options": opts, "data": os.path.abspath(a.data),
                        "dataset_provenance": train.manifest["provenance"],

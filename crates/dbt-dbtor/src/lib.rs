@@ -14,6 +14,7 @@
 mod fast;
 mod fixtures;
 mod manifest;
+pub mod unet;
 
 pub use fixtures::{check_fixtures, FixtureCheck, FP32_TOL_NETWORK_UNITS};
 

@@ -222,23 +222,32 @@ impl ModelManifest {
 
     /// Check every file named in `sha256` exists and matches.
     pub fn verify_files(&self, dir: &Path) -> Result<(), DbtorError> {
-        for (rel, expected) in &self.sha256 {
-            let path = dir.join(rel);
-            if !path.is_file() {
-                return Err(DbtorError::Manifest {
-                    path: dir.join("manifest.json"),
-                    reason: format!("{rel} is listed but missing from {}", dir.display()),
-                });
-            }
-            let found = sha256_file(&path)?;
-            if &found != expected {
-                return Err(DbtorError::Checksum {
-                    path,
-                    expected: expected.clone(),
-                    found,
-                });
-            }
-        }
-        Ok(())
+        verify_checksums(dir, &self.sha256)
     }
+}
+
+/// Check that every file listed (path relative to `dir` -> SHA-256 hex) exists
+/// and has that checksum.
+pub(crate) fn verify_checksums(
+    dir: &Path,
+    sha256: &BTreeMap<String, String>,
+) -> Result<(), DbtorError> {
+    for (rel, expected) in sha256 {
+        let path = dir.join(rel);
+        if !path.is_file() {
+            return Err(DbtorError::Manifest {
+                path: dir.join("manifest.json"),
+                reason: format!("{rel} is listed but missing from {}", dir.display()),
+            });
+        }
+        let found = sha256_file(&path)?;
+        if &found != expected {
+            return Err(DbtorError::Checksum {
+                path,
+                expected: expected.clone(),
+                found,
+            });
+        }
+    }
+    Ok(())
 }

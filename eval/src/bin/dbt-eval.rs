@@ -5,7 +5,7 @@ use clap::{Parser, Subcommand};
 use dbt_acquisition::NoiseLevel;
 use dbt_dbtor::{Dbtor, Precision};
 use dbt_eval::picture::{auto_window, compose, Panel};
-use dbt_eval::{evaluate_baselines, table, test_set, BaselineOptions};
+use dbt_eval::{evaluate_baselines, table, test_set, BaselineOptions, Learned};
 use dbt_geometry::Geometry;
 use dbt_projector::Projector;
 use dbt_recon::{mltr, Fbp, MltrOptions};
@@ -40,6 +40,10 @@ enum Cmd {
         /// mask), run in fp32 beside the model; same geometry.
         #[arg(long)]
         lpd: Option<PathBuf>,
+        /// A trained U-Net model folder (the paper's baseline: a U-Net on the
+        /// FBP, `training/dbtor/export_unet.py`); same geometry.
+        #[arg(long)]
+        unet: Option<PathBuf>,
         /// Executor of the model's blocks: fast (the fused kernels) or tract
         /// (the reference).
         #[arg(long, default_value = "fast")]
@@ -215,6 +219,7 @@ fn main() -> Result<()> {
             model,
             precisions,
             lpd,
+            unet,
             engine,
             crop_margin,
             phantoms,
@@ -225,7 +230,22 @@ fn main() -> Result<()> {
         } => {
             let mut loaded = load_models(model.as_deref(), &precisions, &engine, crop_margin)?;
             loaded.extend(load_models(lpd.as_deref(), "fp32", &engine, crop_margin)?);
-            let geometry = match (loaded.first(), binning) {
+            let unet = unet
+                .map(|d| {
+                    dbt_dbtor::unet::Unet::load(&d)
+                        .with_context(|| format!("loading the U-Net {}", d.display()))
+                })
+                .transpose()?;
+            let mut refs: Vec<(String, Learned)> = loaded
+                .iter()
+                .map(|(n, m)| (n.clone(), Learned::PrimalDual(m)))
+                .collect();
+            if let Some(u) = &unet {
+                refs.push(("U-Net".into(), Learned::Unet(u)));
+            }
+            // The learned models' own geometry (evaluate_baselines checks they
+            // all agree); --binning must give the same.
+            let geometry = match (refs.first(), binning) {
                 (Some((_, m)), None) => m.geometry().clone(),
                 (Some((name, m)), Some(b)) => {
                     let g = Geometry::paper().binned(b)?;
@@ -239,7 +259,6 @@ fn main() -> Result<()> {
                 }
                 (None, b) => Geometry::paper().binned(b.unwrap_or(1))?,
             };
-            let refs: Vec<(String, &Dbtor)> = loaded.iter().map(|(n, m)| (n.clone(), m)).collect();
             let opts = BaselineOptions {
                 geometry,
                 phantoms,
