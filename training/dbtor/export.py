@@ -43,6 +43,35 @@ def sha256(path):
     return h.hexdigest()
 
 
+def provenance(run, ck, tool, argv):
+    """The manifest's `provenance`: the training command and options, iterations,
+    minutes, dataset provenance, and this export's command."""
+    return {
+        "train_command": run["command"], "options": run["options"],
+        "iterations": ck["iteration"], "training_minutes": round(ck["elapsed_s"] / 60, 1),
+        "dataset_provenance": run["dataset_provenance"], "torch": torch.__version__,
+        "export_command": " ".join([f"python -m {tool}"] + (argv or sys.argv[1:])),
+    }
+
+
+def trainer_validation(run_dir, level, flag):
+    """The trainer's last validation (validation split, never trained on) from
+    RUN/curve.csv, or None; `flag` names the evaluation option for the test set."""
+    curve = os.path.join(run_dir, "curve.csv")
+    if not os.path.exists(curve):
+        return None
+    import csv
+    rows = [r for r in csv.DictReader(open(curve)) if r["val_mse"]]
+    if not rows:
+        return None
+    r = rows[-1]
+    return {
+        "split": "validation", "slices": 32, "noise": level, "iteration": int(r["iteration"]),
+        "mse_network_units": float(r["val_mse"]), "psnr_db_per_slice_range": float(r["val_psnr_db"]),
+        "note": f"from the trainer's curve; the test-set table is dbt-eval baselines {flag}",
+    }
+
+
 def blocks_in_order(net):
     for i in range(net.n_blocks):
         yield "dual", i, net.dual[i]
@@ -211,25 +240,11 @@ def main(argv=None):
                  "calibration": f"MinMax on {len(cal_idx)} training slices", "tool": f"onnxruntime {ort.__version__}"},
         "fixtures": fixtures,
         "sha256": {p: sha256(os.path.join(a.out, p)) for p in sorted(everything)},
-        "provenance": {
-            "train_command": run["command"], "options": run["options"],
-            "iterations": ck["iteration"], "training_minutes": round(ck["elapsed_s"] / 60, 1),
-            "dataset_provenance": run["dataset_provenance"], "torch": torch.__version__,
-            "export_command": " ".join(["python -m dbtor.export"] + (argv or sys.argv[1:])),
-        },
+        "provenance": provenance(run, ck, "dbtor.export", argv),
     }
-    # The trainer's last validation (validation split, never trained on).
-    curve = os.path.join(a.run, "curve.csv")
-    if os.path.exists(curve):
-        import csv
-        rows = [r for r in csv.DictReader(open(curve)) if r["val_mse"]]
-        if rows:
-            r = rows[-1]
-            manifest["validation"] = {
-                "split": "validation", "slices": 32, "noise": level, "iteration": int(r["iteration"]),
-                "mse_network_units": float(r["val_mse"]), "psnr_db_per_slice_range": float(r["val_psnr_db"]),
-                "note": "from the trainer's curve; the test-set table is dbt-eval baselines --model",
-            }
+    validation = trainer_validation(a.run, level, "--model" if use_mask else "--lpd")
+    if validation:
+        manifest["validation"] = validation
     if a.validation:
         with open(a.validation) as f:
             manifest["validation"] = json.load(f)

@@ -11,7 +11,6 @@ FBP input of validation slices, their truth and the PyTorch output) and
 every file, provenance and the trainer's last validation).
 """
 import argparse
-import csv
 import json
 import os
 import sys
@@ -22,7 +21,7 @@ import onnxruntime as ort
 import torch
 
 from .data import Split
-from .export import sha256
+from .export import provenance, sha256, trainer_validation
 from .unet import DEPTH, FILTERS, UNet
 
 OPSET = 17
@@ -95,23 +94,11 @@ def main(argv=None):
         "opset": OPSET,
         "fixtures": fixtures,
         "sha256": {p: sha256(os.path.join(a.out, p)) for p in everything},
-        "provenance": {
-            "train_command": run["command"], "options": run["options"],
-            "iterations": ck["iteration"], "training_minutes": round(ck["elapsed_s"] / 60, 1),
-            "dataset_provenance": run["dataset_provenance"], "torch": torch.__version__,
-            "export_command": " ".join(["python -m dbtor.export_unet"] + (argv or sys.argv[1:])),
-        },
+        "provenance": provenance(run, ck, "dbtor.export_unet", argv),
     }
-    curve = os.path.join(a.run, "curve.csv")
-    if os.path.exists(curve):
-        rows_ = [r for r in csv.DictReader(open(curve)) if r["val_mse"]]
-        if rows_:
-            r = rows_[-1]
-            manifest["validation"] = {
-                "split": "validation", "slices": 32, "noise": level, "iteration": int(r["iteration"]),
-                "mse_network_units": float(r["val_mse"]), "psnr_db_per_slice_range": float(r["val_psnr_db"]),
-                "note": "from the trainer's curve; the test-set table is dbt-eval baselines --unet",
-            }
+    validation = trainer_validation(a.run, level, "--unet")
+    if validation:
+        manifest["validation"] = validation
     with open(os.path.join(a.out, "manifest.json"), "w") as f:
         json.dump(manifest, f, indent=2)
     print(f"wrote {a.out}/manifest.json ({len(everything)} files)")

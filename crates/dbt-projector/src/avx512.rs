@@ -399,16 +399,21 @@ unsafe fn ray_pass(t: &RayTable, v: usize, i: usize, ys: &[f32], s: &mut RowRays
     }
 }
 
+/// Scratch indices of the candidates `start .. start + count` that are rays.
+#[inline(always)]
+fn candidates(start: i32, count: u32, n_det: usize) -> impl Iterator<Item = usize> {
+    let start = start as i64;
+    (start..start + count as i64)
+        .filter(move |&r| r >= 0 && r < n_det as i64)
+        .map(|r| PAD + r as usize)
+}
+
+/// Pixel `j` from the two-sided candidates: first contributions of the rays
+/// whose first pixel it is, second contributions of those one pixel left.
 #[inline(always)]
 fn pixel_scalar(map: &InvMap, s: &RowRays, n_det: usize, j: usize) -> f32 {
-    let start = map.start(j) as i64;
     let mut acc = 0.0f32;
-    for k in 0..map.count as i64 {
-        let r = start + k;
-        if r < 0 || r >= n_det as i64 {
-            continue;
-        }
-        let e = PAD + r as usize;
+    for e in candidates(map.start(j), map.count, n_det) {
         if s.j[e] == j as i32 {
             acc += s.c0[e];
         }
@@ -423,15 +428,10 @@ fn pixel_scalar(map: &InvMap, s: &RowRays, n_det: usize, j: usize) -> f32 {
 /// candidates, `InvMap::start1`), for the pixel pass's carry into pixel `j + 1`.
 #[inline(always)]
 fn slot_c1_scalar(map: &InvMap, s: &RowRays, n_det: usize, j: usize) -> f32 {
-    let start = map.start1(j) as i64;
-    let mut acc = 0.0f32;
-    for k in 0..map.count1 as i64 {
-        let r = start + k;
-        if r >= 0 && r < n_det as i64 && s.j[PAD + r as usize] == j as i32 {
-            acc += s.c1[PAD + r as usize];
-        }
-    }
-    acc
+    candidates(map.start1(j), map.count1, n_det)
+        .filter(|&e| s.j[e] == j as i32)
+        .map(|e| s.c1[e])
+        .sum()
 }
 
 /// 32 consecutive entries of the row's ray scratch, in registers.
