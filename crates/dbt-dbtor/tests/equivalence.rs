@@ -10,8 +10,16 @@ fn model_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/dbtor-x4")
 }
 
+fn lpd_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/lpd-x4")
+}
+
 fn check(p: Precision, e: Engine) {
-    let dir = model_dir();
+    check_dir(&model_dir(), p, e);
+}
+
+fn check_dir(dir: &Path, p: Precision, e: Engine) {
+    let dir = dir.to_path_buf();
     let m = Dbtor::load_with(&dir, p, e).unwrap();
     let checks = check_fixtures(&m, &dir).unwrap();
     assert!(!checks.is_empty(), "the model has no fixtures");
@@ -31,6 +39,19 @@ fn check(p: Precision, e: Engine) {
 #[test]
 fn fp32_matches_pytorch() {
     check(Precision::Fp32, Engine::Tract);
+}
+
+/// The LPD baseline (no mask) on both engines, fp32 against PyTorch and int8
+/// against onnxruntime, with the same rules.
+#[test]
+fn lpd_matches_pytorch_and_onnxruntime() {
+    for p in [Precision::Fp32, Precision::Int8] {
+        for e in [Engine::Fast, Engine::Tract] {
+            check_dir(&lpd_dir(), p, e);
+        }
+    }
+    let m = ModelManifest::load(&lpd_dir()).unwrap();
+    assert_eq!((m.kind.as_str(), m.aux_channels()), ("lpd", Some((2, 1))));
 }
 
 /// fp32: the fast path + Rust projector against PyTorch, same tolerance.
