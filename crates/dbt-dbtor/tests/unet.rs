@@ -61,7 +61,11 @@ fn tampered_or_wrong_input_is_refused() {
     assert!(u.reconstruct(&vec![0.0; n - 1]).is_err());
     let mut x = vec![0.0; n];
     x[5] = f32::INFINITY;
-    assert!(u.reconstruct(&x).unwrap_err().to_string().contains("pixel 5"));
+    assert!(u
+        .reconstruct(&x)
+        .unwrap_err()
+        .to_string()
+        .contains("pixel 5"));
     let victim = t.path().join("unet.onnx");
     let mut bytes = std::fs::read(&victim).unwrap();
     let k = bytes.len() / 3;
