@@ -311,6 +311,7 @@ unsafe fn ray_pass(t: &RayTable, v: usize, i: usize, ys: &[f32], s: &mut RowRays
     };
     let mut k = 0;
     while k + L <= n_det {
+        // The whole interior blocks, unmasked (every other block below).
         if k == ia && ia < ib {
             let (jp, c0p, c1p) = (s.j.as_mut_ptr(), s.c0.as_mut_ptr(), s.c1.as_mut_ptr());
             for k in (ia..ib).step_by(L) {
@@ -345,15 +346,12 @@ unsafe fn ray_pass(t: &RayTable, v: usize, i: usize, ys: &[f32], s: &mut RowRays
         let len = _mm512_loadu_ps(t.len.as_ptr().add(r));
         let inv = _mm512_loadu_ps(t.inv.as_ptr().add(r));
         let y = _mm512_loadu_ps(ys.as_ptr().add(k));
+        // An edge block (some rays outside the row) or a block of a view with
+        // slow rays (scattered separately): mask both out.
         let row_lo = _mm512_loadu_si512(t.row_lo.as_ptr().add(r) as *const __m512i);
         let row_hi = _mm512_loadu_si512(t.row_hi.as_ptr().add(r) as *const __m512i);
-        let interior = k >= k_lo && k + L <= k_hi && !t.view_has_slow[v];
-        let mut valid = if interior {
-            0xffff
-        } else {
-            _mm512_cmpge_epi32_mask(ii, row_lo) & _mm512_cmplt_epi32_mask(ii, row_hi)
-        };
-        if t.view_has_slow[v] {
+        let mut valid = _mm512_cmpge_epi32_mask(ii, row_lo) & _mm512_cmplt_epi32_mask(ii, row_hi);
+        if has_slow {
             for l in 0..L {
                 if !t.fast[r + l] {
                     valid &= !(1 << l);
@@ -361,25 +359,16 @@ unsafe fn ray_pass(t: &RayTable, v: usize, i: usize, ys: &[f32], s: &mut RowRays
             }
         }
         let (_, jf, w0, w1) = weights16(x_top, sx, len, inv, fi);
-        if interior {
-            _mm512_storeu_si512(
-                s.j.as_mut_ptr().add(PAD + k) as *mut __m512i,
-                _mm512_cvttps_epi32(jf),
-            );
-            _mm512_storeu_ps(s.c0.as_mut_ptr().add(PAD + k), _mm512_mul_ps(w0, y));
-            _mm512_storeu_ps(s.c1.as_mut_ptr().add(PAD + k), _mm512_mul_ps(w1, y));
-        } else {
-            let j = _mm512_mask_blend_epi32(valid, nop, _mm512_cvttps_epi32(jf));
-            _mm512_storeu_si512(s.j.as_mut_ptr().add(PAD + k) as *mut __m512i, j);
-            _mm512_storeu_ps(
-                s.c0.as_mut_ptr().add(PAD + k),
-                _mm512_maskz_mul_ps(valid, w0, y),
-            );
-            _mm512_storeu_ps(
-                s.c1.as_mut_ptr().add(PAD + k),
-                _mm512_maskz_mul_ps(valid, w1, y),
-            );
-        }
+        let j = _mm512_mask_blend_epi32(valid, nop, _mm512_cvttps_epi32(jf));
+        _mm512_storeu_si512(s.j.as_mut_ptr().add(PAD + k) as *mut __m512i, j);
+        _mm512_storeu_ps(
+            s.c0.as_mut_ptr().add(PAD + k),
+            _mm512_maskz_mul_ps(valid, w0, y),
+        );
+        _mm512_storeu_ps(
+            s.c1.as_mut_ptr().add(PAD + k),
+            _mm512_maskz_mul_ps(valid, w1, y),
+        );
         k += L;
     }
     for k in k..n_det {
@@ -448,10 +437,13 @@ struct Window {
 /// positions `idx .. idx + n`) of their first (`.0`) and second (`.1`)
 /// contributions.
 #[inline(always)]
-unsafe fn collect_first(w: &Window, idx: __m512i, jv: __m512i, n: i32) -> (__m512, __m512) {
+unsafe fn collect_first(w: &Window, idx: __m512i, jv: __m512i, n: u32) -> (__m512, __m512) {
+    let one = _mm512_set1_epi32(1);
     let mut acc = (_mm512_setzero_ps(), _mm512_setzero_ps());
-    for k in 0..n {
-        acc = collect_one(w, _mm512_add_epi32(idx, _mm512_set1_epi32(k)), jv, acc);
+    let mut id = idx;
+    for _ in 0..n {
+        acc = collect_one(w, id, jv, acc);
+        id = _mm512_add_epi32(id, one);
     }
     acc
 }
@@ -512,10 +504,8 @@ unsafe fn block_values(map: &InvMap, s: &mut RowRays) {
 #[target_feature(enable = "avx512f")]
 unsafe fn pixel_pass(t: &RayTable, map: &InvMap, s: &mut RowRays, row_out: &mut [f32]) {
     let (nx, n_det) = (t.nx, t.n_det);
-    let count1 = map.count1 as i32;
     let lanes = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
     let lanes_f = _mm512_cvtepi32_ps(lanes);
-    let one = _mm512_set1_epi32(1);
     let (fit_lo, fit_hi) = (map.fit_lo as usize, map.fit_hi as usize);
     if fit_lo < fit_hi {
         block_values(map, s);
@@ -554,12 +544,7 @@ unsafe fn pixel_pass(t: &RayTable, map: &InvMap, s: &mut RowRays, row_out: &mut 
                 c1l: _mm512_loadu_ps(c1p.add(e)),
                 c1h: _mm512_loadu_ps(c1p.add(e + 16)),
             };
-            let (a0, a1) = if count1 == 2 {
-                let (a0, a1) = collect_one(&w, idx, jv, (_mm512_setzero_ps(), _mm512_setzero_ps()));
-                collect_one(&w, _mm512_add_epi32(idx, one), jv, (a0, a1))
-            } else {
-                collect_first(&w, idx, jv, count1)
-            };
+            let (a0, a1) = collect_first(&w, idx, jv, map.count1);
             // Lane l gets a1 of pixel jb + l - 1 (lane 15 of the previous block).
             let carried = _mm512_castsi512_ps(_mm512_alignr_epi32::<15>(
                 _mm512_castps_si512(a1),

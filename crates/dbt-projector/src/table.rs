@@ -20,7 +20,9 @@ pub(crate) const PAD: usize = 64;
 pub(crate) const NO_PIXEL: i32 = i32::MIN / 2;
 
 /// The inverse map of one (view, row): the fractional index of the ray through
-/// the left edge of pixel `j` at the top of the row is the Moebius function
+/// the left edge of pixel `j` at the row's mid-height (where the candidates
+/// come out tightest: a ray's first pixel lies within half its per-row travel
+/// of that point) is the Moebius function
 /// `(a j + b) / (c j + d)`. It is evaluated exactly at the first pixel `jb` of
 /// each block of 16 and continued linearly with its derivative there (the
 /// same operations in the scalar and SIMD code); candidate rays are
@@ -135,6 +137,18 @@ pub(crate) struct RayTable {
     /// their pixels lie in one unmasked 32-pixel window of the row (the SIMD
     /// forward kernel's fast rows). Empty where that never holds.
     pub fwd_rows: Vec<(u32, u32)>,
+}
+
+/// The first maximal run `[lo, hi)` of `0..n` on which `ok` holds (`(0, 0)`
+/// if it holds nowhere): the ranges the SIMD kernels may use unchecked.
+fn first_run(n: usize, ok: impl Fn(usize) -> bool) -> (u32, u32) {
+    match (0..n).find(|&i| ok(i)) {
+        None => (0, 0),
+        Some(lo) => {
+            let hi = (lo..n).find(|&i| !ok(i)).unwrap_or(n);
+            (lo as u32, hi as u32)
+        }
+    }
 }
 
 /// The smallest `(off, count)` such that the candidates `start(j) - off ..
@@ -314,30 +328,21 @@ impl RayTable {
                 }
                 let r0 = v * self.n_det + k0;
                 let fast = |i: usize| {
-                    let j = |k: usize| {
+                    let mut js = [0i64; 16];
+                    for (k, jk) in js.iter_mut().enumerate() {
                         let r = r0 + k;
-                        self.touches_row(r, i)
-                            .then(|| segment(self.x_top[r], self.sx[r], i).0.floor() as i64)
-                    };
-                    let js: Option<Vec<i64>> = (0..16).map(j).collect();
-                    match js {
-                        Some(js) => {
-                            let (first, last) = (js[0], js[15]);
-                            first >= 0
-                                && first + 32 <= self.nx as i64
-                                && last + 1 - first <= 31
-                                && js.windows(2).all(|w| w[1] >= w[0])
+                        if !self.touches_row(r, i) {
+                            return false;
                         }
-                        None => false,
+                        *jk = segment(self.x_top[r], self.sx[r], i).0.floor() as i64;
                     }
+                    let (first, last) = (js[0], js[15]);
+                    first >= 0
+                        && first + 32 <= self.nx as i64
+                        && last + 1 - first <= 31
+                        && js.windows(2).all(|w| w[1] >= w[0])
                 };
-                match (0..self.nz).find(|&i| fast(i)) {
-                    None => (0, 0),
-                    Some(lo) => {
-                        let hi = (lo..self.nz).find(|&i| !fast(i)).unwrap_or(self.nz);
-                        (lo as u32, hi as u32)
-                    }
-                }
+                first_run(self.nz, fast)
             })
             .collect()
     }
@@ -454,13 +459,8 @@ impl RayTable {
                     m.off1 = off1;
                     m.count1 = count1;
                     // Including a last partial block (masked in the kernel).
-                    let full = nx.div_ceil(16);
                     let fits = |b: usize| self.view_simd[v] && m.block_fits(b, n_det);
-                    if let Some(lo) = (0..full).find(|&b| fits(b)) {
-                        let hi = (lo..full).find(|&b| !fits(b)).unwrap_or(full);
-                        m.fit_lo = lo as u32;
-                        m.fit_hi = hi as u32;
-                    }
+                    (m.fit_lo, m.fit_hi) = first_run(nx.div_ceil(16), fits);
                 }
                 m
             })
