@@ -263,14 +263,64 @@ pub struct AccuracySummary {
     pub model_mgd_percent: Agreement,
 }
 
+/// One compared quantity of a case: `(difference, mean of truth and
+/// estimate)`, the Bland-Altman axes.
+pub type Pick = fn(&Case) -> (f64, f64);
+
+/// The compared quantities, in the order of [`AccuracySummary::in_order`]:
+/// table name, file tag, and how a case gives them.
+pub const QUANTITIES: [(&str, &str, Pick); 4] = [
+    ("glandularity, labels (pp)", "glandularity", |c| {
+        (
+            100.0 * (c.g_labels - c.g_true),
+            50.0 * (c.g_labels + c.g_true),
+        )
+    }),
+    (
+        "glandularity, partial volume (pp)",
+        "glandularity-pv",
+        |c| {
+            (
+                100.0 * (c.g_partial_volume - c.g_true),
+                50.0 * (c.g_partial_volume + c.g_true),
+            )
+        },
+    ),
+    ("MGD, patient-specific (%)", "mgd", |c| {
+        (
+            100.0 * (c.mgd_est / c.mgd_true - 1.0),
+            0.5 * (c.mgd_est + c.mgd_true),
+        )
+    }),
+    ("MGD, model breast (%)", "mgd-model", |c| {
+        (
+            100.0 * (c.mgd_model / c.mgd_true - 1.0),
+            0.5 * (c.mgd_model + c.mgd_true),
+        )
+    }),
+];
+
+impl AccuracySummary {
+    /// The agreements in the order of [`QUANTITIES`].
+    pub fn in_order(&self) -> [Agreement; 4] {
+        [
+            self.glandularity_labels_pp,
+            self.glandularity_partial_volume_pp,
+            self.mgd_percent,
+            self.model_mgd_percent,
+        ]
+    }
+}
+
 /// Summarise cases.
 pub fn summarise(cases: &[Case]) -> AccuracySummary {
-    let d = |f: &dyn Fn(&Case) -> f64| cases.iter().map(f).collect::<Vec<f64>>();
+    let [g, gpv, mgd, model] = QUANTITIES
+        .map(|(_, _, pick)| agreement(&cases.iter().map(|c| pick(c).0).collect::<Vec<_>>()));
     AccuracySummary {
-        glandularity_labels_pp: agreement(&d(&|c| 100.0 * (c.g_labels - c.g_true))),
-        glandularity_partial_volume_pp: agreement(&d(&|c| 100.0 * (c.g_partial_volume - c.g_true))),
-        mgd_percent: agreement(&d(&|c| 100.0 * (c.mgd_est / c.mgd_true - 1.0))),
-        model_mgd_percent: agreement(&d(&|c| 100.0 * (c.mgd_model / c.mgd_true - 1.0))),
+        glandularity_labels_pp: g,
+        glandularity_partial_volume_pp: gpv,
+        mgd_percent: mgd,
+        model_mgd_percent: model,
     }
 }
 

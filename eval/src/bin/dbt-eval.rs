@@ -389,7 +389,7 @@ fn main() -> Result<()> {
             engine,
             crop_margin,
         } => {
-            use dbt_eval::accuracy::{run_cases, summarise, test_phantoms, Case};
+            use dbt_eval::accuracy::{run_cases, summarise, test_phantoms, Case, QUANTITIES};
             let g = Geometry::paper().binned(binning)?;
             let noise = NoiseLevel::parse(&noise)?;
             let list = reconstructors
@@ -456,54 +456,7 @@ fn main() -> Result<()> {
                     "dbtor-fp32".to_string()
                 };
                 let mut plots = serde_json::Map::new();
-                type Pick = fn(&Case) -> (f64, f64);
-                let rows: [(&str, &str, dbt_eval::accuracy::Agreement, Pick); 4] = [
-                    (
-                        "glandularity, labels (pp)",
-                        "glandularity",
-                        summary.glandularity_labels_pp,
-                        |c| {
-                            (
-                                100.0 * (c.g_labels - c.g_true),
-                                50.0 * (c.g_labels + c.g_true),
-                            )
-                        },
-                    ),
-                    (
-                        "glandularity, partial volume (pp)",
-                        "glandularity-pv",
-                        summary.glandularity_partial_volume_pp,
-                        |c| {
-                            (
-                                100.0 * (c.g_partial_volume - c.g_true),
-                                50.0 * (c.g_partial_volume + c.g_true),
-                            )
-                        },
-                    ),
-                    (
-                        "MGD, patient-specific (%)",
-                        "mgd",
-                        summary.mgd_percent,
-                        |c| {
-                            (
-                                100.0 * (c.mgd_est / c.mgd_true - 1.0),
-                                0.5 * (c.mgd_est + c.mgd_true),
-                            )
-                        },
-                    ),
-                    (
-                        "MGD, model breast (%)",
-                        "mgd-model",
-                        summary.model_mgd_percent,
-                        |c| {
-                            (
-                                100.0 * (c.mgd_model / c.mgd_true - 1.0),
-                                0.5 * (c.mgd_model + c.mgd_true),
-                            )
-                        },
-                    ),
-                ];
-                for (name, short, a, pick) in rows {
+                for ((name, short, pick), a) in QUANTITIES.iter().zip(summary.in_order()) {
                     println!(
                         "| {label} | {name} | {:+.2} | {:.2} | [{:+.2}, {:+.2}] | {:.2} | {:.3} | {} |",
                         a.bias, a.sd, a.loa[0], a.loa[1], a.max_abs, a.p_value, a.n
