@@ -15,7 +15,8 @@ use dbt_geometry::Geometry;
 use dbt_phantom::{generate, PhantomSpec, Population};
 use dbt_projector::Projector;
 use dbt_store::dataset::{
-    ArrayEntry, Dataset, DatasetWriter, Manifest, NoiseEntry, PhantomEntry, Record, SliceEntry,
+    le_f32, ArrayEntry, Dataset, DatasetWriter, Manifest, NoiseEntry, PhantomEntry, Record,
+    SliceEntry,
 };
 use rayon::prelude::*;
 use std::path::Path;
@@ -85,8 +86,7 @@ pub fn add_fbp(dir: &Path, level: &str) -> Result<Vec<(String, usize)>, SimError
                 })
                 .collect::<Result<_, SimError>>()?;
             for img in imgs {
-                let bytes: Vec<u8> = img.iter().flat_map(|v| v.to_le_bytes()).collect();
-                std::io::Write::write_all(&mut out, &bytes).map_err(io)?;
+                std::io::Write::write_all(&mut out, &le_f32(&img)).map_err(io)?;
             }
         }
         std::io::Write::flush(&mut out).map_err(io)?;

@@ -130,7 +130,8 @@ pub struct DatasetWriter {
     splits: Vec<SplitWriter>,
 }
 
-fn le_f32(v: &[f32]) -> Vec<u8> {
+/// The `<f4` encoding of the dataset's float arrays.
+pub fn le_f32(v: &[f32]) -> Vec<u8> {
     v.iter().flat_map(|x| x.to_le_bytes()).collect()
 }
 
