@@ -16,44 +16,140 @@
 //! Exit codes: 0 all checks passed, 1 a check failed, 2 bad usage or input.
 
 use anyhow::{bail, Context, Result};
+use clap::{Args, Parser, Subcommand};
+use dbt_dbtor::{Engine, Precision};
 use dbt_geometry::Geometry;
 use dbtor_firmware::selftest;
+use std::path::PathBuf;
 use std::process::ExitCode;
 
-fn load_geometry(args: &[String]) -> Result<Geometry> {
-    let mut path = None;
-    let mut binning = 1usize;
-    let mut it = args.iter();
-    while let Some(a) = it.next() {
-        match a.as_str() {
-            "--geometry" => path = Some(it.next().context("--geometry needs a file")?.clone()),
-            "--binning" => {
-                binning = it
-                    .next()
-                    .context("--binning needs a number")?
-                    .parse()
-                    .context("--binning")?
-            }
-            "--json" => {}
-            other => bail!("unknown argument `{other}`"),
-        }
-    }
-    let g = match path {
+#[derive(Parser)]
+#[command(
+    name = "dbtor-diag",
+    about = "Service diagnostics for the DBToR gantry PC",
+    after_help = "Exit codes: 0 all checks passed, 1 a check failed, 2 bad usage or input."
+)]
+struct Cli {
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Args)]
+struct GeometryArgs {
+    /// Geometry file (TOML, as `dbtor-diag geometry` prints); default: the paper's.
+    #[arg(long)]
+    geometry: Option<PathBuf>,
+    /// Detector and image binning factor.
+    #[arg(long, default_value_t = 1)]
+    binning: usize,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Projector self-test: adjointness, analytic line integrals, norm bound.
+    Selftest {
+        #[command(flatten)]
+        geometry: GeometryArgs,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Print the geometry as TOML.
+    Geometry {
+        #[command(flatten)]
+        geometry: GeometryArgs,
+    },
+    /// The values of a dose or density structured report.
+    Report {
+        file: PathBuf,
+        #[arg(long)]
+        json: bool,
+    },
+    /// DICOM C-ECHO to the PACS.
+    Echo {
+        /// AET@host:port
+        peer: String,
+    },
+    /// Read and decode the gantry registers (Modbus TCP, or RTU with --rtu).
+    Modbus {
+        /// HOST:PORT of a Modbus TCP gantry.
+        #[arg(required_unless_present = "rtu", conflicts_with = "rtu")]
+        address: Option<String>,
+        /// Serial line of a Modbus RTU gantry.
+        #[arg(long)]
+        rtu: Option<String>,
+        #[arg(long, default_value_t = 19_200)]
+        baud: u32,
+        #[arg(long, default_value_t = 1)]
+        unit: u8,
+        /// Register base address.
+        #[arg(long, default_value_t = 0)]
+        base: u16,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Verify a DBToR model's checksums and its stored fixtures.
+    Model {
+        dir: PathBuf,
+        /// Check one precision only (default: both).
+        #[arg(long)]
+        precision: Option<Precision>,
+        #[arg(long)]
+        json: bool,
+    },
+    /// The daemon's state, results and faults.
+    Status {
+        /// The daemon's configuration (names the status file).
+        #[arg(long, required_unless_present = "status", conflicts_with = "status")]
+        config: Option<PathBuf>,
+        /// The status file itself.
+        #[arg(long)]
+        status: Option<PathBuf>,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Validate a daemon configuration and print it.
+    Config { file: PathBuf },
+    /// Reprocess a spooled acquisition offline (nothing is sent).
+    Replay {
+        entry: PathBuf,
+        /// DBToR model directory (default: MLTR).
+        #[arg(long)]
+        model: Option<PathBuf>,
+        #[arg(long, default_value = "fp32", requires = "model")]
+        precision: Precision,
+        #[arg(long, default_value = "fast", requires = "model")]
+        engine: Engine,
+        /// MLTR iterations.
+        #[arg(long)]
+        iterations: Option<usize>,
+        /// Relative statistical uncertainty the Monte Carlo dose runs to.
+        #[arg(long)]
+        dose_uncertainty: Option<f64>,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Projector and DBToR slice timings on this PC.
+    Bench {
+        #[arg(long)]
+        model: Option<PathBuf>,
+        #[arg(long, default_value_t = 5)]
+        reps: usize,
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+fn load_geometry(a: &GeometryArgs) -> Result<Geometry> {
+    let g = match &a.geometry {
         Some(p) => {
-            let text = std::fs::read_to_string(&p)
-                .with_context(|| format!("reading geometry file {p}"))?;
-            Geometry::from_toml_str(&text).with_context(|| format!("geometry file {p}"))?
+            let text = std::fs::read_to_string(p)
+                .with_context(|| format!("reading geometry file {}", p.display()))?;
+            Geometry::from_toml_str(&text)
+                .with_context(|| format!("geometry file {}", p.display()))?
         }
         None => Geometry::paper(),
     };
-    Ok(g.binned(binning)?)
-}
-
-/// `--key value` from `rest`.
-fn opt<'a>(rest: &'a [String], key: &str) -> Option<&'a String> {
-    rest.iter()
-        .position(|a| a == key)
-        .and_then(|i| rest.get(i + 1))
+    Ok(g.binned(a.binning)?)
 }
 
 fn median_ms(mut v: Vec<f64>) -> f64 {
@@ -62,17 +158,13 @@ fn median_ms(mut v: Vec<f64>) -> f64 {
 }
 
 fn run() -> Result<bool> {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let Some(cmd) = args.first() else {
-        bail!(
-            "usage: dbtor-diag <selftest|geometry|report|echo|modbus|model|status|config|replay|bench> [--geometry FILE.toml] [--binning N] [--json] [FILE.dcm | AET@host:port | HOST:PORT]"
-        );
-    };
-    let rest = &args[1..];
-    let json = rest.iter().any(|a| a == "--json");
-    match cmd.as_str() {
-        "selftest" => {
-            let g = load_geometry(rest)?;
+    run_cmd(Cli::parse().cmd)
+}
+
+fn run_cmd(cmd: Cmd) -> Result<bool> {
+    match cmd {
+        Cmd::Selftest { geometry, json } => {
+            let g = load_geometry(&geometry)?;
             let checks = selftest::projector(&g);
             let ok = checks.iter().all(|c| c.passed());
             if json {
@@ -108,29 +200,20 @@ fn run() -> Result<bool> {
             }
             Ok(ok)
         }
-        "config" => {
-            let path = rest
-                .iter()
-                .find(|a| !a.starts_with("--"))
-                .context("usage: dbtor-diag config FILE")?;
-            let cfg = dbtor_firmware::config::Config::load(std::path::Path::new(path))?;
-            println!("{path}: valid\n{cfg:#?}");
+        Cmd::Config { file } => {
+            let cfg = dbtor_firmware::config::Config::load(&file)?;
+            println!("{}: valid\n{cfg:#?}", file.display());
             Ok(true)
         }
-        "status" => {
-            let arg = |k: &str| {
-                rest.iter()
-                    .position(|a| a == k)
-                    .and_then(|i| rest.get(i + 1))
-            };
-            let path = match (arg("--status"), arg("--config")) {
-                (Some(s), _) => std::path::PathBuf::from(s),
-                (None, Some(c)) => {
-                    dbtor_firmware::config::Config::load(std::path::Path::new(c))?
-                        .paths
-                        .status
-                }
-                _ => bail!("usage: dbtor-diag status (--config FILE | --status FILE) [--json]"),
+        Cmd::Status {
+            config,
+            status,
+            json,
+        } => {
+            let path = match (status, config) {
+                (Some(s), _) => s,
+                (None, Some(c)) => dbtor_firmware::config::Config::load(&c)?.paths.status,
+                _ => bail!("status needs --config FILE or --status FILE"),
             };
             let bytes = std::fs::read(&path).with_context(|| {
                 format!(
@@ -209,33 +292,27 @@ fn run() -> Result<bool> {
             }
             Ok(healthy)
         }
-        "replay" => {
-            let entry = rest
-                .first()
-                .filter(|a| !a.starts_with("--"))
-                .context("usage: dbtor-diag replay ENTRY [--model DIR [--precision P] [--engine E]] [--iterations N] [--json]")?;
-            let entry = std::path::Path::new(entry);
+        Cmd::Replay {
+            entry,
+            model,
+            precision,
+            engine,
+            iterations,
+            dose_uncertainty,
+            json,
+        } => {
+            let entry = entry.as_path();
             let acq = dbt_store::acquisition::read_acquisition(entry)?;
             let mut opts = dbtor_firmware::pipeline::PipelineOptions::default();
-            if let Some(n) = opt(rest, "--iterations") {
-                opts.mltr_iterations = n.parse().context("--iterations")?;
+            if let Some(n) = iterations {
+                opts.mltr_iterations = n;
             }
-            if let Some(u) = opt(rest, "--dose-uncertainty") {
-                opts.dose_uncertainty = u.parse().context("--dose-uncertainty")?;
+            if let Some(u) = dose_uncertainty {
+                opts.dose_uncertainty = u;
             }
-            if let Some(dir) = opt(rest, "--model") {
-                let p: dbt_dbtor::Precision = opt(rest, "--precision")
-                    .map(|s| s.parse())
-                    .unwrap_or(Ok(dbt_dbtor::Precision::Fp32))
-                    .map_err(anyhow::Error::msg)?;
-                let e: dbt_dbtor::Engine = opt(rest, "--engine")
-                    .map(|s| s.parse())
-                    .unwrap_or(Ok(dbt_dbtor::Engine::Fast))
-                    .map_err(anyhow::Error::msg)?;
+            if let Some(dir) = model {
                 opts.dbtor = Some(std::sync::Arc::new(dbt_dbtor::Dbtor::load_with(
-                    std::path::Path::new(dir),
-                    p,
-                    e,
+                    &dir, precision, engine,
                 )?));
             }
             let t = std::time::Instant::now();
@@ -319,11 +396,7 @@ fn run() -> Result<bool> {
             }
             Ok(true)
         }
-        "bench" => {
-            let reps: usize = opt(rest, "--reps")
-                .map(|s| s.parse())
-                .unwrap_or(Ok(5))
-                .context("--reps")?;
+        Cmd::Bench { model, reps, json } => {
             let g = Geometry::paper();
             let p = dbt_projector::Projector::new(&g);
             let x = vec![0.05f32; g.n_pixels()];
@@ -348,15 +421,14 @@ fn run() -> Result<bool> {
                     median_ms(ad),
                 ),
             ];
-            if let Some(dir) = opt(rest, "--model") {
-                let dir = std::path::Path::new(dir);
+            if let Some(dir) = model {
                 for (prec, engine) in [
-                    (dbt_dbtor::Precision::Fp32, dbt_dbtor::Engine::Fast),
-                    (dbt_dbtor::Precision::Int8, dbt_dbtor::Engine::Fast),
-                    (dbt_dbtor::Precision::Fp32, dbt_dbtor::Engine::Tract),
-                    (dbt_dbtor::Precision::Int8, dbt_dbtor::Engine::Tract),
+                    (Precision::Fp32, Engine::Fast),
+                    (Precision::Int8, Engine::Fast),
+                    (Precision::Fp32, Engine::Tract),
+                    (Precision::Int8, Engine::Tract),
                 ] {
-                    let m = dbt_dbtor::Dbtor::load_with(dir, prec, engine)?;
+                    let m = dbt_dbtor::Dbtor::load_with(&dir, prec, engine)?;
                     let mg = m.geometry().clone();
                     let g0 = vec![1.0f32; mg.n_rays()];
                     let mut v = Vec::new();
@@ -390,25 +462,20 @@ fn run() -> Result<bool> {
             }
             Ok(true)
         }
-        "model" => {
-            let dir = rest
-                .iter()
-                .find(|a| !a.starts_with("--") && !matches!(a.as_str(), "fp32" | "int8"))
-                .context("usage: dbtor-diag model DIR [--precision fp32|int8] [--json]")?;
-            let precisions: Vec<dbt_dbtor::Precision> =
-                match rest.iter().position(|a| a == "--precision") {
-                    Some(i) => vec![rest
-                        .get(i + 1)
-                        .context("--precision needs fp32 or int8")?
-                        .parse()
-                        .map_err(anyhow::Error::msg)?],
-                    None => vec![dbt_dbtor::Precision::Fp32, dbt_dbtor::Precision::Int8],
-                };
-            let dir = std::path::Path::new(dir);
+        Cmd::Model {
+            dir,
+            precision,
+            json,
+        } => {
+            let precisions = match precision {
+                Some(p) => vec![p],
+                None => vec![Precision::Fp32, Precision::Int8],
+            };
+            let dir = dir.as_path();
             let mut all = Vec::new();
             let runs = precisions
                 .iter()
-                .flat_map(|p| [dbt_dbtor::Engine::Fast, dbt_dbtor::Engine::Tract].map(|e| (*p, e)));
+                .flat_map(|p| [Engine::Fast, Engine::Tract].map(|e| (*p, e)));
             for (p, e) in runs {
                 let t = std::time::Instant::now();
                 // Loading verifies every SHA-256 of the manifest first.
@@ -439,19 +506,17 @@ fn run() -> Result<bool> {
             }
             Ok(ok)
         }
-        "geometry" => {
-            let g = load_geometry(rest)?;
+        Cmd::Geometry { geometry } => {
+            let g = load_geometry(&geometry)?;
             print!("{}", g.to_toml_string());
             Ok(true)
         }
-        "report" => {
-            let file = rest
-                .iter()
-                .find(|a| !a.starts_with("--"))
-                .context("report needs a DICOM file")?;
-            let bytes = std::fs::read(file).with_context(|| format!("reading {file}"))?;
-            let (class, values) =
-                dbt_dicom::read_values(&bytes).with_context(|| format!("decoding {file}"))?;
+        Cmd::Report { file, json } => {
+            let bytes =
+                std::fs::read(&file).with_context(|| format!("reading {}", file.display()))?;
+            let (class, values) = dbt_dicom::read_values(&bytes)
+                .with_context(|| format!("decoding {}", file.display()))?;
+            let file = file.display().to_string();
             if json {
                 let v: Vec<_> = values
                     .iter()
@@ -469,12 +534,8 @@ fn run() -> Result<bool> {
             }
             Ok(true)
         }
-        "echo" => {
-            let peer = rest
-                .iter()
-                .find(|a| !a.starts_with("--"))
-                .context("echo needs AET@host:port")?;
-            let cfg = dbt_pacs::PacsConfig::parse(peer)?;
+        Cmd::Echo { peer } => {
+            let cfg = dbt_pacs::PacsConfig::parse(&peer)?;
             let t = std::time::Instant::now();
             match dbt_pacs::echo(&cfg) {
                 Ok(()) => {
@@ -490,41 +551,15 @@ fn run() -> Result<bool> {
                 }
             }
         }
-        "modbus" => {
-            let mut it = rest.iter();
-            let mut addr = None;
-            let (mut unit, mut base) = (1u8, 0u16);
-            let (mut rtu, mut baud) = (None::<String>, 19_200u32);
-            while let Some(a) = it.next() {
-                match a.as_str() {
-                    "--rtu" => rtu = Some(it.next().context("--rtu needs a serial line")?.clone()),
-                    "--baud" => {
-                        baud = it
-                            .next()
-                            .context("--baud needs a number")?
-                            .parse()
-                            .context("--baud")?
-                    }
-                    "--unit" => {
-                        unit = it
-                            .next()
-                            .context("--unit needs a number")?
-                            .parse()
-                            .context("--unit")?
-                    }
-                    "--base" => {
-                        base = it
-                            .next()
-                            .context("--base needs a number")?
-                            .parse()
-                            .context("--base")?
-                    }
-                    "--json" => {}
-                    s if !s.starts_with("--") => addr = Some(s.to_string()),
-                    other => bail!("unknown argument `{other}`"),
-                }
-            }
-            let endpoint = match (rtu, addr) {
+        Cmd::Modbus {
+            address,
+            rtu,
+            baud,
+            unit,
+            base,
+            json,
+        } => {
+            let endpoint = match (rtu, address) {
                 (Some(path), None) => dbtor_firmware::modbus::Endpoint::Rtu { path, baud },
                 (None, Some(addr)) => dbtor_firmware::modbus::Endpoint::Tcp(
                     addr.parse()
@@ -564,9 +599,6 @@ fn run() -> Result<bool> {
                     Ok(false)
                 }
             }
-        }
-        other => {
-            bail!("unknown command `{other}` (expected selftest, geometry, report, echo or modbus)")
         }
     }
 }
