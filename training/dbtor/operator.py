@@ -44,9 +44,12 @@ class Operator:
 
 
 def _mm(a, x, out_shape):
+    # Always in float32: the sparse product has no bfloat16 kernel, and under
+    # --bf16 (train.py) only the convolutions run in bfloat16.
     b = x.shape[0]
-    flat = x.reshape(b, -1).t().contiguous()
-    y = torch.sparse.mm(a, flat).t().contiguous()
+    flat = x.reshape(b, -1).t().float().contiguous()
+    with torch.autocast("cpu", enabled=False):
+        y = torch.sparse.mm(a, flat).t().contiguous()
     return y.reshape(b, 1, *out_shape)
 
 

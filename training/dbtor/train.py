@@ -2,11 +2,18 @@
 
     python -m dbtor.train --data DS --out RUN [--model dbtor|lpd|unet] [--level N8]
         [--iters 100000] [--batch 4] [--blocks 10] [--max-minutes M] [--seed 0]
+        [--precision fp32|bf16] [--compile]
 
 RUN/checkpoint.pt holds the model, Adam, the cosine schedule, the iteration
 and the RNG states; running the same command again continues from it (the
 options must match: they are stored and checked). RUN/curve.csv gets one line
 per logged step, RUN/run.json the options and normalisation.
+
+--precision bf16 runs the forward pass under torch.autocast(bfloat16): the
+convolutions in bfloat16 (AMX/AVX-512-BF16 on CPUs that have it), weights, Adam,
+the loss and the projector (operator.py) in float32; validation and export stay
+float32. --compile compiles each block's convolution stack (torch.compile); it
+changes speed only, so it is not part of the options a resume checks.
 
 The U-Net (unet.py) learns from the FBP of the sinograms (the dataset's
 `fbp-<level>`, made by `host-sim fbp`) instead of the sinograms; its input is
@@ -29,7 +36,7 @@ from .model import PrimalDual
 from .operator import Operator
 from .unet import UNet
 
-FIXED = ("model", "level", "iters", "batch", "blocks", "seed", "lr")
+FIXED = ("model", "level", "iters", "batch", "blocks", "seed", "lr", "precision")
 
 
 def tensors(batch, stats):
@@ -74,6 +81,9 @@ def main(argv=None):
     ap.add_argument("--log-every", type=int, default=50)
     ap.add_argument("--val-every", type=int, default=500)
     ap.add_argument("--threads", type=int, default=None)
+    ap.add_argument("--precision", choices=["fp32", "bf16"], default="fp32",
+                    help="bf16: convolutions under CPU autocast (weights and optimiser stay float32)")
+    ap.add_argument("--compile", action="store_true", help="torch.compile each block's convolutions")
     a = ap.parse_args(argv)
     if a.threads:
         torch.set_num_threads(a.threads)
@@ -92,13 +102,18 @@ def main(argv=None):
     opts = {k: getattr(a, k) for k in FIXED}
     torch.manual_seed(a.seed)
     net = UNet() if unet else PrimalDual(op, blocks=a.blocks, use_mask=(a.model == "dbtor"))
+    if a.compile:
+        for m in net.modules():
+            if isinstance(m, torch.nn.Sequential):
+                m.compile(dynamic=False)  # in place: the state_dict keys are unchanged
     adam = torch.optim.Adam(net.parameters(), lr=a.lr, betas=(0.9, 0.999), eps=1e-8, weight_decay=0)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(adam, T_max=a.iters)
     rng = np.random.default_rng(a.seed)
     it, elapsed = 0, 0.0
     if os.path.exists(ckpt_path):
         ck = torch.load(ckpt_path, weights_only=False)
-        if ck["options"] != opts:
+        # Runs made before --precision existed were float32.
+        if {"precision": "fp32", **ck["options"]} != opts:
             sys.exit(f"{ckpt_path}: made with {ck['options']}, asked for {opts}; use another --out")
         net.load_state_dict(ck["model"])
         adam.load_state_dict(ck["adam"])
@@ -139,7 +154,9 @@ def main(argv=None):
     end = a.iters if a.stop_at is None else min(a.iters, a.stop_at)
     while it < end and not stop["now"]:
         g, m, x = tensors(train.batch(rng.choice(train.n, size=a.batch, replace=False)), stats)
-        loss = torch.mean((net(g, m) - x) ** 2)
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=a.precision == "bf16"):
+            z = net(g, m)
+        loss = torch.mean((z.float() - x) ** 2)
         adam.zero_grad(set_to_none=True)
         loss.backward()
         adam.step()
