@@ -267,37 +267,71 @@ pub struct AccuracySummary {
 /// estimate)`, the Bland-Altman axes.
 pub type Pick = fn(&Case) -> (f64, f64);
 
-/// The compared quantities, in the order of [`AccuracySummary::in_order`]:
-/// table name, file tag, and how a case gives them.
-pub const QUANTITIES: [(&str, &str, Pick); 4] = [
-    ("glandularity, labels (pp)", "glandularity", |c| {
-        (
-            100.0 * (c.g_labels - c.g_true),
-            50.0 * (c.g_labels + c.g_true),
-        )
-    }),
-    (
-        "glandularity, partial volume (pp)",
-        "glandularity-pv",
-        |c| {
+/// A compared quantity: its table name, file tag, Bland-Altman axis labels,
+/// and how a case gives it.
+pub struct Quantity {
+    /// Name in the tables (with the difference's unit).
+    pub name: &'static str,
+    /// Tag in file names.
+    pub short: &'static str,
+    /// Bland-Altman x axis: the mean of truth and estimate, with its unit.
+    pub mean_axis: &'static str,
+    /// Bland-Altman y axis: the difference, with its unit.
+    pub difference_axis: &'static str,
+    /// `(difference, mean)` of a case.
+    pub pick: Pick,
+}
+
+/// The compared quantities, in the order of [`AccuracySummary::in_order`].
+pub const QUANTITIES: [Quantity; 4] = [
+    Quantity {
+        name: "glandularity, labels (pp)",
+        short: "glandularity",
+        mean_axis: "mean of true and estimated glandularity (%)",
+        difference_axis: "estimate - truth (percentage points)",
+        pick: |c| {
+            (
+                100.0 * (c.g_labels - c.g_true),
+                50.0 * (c.g_labels + c.g_true),
+            )
+        },
+    },
+    Quantity {
+        name: "glandularity, partial volume (pp)",
+        short: "glandularity-pv",
+        mean_axis: "mean of true and estimated glandularity (%)",
+        difference_axis: "estimate - truth (percentage points)",
+        pick: |c| {
             (
                 100.0 * (c.g_partial_volume - c.g_true),
                 50.0 * (c.g_partial_volume + c.g_true),
             )
         },
-    ),
-    ("MGD, patient-specific (%)", "mgd", |c| {
-        (
-            100.0 * (c.mgd_est / c.mgd_true - 1.0),
-            0.5 * (c.mgd_est + c.mgd_true),
-        )
-    }),
-    ("MGD, model breast (%)", "mgd-model", |c| {
-        (
-            100.0 * (c.mgd_model / c.mgd_true - 1.0),
-            0.5 * (c.mgd_model + c.mgd_true),
-        )
-    }),
+    },
+    Quantity {
+        name: "MGD, patient-specific (%)",
+        short: "mgd",
+        mean_axis: "mean of true and estimated MGD (mGy)",
+        difference_axis: "estimate / truth - 1 (%)",
+        pick: |c| {
+            (
+                100.0 * (c.mgd_est / c.mgd_true - 1.0),
+                0.5 * (c.mgd_est + c.mgd_true),
+            )
+        },
+    },
+    Quantity {
+        name: "MGD, model breast (%)",
+        short: "mgd-model",
+        mean_axis: "mean of true and model-breast MGD (mGy)",
+        difference_axis: "model breast / truth - 1 (%)",
+        pick: |c| {
+            (
+                100.0 * (c.mgd_model / c.mgd_true - 1.0),
+                0.5 * (c.mgd_model + c.mgd_true),
+            )
+        },
+    },
 ];
 
 impl AccuracySummary {
@@ -314,8 +348,8 @@ impl AccuracySummary {
 
 /// Summarise cases.
 pub fn summarise(cases: &[Case]) -> AccuracySummary {
-    let [g, gpv, mgd, model] = QUANTITIES
-        .map(|(_, _, pick)| agreement(&cases.iter().map(|c| pick(c).0).collect::<Vec<_>>()));
+    let [g, gpv, mgd, model] =
+        QUANTITIES.map(|q| agreement(&cases.iter().map(|c| (q.pick)(c).0).collect::<Vec<_>>()));
     AccuracySummary {
         glandularity_labels_pp: g,
         glandularity_partial_volume_pp: gpv,

@@ -1,5 +1,6 @@
-//! A side-by-side picture of one slice: the phantom, its sinogram, and the
-//! MLTR and FBP reconstructions, stacked as grey panels (the slices are wide).
+//! Pictures: one slice's phantom, sinogram and reconstructions stacked as grey
+//! panels (the slices are wide), and the Bland-Altman plots of the accuracy
+//! evaluation (plotters, with an embedded font).
 
 /// A grey panel, row-major.
 pub struct Panel {
@@ -48,66 +49,210 @@ pub fn compose(panels: &[Panel]) -> (Vec<u8>, usize, usize) {
     (out, width, height)
 }
 
-/// A Bland-Altman plot as 8-bit grey pixels (`width x height`): one dark
-/// square per case at (mean of truth and estimate, difference), the zero line
-/// dotted, the bias solid and the 95 % limits dashed. Axes span the data with
-/// a 10 % margin; the caller states the ranges in the accompanying JSON.
-pub fn bland_altman(
-    means: &[f64],
-    diffs: &[f64],
-    bias: f64,
-    loa: [f64; 2],
-) -> (Vec<u8>, usize, usize, [f64; 4]) {
-    let (w, h) = (640usize, 400usize);
-    let mut px = vec![255u8; w * h];
-    let lo_x = means.iter().copied().fold(f64::MAX, f64::min);
-    let hi_x = means.iter().copied().fold(f64::MIN, f64::max);
-    let ys = diffs.iter().copied().chain([loa[0], loa[1], 0.0]);
-    let lo_y = ys.clone().fold(f64::MAX, f64::min);
-    let hi_y = ys.fold(f64::MIN, f64::max);
-    let pad = |lo: f64, hi: f64| {
-        let r = (hi - lo).max(1e-9);
-        (lo - 0.1 * r, hi + 0.1 * r)
-    };
-    let ((x0, x1), (y0, y1)) = (pad(lo_x, hi_x), pad(lo_y, hi_y));
-    let to_px = |x: f64, y: f64| {
-        let c = ((x - x0) / (x1 - x0) * (w - 1) as f64).round() as isize;
-        let r = ((y1 - y) / (y1 - y0) * (h - 1) as f64).round() as isize;
-        (c, r)
-    };
-    let mut hline = |y: f64, on: &dyn Fn(usize) -> bool, v: u8| {
-        let (_, r) = to_px(x0, y);
-        if (0..h as isize).contains(&r) {
-            for c in 0..w {
-                if on(c) {
-                    px[r as usize * w + c] = v;
+/// The font of the plots' text: DejaVu Sans Mono (Bitstream Vera licence,
+/// `eval/assets/DejaVu-LICENSE.txt`), embedded so that nothing depends on the
+/// fonts a machine happens to have.
+const FONT: &[u8] = include_bytes!("../assets/DejaVuSansMono.ttf");
+
+fn register_font() -> Result<(), PlotError> {
+    static REGISTERED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    let ok = *REGISTERED.get_or_init(|| {
+        plotters::style::register_font("sans-serif", plotters::style::FontStyle::Normal, FONT)
+            .is_ok()
+    });
+    if ok {
+        Ok(())
+    } else {
+        Err(PlotError("the embedded plot font does not load".into()))
+    }
+}
+
+/// A plot could not be drawn.
+#[derive(Debug, thiserror::Error)]
+#[error("plot: {0}")]
+pub struct PlotError(String);
+
+/// A Bland-Altman plot like the paper's Figures 4-5: one point per case at
+/// (mean of truth and estimate, difference), the zero line dotted, the bias
+/// solid and the 95 % limits of agreement dashed, axes labelled and ticked.
+pub struct BlandAltman<'a> {
+    /// Title (reconstructor and quantity).
+    pub title: String,
+    /// x axis label (the mean, with its unit).
+    pub x_label: &'a str,
+    /// y axis label (the difference, with its unit).
+    pub y_label: &'a str,
+    /// Means of truth and estimate, one per case.
+    pub means: &'a [f64],
+    /// Differences, one per case.
+    pub diffs: &'a [f64],
+    /// Mean difference.
+    pub bias: f64,
+    /// 95 % limits of agreement.
+    pub loa: [f64; 2],
+}
+
+impl BlandAltman<'_> {
+    /// Width and height of the picture, pixels.
+    pub const SIZE: (u32, u32) = (800, 520);
+
+    /// Draws the plot: RGB pixels (8 bit), width, height and the axis ranges
+    /// `[x0, x1, y0, y1]` (the data and lines with a 10 % margin).
+    pub fn render(&self) -> Result<(Vec<u8>, usize, usize, [f64; 4]), PlotError> {
+        use plotters::prelude::*;
+        register_font()?;
+        let err = |e: &dyn std::fmt::Display| PlotError(e.to_string());
+        let finite = |v: &f64| v.is_finite();
+        let xs = self.means.iter().copied().filter(finite);
+        let lo_x = xs.clone().fold(f64::MAX, f64::min);
+        let hi_x = xs.fold(f64::MIN, f64::max);
+        let ys = self
+            .diffs
+            .iter()
+            .copied()
+            .chain([self.loa[0], self.loa[1], self.bias, 0.0])
+            .filter(finite);
+        let lo_y = ys.clone().fold(f64::MAX, f64::min);
+        let hi_y = ys.fold(f64::MIN, f64::max);
+        if lo_x > hi_x || lo_y > hi_y {
+            return Err(PlotError("no finite case to plot".into()));
+        }
+        let pad = |lo: f64, hi: f64| {
+            let r = (hi - lo).max(1e-6 * hi.abs().max(1.0));
+            (lo - 0.1 * r, hi + 0.1 * r)
+        };
+        let ((x0, x1), (y0, y1)) = (pad(lo_x, hi_x), pad(lo_y, hi_y));
+        let (w, h) = Self::SIZE;
+        let mut buf = vec![255u8; (w * h * 3) as usize];
+        {
+            let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+            root.fill(&WHITE).map_err(|e| err(&e))?;
+            let mut chart = ChartBuilder::on(&root)
+                .caption(&self.title, ("sans-serif", 18))
+                .margin(12)
+                .x_label_area_size(46)
+                .y_label_area_size(64)
+                .build_cartesian_2d(x0..x1, y0..y1)
+                .map_err(|e| err(&e))?;
+            chart
+                .configure_mesh()
+                .x_desc(self.x_label)
+                .y_desc(self.y_label)
+                .label_style(("sans-serif", 14))
+                .axis_desc_style(("sans-serif", 15))
+                .light_line_style(WHITE)
+                .draw()
+                .map_err(|e| err(&e))?;
+            let grey = RGBColor(150, 150, 150);
+            let dashed = |y: f64, every: f64| {
+                // Segments of half the period, as plotters has no dash style
+                // for line series in this version.
+                let n = 60;
+                (0..n).filter(move |k| k % 2 == 0).map(move |k| {
+                    let a = x0 + (x1 - x0) * k as f64 / n as f64;
+                    let b = x0 + (x1 - x0) * ((k as f64 + every) / n as f64);
+                    vec![(a, y), (b.min(x1), y)]
+                })
+            };
+            for seg in dashed(0.0, 0.4) {
+                chart
+                    .draw_series(LineSeries::new(seg, grey.stroke_width(1)))
+                    .map_err(|e| err(&e))?;
+            }
+            for l in self.loa {
+                for seg in dashed(l, 1.0) {
+                    chart
+                        .draw_series(LineSeries::new(seg, BLACK.stroke_width(1)))
+                        .map_err(|e| err(&e))?;
                 }
             }
+            chart
+                .draw_series(LineSeries::new(
+                    [(x0, self.bias), (x1, self.bias)],
+                    BLACK.stroke_width(2),
+                ))
+                .map_err(|e| err(&e))?;
+            // Line labels just above their line, at the right (text is anchored
+            // at its top-left corner; the plot area is about 420 px high).
+            let above = (y1 - y0) * 17.0 / 420.0;
+            let label = |y: f64, text: String| {
+                Text::new(
+                    text,
+                    (x1 - 0.2 * (x1 - x0), y + above),
+                    ("sans-serif", 13).into_font(),
+                )
+            };
+            chart
+                .draw_series([
+                    label(self.bias, format!("bias {:+.2}", self.bias)),
+                    label(self.loa[0], format!("-1.96 sd {:+.2}", self.loa[0])),
+                    label(self.loa[1], format!("+1.96 sd {:+.2}", self.loa[1])),
+                ])
+                .map_err(|e| err(&e))?;
+            chart
+                .draw_series(
+                    self.means
+                        .iter()
+                        .zip(self.diffs)
+                        .filter(|(m, d)| m.is_finite() && d.is_finite())
+                        .map(|(&m, &d)| Circle::new((m, d), 4, RGBColor(30, 30, 30).filled())),
+                )
+                .map_err(|e| err(&e))?;
+            root.present().map_err(|e| err(&e))?;
         }
-    };
-    hline(0.0, &|c| c % 6 < 2, 150);
-    hline(bias, &|_| true, 0);
-    hline(loa[0], &|c| c % 12 < 7, 60);
-    hline(loa[1], &|c| c % 12 < 7, 60);
-    for (&m, &d) in means.iter().zip(diffs) {
-        let (c, r) = to_px(m, d);
-        for dr in -3..=3 {
-            for dc in -3..=3 {
-                let (rr, cc) = (r + dr, c + dc);
-                if (0..h as isize).contains(&rr) && (0..w as isize).contains(&cc) {
-                    px[rr as usize * w + cc as usize] = 30;
-                }
-            }
+        Ok((buf, w as usize, h as usize, [x0, x1, y0, y1]))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn plot<'a>(means: &'a [f64], diffs: &'a [f64]) -> BlandAltman<'a> {
+        BlandAltman {
+            title: "test".into(),
+            x_label: "mean (%)",
+            y_label: "difference (pp)",
+            means,
+            diffs,
+            bias: 1.0,
+            loa: [-2.0, 4.0],
         }
     }
-    // Frame.
-    for c in 0..w {
-        px[c] = 0;
-        px[(h - 1) * w + c] = 0;
+
+    fn dark(px: &[u8], w: usize, x: std::ops::Range<usize>, y: std::ops::Range<usize>) -> usize {
+        y.flat_map(|r| x.clone().map(move |c| (r, c)))
+            .filter(|&(r, c)| px[3 * (r * w + c)] < 128)
+            .count()
     }
-    for r in 0..h {
-        px[r * w] = 0;
-        px[r * w + w - 1] = 0;
+
+    #[test]
+    fn the_plot_has_its_points_lines_and_axis_text() {
+        let (means, diffs) = ([10.0, 20.0, 30.0], [0.0, 1.0, 2.0]);
+        let (px, w, h, r) = plot(&means, &diffs).render().unwrap();
+        assert_eq!((w, h), (800, 520));
+        assert_eq!(px.len(), w * h * 3);
+        // Ranges: the data and the lines (-2..4, 10..30) with 10 % margins.
+        assert!(
+            (r[0] - 8.0).abs() < 1e-9 && (r[1] - 32.0).abs() < 1e-9,
+            "{r:?}"
+        );
+        assert!(
+            (r[2] + 2.6).abs() < 1e-9 && (r[3] - 4.6).abs() < 1e-9,
+            "{r:?}"
+        );
+        // Text left of the plot (the y label and tick labels) and below it.
+        assert!(dark(&px, w, 0..60, 100..400) > 100, "no y axis text");
+        assert!(dark(&px, w, 200..600, h - 40..h) > 100, "no x axis text");
+        // The bias line is solid across the plot area: a dark row of pixels.
+        let row_dark = (0..h).any(|y| dark(&px, w, 150..750, y..y + 1) > 550);
+        assert!(row_dark, "no solid bias line");
     }
-    (px, w, h, [x0, x1, y0, y1])
+
+    #[test]
+    fn a_plot_without_a_finite_case_is_an_error() {
+        let e = plot(&[f64::NAN], &[f64::NAN]);
+        // The lines are finite, but there is no x range.
+        assert!(e.render().is_err());
+    }
 }

@@ -170,12 +170,26 @@ fn parse_levels(s: &str) -> Result<Vec<NoiseLevel>> {
 }
 
 fn write_png(path: &PathBuf, pixels: &[u8], w: usize, h: usize) -> Result<()> {
+    write_png_as(path, pixels, w, h, png::ColorType::Grayscale)
+}
+
+fn write_png_rgb(path: &PathBuf, pixels: &[u8], w: usize, h: usize) -> Result<()> {
+    write_png_as(path, pixels, w, h, png::ColorType::Rgb)
+}
+
+fn write_png_as(
+    path: &PathBuf,
+    pixels: &[u8],
+    w: usize,
+    h: usize,
+    color: png::ColorType,
+) -> Result<()> {
     if let Some(d) = path.parent() {
         std::fs::create_dir_all(d).with_context(|| format!("creating {}", d.display()))?;
     }
     let f = std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
     let mut enc = png::Encoder::new(std::io::BufWriter::new(f), w as u32, h as u32);
-    enc.set_color(png::ColorType::Grayscale);
+    enc.set_color(color);
     enc.set_depth(png::BitDepth::Eight);
     enc.write_header()?.write_image_data(pixels)?;
     Ok(())
@@ -456,17 +470,25 @@ fn main() -> Result<()> {
                     "dbtor-fp32".to_string()
                 };
                 let mut plots = serde_json::Map::new();
-                for ((name, short, pick), a) in QUANTITIES.iter().zip(summary.in_order()) {
+                for (q, a) in QUANTITIES.iter().zip(summary.in_order()) {
                     println!(
-                        "| {label} | {name} | {:+.2} | {:.2} | [{:+.2}, {:+.2}] | {:.2} | {:.3} | {} |",
-                        a.bias, a.sd, a.loa[0], a.loa[1], a.max_abs, a.p_value, a.n
+                        "| {label} | {} | {:+.2} | {:.2} | [{:+.2}, {:+.2}] | {:.2} | {:.3} | {} |",
+                        q.name, a.bias, a.sd, a.loa[0], a.loa[1], a.max_abs, a.p_value, a.n
                     );
-                    let (diffs, means): (Vec<f64>, Vec<f64>) = cases.iter().map(pick).unzip();
-                    let file = format!("bland-altman-{tag}-{short}.png");
-                    let (px, w, h, ranges) =
-                        dbt_eval::picture::bland_altman(&means, &diffs, a.bias, a.loa);
-                    write_png(&out.join(&file), &px, w, h)?;
-                    plots.insert(file, serde_json::json!({"quantity": name, "x_range_mean": [ranges[0], ranges[1]], "y_range_difference": [ranges[2], ranges[3]]}));
+                    let (diffs, means): (Vec<f64>, Vec<f64>) = cases.iter().map(q.pick).unzip();
+                    let file = format!("bland-altman-{tag}-{}.png", q.short);
+                    let plot = dbt_eval::picture::BlandAltman {
+                        title: format!("{label}: {}", q.name),
+                        x_label: q.mean_axis,
+                        y_label: q.difference_axis,
+                        means: &means,
+                        diffs: &diffs,
+                        bias: a.bias,
+                        loa: a.loa,
+                    };
+                    let (px, w, h, ranges) = plot.render()?;
+                    write_png_rgb(&out.join(&file), &px, w, h)?;
+                    plots.insert(file, serde_json::json!({"quantity": q.name, "x_range_mean": [ranges[0], ranges[1]], "y_range_difference": [ranges[2], ranges[3]]}));
                 }
                 results.push(serde_json::json!({
                     "reconstructor": label,
