@@ -4,7 +4,8 @@
 # trained for 4 iterations in two runs (the second resumes from the first's
 # checkpoint), exported (fp32 + int8 QDQ, fixtures, manifest), and the export
 # checked by the firmware's runtime (`dbtor-diag model`: checksums, fp32 vs
-# PyTorch, int8 vs onnxruntime); then the same for a 2-iteration LPD (no mask),
+# PyTorch, int8 vs onnxruntime); then the same for a 2-iteration LPD (no mask,
+# trained with --precision bf16 so the autocast path is exported and checked too),
 # and a 2-iteration U-Net on FBP run once by the evaluation. Needs training/requirements.txt installed and
 # the release binaries (host-sim, dbtor-diag).
 set -euo pipefail
@@ -28,10 +29,11 @@ cd ..
 # The LPD baseline (no mask): trained, exported and checked the same way.
 cd training
 $PY -m dbtor.train --data "$tmp/ds" --out "$tmp/lpd-run" --model lpd --iters 2 --batch 2 --blocks 2 \
-    --val-every 2 --log-every 1
+    --val-every 2 --log-every 1 --precision bf16
 $PY -m dbtor.export --run "$tmp/lpd-run" --data "$tmp/ds" --out "$tmp/lpd" --calibration 2 --fixtures 1
 cd ..
 grep -q '"kind": "lpd"' "$tmp/lpd/manifest.json" || { echo "smoke test: the LPD export is not kind lpd"; exit 1; }
+grep -q '"precision": "bf16"' "$tmp/lpd/manifest.json" || { echo "smoke test: the LPD manifest does not record bf16 training"; exit 1; }
 ./target/release/dbtor-diag model "$tmp/lpd"
 # The U-Net baseline on FBP: the FBP array, 2 iterations, export (the exporter
 # checks onnxruntime against PyTorch), and one evaluation slice through the
