@@ -96,7 +96,7 @@ pub fn check_fixtures(model: &Dbtor, dir: &Path) -> Result<Vec<FixtureCheck>, Db
         let sino = read_f32(&file("sinogram")?, n_sino)?;
         let truth = read_f32(&file("truth")?, n_img)?;
         let fp32 = read_f32(&file("torch_fp32")?, n_img)?;
-        let x = model.reconstruct(&sino, fx.thickness_mm)?;
+        let x = model.network_output(&sino, fx.thickness_mm)?;
         let check = match model.precision() {
             Precision::Fp32 => {
                 let d = max_abs(&x, &fp32);

@@ -231,6 +231,8 @@ pub struct Dbtor {
     /// Primal blocks run only from this many rows above the breast (fast
     /// engine); `None`: on the whole image.
     crop_margin: Option<usize>,
+    /// Zero the output outside the compression slab (see [`Dbtor::with_support`]).
+    support: bool,
 }
 
 impl std::fmt::Debug for Dbtor {
@@ -352,6 +354,7 @@ impl Dbtor {
             blocks,
             buffers: std::sync::Mutex::new(None),
             crop_margin: None,
+            support: true,
         };
         tracing::info!(model = %s.manifest.name, %precision, %engine, kernel = s.kernel().unwrap_or("tract"), blocks = s.manifest.blocks.len(), "DBToR model loaded");
         Ok(s)
@@ -370,6 +373,24 @@ impl Dbtor {
         }
         self.crop_margin = margin;
         Ok(self)
+    }
+
+    /// Whether [`Dbtor::reconstruct`] sets the image to zero (air) in the rows
+    /// outside the compressed thickness (default: yes). Nothing but air can
+    /// be there: the breast lies between the support and the paddle. This is
+    /// the support MLTR is given (`dbt_recon::mltr`'s mask, the paper's
+    /// "compressed breast thickness to set the size of the reconstruction
+    /// volume"); the network sees the same prior as its mask input but only
+    /// approximates zero there (and its int8 version adds quantisation noise
+    /// there). Off: the network's output as is, as the fixtures store it.
+    pub fn with_support(mut self, on: bool) -> Self {
+        self.support = on;
+        self
+    }
+
+    /// Whether the support is applied.
+    pub fn support(&self) -> bool {
+        self.support
     }
 
     /// The crop margin, if cropping.
@@ -550,9 +571,19 @@ impl Dbtor {
     /// Reconstruct one coronal slice from its log-transformed sinogram `g`
     /// (`ln(b / y)`, view-major, on the model's geometry) and the compressed
     /// thickness. Returns attenuation in 1/mm, row-major on the model's image.
+    /// With the support on (the default, [`Dbtor::with_support`]) the rows
+    /// outside the compressed thickness are zero.
     pub fn reconstruct(&self, g: &[f32], thickness_mm: f64) -> Result<Vec<f32>, DbtorError> {
         let mut out = vec![0.0f32; self.manifest.geometry.n_pixels()];
         self.reconstruct_into(g, thickness_mm, &mut out)?;
+        Ok(out)
+    }
+
+    /// The network's output f[0] (1/mm) without the support, whatever
+    /// [`Dbtor::with_support`] says: what the fixtures store.
+    pub fn network_output(&self, g: &[f32], thickness_mm: f64) -> Result<Vec<f32>, DbtorError> {
+        let mut out = vec![0.0f32; self.manifest.geometry.n_pixels()];
+        self.slice(g, thickness_mm, &mut out, None, false)?;
         Ok(out)
     }
 
@@ -565,7 +596,7 @@ impl Dbtor {
         thickness_mm: f64,
         out: &mut [f32],
     ) -> Result<(), DbtorError> {
-        self.slice(g, thickness_mm, out, None)
+        self.slice(g, thickness_mm, out, None, self.support)
     }
 
     /// Reconstruct one slice (as [`Dbtor::reconstruct`]) timing every block
@@ -581,7 +612,7 @@ impl Dbtor {
             ..SliceProfile::default()
         };
         let t = std::time::Instant::now();
-        self.slice(g, thickness_mm, &mut out, Some(&mut p))?;
+        self.slice(g, thickness_mm, &mut out, Some(&mut p), self.support)?;
         p.total_ms = t.elapsed().as_secs_f64() * 1e3;
         Ok((out, p))
     }
@@ -592,6 +623,7 @@ impl Dbtor {
         thickness_mm: f64,
         out: &mut [f32],
         prof: Option<&mut SliceProfile>,
+        support: bool,
     ) -> Result<(), DbtorError> {
         let geom = &self.manifest.geometry;
         let n_img = geom.n_pixels();
@@ -638,7 +670,7 @@ impl Dbtor {
         // every 63 jobs). One job is injected per slice.
         let span = tracing::Span::current();
         let r = rayon::scope(|_| {
-            span.in_scope(|| self.run_slice(&mut bufs, g, thickness_mm, out, prof))
+            span.in_scope(|| self.run_slice(&mut bufs, g, thickness_mm, out, prof, support))
         });
         *self.buffers.lock().unwrap_or_else(|e| e.into_inner()) = Some(bufs);
         r
@@ -651,6 +683,7 @@ impl Dbtor {
         thickness_mm: f64,
         out: &mut [f32],
         mut prof: Option<&mut SliceProfile>,
+        support: bool,
     ) -> Result<(), DbtorError> {
         use std::time::Instant;
         let ms = |t: Instant| t.elapsed().as_secs_f64() * 1e3;
@@ -720,6 +753,9 @@ impl Dbtor {
             .zip(&f[ch.output * n_img..(ch.output + 1) * n_img])
         {
             *o = v * xs;
+        }
+        if support {
+            out[..first].fill(0.0);
         }
         Ok(())
     }

@@ -251,11 +251,15 @@ fn crop_is_fast_only_and_leaves_the_rows_above_empty() {
     let dir = model_dir();
     let t = Dbtor::load(&dir, Precision::Fp32).unwrap();
     assert!(t.with_crop(Some(4)).is_err());
-    let full = Dbtor::load_with(&dir, Precision::Fp32, Engine::Fast).unwrap();
+    // Without the support, so that the rows outside the slab show the crop.
+    let full = Dbtor::load_with(&dir, Precision::Fp32, Engine::Fast)
+        .unwrap()
+        .with_support(false);
     let crop = Dbtor::load_with(&dir, Precision::Fp32, Engine::Fast)
         .unwrap()
         .with_crop(Some(2))
-        .unwrap();
+        .unwrap()
+        .with_support(false);
     let g = full.geometry().clone();
     let sino: Vec<f32> = (0..g.n_rays())
         .map(|i| 1.5 + (i % 5) as f32 * 0.1)
@@ -269,4 +273,31 @@ fn crop_is_fast_only_and_leaves_the_rows_above_empty() {
     assert!(b[..r0 * cols].iter().all(|v| *v == 0.0));
     assert!(a[..r0 * cols].iter().any(|v| *v != 0.0));
     assert!(b[r0 * cols..].iter().any(|v| *v != 0.0));
+}
+
+/// The support: `reconstruct` is the network's output inside the compression
+/// slab and zero (air) in the rows outside it; `network_output` and
+/// `with_support(false)` give the network's output everywhere.
+#[test]
+fn the_support_zeroes_the_rows_outside_the_slab_only() {
+    for p in [Precision::Fp32, Precision::Int8] {
+        let m = Dbtor::load_with(&model_dir(), p, Engine::Fast).unwrap();
+        assert!(m.support());
+        let g = m.geometry().clone();
+        let sino: Vec<f32> = (0..g.n_rays())
+            .map(|i| 1.5 + (i % 7) as f32 * 0.1)
+            .collect();
+        let thickness = 35.0;
+        let first = (g.image.rows - g.rows_within_thickness(thickness)) * g.image.columns;
+        let with = m.reconstruct(&sino, thickness).unwrap();
+        let raw = m.network_output(&sino, thickness).unwrap();
+        assert!(with[..first].iter().all(|v| *v == 0.0));
+        assert!(
+            raw[..first].iter().any(|v| *v != 0.0),
+            "{p}: nothing to zero"
+        );
+        assert_eq!(with[first..], raw[first..], "{p}: inside the slab");
+        let off = m.with_support(false);
+        assert_eq!(off.reconstruct(&sino, thickness).unwrap(), raw, "{p}");
+    }
 }

@@ -52,6 +52,11 @@ enum Cmd {
         /// (fast engine; default: the whole image).
         #[arg(long)]
         crop_margin: Option<usize>,
+        /// DBToR/LPD without the support (the network's output also in the
+        /// rows outside the compressed thickness, which the firmware sets to
+        /// air: `Dbtor::with_support`); rows labelled "raw".
+        #[arg(long)]
+        no_support: bool,
         /// Test-set phantoms.
         #[arg(long, default_value_t = 5)]
         phantoms: usize,
@@ -140,6 +145,11 @@ enum Cmd {
         /// (fast engine; default: the whole image).
         #[arg(long)]
         crop_margin: Option<usize>,
+        /// DBToR/LPD without the support (the network's output also in the
+        /// rows outside the compressed thickness, which the firmware sets to
+        /// air: `Dbtor::with_support`); rows labelled "raw".
+        #[arg(long)]
+        no_support: bool,
     },
     /// PNG of a test slice: phantom, sinogram, MLTR, FBP.
     Picture {
@@ -202,6 +212,7 @@ fn load_models(
     precisions: &str,
     engine: &str,
     crop_margin: Option<usize>,
+    support: bool,
 ) -> Result<Vec<(String, Dbtor)>> {
     let Some(dir) = dir else { return Ok(vec![]) };
     let engine: dbt_dbtor::Engine = engine.parse().map_err(anyhow::Error::msg)?;
@@ -210,12 +221,14 @@ fn load_models(
         let p: Precision = p.parse().map_err(anyhow::Error::msg)?;
         let m = Dbtor::load_with(dir, p, engine)
             .with_context(|| format!("loading {} ({p}, {engine})", dir.display()))?
-            .with_crop(crop_margin)?;
+            .with_crop(crop_margin)?
+            .with_support(support);
         let kind = match m.manifest().kind.as_str() {
             "lpd" => "LPD",
             _ => "DBToR",
         };
-        out.push((format!("{kind} {p}"), m));
+        let raw = if support { "" } else { " raw" };
+        out.push((format!("{kind} {p}{raw}"), m));
     }
     Ok(out)
 }
@@ -236,14 +249,27 @@ fn main() -> Result<()> {
             unet,
             engine,
             crop_margin,
+            no_support,
             phantoms,
             slices,
             iterations,
             levels,
             json,
         } => {
-            let mut loaded = load_models(model.as_deref(), &precisions, &engine, crop_margin)?;
-            loaded.extend(load_models(lpd.as_deref(), "fp32", &engine, crop_margin)?);
+            let mut loaded = load_models(
+                model.as_deref(),
+                &precisions,
+                &engine,
+                crop_margin,
+                !no_support,
+            )?;
+            loaded.extend(load_models(
+                lpd.as_deref(),
+                "fp32",
+                &engine,
+                crop_margin,
+                !no_support,
+            )?);
             let unet = unet
                 .map(|d| {
                     dbt_dbtor::unet::Unet::load(&d)
@@ -402,6 +428,7 @@ fn main() -> Result<()> {
             reconstructors,
             engine,
             crop_margin,
+            no_support,
         } => {
             use dbt_eval::accuracy::{run_cases, summarise, test_phantoms, Case, QUANTITIES};
             let g = Geometry::paper().binned(binning)?;
@@ -414,12 +441,14 @@ fn main() -> Result<()> {
                     "mltr" => (format!("MLTR {iterations} iterations"), None),
                     "fp32" | "int8" => {
                         anyhow::ensure!(model.is_some(), "--reconstructors {r} needs --model");
-                        let m = load_models(model.as_deref(), r, &engine, crop_margin)?
-                            .pop()
-                            .map(|(_, m)| m)
-                            .context("no model loaded")?;
+                        let m =
+                            load_models(model.as_deref(), r, &engine, crop_margin, !no_support)?
+                                .pop()
+                                .map(|(_, m)| m)
+                                .context("no model loaded")?;
+                        let raw = if no_support { ", raw" } else { "" };
                         (
-                            format!("DBToR {} ({r}, {engine})", m.manifest().name),
+                            format!("DBToR {} ({r}, {engine}{raw})", m.manifest().name),
                             Some(std::sync::Arc::new(m)),
                         )
                     }
@@ -515,7 +544,7 @@ fn main() -> Result<()> {
             noise,
             model,
         } => {
-            let model = load_models(model.as_deref(), "fp32", "fast", None)?
+            let model = load_models(model.as_deref(), "fp32", "fast", None, true)?
                 .pop()
                 .map(|(_, m)| m);
             let g = match &model {
