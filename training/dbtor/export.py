@@ -210,6 +210,13 @@ def main(argv=None):
                          "int8_vs_fp32_max_abs_per_mm": float(np.abs(ref8 - ref).max())})
         print(f"fixture {stem}: int8 vs fp32 max abs {np.abs(ref8 - ref).max():.3e} /mm", flush=True)
 
+    # The trainer's own records of this run, so that the folder never ships a
+    # stale curve or options (every file in it is hashed below).
+    import shutil
+    for rec in ("curve.csv", "run.json"):
+        if os.path.exists(os.path.join(a.run, rec)):
+            shutil.copyfile(os.path.join(a.run, rec), os.path.join(a.out, rec))
+
     everything = []
     for root, _, names in os.walk(a.out):
         for n in sorted(names):
