@@ -345,6 +345,8 @@ impl Dbtor {
                 Blocks::Int8(v)
             }
         };
+        // The support is the thickness prior: DBToR's, not LPD's.
+        let support = manifest.uses_mask();
         let s = Self {
             projector: Projector::new(g),
             manifest,
@@ -354,7 +356,7 @@ impl Dbtor {
             blocks,
             buffers: std::sync::Mutex::new(None),
             crop_margin: None,
-            support: true,
+            support,
         };
         tracing::info!(model = %s.manifest.name, %precision, %engine, kernel = s.kernel().unwrap_or("tract"), blocks = s.manifest.blocks.len(), "DBToR model loaded");
         Ok(s)
@@ -376,7 +378,8 @@ impl Dbtor {
     }
 
     /// Whether [`Dbtor::reconstruct`] sets the image to zero (air) in the rows
-    /// outside the compressed thickness (default: yes). Nothing but air can
+    /// outside the compressed thickness (default: yes for DBToR, no for LPD,
+    /// which by definition does not know the thickness). Nothing but air can
     /// be there: the breast lies between the support and the paddle. This is
     /// the support MLTR is given (`dbt_recon::mltr`'s mask, the paper's
     /// "compressed breast thickness to set the size of the reconstruction

@@ -221,13 +221,14 @@ fn load_models(
         let p: Precision = p.parse().map_err(anyhow::Error::msg)?;
         let m = Dbtor::load_with(dir, p, engine)
             .with_context(|| format!("loading {} ({p}, {engine})", dir.display()))?
-            .with_crop(crop_margin)?
-            .with_support(support);
+            .with_crop(crop_margin)?;
+        // The model's default support (DBToR: on; LPD: off), or none.
+        let raw = if m.support() && !support { " raw" } else { "" };
+        let m = if support { m } else { m.with_support(false) };
         let kind = match m.manifest().kind.as_str() {
             "lpd" => "LPD",
             _ => "DBToR",
         };
-        let raw = if support { "" } else { " raw" };
         out.push((format!("{kind} {p}{raw}"), m));
     }
     Ok(out)
