@@ -105,6 +105,13 @@ class Reader(CalibrationDataReader):
 def run_onnx_chain(files, op, g, m, n_blocks, use_mask=True):
     """The unrolled loop with onnxruntime blocks (reference for the int8 fixture)."""
     sessions = [ort.InferenceSession(f, providers=["CPUExecutionProvider"]) for f in files]
+    return run_onnx_sessions(sessions, op, g, m, n_blocks, use_mask)
+
+
+def run_onnx_sessions(sessions, op, g, m, n_blocks, use_mask=True):
+    """The unrolled loop of model.py with onnxruntime sessions, one per block in
+    execution order (dual 0, primal 0, dual 1, ...); g and m normalised as by
+    train.tensors. Returns f[0] in units of x_scale."""
     b = g.shape[0]
     h = torch.zeros(b, STATE, *op.sino_shape)
     f = torch.zeros(b, STATE, *op.image_shape)
