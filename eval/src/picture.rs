@@ -144,27 +144,18 @@ impl BlandAltman<'_> {
                 .draw()
                 .map_err(|e| err(&e))?;
             let grey = RGBColor(150, 150, 150);
-            let dashed = |y: f64, every: f64| {
-                // Segments of half the period, as plotters has no dash style
-                // for line series in this version.
-                let n = 60;
-                (0..n).filter(move |k| k % 2 == 0).map(move |k| {
-                    let a = x0 + (x1 - x0) * k as f64 / n as f64;
-                    let b = x0 + (x1 - x0) * ((k as f64 + every) / n as f64);
-                    vec![(a, y), (b.min(x1), y)]
-                })
+            // Dash and gap lengths in pixels: the zero line dotted, the
+            // limits dashed.
+            let dashed = |y: f64, dash: i32, gap: i32, style: ShapeStyle| {
+                DashedLineSeries::new([(x0, y), (x1, y)], dash, gap, style)
             };
-            for seg in dashed(0.0, 0.4) {
-                chart
-                    .draw_series(LineSeries::new(seg, grey.stroke_width(1)))
-                    .map_err(|e| err(&e))?;
-            }
+            chart
+                .draw_series(dashed(0.0, 5, 18, grey.stroke_width(1)))
+                .map_err(|e| err(&e))?;
             for l in self.loa {
-                for seg in dashed(l, 1.0) {
-                    chart
-                        .draw_series(LineSeries::new(seg, BLACK.stroke_width(1)))
-                        .map_err(|e| err(&e))?;
-                }
+                chart
+                    .draw_series(dashed(l, 12, 12, BLACK.stroke_width(1)))
+                    .map_err(|e| err(&e))?;
             }
             chart
                 .draw_series(LineSeries::new(
