@@ -14,6 +14,7 @@ import torch
 
 from .model import PrimalDual
 from .operator import Operator
+from .train import compile_convolutions, loss_of
 
 
 def main(argv=None):
@@ -24,22 +25,19 @@ def main(argv=None):
     a = ap.parse_args(argv)
     op = Operator(f"{a.data}/operator")
     rows = []
-    for name, bf16, compile_ in [("fp32", False, False), ("bf16", True, False), ("bf16 + compile", True, True)]:
+    for name, precision, compile_ in [("fp32", "fp32", False), ("bf16", "bf16", False),
+                                      ("bf16 + compile", "bf16", True)]:
         torch.manual_seed(0)
         net = PrimalDual(op)
         if compile_:
-            for m in net.modules():
-                if isinstance(m, torch.nn.Sequential):
-                    m.compile(dynamic=False)
+            compile_convolutions(net)
         adam = torch.optim.Adam(net.parameters(), lr=1e-4)
         g = torch.randn(a.batch, 1, *op.sino_shape)
         m = (torch.rand(a.batch, 1, *op.image_shape) > 0.5).float()
         x = torch.randn(a.batch, 1, *op.image_shape)
 
         def step():
-            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
-                z = net(g, m)
-            loss = torch.mean((z.float() - x) ** 2)
+            loss = loss_of(net, g, m, x, precision)
             adam.zero_grad(set_to_none=True)
             loss.backward()
             adam.step()

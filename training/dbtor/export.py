@@ -18,6 +18,7 @@ import hashlib
 import logging
 import json
 import os
+import shutil
 import sys
 
 import numpy as np
@@ -219,7 +220,6 @@ def main(argv=None):
 
     # The trainer's own records of this run, so that the folder never ships a
     # stale curve or options (every file in it is hashed below).
-    import shutil
     for rec in ("curve.csv", "run.json"):
         if os.path.exists(os.path.join(a.run, rec)):
             shutil.copyfile(os.path.join(a.run, rec), os.path.join(a.out, rec))

@@ -45,7 +45,7 @@ class Operator:
 
 def _mm(a, x, out_shape):
     # Always in float32: the sparse product has no bfloat16 kernel, and under
-    # --bf16 (train.py) only the convolutions run in bfloat16.
+    # --precision bf16 (train.py) only the convolutions run in bfloat16.
     b = x.shape[0]
     flat = x.reshape(b, -1).t().float().contiguous()
     with torch.autocast("cpu", enabled=False):

@@ -47,6 +47,22 @@ def tensors(batch, stats):
     return g, m, x
 
 
+def compile_convolutions(net):
+    """--compile: torch.compile each block's convolution stack (every
+    nn.Sequential), in place so that the state_dict keys are unchanged."""
+    for m in net.modules():
+        if isinstance(m, torch.nn.Sequential):
+            m.compile(dynamic=False)
+
+
+def loss_of(net, g, m, x, precision):
+    """The training loss (mean squared error); with precision "bf16" the
+    forward pass runs under CPU autocast and the loss in float32."""
+    with torch.autocast("cpu", dtype=torch.bfloat16, enabled=precision == "bf16"):
+        z = net(g, m)
+    return torch.mean((z.float() - x) ** 2)
+
+
 def validate(net, split, stats, n=32, batch=8):
     """Mean squared error (image units of x_scale) and PSNR (dB, data range of each
     truth) on the first `n` slices of an even spread over the validation split."""
@@ -103,9 +119,7 @@ def main(argv=None):
     torch.manual_seed(a.seed)
     net = UNet() if unet else PrimalDual(op, blocks=a.blocks, use_mask=(a.model == "dbtor"))
     if a.compile:
-        for m in net.modules():
-            if isinstance(m, torch.nn.Sequential):
-                m.compile(dynamic=False)  # in place: the state_dict keys are unchanged
+        compile_convolutions(net)
     adam = torch.optim.Adam(net.parameters(), lr=a.lr, betas=(0.9, 0.999), eps=1e-8, weight_decay=0)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(adam, T_max=a.iters)
     rng = np.random.default_rng(a.seed)
@@ -154,9 +168,7 @@ def main(argv=None):
     end = a.iters if a.stop_at is None else min(a.iters, a.stop_at)
     while it < end and not stop["now"]:
         g, m, x = tensors(train.batch(rng.choice(train.n, size=a.batch, replace=False)), stats)
-        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=a.precision == "bf16"):
-            z = net(g, m)
-        loss = torch.mean((z.float() - x) ** 2)
+        loss = loss_of(net, g, m, x, a.precision)
         adam.zero_grad(set_to_none=True)
         loss.backward()
         adam.step()
