@@ -1,7 +1,7 @@
 //! `dbt-eval`: evaluation tables and pictures.
 
 use anyhow::{Context, Result};
-use clap::{Parser, Subcommand};
+use clap::{Args, Parser, Subcommand};
 use dbt_acquisition::NoiseLevel;
 use dbt_dbtor::{Dbtor, Precision};
 use dbt_eval::picture::{auto_window, compose, Panel};
@@ -20,6 +20,34 @@ use std::time::Instant;
 struct Cli {
     #[command(subcommand)]
     cmd: Cmd,
+}
+
+/// How the learned models run (baselines and accuracy alike).
+#[derive(Args)]
+struct Runtime {
+    /// Executor of the model's blocks: fast (the fused kernels) or tract
+    /// (the reference).
+    #[arg(long, default_value = "fast")]
+    engine: String,
+    /// Crop the primal blocks to the breast's rows plus this margin
+    /// (fast engine; default: the whole image).
+    #[arg(long)]
+    crop_margin: Option<usize>,
+    /// DBToR/LPD without the support (the network's output also in the
+    /// rows outside the compressed thickness, which the firmware sets to
+    /// air: `Dbtor::with_support`); rows labelled "raw".
+    #[arg(long)]
+    no_support: bool,
+}
+
+impl Default for Runtime {
+    fn default() -> Self {
+        Self {
+            engine: "fast".into(),
+            crop_margin: None,
+            no_support: false,
+        }
+    }
 }
 
 #[derive(Subcommand)]
@@ -44,19 +72,8 @@ enum Cmd {
         /// FBP, `training/dbtor/export_unet.py`); same geometry.
         #[arg(long)]
         unet: Option<PathBuf>,
-        /// Executor of the model's blocks: fast (the fused kernels) or tract
-        /// (the reference).
-        #[arg(long, default_value = "fast")]
-        engine: String,
-        /// Crop the primal blocks to the breast's rows plus this margin
-        /// (fast engine; default: the whole image).
-        #[arg(long)]
-        crop_margin: Option<usize>,
-        /// DBToR/LPD without the support (the network's output also in the
-        /// rows outside the compressed thickness, which the firmware sets to
-        /// air: `Dbtor::with_support`); rows labelled "raw".
-        #[arg(long)]
-        no_support: bool,
+        #[command(flatten)]
+        runtime: Runtime,
         /// Test-set phantoms.
         #[arg(long, default_value_t = 5)]
         phantoms: usize,
@@ -137,19 +154,8 @@ enum Cmd {
         /// separated: mltr, fp32, int8; default: fp32 with --model, else mltr).
         #[arg(long)]
         reconstructors: Option<String>,
-        /// Executor of the model's blocks: fast (the fused kernels) or tract
-        /// (the reference).
-        #[arg(long, default_value = "fast")]
-        engine: String,
-        /// Crop the primal blocks to the breast's rows plus this margin
-        /// (fast engine; default: the whole image).
-        #[arg(long)]
-        crop_margin: Option<usize>,
-        /// DBToR/LPD without the support (the network's output also in the
-        /// rows outside the compressed thickness, which the firmware sets to
-        /// air: `Dbtor::with_support`); rows labelled "raw".
-        #[arg(long)]
-        no_support: bool,
+        #[command(flatten)]
+        runtime: Runtime,
     },
     /// PNG of a test slice: phantom, sinogram, MLTR, FBP.
     Picture {
@@ -210,21 +216,27 @@ fn write_png_as(
 fn load_models(
     dir: Option<&std::path::Path>,
     precisions: &str,
-    engine: &str,
-    crop_margin: Option<usize>,
-    support: bool,
+    rt: &Runtime,
 ) -> Result<Vec<(String, Dbtor)>> {
     let Some(dir) = dir else { return Ok(vec![]) };
-    let engine: dbt_dbtor::Engine = engine.parse().map_err(anyhow::Error::msg)?;
+    let engine: dbt_dbtor::Engine = rt.engine.parse().map_err(anyhow::Error::msg)?;
     let mut out = Vec::new();
     for p in precisions.split(',').filter(|p| !p.is_empty()) {
         let p: Precision = p.parse().map_err(anyhow::Error::msg)?;
         let m = Dbtor::load_with(dir, p, engine)
             .with_context(|| format!("loading {} ({p}, {engine})", dir.display()))?
-            .with_crop(crop_margin)?;
+            .with_crop(rt.crop_margin)?;
         // The model's default support (DBToR: on; LPD: off), or none.
-        let raw = if m.support() && !support { " raw" } else { "" };
-        let m = if support { m } else { m.with_support(false) };
+        let raw = if m.support() && rt.no_support {
+            " raw"
+        } else {
+            ""
+        };
+        let m = if rt.no_support {
+            m.with_support(false)
+        } else {
+            m
+        };
         let kind = match m.manifest().kind.as_str() {
             "lpd" => "LPD",
             _ => "DBToR",
@@ -248,29 +260,15 @@ fn main() -> Result<()> {
             precisions,
             lpd,
             unet,
-            engine,
-            crop_margin,
-            no_support,
+            runtime,
             phantoms,
             slices,
             iterations,
             levels,
             json,
         } => {
-            let mut loaded = load_models(
-                model.as_deref(),
-                &precisions,
-                &engine,
-                crop_margin,
-                !no_support,
-            )?;
-            loaded.extend(load_models(
-                lpd.as_deref(),
-                "fp32",
-                &engine,
-                crop_margin,
-                !no_support,
-            )?);
+            let mut loaded = load_models(model.as_deref(), &precisions, &runtime)?;
+            loaded.extend(load_models(lpd.as_deref(), "fp32", &runtime)?);
             let unet = unet
                 .map(|d| {
                     dbt_dbtor::unet::Unet::load(&d)
@@ -427,9 +425,7 @@ fn main() -> Result<()> {
             out,
             model,
             reconstructors,
-            engine,
-            crop_margin,
-            no_support,
+            runtime,
         } => {
             use dbt_eval::accuracy::{run_cases, summarise, test_phantoms, Case, QUANTITIES};
             let g = Geometry::paper().binned(binning)?;
@@ -442,14 +438,13 @@ fn main() -> Result<()> {
                     "mltr" => (format!("MLTR {iterations} iterations"), None),
                     "fp32" | "int8" => {
                         anyhow::ensure!(model.is_some(), "--reconstructors {r} needs --model");
-                        let m =
-                            load_models(model.as_deref(), r, &engine, crop_margin, !no_support)?
-                                .pop()
-                                .map(|(_, m)| m)
-                                .context("no model loaded")?;
-                        let raw = if no_support { ", raw" } else { "" };
+                        let m = load_models(model.as_deref(), r, &runtime)?
+                            .pop()
+                            .map(|(_, m)| m)
+                            .context("no model loaded")?;
+                        let raw = if runtime.no_support { ", raw" } else { "" };
                         (
-                            format!("DBToR {} ({r}, {engine}{raw})", m.manifest().name),
+                            format!("DBToR {} ({r}, {}{raw})", m.manifest().name, runtime.engine),
                             Some(std::sync::Arc::new(m)),
                         )
                     }
@@ -545,7 +540,7 @@ fn main() -> Result<()> {
             noise,
             model,
         } => {
-            let model = load_models(model.as_deref(), "fp32", "fast", None, true)?
+            let model = load_models(model.as_deref(), "fp32", &Runtime::default())?
                 .pop()
                 .map(|(_, m)| m);
             let g = match &model {
