@@ -4,6 +4,7 @@ slices (PSNR and SSIM against the truth in 1/cm with the truth's range, the
 conventions of dbt-eval).
 
     python -m dbtor.int8_sensitivity --model ../models/dbtor-x4 --data DS [--slices 16] [--level N8]
+    python -m dbtor.int8_sensitivity ... --but primal09 --but primal08,primal09   # chosen mixes only
 
 Runs the exported ONNX blocks with onnxruntime and the dataset's CSR operator
 through export.run_onnx_sessions (the unrolled loop of model.py). The raw
@@ -29,6 +30,9 @@ def main(argv=None):
     ap.add_argument("--data", required=True)
     ap.add_argument("--level", default="N8")
     ap.add_argument("--slices", type=int, default=16)
+    ap.add_argument("--but", action="append", default=[],
+                    help="score all int8 but these blocks (comma separated, e.g. primal08,primal09); "
+                         "repeatable; skips the block-by-block sweep")
     a = ap.parse_args(argv)
     with open(os.path.join(a.model, "manifest.json")) as f:
         man = json.load(f)
@@ -62,6 +66,15 @@ def main(argv=None):
     for label, precs in [("all fp32", ["fp32"] * n), ("all int8", ["int8"] * n)]:
         p, s = score(precs)
         print(f"{label:<24} {p:6.2f} {s:6.3f}", flush=True)
+    for keep in a.but:
+        kept = [b.strip() for b in keep.split(",") if b.strip()]
+        unknown = [b for b in kept if b not in names]
+        if unknown:
+            raise SystemExit(f"--but {keep}: no block {unknown[0]!r} (blocks: {', '.join(names)})")
+        p, s = score(["fp32" if names[j] in kept else "int8" for j in range(n)])
+        print(f"{'all int8 but ' + keep:<24} {p:6.2f} {s:6.3f}", flush=True)
+    if a.but:
+        return
     for k in range(n):
         only = score(["int8" if j == k else "fp32" for j in range(n)])
         but = score(["fp32" if j == k else "int8" for j in range(n)])

@@ -8,6 +8,7 @@
 //! ```text
 //! cargo run --release -p dbt-bench --bin dbtor-bench -- [--model DIR] [--reps N]
 //!     [--geometry paper|model|both] [--out FILE.json] [--no-peers] [--no-tract]
+//!     [--mixed BLOCKS]   (adds "fast mixed": int8 with BLOCKS in fp32)
 //! ```
 //! The blocks are fully convolutional: at the paper geometry the trained
 //! model's blocks run unchanged on the 1000 x 300 image and 25 x 1280
@@ -32,6 +33,8 @@ struct Args {
     out: PathBuf,
     peers: bool,
     tract: bool,
+    /// Blocks of a mixed-precision variant (int8, these in fp32), if any.
+    mixed: Vec<String>,
 }
 
 fn parse_args() -> Result<Args> {
@@ -42,6 +45,7 @@ fn parse_args() -> Result<Args> {
         out: PathBuf::from("bench/results/dbtor.json"),
         peers: true,
         tract: true,
+        mixed: Vec::new(),
     };
     let mut it = std::env::args().skip(1);
     while let Some(arg) = it.next() {
@@ -53,8 +57,15 @@ fn parse_args() -> Result<Args> {
             "--out" => a.out = PathBuf::from(val("--out")?),
             "--no-peers" => a.peers = false,
             "--no-tract" => a.tract = false,
+            "--mixed" => {
+                a.mixed = val("--mixed")?
+                    .split(',')
+                    .map(|b| b.trim().to_string())
+                    .filter(|b| !b.is_empty())
+                    .collect()
+            }
             "-h" | "--help" => {
-                println!("usage: dbtor-bench [--model DIR] [--reps N] [--geometry paper|model|both] [--out FILE.json] [--no-peers] [--no-tract]");
+                println!("usage: dbtor-bench [--model DIR] [--reps N] [--geometry paper|model|both] [--out FILE.json] [--no-peers] [--no-tract] [--mixed primal08,primal09]");
                 std::process::exit(0);
             }
             other => bail!("unknown argument `{other}` (see --help)"),
@@ -210,7 +221,7 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
     let mut outputs: Vec<(String, Vec<f32>)> = Vec::new();
     let mut flops = None;
     let mut fast_projector_ms = f64::NAN;
-    let combos: Vec<(Engine, Precision)> = [
+    let mut combos: Vec<(Engine, Precision, &[String])> = [
         (Engine::Fast, Precision::Fp32),
         (Engine::Fast, Precision::Int8),
         (Engine::Tract, Precision::Fp32),
@@ -218,11 +229,19 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
     ]
     .into_iter()
     .filter(|(e, _)| a.tract || *e == Engine::Fast)
+    .map(|(e, p)| (e, p, &[][..]))
     .collect();
-    for (engine, precision) in combos {
-        let name = format!("{engine} {precision}");
+    if !a.mixed.is_empty() {
+        combos.insert(2, (Engine::Fast, Precision::Int8, &a.mixed[..]));
+    }
+    for (engine, precision, fp32_blocks) in combos {
+        let name = if fp32_blocks.is_empty() {
+            format!("{engine} {precision}")
+        } else {
+            format!("{engine} mixed")
+        };
         let t = Instant::now();
-        let d = Dbtor::load_for_geometry(&a.model, precision, engine, g)
+        let d = Dbtor::load_for_geometry(&a.model, precision, fp32_blocks, engine, g)
             .with_context(|| format!("loading {name}"))?;
         let load_s = t.elapsed().as_secs_f64();
         if flops.is_none() {
@@ -249,10 +268,11 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
             ops: flops.unwrap_or(f64::NAN),
             load_s,
             buffers_mb: (engine == Engine::Fast).then(|| d.slice_buffer_bytes() as f64 / 1e6),
-            note: d
-                .kernel()
-                .map(|k| format!("kernel {k}"))
-                .unwrap_or_default(),
+            note: match (d.kernel(), fp32_blocks.len()) {
+                (Some(k), 0) => format!("kernel {k}"),
+                (Some(k), n) => format!("kernels {k}; {n} blocks fp32 (rate and floor as fp32)"),
+                (None, _) => String::new(),
+            },
         });
         outputs.push((name, first));
     }
@@ -390,6 +410,7 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
         "slice_ms_fast_int8": by("fast int8"), "slice_ms_fast_fp32": by("fast fp32"),
         "slice_ms_tract_fp32": by("tract fp32"), "slice_ms_tract_int8": by("tract int8"),
         "slice_ms_ort_fp32": by("ort fp32"), "slice_ms_ort_int8": by("ort int8"),
+        "slice_ms_fast_mixed": by("fast mixed"),
         "variants": rows_json,
         "agreement": agreement,
     }))

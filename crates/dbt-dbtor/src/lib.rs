@@ -145,19 +145,43 @@ type Plan = std::sync::Arc<TypedSimplePlan>;
 enum Blocks {
     /// tract plans with the file each was loaded from (for error messages).
     Tract(Vec<(Plan, PathBuf)>),
-    Fp32(Vec<(Fp32Block, PathBuf)>),
-    Int8(Vec<(Int8Block, PathBuf)>),
+    /// `dbt-conv` blocks, each in its own precision.
+    Fast(Vec<(FastBlock, PathBuf)>),
 }
 
+/// One block on the fast engine. (Twenty per model, made once: the size
+/// difference of the variants does not matter.)
+#[allow(clippy::large_enum_variant)]
+enum FastBlock {
+    Fp32(Fp32Block),
+    Int8(Int8Block),
+}
+
+impl FastBlock {
+    fn as_fp32(&self) -> Option<&Fp32Block> {
+        match self {
+            Self::Fp32(k) => Some(k),
+            Self::Int8(_) => None,
+        }
+    }
+
+    fn as_int8(&self) -> Option<&Int8Block> {
+        match self {
+            Self::Int8(k) => Some(k),
+            Self::Fp32(_) => None,
+        }
+    }
+}
+
+/// The fast engine's scratch: per precision, one workspace for the dual
+/// blocks and one for the primal blocks (`[dual, primal]`), where blocks of
+/// that precision and role exist. (One per buffer set, which is boxed.)
+#[allow(clippy::large_enum_variant)]
 enum Workspaces {
     None,
-    Fp32 {
-        dual: Fp32Workspace,
-        primal: Fp32Workspace,
-    },
-    Int8 {
-        dual: Int8Workspace,
-        primal: Int8Workspace,
+    Fast {
+        fp32: [Option<Fp32Workspace>; 2],
+        int8: [Option<Int8Workspace>; 2],
     },
 }
 
@@ -191,8 +215,10 @@ impl Buffers {
         4 * floats
             + match &self.ws {
                 Workspaces::None => 0,
-                Workspaces::Fp32 { dual, primal } => dual.bytes() + primal.bytes(),
-                Workspaces::Int8 { dual, primal } => dual.bytes() + primal.bytes(),
+                Workspaces::Fast { fp32, int8 } => {
+                    fp32.iter().flatten().map(|w| w.bytes()).sum::<usize>()
+                        + int8.iter().flatten().map(|w| w.bytes()).sum::<usize>()
+                }
             }
     }
 }
@@ -207,15 +233,27 @@ fn grid(g: &Geometry, role: Role) -> (usize, usize) {
 }
 
 /// The first loaded block of `role` (all blocks of a role share widths).
+/// A block's name: role and two-digit iteration (`dual00`, `primal09`), as
+/// the exporter and `dbtor.int8_sensitivity` name them.
+pub fn block_name(b: &BlockEntry) -> String {
+    let role = match b.role {
+        Role::Dual => "dual",
+        Role::Primal => "primal",
+    };
+    format!("{role}{:02}", b.index)
+}
+
+/// The first fast block of `role` that `pick` accepts.
 fn first_of_role<'a, T>(
-    v: &'a [(T, PathBuf)],
+    v: &'a [(FastBlock, PathBuf)],
     entries: &[BlockEntry],
     role: Role,
+    pick: fn(&'a FastBlock) -> Option<&'a T>,
 ) -> Option<&'a T> {
     v.iter()
         .zip(entries)
-        .find(|(_, e)| e.role == role)
-        .map(|(b, _)| &b.0)
+        .filter(|(_, e)| e.role == role)
+        .find_map(|(b, _)| pick(&b.0))
 }
 
 /// A loaded, verified model ready to reconstruct slices.
@@ -223,6 +261,8 @@ pub struct Dbtor {
     manifest: ModelManifest,
     root: PathBuf,
     precision: Precision,
+    /// Blocks run in fp32 although `precision` is int8 (mixed precision).
+    fp32_blocks: Vec<String>,
     engine: Engine,
     projector: Projector,
     /// In execution order: dual 0, primal 0, dual 1, ...
@@ -241,6 +281,7 @@ impl std::fmt::Debug for Dbtor {
             .field("model", &self.manifest.name)
             .field("root", &self.root)
             .field("precision", &self.precision)
+            .field("fp32_blocks", &self.fp32_blocks)
             .field("engine", &self.engine)
             .field("blocks", &self.manifest.blocks.len())
             .finish()
@@ -257,18 +298,33 @@ impl Dbtor {
     /// every checksum, and prepare the blocks of `precision` for the model's
     /// geometry on `engine`.
     pub fn load_with(dir: &Path, precision: Precision, engine: Engine) -> Result<Self, DbtorError> {
+        Self::load_mixed(dir, precision, &[], engine)
+    }
+
+    /// [`Dbtor::load_with`] int8 or fp32, but the blocks named in
+    /// `fp32_blocks` (`dual03`, `primal09`, ...: role and two-digit index)
+    /// run in fp32: per-block mixed precision, to keep the blocks that lose
+    /// the most when quantised (`python -m dbtor.int8_sensitivity`) in float.
+    /// An unknown name is an error naming it and the model's blocks.
+    pub fn load_mixed(
+        dir: &Path,
+        precision: Precision,
+        fp32_blocks: &[String],
+        engine: Engine,
+    ) -> Result<Self, DbtorError> {
         let manifest = ModelManifest::load(dir)?;
         manifest.verify_files(dir)?;
         let g = manifest.geometry.clone();
-        Self::load_on(dir, manifest, precision, engine, &g)
+        Self::load_on(dir, manifest, precision, fp32_blocks, engine, &g)
     }
 
-    /// As [`Dbtor::load_with`], but run the (fully convolutional) blocks on
+    /// As [`Dbtor::load_mixed`], but run the (fully convolutional) blocks on
     /// another geometry: for benchmarks at the paper's full size with a model
     /// trained binned. The normalisation stays the model's.
     pub fn load_for_geometry(
         dir: &Path,
         precision: Precision,
+        fp32_blocks: &[String],
         engine: Engine,
         geometry: &Geometry,
     ) -> Result<Self, DbtorError> {
@@ -277,23 +333,43 @@ impl Dbtor {
         let mut m = manifest;
         m.geometry = geometry.clone();
         let g = geometry.clone();
-        Self::load_on(dir, m, precision, engine, &g)
+        Self::load_on(dir, m, precision, fp32_blocks, engine, &g)
     }
 
     fn load_on(
         dir: &Path,
         manifest: ModelManifest,
         precision: Precision,
+        fp32_blocks: &[String],
         engine: Engine,
         g: &Geometry,
     ) -> Result<Self, DbtorError> {
         let c = manifest.state_channels;
+        let names: Vec<String> = manifest.blocks.iter().map(block_name).collect();
+        if let Some(bad) = fp32_blocks.iter().find(|b| !names.contains(b)) {
+            return Err(DbtorError::Input(format!(
+                "no block {bad:?} in {} (blocks: {})",
+                dir.display(),
+                names.join(", ")
+            )));
+        }
+        // Each block's precision: the model's, or fp32 where named.
+        let fp32_blocks: Vec<String> = if precision == Precision::Int8 {
+            fp32_blocks.to_vec()
+        } else {
+            Vec::new()
+        };
         let files = manifest.blocks.iter().map(|b| {
-            let rel = match precision {
+            let p = if fp32_blocks.contains(&block_name(b)) {
+                Precision::Fp32
+            } else {
+                precision
+            };
+            let rel = match p {
                 Precision::Fp32 => &b.fp32,
                 Precision::Int8 => &b.int8,
             };
-            (b, dir.join(rel))
+            (b, p, dir.join(rel))
         });
         let conv_err = |path: &Path| {
             let path = path.to_path_buf();
@@ -305,7 +381,7 @@ impl Dbtor {
         let blocks = match (engine, precision) {
             (Engine::Tract, _) => {
                 let mut plans = Vec::with_capacity(manifest.blocks.len());
-                for (b, path) in files {
+                for (b, _, path) in files {
                     let (h, w) = grid(g, b.role);
                     let fail = |e: TractError| DbtorError::Block {
                         path: path.clone(),
@@ -326,23 +402,26 @@ impl Dbtor {
                 }
                 Blocks::Tract(plans)
             }
-            (Engine::Fast, Precision::Fp32) => {
+            (Engine::Fast, _) => {
                 let mut v = Vec::new();
-                for (b, path) in files {
-                    let w = fast::fp32_block(&path, c, b.aux_channels)?;
-                    let blk = Fp32Block::new(&w, Kernel::best_fp32()).map_err(conv_err(&path))?;
+                for (b, p, path) in files {
+                    let blk = match p {
+                        Precision::Fp32 => {
+                            let w = fast::fp32_block(&path, c, b.aux_channels)?;
+                            FastBlock::Fp32(
+                                Fp32Block::new(&w, Kernel::best_fp32()).map_err(conv_err(&path))?,
+                            )
+                        }
+                        Precision::Int8 => {
+                            let w = fast::int8_block(&path, c, b.aux_channels)?;
+                            FastBlock::Int8(
+                                Int8Block::new(&w, Kernel::best_int8()).map_err(conv_err(&path))?,
+                            )
+                        }
+                    };
                     v.push((blk, path));
                 }
-                Blocks::Fp32(v)
-            }
-            (Engine::Fast, Precision::Int8) => {
-                let mut v = Vec::new();
-                for (b, path) in files {
-                    let w = fast::int8_block(&path, c, b.aux_channels)?;
-                    let blk = Int8Block::new(&w, Kernel::best_int8()).map_err(conv_err(&path))?;
-                    v.push((blk, path));
-                }
-                Blocks::Int8(v)
+                Blocks::Fast(v)
             }
         };
         // The support is the thickness prior: DBToR's, not LPD's.
@@ -352,13 +431,14 @@ impl Dbtor {
             manifest,
             root: dir.to_path_buf(),
             precision,
+            fp32_blocks,
             engine,
             blocks,
             buffers: std::sync::Mutex::new(None),
             crop_margin: None,
             support,
         };
-        tracing::info!(model = %s.manifest.name, %precision, %engine, kernel = s.kernel().unwrap_or("tract"), blocks = s.manifest.blocks.len(), "DBToR model loaded");
+        tracing::info!(model = %s.manifest.name, precision = %s.precision_label(), %engine, kernel = s.kernel().unwrap_or("tract"), blocks = s.manifest.blocks.len(), "DBToR model loaded");
         Ok(s)
     }
 
@@ -410,8 +490,10 @@ impl Dbtor {
     pub fn kernel(&self) -> Option<&'static str> {
         match &self.blocks {
             Blocks::Tract(_) => None,
-            Blocks::Fp32(v) => v.first().map(|b| b.0.kernel().name()),
-            Blocks::Int8(v) => v.first().map(|b| b.0.kernel().name()),
+            Blocks::Fast(v) => v.first().map(|b| match &b.0 {
+                FastBlock::Fp32(k) => k.kernel().name(),
+                FastBlock::Int8(k) => k.kernel().name(),
+            }),
         }
     }
 
@@ -425,26 +507,23 @@ impl Dbtor {
         let e = &self.manifest.blocks;
         let ws = match &self.blocks {
             Blocks::Tract(_) => Workspaces::None,
-            Blocks::Fp32(v) => match (
-                first_of_role(v, e, Role::Dual),
-                first_of_role(v, e, Role::Primal),
-            ) {
-                (Some(d), Some(p)) => Workspaces::Fp32 {
-                    dual: Fp32Workspace::new(d, views, det),
-                    primal: Fp32Workspace::new(p, rows, cols),
-                },
-                _ => Workspaces::None,
-            },
-            Blocks::Int8(v) => match (
-                first_of_role(v, e, Role::Dual),
-                first_of_role(v, e, Role::Primal),
-            ) {
-                (Some(d), Some(p)) => Workspaces::Int8 {
-                    dual: Int8Workspace::new(d, views, det),
-                    primal: Int8Workspace::new(p, rows, cols),
-                },
-                _ => Workspaces::None,
-            },
+            Blocks::Fast(v) => {
+                let (f, i) = (FastBlock::as_fp32, FastBlock::as_int8);
+                Workspaces::Fast {
+                    fp32: [
+                        first_of_role(v, e, Role::Dual, f)
+                            .map(|d| Fp32Workspace::new(d, views, det)),
+                        first_of_role(v, e, Role::Primal, f)
+                            .map(|p| Fp32Workspace::new(p, rows, cols)),
+                    ],
+                    int8: [
+                        first_of_role(v, e, Role::Dual, i)
+                            .map(|d| Int8Workspace::new(d, views, det)),
+                        first_of_role(v, e, Role::Primal, i)
+                            .map(|p| Int8Workspace::new(p, rows, cols)),
+                    ],
+                }
+            }
         };
         Box::new(Buffers {
             gn: vec![0.0; n_sino],
@@ -465,16 +544,13 @@ impl Dbtor {
         let roles = self.manifest.blocks.iter().map(|b| grid(g, b.role));
         match &self.blocks {
             Blocks::Tract(_) => None,
-            Blocks::Fp32(v) => Some(
+            Blocks::Fast(v) => Some(
                 v.iter()
                     .zip(roles)
-                    .map(|(b, (h, w))| b.0.flops(h, w))
-                    .collect(),
-            ),
-            Blocks::Int8(v) => Some(
-                v.iter()
-                    .zip(roles)
-                    .map(|(b, (h, w))| b.0.ops(h, w))
+                    .map(|(b, (h, w))| match &b.0 {
+                        FastBlock::Fp32(k) => k.flops(h, w),
+                        FastBlock::Int8(k) => k.ops(h, w),
+                    })
                     .collect(),
             ),
         }
@@ -500,9 +576,25 @@ impl Dbtor {
         &self.manifest.geometry
     }
 
-    /// The precision the blocks run in.
+    /// The precision the blocks run in (int8 also when some run in fp32:
+    /// [`Dbtor::fp32_blocks`]).
     pub fn precision(&self) -> Precision {
         self.precision
+    }
+
+    /// The blocks run in fp32 in an int8 model (mixed precision).
+    pub fn fp32_blocks(&self) -> &[String] {
+        &self.fp32_blocks
+    }
+
+    /// The precision in words: `fp32`, `int8`, or `int8 (fp32: primal08,
+    /// primal09)`.
+    pub fn precision_label(&self) -> String {
+        if self.fp32_blocks.is_empty() {
+            self.precision.to_string()
+        } else {
+            format!("{} (fp32: {})", self.precision, self.fp32_blocks.join(", "))
+        }
     }
 
     /// `state <- block k(state, aux)` on an `h x w` grid.
@@ -545,25 +637,18 @@ impl Dbtor {
                 state.iter_mut().zip(view.iter()).for_each(|(s, v)| *s = *v);
                 Ok(())
             }
-            (Blocks::Fp32(v), Workspaces::Fp32 { dual, primal }, role) => {
-                let (ws, r0) = if role == Role::Dual {
-                    (dual, 0)
-                } else {
-                    (primal, r0)
-                };
-                v[k].0
-                    .run_rows(ws, state, aux, r0)
-                    .map_err(|e| conv_fail(&v[k].1, e))
-            }
-            (Blocks::Int8(v), Workspaces::Int8 { dual, primal }, role) => {
-                let (ws, r0) = if role == Role::Dual {
-                    (dual, 0)
-                } else {
-                    (primal, r0)
-                };
-                v[k].0
-                    .run_rows(ws, state, aux, r0)
-                    .map_err(|e| conv_fail(&v[k].1, e))
+            (Blocks::Fast(v), Workspaces::Fast { fp32, int8 }, role) => {
+                let (at, r0) = if role == Role::Dual { (0, 0) } else { (1, r0) };
+                let missing = || DbtorError::Input("internal: no workspace for the block".into());
+                match &v[k].0 {
+                    FastBlock::Fp32(blk) => {
+                        blk.run_rows(fp32[at].as_mut().ok_or_else(missing)?, state, aux, r0)
+                    }
+                    FastBlock::Int8(blk) => {
+                        blk.run_rows(int8[at].as_mut().ok_or_else(missing)?, state, aux, r0)
+                    }
+                }
+                .map_err(|e| conv_fail(&v[k].1, e))
             }
             _ => Err(DbtorError::Input(
                 "internal: workspaces do not match the engine".into(),

@@ -301,3 +301,70 @@ fn the_support_zeroes_the_rows_outside_the_slab_only() {
         assert_eq!(off.reconstruct(&sino, thickness).unwrap(), raw, "{p}");
     }
 }
+
+fn read_f32(p: &Path) -> Vec<f32> {
+    std::fs::read(p)
+        .unwrap()
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .collect()
+}
+
+/// Per-block mixed precision: every block named fp32 is the fp32 model bit
+/// for bit; the late primal blocks in fp32 bring the int8 output closer to
+/// fp32's on a stored validation slice; an unknown block name is refused,
+/// naming it.
+#[test]
+fn mixed_precision_runs_the_named_blocks_in_fp32() {
+    let dir = model_dir();
+    let man = ModelManifest::load(&dir).unwrap();
+    let all: Vec<String> = man.blocks.iter().map(dbt_dbtor::block_name).collect();
+    assert_eq!(all.len(), 20);
+    assert_eq!(all[19], "primal09");
+    let fx = &man.fixtures[0];
+    let sino = read_f32(&dir.join(&fx.files["sinogram"]));
+    let fp32 = Dbtor::load_with(&dir, Precision::Fp32, Engine::Fast).unwrap();
+    let want = fp32.network_output(&sino, fx.thickness_mm).unwrap();
+    let every = Dbtor::load_mixed(&dir, Precision::Int8, &all, Engine::Fast).unwrap();
+    assert_eq!(every.network_output(&sino, fx.thickness_mm).unwrap(), want);
+    let rms = |a: &[f32]| {
+        (a.iter()
+            .zip(&want)
+            .map(|(x, y)| ((x - y) as f64).powi(2))
+            .sum::<f64>()
+            / a.len() as f64)
+            .sqrt()
+    };
+    let int8 = Dbtor::load_with(&dir, Precision::Int8, Engine::Fast).unwrap();
+    let late = ["primal07", "primal08", "primal09"].map(String::from);
+    let mixed = Dbtor::load_mixed(&dir, Precision::Int8, &late, Engine::Fast).unwrap();
+    assert_eq!(mixed.fp32_blocks(), &late);
+    assert_eq!(
+        mixed.precision_label(),
+        "int8 (fp32: primal07, primal08, primal09)"
+    );
+    let (e_int8, e_mixed) = (
+        rms(&int8.network_output(&sino, fx.thickness_mm).unwrap()),
+        rms(&mixed.network_output(&sino, fx.thickness_mm).unwrap()),
+    );
+    eprintln!("RMS to fp32: int8 {e_int8:.3e}, mixed {e_mixed:.3e} /mm");
+    assert!(e_mixed < 0.9 * e_int8, "{e_mixed} vs {e_int8}");
+    // The tract engine mixes too.
+    let tract = Dbtor::load_mixed(&dir, Precision::Int8, &late, Engine::Tract).unwrap();
+    let e_tract = rms(&tract.network_output(&sino, fx.thickness_mm).unwrap());
+    assert!(
+        e_tract < 0.9 * e_int8,
+        "tract mixed {e_tract} vs int8 {e_int8}"
+    );
+    let err = Dbtor::load_mixed(&dir, Precision::Int8, &["primal10".into()], Engine::Fast)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("primal10") && err.contains("primal09"),
+        "{err}"
+    );
+    // fp32 ignores the list.
+    let f = Dbtor::load_mixed(&dir, Precision::Fp32, &late, Engine::Fast).unwrap();
+    assert!(f.fp32_blocks().is_empty());
+    assert_eq!(f.precision_label(), "fp32");
+}
