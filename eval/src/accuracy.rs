@@ -243,10 +243,85 @@ pub fn test_phantoms(
     geom: &Geometry,
     n: usize,
 ) -> impl Iterator<Item = anyhow::Result<(String, LabelVolume)>> + '_ {
+    split_phantoms(geom, Split::Test, n)
+}
+
+/// Which phantoms an evaluation draws.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub enum Split {
+    /// The fixed test set (`Population::TEST_SEED`, indices `0..n`): report
+    /// on it, never tune on it.
+    Test,
+    /// The dataset's validation phantoms (population `seed`, the training
+    /// seed; indices `9, 19, 29, ...`, the exporter's `index % 10 == 9`
+    /// rule): never trained on, used to choose estimator settings.
+    Validation {
+        /// The training population's seed (the dataset manifest's
+        /// `train_seed`).
+        seed: u64,
+    },
+}
+
+impl Split {
+    /// Population seed and index of the `k`-th phantom of the split.
+    pub fn draw(&self, k: u64) -> (u64, u64) {
+        match *self {
+            Split::Test => (Population::TEST_SEED, k),
+            Split::Validation { seed } => (seed, 10 * k + 9),
+        }
+    }
+
+    /// Parse `test` or `validation` (with the training seed).
+    pub fn parse(name: &str, train_seed: u64) -> anyhow::Result<Self> {
+        match name {
+            "test" => Ok(Split::Test),
+            "validation" => {
+                anyhow::ensure!(
+                    train_seed != Population::TEST_SEED,
+                    "the training seed is the test seed"
+                );
+                Ok(Split::Validation { seed: train_seed })
+            }
+            other => anyhow::bail!("unknown split {other:?} (test, validation)"),
+        }
+    }
+
+    /// The split in words, as printed and in the JSON.
+    pub fn describe(&self) -> String {
+        match self {
+            Split::Test => "test (population TEST_SEED, phantoms 0..n)".into(),
+            Split::Validation { seed } => {
+                format!("validation (training population seed {seed}, indices 9, 19, 29, ...)")
+            }
+        }
+    }
+
+    /// The name of a phantom of the split, as printed and in the JSON.
+    fn name(&self, k: u64) -> String {
+        match self {
+            Split::Test => format!("test-set phantom {k}"),
+            Split::Validation { .. } => {
+                format!(
+                    "validation phantom {} (population index {})",
+                    k,
+                    self.draw(k).1
+                )
+            }
+        }
+    }
+}
+
+/// The first `n` phantoms of `split`, generated at the geometry's pixel.
+pub fn split_phantoms(
+    geom: &Geometry,
+    split: Split,
+    n: usize,
+) -> impl Iterator<Item = anyhow::Result<(String, LabelVolume)>> + '_ {
     let pop = Population::for_geometry(geom);
-    (0..n as u64).map(move |i| {
-        let vol = generate(&pop.draw(Population::TEST_SEED, i))?;
-        Ok((format!("test-set phantom {i}"), vol))
+    (0..n as u64).map(move |k| {
+        let (seed, index) = split.draw(k);
+        let vol = generate(&pop.draw(seed, index))?;
+        Ok((split.name(k), vol))
     })
 }
 
@@ -384,6 +459,7 @@ mod tests {
             mltr_iterations: it,
             dose_uncertainty: 0.05,
             seed: 1,
+            ..PipelineOptions::default()
         };
         let noise = NoiseLevel::parse("N8").unwrap();
         let cs = run_cases(name.clone(), &vol, &g, noise, &[opts(3), opts(12)], 5).unwrap();
@@ -397,6 +473,19 @@ mod tests {
         assert_eq!(again.g_labels, cs[1].g_labels);
         assert_eq!(again.mgd_est, cs[1].mgd_est);
         assert_eq!(again.mgd_true, cs[1].mgd_true);
+    }
+
+    /// The validation split draws the exporter's validation indices of the
+    /// training population, never the test population.
+    #[test]
+    fn splits_draw_their_own_populations() {
+        assert_eq!(Split::Test.draw(3), (Population::TEST_SEED, 3));
+        let v = Split::parse("validation", 2024).unwrap();
+        assert_eq!(v.draw(0), (2024, 9));
+        assert_eq!(v.draw(2), (2024, 29));
+        assert!(Split::parse("validation", Population::TEST_SEED).is_err());
+        assert!(Split::parse("train", 2024).is_err());
+        assert_eq!(Split::parse("test", 2024).unwrap(), Split::Test);
     }
 
     #[test]

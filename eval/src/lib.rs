@@ -9,6 +9,7 @@
 //! support like MLTR.
 
 pub mod accuracy;
+pub mod classification;
 pub mod picture;
 
 use dbt_acquisition::NoiseLevel;
@@ -21,12 +22,16 @@ use host_sim::{simulate_slices, tissue_slices, SimSlice};
 use rayon::prelude::*;
 use serde::Serialize;
 
+pub use accuracy::Split;
+
 /// Options of the baseline evaluation.
 #[derive(Debug, Clone, Serialize)]
 pub struct BaselineOptions {
     /// Geometry (phantoms are generated at its pixel size).
     pub geometry: Geometry,
-    /// Test-set phantoms `0..phantoms` of the test population.
+    /// Which phantoms (the test set unless choosing settings).
+    pub split: Split,
+    /// Phantoms `0..phantoms` of the split.
     pub phantoms: usize,
     /// Coronal slices per phantom, evenly spaced over its tissue slices.
     pub slices_per_phantom: usize,
@@ -106,19 +111,34 @@ pub fn test_set(
     per_phantom: usize,
     levels: &[NoiseLevel],
 ) -> anyhow::Result<TestSet> {
+    slice_set(geom, proj, Split::Test, phantoms, per_phantom, levels)
+}
+
+/// [`test_set`] on the phantoms of any split (`Split::Validation`: choose
+/// settings there, report on the test split). Noise seeds derive from the
+/// split's population seed and the phantom's index.
+pub fn slice_set(
+    geom: &Geometry,
+    proj: &Projector,
+    split: Split,
+    phantoms: usize,
+    per_phantom: usize,
+    levels: &[NoiseLevel],
+) -> anyhow::Result<TestSet> {
     let pop = Population::for_geometry(geom);
     let mut out = Vec::new();
     let mut glands = Vec::new();
     for i in 0..phantoms as u64 {
         let _span = tracing::info_span!("test_phantom", index = i).entered();
-        let vol = generate(&pop.draw(Population::TEST_SEED, i))?;
+        let (seed, index) = split.draw(i);
+        let vol = generate(&pop.draw(seed, index))?;
         glands.push(vol.glandularity().unwrap_or(0.0));
         let all = tissue_slices(&vol, 1);
         let depths: Vec<usize> = evenly_spaced(all.len(), per_phantom)
             .into_iter()
             .map(|k| all[k])
             .collect();
-        let noise_seed = host_sim::mix_seed(Population::TEST_SEED, &[i, 1]);
+        let noise_seed = host_sim::mix_seed(seed, &[index, 1]);
         for s in simulate_slices(&vol, geom, proj, &depths, levels, noise_seed)? {
             out.push((
                 TestSlice {
@@ -193,9 +213,10 @@ pub fn evaluate_baselines(
         rows: g.image.rows,
         cols: g.image.columns,
     };
-    let (set, glands) = test_set(
+    let (set, glands) = slice_set(
         g,
         &proj,
+        opts.split,
         opts.phantoms,
         opts.slices_per_phantom,
         &opts.levels,
@@ -292,10 +313,29 @@ mod tests {
         assert!(evenly_spaced(0, 3).is_empty());
     }
 
+    /// The validation split draws other phantoms than the test split, and
+    /// the test split through `slice_set` is `test_set`.
+    #[test]
+    fn slice_sets_of_the_two_splits() {
+        let g = Geometry::paper().binned(10).unwrap();
+        let proj = Projector::new(&g);
+        let lv = [NoiseLevel::Poisson(8)];
+        let (test, gt) = test_set(&g, &proj, 2, 1, &lv).unwrap();
+        let (same, gs) = slice_set(&g, &proj, Split::Test, 2, 1, &lv).unwrap();
+        assert_eq!(gt, gs);
+        assert_eq!(test[1].1.counts, same[1].1.counts);
+        let (_, gv) = slice_set(&g, &proj, Split::Validation { seed: 2024 }, 2, 1, &lv).unwrap();
+        assert_ne!(gt, gv);
+        let pop = Population::for_geometry(&g);
+        let want = generate(&pop.draw(2024, 19)).unwrap().glandularity().unwrap();
+        assert_eq!(gv[1], want);
+    }
+
     #[test]
     fn tiny_evaluation_runs_and_mltr_beats_fbp() {
         let opts = BaselineOptions {
             geometry: Geometry::paper().binned(4).unwrap(),
+            split: Split::Test,
             phantoms: 1,
             slices_per_phantom: 2,
             iterations: 20,

@@ -137,6 +137,10 @@ pub struct ReconConfig {
     /// reference executor, any ONNX graph).
     #[serde(default = "default_engine")]
     pub engine: String,
+    /// With `precision = "int8"`: blocks run in fp32 (per-block mixed
+    /// precision, e.g. `["primal07", "primal08", "primal09"]`).
+    #[serde(default)]
+    pub fp32_blocks: Vec<String>,
     /// MLTR iterations (for mltr).
     #[serde(default = "default_iterations")]
     pub mltr_iterations: usize,
@@ -328,6 +332,12 @@ impl Config {
                     .engine
                     .parse::<dbt_dbtor::Engine>()
                     .map_err(|e| bad("recon.engine", e))?;
+                if !self.recon.fp32_blocks.is_empty() && self.recon.precision != "int8" {
+                    return Err(bad(
+                        "recon.fp32_blocks",
+                        "only with precision = \"int8\" (the blocks that stay fp32)".into(),
+                    ));
+                }
             }
             "mltr" => {
                 if self.recon.mltr_iterations == 0 {
@@ -440,5 +450,23 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("recon.engine") && e.contains("warp"), "{e}");
+    }
+
+    /// fp32 blocks are an int8 option: listed with fp32 they are refused,
+    /// naming the key; with int8 they are kept.
+    #[test]
+    fn fp32_blocks_need_int8() {
+        let list = "fp32_blocks = [\"primal08\", \"primal09\"]";
+        let e = example(|t| t.replace("fp32_blocks = []", list))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("recon.fp32_blocks") && e.contains("int8"), "{e}");
+        let c = example(|t| {
+            t.replace("fp32_blocks = []", list)
+                .replace("precision = \"fp32\"", "precision = \"int8\"")
+        })
+        .unwrap();
+        assert_eq!(c.recon.fp32_blocks, ["primal08", "primal09"]);
+        assert!(example(|t| t).unwrap().recon.fp32_blocks.is_empty());
     }
 }

@@ -164,8 +164,12 @@ impl Daemon {
                 .parse()
                 .unwrap_or(dbt_dbtor::Precision::Fp32);
             let engine = cfg.recon.engine.parse().unwrap_or(dbt_dbtor::Engine::Fast);
-            let m = dbt_dbtor::Dbtor::load_with(&dir, precision, engine)?;
-            let name = format!("DBToR {} ({precision}, {engine})", m.manifest().name);
+            let m = dbt_dbtor::Dbtor::load_mixed(&dir, precision, &cfg.recon.fp32_blocks, engine)?;
+            let name = format!(
+                "DBToR {} ({}, {engine})",
+                m.manifest().name,
+                m.precision_label()
+            );
             opts.dbtor = Some(Arc::new(m));
             name
         } else {
@@ -569,7 +573,7 @@ impl Daemon {
                 tracing::info!(
                     acquisition = id,
                     mgd_mgy = res.mgd_mgy,
-                    g = res.density.glandularity_labels,
+                    g = res.density.glandularity_partial_volume,
                     "reported"
                 );
                 self.move_entry(id, "done", "result.json", &summary);

@@ -62,6 +62,9 @@ pub struct PipelineOptions {
     pub dose_uncertainty: f64,
     /// Monte Carlo seed.
     pub seed: u64,
+    /// Tissue classification (default: the skin grown at most
+    /// `dbt_tissue::SKIN_MAX_MM` deep).
+    pub classify: ClassifyOptions,
 }
 
 impl Default for PipelineOptions {
@@ -71,6 +74,7 @@ impl Default for PipelineOptions {
             mltr_iterations: 100,
             dose_uncertainty: 0.01,
             seed: 1,
+            classify: ClassifyOptions::default(),
         }
     }
 }
@@ -126,17 +130,30 @@ pub enum Stage {
     Dose,
 }
 
-/// [`process`], calling `progress` after each slice and at each later stage
-/// (for the service CLI's progress display).
-pub fn process_with_progress(
+/// The reconstructed volume of an acquisition, before classification.
+#[derive(Debug, Clone)]
+pub struct Volume {
+    /// Reconstructor used.
+    pub reconstructor: String,
+    /// Dimensions `[lateral, vertical, depth]` (vertical: the image rows
+    /// within the compressed thickness, 0 on the support).
+    pub dims: [usize; 3],
+    /// Voxel side, mm.
+    pub voxel_mm: f64,
+    /// Attenuation, 1/mm, lateral fastest.
+    pub mu: Vec<f32>,
+}
+
+/// Reconstruct every coronal slice of `acq` with the reconstructor of
+/// `opts` and stack the rows within the compressed thickness into a volume,
+/// calling `progress` after each slice.
+pub fn reconstruct_volume(
     acq: &Acquisition,
     opts: &PipelineOptions,
     progress: &mut dyn FnMut(Stage),
-) -> Result<ProcessResult, PipelineError> {
+) -> Result<Volume, PipelineError> {
     let h = &acq.header;
     let g = &h.geometry;
-    let _span =
-        tracing::info_span!("acquisition", patient = %h.patient.id, slices = h.slices).entered();
     if (h.slice_spacing_mm - g.image.pixel_mm).abs() > 1e-6 {
         return Err(PipelineError::Input(format!(
             "slice spacing {} mm differs from the pixel {} mm (the dose grid must be isotropic)",
@@ -175,7 +192,7 @@ pub fn process_with_progress(
         Some(m) => format!(
             "DBToR {} ({}, {})",
             m.manifest().name,
-            m.precision(),
+            m.precision_label(),
             m.engine()
         ),
         None => format!("MLTR {} iterations", opts.mltr_iterations),
@@ -203,9 +220,33 @@ pub fn process_with_progress(
             total: acq.counts.len(),
         });
     }
+    Ok(Volume {
+        reconstructor,
+        dims: [cols, nv, nd],
+        voxel_mm: g.image.pixel_mm,
+        mu,
+    })
+}
+
+/// [`process`], calling `progress` after each slice and at each later stage
+/// (for the service CLI's progress display).
+pub fn process_with_progress(
+    acq: &Acquisition,
+    opts: &PipelineOptions,
+    progress: &mut dyn FnMut(Stage),
+) -> Result<ProcessResult, PipelineError> {
+    let h = &acq.header;
+    let g = &h.geometry;
+    let _span =
+        tracing::info_span!("acquisition", patient = %h.patient.id, slices = h.slices).entered();
+    let Volume {
+        reconstructor,
+        dims,
+        mu,
+        ..
+    } = reconstruct_volume(acq, opts, progress)?;
     progress(Stage::Classification);
-    let dims = [cols, nv, nd];
-    let classification = classify(&mu, dims, &ClassifyOptions::default())?;
+    let classification = classify(&mu, dims, g.image.pixel_mm, &opts.classify)?;
     let dens = density(&mu, &classification.labels, g.image.pixel_mm);
     progress(Stage::Dose);
     let tube = dbt_dose::xray::paper_spectrum(h.thickness_mm)?;
@@ -334,8 +375,9 @@ pub fn reports(
         &DensityInput {
             header,
             equipment: equipment.clone(),
-            glandularity: res.density.glandularity_labels,
-            fibroglandular_cm3: res.density.fibroglandular_cm3,
+            // The partial-volume estimate: the evaluation's choice (eval/README.md).
+            glandularity: res.density.glandularity_partial_volume,
+            fibroglandular_cm3: res.density.fibroglandular_partial_volume_cm3,
             breast_cm3: res.density.breast_cm3.max(1.0),
             reconstructor: res.reconstructor.clone(),
             model_version: "baseline (no learned model)".into(),

@@ -22,6 +22,34 @@ struct Cli {
     cmd: Cmd,
 }
 
+/// Which phantoms an evaluation draws.
+#[derive(Args)]
+struct SplitArgs {
+    /// `test` (the fixed held-out set: report on it) or `validation` (the
+    /// dataset's validation phantoms: tune on them).
+    #[arg(long, default_value = "test")]
+    split: String,
+    /// The training population's seed, for `--split validation` (default:
+    /// the model manifest's dataset `train_seed`).
+    #[arg(long)]
+    train_seed: Option<u64>,
+}
+
+impl SplitArgs {
+    fn resolve(&self, model: Option<&Dbtor>) -> Result<dbt_eval::accuracy::Split> {
+        let from_model = model
+            .and_then(|m| m.manifest().provenance["dataset_provenance"]["train_seed"].as_u64());
+        let seed = match (self.train_seed, self.split.as_str()) {
+            (Some(s), _) => s,
+            (None, "validation") => from_model.context(
+                "--split validation needs --train-seed (or a model whose manifest records the dataset's train_seed)",
+            )?,
+            (None, _) => 0,
+        };
+        dbt_eval::accuracy::Split::parse(&self.split, seed)
+    }
+}
+
 /// How the learned models run (baselines and accuracy alike).
 #[derive(Args)]
 struct Runtime {
@@ -38,6 +66,10 @@ struct Runtime {
     /// air: `Dbtor::with_support`); rows labelled "raw".
     #[arg(long)]
     no_support: bool,
+    /// The blocks the `mixed` precision runs in fp32 (the rest int8), comma
+    /// separated block names (`primal07,primal08,primal09`).
+    #[arg(long, default_value = "primal07,primal08,primal09")]
+    mixed_fp32_blocks: String,
 }
 
 impl Default for Runtime {
@@ -46,6 +78,7 @@ impl Default for Runtime {
             engine: "fast".into(),
             crop_margin: None,
             no_support: false,
+            mixed_fp32_blocks: "primal07,primal08,primal09".into(),
         }
     }
 }
@@ -61,7 +94,8 @@ enum Cmd {
         /// A trained DBToR model folder (models/NAME) to evaluate beside the baselines.
         #[arg(long)]
         model: Option<PathBuf>,
-        /// Precisions of the model to run (comma separated: fp32, int8).
+        /// Precisions of the model to run (comma separated: fp32, int8,
+        /// mixed: int8 but `--mixed-fp32-blocks` in fp32).
         #[arg(long, default_value = "fp32,int8")]
         precisions: String,
         /// A trained LPD model folder (the paper's baseline: DBToR without the
@@ -74,9 +108,11 @@ enum Cmd {
         unet: Option<PathBuf>,
         #[command(flatten)]
         runtime: Runtime,
-        /// Test-set phantoms.
+        /// Phantoms: the first N of the split.
         #[arg(long, default_value_t = 5)]
         phantoms: usize,
+        #[command(flatten)]
+        split: SplitArgs,
         /// Slices per phantom.
         #[arg(long, default_value_t = 4)]
         slices: usize,
@@ -126,9 +162,11 @@ enum Cmd {
     /// (simulated acquisition -> firmware processing), Bland-Altman
     /// statistics, JSON and PNG plots.
     Accuracy {
-        /// Test-set phantoms 0..N.
+        /// Phantoms: the first N of the split.
         #[arg(long, default_value_t = 30)]
         phantoms: usize,
+        #[command(flatten)]
+        split: SplitArgs,
         /// Evaluate this external phantom (sidecar) instead.
         #[arg(long)]
         phantom: Option<PathBuf>,
@@ -150,10 +188,55 @@ enum Cmd {
         /// The DBToR model (needed for the fp32 and int8 reconstructors).
         #[arg(long)]
         model: Option<PathBuf>,
+        /// The skin rule of the classification (as `classification
+        /// --skin`); default: the firmware's.
+        #[arg(long)]
+        skin: Option<String>,
         /// Reconstructors to compare on the same acquisitions (comma
-        /// separated: mltr, fp32, int8; default: fp32 with --model, else mltr).
+        /// separated: mltr, fp32, int8, mixed; default: fp32 with --model, else mltr).
         #[arg(long)]
         reconstructors: Option<String>,
+        #[command(flatten)]
+        runtime: Runtime,
+    },
+    /// The classifier against the phantom truth, voxel by voxel: each
+    /// phantom reconstructed once and classified with each skin-depth bound,
+    /// glandularity errors and confusion matrices (no dose). Tune here on the
+    /// validation split; report with `accuracy` on the test split.
+    Classification {
+        /// Phantoms: the first N of the split.
+        #[arg(long, default_value_t = 20)]
+        phantoms: usize,
+        #[command(flatten)]
+        split: SplitArgs,
+        /// Binning of the paper geometry, without a model.
+        #[arg(long, default_value_t = 4)]
+        binning: usize,
+        /// Noise level.
+        #[arg(long, default_value = "N8")]
+        noise: String,
+        /// The DBToR model; without it, MLTR reconstructs.
+        #[arg(long)]
+        model: Option<PathBuf>,
+        /// Model precision (fp32, int8).
+        #[arg(long, default_value = "fp32")]
+        precision: String,
+        /// MLTR iterations (without a model).
+        #[arg(long, default_value_t = 100)]
+        iterations: usize,
+        /// Skin variants to compare, comma separated: `none` (the paper's
+        /// unbounded growth), a depth bound in mm (`2.4`: growth through
+        /// voxels >= the seed mean, at most that deep), or `shell:MM` (every
+        /// voxel within the bound).
+        #[arg(long, default_value = "none,1.6,2.4,3.2,shell:1.6,shell:2.4")]
+        skin: String,
+        /// Also the patient-specific MGD of each variant against the
+        /// phantom's labels, to this relative Monte Carlo uncertainty.
+        #[arg(long)]
+        dose_uncertainty: Option<f64>,
+        /// JSON output.
+        #[arg(long, default_value = "eval/results/classification.json")]
+        json: PathBuf,
         #[command(flatten)]
         runtime: Runtime,
     },
@@ -177,6 +260,40 @@ enum Cmd {
         #[arg(long)]
         model: Option<PathBuf>,
     },
+}
+
+/// A skin variant of `dbt-eval classification`: `none`, `MM` or `shell:MM`.
+fn parse_skin_variant(v: &str) -> Result<dbt_tissue::ClassifyOptions> {
+    use dbt_tissue::{ClassifyOptions, SkinRule};
+    let (rule, mm) = match v.strip_prefix("shell:") {
+        Some(mm) => (SkinRule::Shell, mm),
+        None => (SkinRule::Grow, v),
+    };
+    let bound = match mm {
+        "none" if rule == SkinRule::Grow => None,
+        mm => Some(
+            mm.parse::<f64>()
+                .ok()
+                .filter(|x| x.is_finite() && *x > 0.0)
+                .with_context(|| {
+                    format!("--skin: {v:?} is not `none`, a positive number of mm, or `shell:MM`")
+                })?,
+        ),
+    };
+    Ok(ClassifyOptions {
+        skin_max_mm: bound,
+        skin_rule: rule,
+        ..ClassifyOptions::default()
+    })
+}
+
+/// The table name of a skin variant.
+fn skin_variant_name(o: &dbt_tissue::ClassifyOptions) -> String {
+    match (o.skin_rule, o.skin_max_mm) {
+        (_, None) => "grow, unbounded (paper)".into(),
+        (dbt_tissue::SkinRule::Grow, Some(mm)) => format!("grow, <= {mm} mm"),
+        (dbt_tissue::SkinRule::Shell, Some(mm)) => format!("shell {mm} mm"),
+    }
 }
 
 fn parse_levels(s: &str) -> Result<Vec<NoiseLevel>> {
@@ -221,10 +338,20 @@ fn load_models(
     let Some(dir) = dir else { return Ok(vec![]) };
     let engine: dbt_dbtor::Engine = rt.engine.parse().map_err(anyhow::Error::msg)?;
     let mut out = Vec::new();
-    for p in precisions.split(',').filter(|p| !p.is_empty()) {
-        let p: Precision = p.parse().map_err(anyhow::Error::msg)?;
-        let m = Dbtor::load_with(dir, p, engine)
-            .with_context(|| format!("loading {} ({p}, {engine})", dir.display()))?
+    for token in precisions.split(',').filter(|p| !p.is_empty()) {
+        let (p, fp32_blocks): (Precision, Vec<String>) = match token {
+            "mixed" => (
+                Precision::Int8,
+                rt.mixed_fp32_blocks
+                    .split(',')
+                    .map(|b| b.trim().to_string())
+                    .filter(|b| !b.is_empty())
+                    .collect(),
+            ),
+            p => (p.parse().map_err(anyhow::Error::msg)?, Vec::new()),
+        };
+        let m = Dbtor::load_mixed(dir, p, &fp32_blocks, engine)
+            .with_context(|| format!("loading {} ({token}, {engine})", dir.display()))?
             .with_crop(rt.crop_margin)?;
         // The model's default support (DBToR: on; LPD: off), or none.
         let raw = if m.support() && rt.no_support {
@@ -241,7 +368,7 @@ fn load_models(
             "lpd" => "LPD",
             _ => "DBToR",
         };
-        out.push((format!("{kind} {p}{raw}"), m));
+        out.push((format!("{kind} {}{raw}", m.precision_label()), m));
     }
     Ok(out)
 }
@@ -262,6 +389,7 @@ fn main() -> Result<()> {
             unet,
             runtime,
             phantoms,
+            split,
             slices,
             iterations,
             levels,
@@ -298,8 +426,10 @@ fn main() -> Result<()> {
                 }
                 (None, b) => Geometry::paper().binned(b.unwrap_or(1))?,
             };
+            let split = split.resolve(loaded.first().map(|(_, m)| m))?;
             let opts = BaselineOptions {
                 geometry,
+                split,
                 phantoms,
                 slices_per_phantom: slices,
                 iterations,
@@ -308,7 +438,8 @@ fn main() -> Result<()> {
             let t = Instant::now();
             let report = evaluate_baselines(&opts, &refs)?;
             println!(
-                "Baselines on the fixed test set ({} phantoms, {} slices, {}; MLTR {} iterations; {:.0} s)\n",
+                "Baselines on the {} split ({} phantoms, {} slices, {}; MLTR {} iterations; {:.0} s)\n",
+                split.describe(),
                 phantoms,
                 report.slices.len(),
                 opts.geometry.describe(),
@@ -417,6 +548,7 @@ fn main() -> Result<()> {
         }
         Cmd::Accuracy {
             phantoms,
+            split,
             phantom,
             binning,
             noise,
@@ -424,19 +556,25 @@ fn main() -> Result<()> {
             dose_uncertainty,
             out,
             model,
+            skin,
             reconstructors,
             runtime,
         } => {
-            use dbt_eval::accuracy::{run_cases, summarise, test_phantoms, Case, QUANTITIES};
+            let skin = match skin {
+                Some(v) => parse_skin_variant(&v)?,
+                None => dbt_tissue::ClassifyOptions::default(),
+            };
+            use dbt_eval::accuracy::{run_cases, split_phantoms, summarise, Case, QUANTITIES};
             let g = Geometry::paper().binned(binning)?;
             let noise = NoiseLevel::parse(&noise)?;
             let list = reconstructors
                 .unwrap_or_else(|| if model.is_some() { "fp32" } else { "mltr" }.to_string());
-            let mut recs: Vec<(String, dbtor_firmware::pipeline::PipelineOptions)> = Vec::new();
+            let mut recs: Vec<(String, String, dbtor_firmware::pipeline::PipelineOptions)> =
+                Vec::new();
             for r in list.split(',').map(str::trim).filter(|r| !r.is_empty()) {
                 let (label, dbtor) = match r {
                     "mltr" => (format!("MLTR {iterations} iterations"), None),
-                    "fp32" | "int8" => {
+                    "fp32" | "int8" | "mixed" => {
                         anyhow::ensure!(model.is_some(), "--reconstructors {r} needs --model");
                         let m = load_models(model.as_deref(), r, &runtime)?
                             .pop()
@@ -444,36 +582,51 @@ fn main() -> Result<()> {
                             .context("no model loaded")?;
                         let raw = if runtime.no_support { ", raw" } else { "" };
                         (
-                            format!("DBToR {} ({r}, {}{raw})", m.manifest().name, runtime.engine),
+                            format!(
+                                "DBToR {} ({}, {}{raw})",
+                                m.manifest().name,
+                                m.precision_label(),
+                                runtime.engine
+                            ),
                             Some(std::sync::Arc::new(m)),
                         )
                     }
-                    other => anyhow::bail!("unknown reconstructor {other:?} (mltr, fp32, int8)"),
+                    other => {
+                        anyhow::bail!("unknown reconstructor {other:?} (mltr, fp32, int8, mixed)")
+                    }
+                };
+                let tag = match r {
+                    "mltr" => "mltr".to_string(),
+                    other => format!("dbtor-{other}"),
                 };
                 recs.push((
                     label,
+                    tag,
                     dbtor_firmware::pipeline::PipelineOptions {
                         dbtor,
                         mltr_iterations: iterations,
                         dose_uncertainty,
                         seed: 1,
+                        classify: skin,
                     },
                 ));
             }
             anyhow::ensure!(!recs.is_empty(), "no reconstructor given");
-            let opts: Vec<_> = recs.iter().map(|(_, o)| o.clone()).collect();
+            let split = split.resolve(recs.iter().find_map(|(_, _, o)| o.dbtor.as_deref()))?;
+            let opts: Vec<_> = recs.iter().map(|(_, _, o)| o.clone()).collect();
             let inputs: Vec<anyhow::Result<(String, dbt_phantom::LabelVolume)>> = match &phantom {
                 Some(p) => vec![dbt_store::load_external_phantom(p)
                     .map_err(anyhow::Error::from)
                     .and_then(|v| Ok(v.resampled(g.image.pixel_mm)?))
                     .map(|v| (p.display().to_string(), v))],
-                None => test_phantoms(&g, phantoms).collect(),
+                None => split_phantoms(&g, split, phantoms).collect(),
             };
             let mut cases: Vec<Vec<Case>> = vec![Vec::new(); recs.len()];
             for (k, item) in inputs.into_iter().enumerate() {
                 let (name, vol) = item?;
                 let cs = run_cases(name, &vol, &g, noise, &opts, 1000 + k as u64)?;
-                for ((label, _), (c, all)) in recs.iter().zip(cs.into_iter().zip(cases.iter_mut()))
+                for ((label, _, _), (c, all)) in
+                    recs.iter().zip(cs.into_iter().zip(cases.iter_mut()))
                 {
                     eprintln!(
                         "{} [{label}]: T {:.1} mm, G true {:.3} labels {:.3} pv {:.3}; MGD true {:.3} est {:.3} model {:.3} mGy ({:.0} s)",
@@ -485,15 +638,8 @@ fn main() -> Result<()> {
             std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
             println!("| reconstructor | quantity | bias | sd | 95 % limits | max abs | p (bias) | n |\n|---|---|---|---|---|---|---|---|");
             let mut results = Vec::new();
-            for ((label, _), cases) in recs.iter().zip(&cases) {
+            for ((label, tag, _), cases) in recs.iter().zip(&cases) {
                 let summary = summarise(cases);
-                let tag = if label.starts_with("MLTR") {
-                    "mltr".to_string()
-                } else if label.contains("(int8") {
-                    "dbtor-int8".to_string()
-                } else {
-                    "dbtor-fp32".to_string()
-                };
                 let mut plots = serde_json::Map::new();
                 for (q, a) in QUANTITIES.iter().zip(summary.in_order()) {
                     println!(
@@ -525,6 +671,12 @@ fn main() -> Result<()> {
             let json = serde_json::json!({
                 "noise": noise.name(),
                 "geometry": g.describe(),
+                "phantoms": match &phantom {
+                    Some(p) => p.display().to_string(),
+                    None => split.describe(),
+                },
+                "classification": skin,
+                "skin": skin_variant_name(&skin),
                 "reconstructors": results,
             });
             std::fs::write(
@@ -532,6 +684,116 @@ fn main() -> Result<()> {
                 serde_json::to_string_pretty(&json)?,
             )?;
             println!("\nJSON and Bland-Altman PNGs (x: mean of truth and estimate; y: difference; solid: bias; dashed: 95 % limits): {}", out.display());
+        }
+        Cmd::Classification {
+            phantoms,
+            split,
+            binning,
+            noise,
+            model,
+            precision,
+            iterations,
+            skin,
+            dose_uncertainty,
+            json,
+            runtime,
+        } => {
+            use dbt_eval::classification::{run_phantom, summarise, CLASSES};
+            let model = load_models(model.as_deref(), &precision, &runtime)?
+                .pop()
+                .map(|(_, m)| std::sync::Arc::new(m));
+            let split = split.resolve(model.as_deref())?;
+            let g = match &model {
+                Some(m) => m.geometry().clone(),
+                None => Geometry::paper().binned(binning)?,
+            };
+            let noise = NoiseLevel::parse(&noise)?;
+            let variants = skin
+                .split(',')
+                .map(|v| parse_skin_variant(v.trim()))
+                .collect::<Result<Vec<_>>>()?;
+            let reconstructor = match &model {
+                Some(m) => format!(
+                    "DBToR {} ({precision}, {})",
+                    m.manifest().name,
+                    runtime.engine
+                ),
+                None => format!("MLTR {iterations} iterations"),
+            };
+            let opts = dbtor_firmware::pipeline::PipelineOptions {
+                dbtor: model,
+                mltr_iterations: iterations,
+                ..Default::default()
+            };
+            let t0 = Instant::now();
+            let mut per_variant = vec![Vec::new(); variants.len()];
+            for (k, item) in dbt_eval::accuracy::split_phantoms(&g, split, phantoms).enumerate() {
+                let (name, vol) = item?;
+                let cs = run_phantom(
+                    &name,
+                    &vol,
+                    &g,
+                    noise,
+                    &opts,
+                    &variants,
+                    dose_uncertainty,
+                    1000 + k as u64,
+                )?;
+                eprint!(
+                    "{name}: T {:.1} mm, G true {:.3}",
+                    vol.thickness_mm(),
+                    cs[0].g_true
+                );
+                for c in &cs {
+                    eprint!(" | {:.3} / {:.3}", c.g_labels, c.g_partial_volume);
+                    if let Some(e) = c.mgd_error_percent {
+                        eprint!(" / MGD {e:+.1} %");
+                    }
+                }
+                eprintln!();
+                for (all, c) in per_variant.iter_mut().zip(cs) {
+                    all.push(c);
+                }
+            }
+            println!(
+                "Classification on {phantoms} phantoms of the {} split, {reconstructor}, {} ({:.0} s)\n",
+                split.describe(),
+                noise.name(),
+                t0.elapsed().as_secs_f64()
+            );
+            println!("| skin | G labels bias / sd / max (pp) | G partial volume bias / sd / max (pp) | MGD bias / sd / max (%) | fibroglandular read as adipose / skin | adipose read as fibroglandular | skin read as fibroglandular |\n|---|---|---|---|---|---|---|");
+            let mut out = Vec::new();
+            for (o, cases) in variants.into_iter().zip(per_variant) {
+                let s = summarise(o, cases);
+                let (a, b) = (s.glandularity_labels_pp, s.glandularity_partial_volume_pp);
+                let f = &s.confusion_fractions;
+                let mgd = s.mgd_percent.map_or("-".to_string(), |m| {
+                    format!("{:+.1} / {:.1} / {:.1}", m.bias, m.sd, m.max_abs)
+                });
+                println!(
+                    "| {} | {:+.2} / {:.2} / {:.2} | {:+.2} / {:.2} / {:.2} | {mgd} | {:.3} / {:.3} | {:.3} | {:.3} |",
+                    skin_variant_name(&o),
+                    a.bias, a.sd, a.max_abs, b.bias, b.sd, b.max_abs,
+                    f[3][1], f[3][2], f[1][3], f[2][3]
+                );
+                out.push(serde_json::json!({"name": skin_variant_name(&o), "result": s}));
+            }
+            if let Some(d) = json.parent() {
+                std::fs::create_dir_all(d).with_context(|| format!("creating {}", d.display()))?;
+            }
+            std::fs::write(
+                &json,
+                serde_json::to_string_pretty(&serde_json::json!({
+                    "split": split.describe(),
+                    "reconstructor": reconstructor,
+                    "noise": noise.name(),
+                    "geometry": g.describe(),
+                    "classes": CLASSES,
+                    "variants": out,
+                }))?,
+            )
+            .with_context(|| format!("writing {}", json.display()))?;
+            println!("\nJSON: {}", json.display());
         }
         Cmd::Picture {
             out,

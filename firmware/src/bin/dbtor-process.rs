@@ -5,7 +5,7 @@
 //! received from the gantry.
 //!
 //! `dbtor-process ACQ_DIR --out DIR [--pacs AET@host:port] [--uid-root ROOT]
-//!   [--model models/dbtor-x4 [--precision fp32|int8]] [--iterations N]
+//!   [--model models/dbtor-x4 [--precision fp32|int8 [--fp32-blocks primal08,primal09]]] [--iterations N]
 //!   [--dose-uncertainty 0.01]`
 //!
 //! With `--model`, slices are reconstructed by DBToR (the model's checksums are
@@ -32,6 +32,7 @@ fn main() -> Result<()> {
     let mut model = None;
     let mut precision = dbt_dbtor::Precision::Fp32;
     let mut engine = dbt_dbtor::Engine::Fast;
+    let mut fp32_blocks: Vec<String> = Vec::new();
     let mut it = args.iter();
     while let Some(a) = it.next() {
         let mut val = |name: &str| {
@@ -49,6 +50,13 @@ fn main() -> Result<()> {
                     .parse()
                     .map_err(anyhow::Error::msg)
                     .context("--precision")?
+            }
+            "--fp32-blocks" => {
+                fp32_blocks = val("--fp32-blocks")?
+                    .split(',')
+                    .map(|b| b.trim().to_string())
+                    .filter(|b| !b.is_empty())
+                    .collect()
             }
             "--engine" => {
                 engine = val("--engine")?
@@ -72,7 +80,10 @@ fn main() -> Result<()> {
         acq_dir.context("usage: dbtor-process ACQ_DIR --out DIR [--pacs AET@host:port]")?;
     let out = out.context("--out DIR is required")?;
     if let Some(dir) = &model {
-        let m = dbt_dbtor::Dbtor::load_with(dir, precision, engine)
+        if !fp32_blocks.is_empty() && precision != dbt_dbtor::Precision::Int8 {
+            bail!("--fp32-blocks needs --precision int8");
+        }
+        let m = dbt_dbtor::Dbtor::load_mixed(dir, precision, &fp32_blocks, engine)
             .with_context(|| format!("loading the DBToR model {}", dir.display()))?;
         opts.dbtor = Some(std::sync::Arc::new(m));
     }
