@@ -25,6 +25,9 @@ pub struct Case {
     pub g_labels: f64,
     /// Estimated glandularity from partial volumes.
     pub g_partial_volume: f64,
+    /// The glandularity the firmware reports (partial volume, calibrated
+    /// where the model has a calibration).
+    pub g_reported: f64,
     /// True MGD (phantom labels through the engine), mGy.
     pub mgd_true: f64,
     /// MGD of the classified reconstruction, mGy.
@@ -229,6 +232,7 @@ pub fn run_cases(
             g_true: vol.glandularity().unwrap_or(0.0),
             g_labels: res.density.glandularity_labels,
             g_partial_volume: res.density.glandularity_partial_volume,
+            g_reported: res.glandularity,
             mgd_true: per_kerma * res.kerma_mgy,
             mgd_est: res.mgd_mgy,
             mgd_model: res.model_mgd_mgy,
@@ -328,6 +332,8 @@ pub fn split_phantoms(
 /// Summary rows of a set of cases.
 #[derive(Debug, Clone, Serialize)]
 pub struct AccuracySummary {
+    /// Reported glandularity error, percentage points.
+    pub glandularity_reported_pp: Agreement,
     /// Glandularity error (labels), percentage points.
     pub glandularity_labels_pp: Agreement,
     /// Glandularity error (partial volume), percentage points.
@@ -358,7 +364,19 @@ pub struct Quantity {
 }
 
 /// The compared quantities, in the order of [`AccuracySummary::in_order`].
-pub const QUANTITIES: [Quantity; 4] = [
+pub const QUANTITIES: [Quantity; 5] = [
+    Quantity {
+        name: "glandularity, reported (pp)",
+        short: "glandularity-reported",
+        mean_axis: "mean of true and reported glandularity (%)",
+        difference_axis: "reported - truth (percentage points)",
+        pick: |c| {
+            (
+                100.0 * (c.g_reported - c.g_true),
+                50.0 * (c.g_reported + c.g_true),
+            )
+        },
+    },
     Quantity {
         name: "glandularity, labels (pp)",
         short: "glandularity",
@@ -411,8 +429,9 @@ pub const QUANTITIES: [Quantity; 4] = [
 
 impl AccuracySummary {
     /// The agreements in the order of [`QUANTITIES`].
-    pub fn in_order(&self) -> [Agreement; 4] {
+    pub fn in_order(&self) -> [Agreement; 5] {
         [
+            self.glandularity_reported_pp,
             self.glandularity_labels_pp,
             self.glandularity_partial_volume_pp,
             self.mgd_percent,
@@ -423,9 +442,10 @@ impl AccuracySummary {
 
 /// Summarise cases.
 pub fn summarise(cases: &[Case]) -> AccuracySummary {
-    let [g, gpv, mgd, model] =
+    let [reported, g, gpv, mgd, model] =
         QUANTITIES.map(|q| agreement(&cases.iter().map(|c| (q.pick)(c).0).collect::<Vec<_>>()));
     AccuracySummary {
+        glandularity_reported_pp: reported,
         glandularity_labels_pp: g,
         glandularity_partial_volume_pp: gpv,
         mgd_percent: mgd,

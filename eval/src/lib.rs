@@ -327,7 +327,10 @@ mod tests {
         let (_, gv) = slice_set(&g, &proj, Split::Validation { seed: 2024 }, 2, 1, &lv).unwrap();
         assert_ne!(gt, gv);
         let pop = Population::for_geometry(&g);
-        let want = generate(&pop.draw(2024, 19)).unwrap().glandularity().unwrap();
+        let want = generate(&pop.draw(2024, 19))
+            .unwrap()
+            .glandularity()
+            .unwrap();
         assert_eq!(gv[1], want);
     }
 

@@ -98,6 +98,9 @@ pub enum DaemonError {
     /// Geometry.
     #[error("geometry: {0}")]
     Geometry(#[from] dbt_geometry::GeometryError),
+    /// The model's glandularity calibration is unreadable or another model's.
+    #[error(transparent)]
+    Calibration(#[from] crate::pipeline::PipelineError),
 }
 
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> DaemonError + '_ {
@@ -165,10 +168,16 @@ impl Daemon {
                 .unwrap_or(dbt_dbtor::Precision::Fp32);
             let engine = cfg.recon.engine.parse().unwrap_or(dbt_dbtor::Engine::Fast);
             let m = dbt_dbtor::Dbtor::load_mixed(&dir, precision, &cfg.recon.fp32_blocks, engine)?;
+            opts.calibration = crate::pipeline::load_calibration(&m, &opts.classify)?;
             let name = format!(
-                "DBToR {} ({}, {engine})",
+                "DBToR {} ({}, {engine}{})",
                 m.manifest().name,
-                m.precision_label()
+                m.precision_label(),
+                if opts.calibration.is_some() {
+                    ", calibrated"
+                } else {
+                    ""
+                }
             );
             opts.dbtor = Some(Arc::new(m));
             name
@@ -553,6 +562,8 @@ impl Daemon {
                 "reconstructor": res.reconstructor,
                 "glandularity_labels": res.density.glandularity_labels,
                 "glandularity_partial_volume": res.density.glandularity_partial_volume,
+                "glandularity_reported": res.glandularity,
+                "calibrated": res.calibrated,
                 "mgd_mgy": res.mgd_mgy,
                 "model_mgd_mgy": res.model_mgd_mgy,
                 "seconds": t0.elapsed().as_secs_f64(),
@@ -573,7 +584,7 @@ impl Daemon {
                 tracing::info!(
                     acquisition = id,
                     mgd_mgy = res.mgd_mgy,
-                    g = res.density.glandularity_partial_volume,
+                    g = res.glandularity,
                     "reported"
                 );
                 self.move_entry(id, "done", "result.json", &summary);

@@ -13,7 +13,9 @@ use dbt_dose::patient::{dbt_views, mgd_to_uncertainty, Breast, MgdResult, Model}
 use dbt_projector::Projector;
 use dbt_recon::{mltr, MltrOptions};
 use dbt_store::acquisition::Acquisition;
-use dbt_tissue::{classify, density, Classification, ClassifyOptions, Density};
+use dbt_tissue::{
+    classify, density, Classification, ClassifyOptions, Density, GlandularityCalibration,
+};
 use serde::Serialize;
 use thiserror::Error;
 
@@ -42,6 +44,14 @@ pub enum PipelineError {
     /// Classification failed.
     #[error("classification: {0}")]
     Tissue(#[from] dbt_tissue::TissueError),
+    /// A calibration file is unreadable or belongs to another model.
+    #[error("glandularity calibration {path}: {reason}")]
+    Calibration {
+        /// The file.
+        path: std::path::PathBuf,
+        /// Why.
+        reason: String,
+    },
     /// Dose computation failed.
     #[error("dose: {0}")]
     Dose(#[from] dbt_dose::DoseError),
@@ -62,9 +72,12 @@ pub struct PipelineOptions {
     pub dose_uncertainty: f64,
     /// Monte Carlo seed.
     pub seed: u64,
-    /// Tissue classification (default: the skin grown at most
-    /// `dbt_tissue::SKIN_MAX_MM` deep).
+    /// Tissue classification (default: the skin a `dbt_tissue::SKIN_MAX_MM`
+    /// shell).
     pub classify: ClassifyOptions,
+    /// Calibration of the reported (partial-volume) glandularity, fit for
+    /// this reconstructor on validation phantoms ([`load_calibration`]).
+    pub calibration: Option<GlandularityCalibration>,
 }
 
 impl Default for PipelineOptions {
@@ -75,6 +88,7 @@ impl Default for PipelineOptions {
             dose_uncertainty: 0.01,
             seed: 1,
             classify: ClassifyOptions::default(),
+            calibration: None,
         }
     }
 }
@@ -95,6 +109,11 @@ pub struct ProcessResult {
     pub classification: Classification,
     /// Density estimates.
     pub density: Density,
+    /// The reported glandularity: the partial-volume estimate, calibrated
+    /// when [`PipelineOptions::calibration`] is set.
+    pub glandularity: f64,
+    /// Whether `glandularity` is calibrated.
+    pub calibrated: bool,
     /// Patient-specific Monte Carlo MGD.
     pub dose_patient: MgdResult,
     /// Model-breast MGD.
@@ -287,6 +306,12 @@ pub fn process_with_progress(
         dims,
         voxel_mm: g.image.pixel_mm,
         mu,
+        glandularity: opts
+            .calibration
+            .map_or(dens.glandularity_partial_volume, |c| {
+                c.apply(dens.glandularity_partial_volume)
+            }),
+        calibrated: opts.calibration.is_some(),
         density: dens,
         mgd_mgy: dose_patient.mgd_per_kerma * kerma_mgy,
         model_mgd_mgy: dose_model.mgd_per_kerma * kerma_mgy,
@@ -375,8 +400,9 @@ pub fn reports(
         &DensityInput {
             header,
             equipment: equipment.clone(),
-            // The partial-volume estimate: the evaluation's choice (eval/README.md).
-            glandularity: res.density.glandularity_partial_volume,
+            // The partial-volume estimate (the evaluation's choice,
+            // eval/README.md), calibrated where the model has a calibration.
+            glandularity: res.glandularity,
             fibroglandular_cm3: res.density.fibroglandular_partial_volume_cm3,
             breast_cm3: res.density.breast_cm3.max(1.0),
             reconstructor: res.reconstructor.clone(),
@@ -387,4 +413,91 @@ pub fn reports(
         uids,
     )?;
     Ok((dose, dens))
+}
+
+/// The calibration file in a model folder.
+pub const CALIBRATION_FILE: &str = "glandularity-calibration.json";
+
+/// Format tag of [`CALIBRATION_FILE`].
+pub const CALIBRATION_FORMAT: &str = "dbtor-glandularity-calibration/1";
+
+/// A model's glandularity calibrations ([`CALIBRATION_FILE`]): one per
+/// precision label, for the partial-volume estimate under one
+/// classification, bound to the model by the SHA-256 of its manifest.
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
+pub struct CalibrationFile {
+    /// [`CALIBRATION_FORMAT`].
+    pub format: String,
+    /// The model's name.
+    pub model: String,
+    /// SHA-256 of the model's manifest.json.
+    pub manifest_sha256: String,
+    /// The classification the calibrations were fit with.
+    pub classification: ClassifyOptions,
+    /// Per precision label (`fp32`, `int8`, `int8 (fp32: ...)`).
+    pub calibrations: std::collections::BTreeMap<String, GlandularityCalibration>,
+    /// How each was fit (command, phantoms, residuals), per precision label.
+    #[serde(default)]
+    pub fits: std::collections::BTreeMap<String, serde_json::Value>,
+}
+
+impl CalibrationFile {
+    /// Read and check `path`: the format, and that it was fit for `model`
+    /// (its manifest's SHA-256).
+    pub fn read(path: &std::path::Path, model: &dbt_dbtor::Dbtor) -> Result<Self, PipelineError> {
+        let fail = |reason: String| PipelineError::Calibration {
+            path: path.to_path_buf(),
+            reason,
+        };
+        let text = std::fs::read_to_string(path).map_err(|e| fail(e.to_string()))?;
+        let f: Self = serde_json::from_str(&text).map_err(|e| fail(e.to_string()))?;
+        if f.format != CALIBRATION_FORMAT {
+            return Err(fail(format!(
+                "format {:?}, expected {CALIBRATION_FORMAT:?}",
+                f.format
+            )));
+        }
+        let sha = manifest_sha256(model).map_err(|e| fail(e.to_string()))?;
+        if f.manifest_sha256 != sha {
+            return Err(fail(format!(
+                "fit for another model (manifest SHA-256 {}), not {} ({sha}); refit with `dbt-eval calibrate`",
+                f.manifest_sha256,
+                model.manifest().name
+            )));
+        }
+        Ok(f)
+    }
+}
+
+/// SHA-256 of a loaded model's manifest.json.
+pub fn manifest_sha256(model: &dbt_dbtor::Dbtor) -> Result<String, dbt_dbtor::DbtorError> {
+    dbt_dbtor::sha256_file(&model.root().join("manifest.json"))
+}
+
+/// The calibration of `model` at its precision for `classify`, if its
+/// folder has one ([`CALIBRATION_FILE`]); `None` where there is no file, or
+/// no entry for this precision and classification (the estimate is then
+/// reported uncalibrated, and a warning logged). A file of another model is
+/// an error.
+pub fn load_calibration(
+    model: &dbt_dbtor::Dbtor,
+    classify: &ClassifyOptions,
+) -> Result<Option<GlandularityCalibration>, PipelineError> {
+    let path = model.root().join(CALIBRATION_FILE);
+    if !path.is_file() {
+        return Ok(None);
+    }
+    let f = CalibrationFile::read(&path, model)?;
+    let label = model.precision_label();
+    match f.calibrations.get(&label) {
+        Some(c) if &f.classification == classify => Ok(Some(*c)),
+        Some(_) => {
+            tracing::warn!(path = %path.display(), "the calibration was fit with another classification; glandularity reported uncalibrated");
+            Ok(None)
+        }
+        None => {
+            tracing::warn!(path = %path.display(), precision = %label, "no calibration for this precision; glandularity reported uncalibrated");
+            Ok(None)
+        }
+    }
 }

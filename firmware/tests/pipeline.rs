@@ -50,6 +50,9 @@ fn acquisition_to_reports() {
     assert_eq!(res.dims[1], g.rows_within_thickness(32.0));
     let d = res.density;
     assert!(d.glandularity_labels > 0.0 && d.glandularity_labels < 1.0);
+    // Uncalibrated, the reported glandularity is the partial-volume estimate.
+    assert!(!res.calibrated);
+    assert_eq!(res.glandularity, d.glandularity_partial_volume);
     assert!(
         d.breast_cm3 > 0.5 * 80.0 * 30.0 * 32.0 / 1000.0 * 0.5,
         "{d:?}"
@@ -89,6 +92,32 @@ fn acquisition_to_reports() {
         .unwrap();
     // The report carries the partial-volume estimate (the evaluation's choice).
     assert!((pft - 100.0 * d.glandularity_partial_volume).abs() < 1e-9);
+    // With a calibration, the reported glandularity and the report's are
+    // the calibrated estimate.
+    let cal = dbt_tissue::GlandularityCalibration {
+        offset: -0.02,
+        slope: 1.05,
+    };
+    let cal_opts = PipelineOptions {
+        calibration: Some(cal),
+        ..opts.clone()
+    };
+    let res_cal = process(&acq, &cal_opts).unwrap();
+    assert!(res_cal.calibrated);
+    assert_eq!(res_cal.density, d);
+    assert_eq!(
+        res_cal.glandularity,
+        cal.apply(d.glandularity_partial_volume)
+    );
+    let mut uids = UidSource::new("1.2.3", 8).unwrap();
+    let (_, dens_cal) = reports(&acq, &res_cal, &eq, &mut uids, "20261122", "120000").unwrap();
+    let (_, v) = read_values(&dens_cal.to_bytes().unwrap()).unwrap();
+    let pft_cal: f64 = v
+        .iter()
+        .find(|(k, _)| k == "Percent Fibroglandular Tissue")
+        .map(|(_, s)| s.split(' ').next().unwrap().parse().unwrap())
+        .unwrap();
+    assert!((pft_cal - 100.0 * res_cal.glandularity).abs() < 1e-9);
     // The reports the product writes pass the validators (dicom3tools,
     // dcmtk; installed by .ci/run).
     let dir = tempfile::tempdir().unwrap();
@@ -116,4 +145,74 @@ fn acquisition_to_reports() {
         .unwrap_err()
         .to_string()
         .contains("slice spacing"));
+}
+
+/// A copy of the shipped model folder (manifest and the files it lists).
+fn copy_model(to: &std::path::Path) -> std::path::PathBuf {
+    let from = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/dbtor-x4");
+    let m = dbt_dbtor::ModelManifest::load(&from).unwrap();
+    std::fs::copy(from.join("manifest.json"), to.join("manifest.json")).unwrap();
+    for rel in m.sha256.keys() {
+        let dst = to.join(rel);
+        std::fs::create_dir_all(dst.parent().unwrap()).unwrap();
+        std::fs::copy(from.join(rel), dst).unwrap();
+    }
+    to.to_path_buf()
+}
+
+/// The model folder's calibration: none without the file; applied for the
+/// running precision and classification; not for another precision or
+/// classification; a file fit for another manifest, or unreadable, is an
+/// error that names the file.
+#[test]
+fn the_glandularity_calibration_is_bound_to_the_model() {
+    use dbt_tissue::{ClassifyOptions, GlandularityCalibration};
+    use dbtor_firmware::pipeline::{
+        load_calibration, manifest_sha256, CalibrationFile, CALIBRATION_FILE, CALIBRATION_FORMAT,
+    };
+    let t = tempfile::tempdir().unwrap();
+    let dir = copy_model(t.path());
+    let m = dbt_dbtor::Dbtor::load_with(&dir, dbt_dbtor::Precision::Fp32, dbt_dbtor::Engine::Fast)
+        .unwrap();
+    let classify = ClassifyOptions::default();
+    assert_eq!(load_calibration(&m, &classify).unwrap(), None);
+    let cal = GlandularityCalibration {
+        offset: -0.015,
+        slope: 1.03,
+    };
+    let mut file = CalibrationFile {
+        format: CALIBRATION_FORMAT.into(),
+        model: m.manifest().name.clone(),
+        manifest_sha256: manifest_sha256(&m).unwrap(),
+        classification: classify,
+        calibrations: [("fp32".to_string(), cal)].into(),
+        fits: Default::default(),
+    };
+    let write = |f: &CalibrationFile| {
+        std::fs::write(
+            dir.join(CALIBRATION_FILE),
+            serde_json::to_string(f).unwrap(),
+        )
+        .unwrap()
+    };
+    write(&file);
+    assert_eq!(load_calibration(&m, &classify).unwrap(), Some(cal));
+    assert_eq!(
+        load_calibration(&m, &ClassifyOptions::paper()).unwrap(),
+        None
+    );
+    let int8 =
+        dbt_dbtor::Dbtor::load_with(&dir, dbt_dbtor::Precision::Int8, dbt_dbtor::Engine::Fast)
+            .unwrap();
+    assert_eq!(load_calibration(&int8, &classify).unwrap(), None);
+    file.manifest_sha256 = "0".repeat(64);
+    write(&file);
+    let e = load_calibration(&m, &classify).unwrap_err().to_string();
+    assert!(
+        e.contains(CALIBRATION_FILE) && e.contains("another model"),
+        "{e}"
+    );
+    std::fs::write(dir.join(CALIBRATION_FILE), "{ not json").unwrap();
+    let e = load_calibration(&m, &classify).unwrap_err().to_string();
+    assert!(e.contains(CALIBRATION_FILE), "{e}");
 }

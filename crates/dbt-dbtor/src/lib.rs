@@ -566,6 +566,11 @@ impl Dbtor {
             .bytes()
     }
 
+    /// The model folder it was loaded from.
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
     /// The manifest.
     pub fn manifest(&self) -> &ModelManifest {
         &self.manifest

@@ -54,13 +54,16 @@ pub enum TissueError {
     /// The voxel side is not a positive number.
     #[error("voxel side {0} mm is not a positive number")]
     Voxel(f64),
+    /// A calibration cannot be fit.
+    #[error("glandularity calibration: {0}")]
+    Calibration(String),
     /// No breast voxel found.
     #[error("no breast tissue in the volume (no value above {0} /mm)")]
     Empty(f32),
 }
 
 /// Options of the classification.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, serde::Deserialize)]
 pub struct ClassifyOptions {
     /// Fuzziness exponent of fuzzy c-means (the paper: 2.0).
     pub fuzziness: f64,
@@ -76,7 +79,7 @@ pub struct ClassifyOptions {
 }
 
 /// How the skin region is grown.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
 pub enum SkinRule {
     /// The paper's seeded region growing: through voxels at or above the
     /// mean seed value.
@@ -389,6 +392,71 @@ pub fn density(mu: &[f32], labels: &[u8], voxel_mm: f64) -> Density {
     }
 }
 
+/// A linear calibration of a glandularity estimate, `G = offset + slope *
+/// estimate` (clamped to 0..1), fit by least squares on phantoms whose truth
+/// is known: the validation phantoms of the reconstructor it corrects, never
+/// the test set. It removes a systematic, density-dependent error of the
+/// reconstruction (blur reads fatty breasts slightly dense); it cannot remove
+/// noise.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, serde::Deserialize)]
+pub struct GlandularityCalibration {
+    /// Intercept (glandularity fraction).
+    pub offset: f64,
+    /// Slope.
+    pub slope: f64,
+}
+
+impl GlandularityCalibration {
+    /// The identity (no correction).
+    pub const IDENTITY: Self = Self {
+        offset: 0.0,
+        slope: 1.0,
+    };
+
+    /// The calibrated glandularity of an estimate.
+    pub fn apply(&self, estimate: f64) -> f64 {
+        (self.offset + self.slope * estimate).clamp(0.0, 1.0)
+    }
+
+    /// Least-squares fit of `truth = offset + slope * estimate`; needs at
+    /// least three pairs spanning more than 1 percentage point, all finite.
+    pub fn fit(estimates: &[f64], truths: &[f64]) -> Result<Self, TissueError> {
+        let n = estimates.len();
+        if n != truths.len() || n < 3 {
+            return Err(TissueError::Calibration(format!(
+                "{n} estimates and {} truths: need at least 3 pairs",
+                truths.len()
+            )));
+        }
+        if estimates.iter().chain(truths).any(|v| !v.is_finite()) {
+            return Err(TissueError::Calibration("a value is not finite".into()));
+        }
+        let (mx, my) = (
+            estimates.iter().sum::<f64>() / n as f64,
+            truths.iter().sum::<f64>() / n as f64,
+        );
+        let sxx: f64 = estimates.iter().map(|x| (x - mx).powi(2)).sum();
+        let sxy: f64 = estimates
+            .iter()
+            .zip(truths)
+            .map(|(x, y)| (x - mx) * (y - my))
+            .sum();
+        let range = estimates.iter().fold(f64::NEG_INFINITY, |a, &b| a.max(b))
+            - estimates.iter().fold(f64::INFINITY, |a, &b| a.min(b));
+        if range <= 0.01 {
+            return Err(TissueError::Calibration(format!(
+                "the estimates span {:.2} percentage points: too narrow to fit a slope",
+                100.0 * range
+            )));
+        }
+        let slope = sxy / sxx;
+        Ok(Self {
+            offset: my - slope * mx,
+            slope,
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -539,6 +607,27 @@ mod tests {
                 .unwrap()
                 .labels
         );
+    }
+
+    /// The fit recovers an exact line, and refuses what cannot be fit.
+    #[test]
+    fn calibration_fits_a_line_and_clamps() {
+        let est = [0.05, 0.2, 0.4, 0.6];
+        let truth: Vec<f64> = est.iter().map(|e| -0.015 + 1.03 * e).collect();
+        let c = GlandularityCalibration::fit(&est, &truth).unwrap();
+        assert!((c.offset + 0.015).abs() < 1e-12 && (c.slope - 1.03).abs() < 1e-12);
+        assert_eq!(c.apply(0.0), 0.0);
+        assert_eq!(c.apply(1.0), 1.0);
+        assert!((c.apply(0.5) - (-0.015 + 0.515)).abs() < 1e-12);
+        assert_eq!(GlandularityCalibration::IDENTITY.apply(0.37), 0.37);
+        for bad in [
+            GlandularityCalibration::fit(&est[..2], &truth[..2]),
+            GlandularityCalibration::fit(&est, &truth[..3]),
+            GlandularityCalibration::fit(&[0.3, 0.3, 0.305], &[0.3, 0.31, 0.32]),
+            GlandularityCalibration::fit(&[0.1, f64::NAN, 0.5], &[0.1, 0.2, 0.5]),
+        ] {
+            assert!(matches!(bad, Err(TissueError::Calibration(_))), "{bad:?}");
+        }
     }
 
     #[test]

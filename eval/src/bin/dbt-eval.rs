@@ -170,9 +170,10 @@ enum Cmd {
         /// Evaluate this external phantom (sidecar) instead.
         #[arg(long)]
         phantom: Option<PathBuf>,
-        /// Binning of the paper geometry (voxels = pixels).
-        #[arg(long, default_value_t = 4)]
-        binning: usize,
+        /// Binning of the paper geometry (voxels = pixels; default 4). With
+        /// a model, its geometry is used, and this must agree if given.
+        #[arg(long)]
+        binning: Option<usize>,
         /// Noise level.
         #[arg(long, default_value = "N8")]
         noise: String,
@@ -192,6 +193,10 @@ enum Cmd {
         /// --skin`); default: the firmware's.
         #[arg(long)]
         skin: Option<String>,
+        /// Report the glandularity uncalibrated even where the model folder
+        /// has a calibration (`dbt-eval calibrate`).
+        #[arg(long)]
+        no_calibration: bool,
         /// Reconstructors to compare on the same acquisitions (comma
         /// separated: mltr, fp32, int8, mixed; default: fp32 with --model, else mltr).
         #[arg(long)]
@@ -237,6 +242,33 @@ enum Cmd {
         /// JSON output.
         #[arg(long, default_value = "eval/results/classification.json")]
         json: PathBuf,
+        #[command(flatten)]
+        runtime: Runtime,
+    },
+    /// Fit the glandularity calibration of a model at one precision on the
+    /// validation split (never the test split): the firmware's partial-volume
+    /// estimate against the phantoms' truth, `G = offset + slope * estimate`,
+    /// written into the model folder (glandularity-calibration.json, bound
+    /// to the manifest by its SHA-256), where the firmware finds it.
+    Calibrate {
+        /// The DBToR model folder.
+        #[arg(long)]
+        model: PathBuf,
+        /// Precision the calibration is for (fp32, int8, mixed).
+        #[arg(long, default_value = "fp32")]
+        precision: String,
+        /// Validation phantoms.
+        #[arg(long, default_value_t = 16)]
+        phantoms: usize,
+        /// The training population's seed (default: the model manifest's).
+        #[arg(long)]
+        train_seed: Option<u64>,
+        /// Noise level.
+        #[arg(long, default_value = "N8")]
+        noise: String,
+        /// Write here instead of the model folder.
+        #[arg(long)]
+        out: Option<PathBuf>,
         #[command(flatten)]
         runtime: Runtime,
     },
@@ -557,6 +589,7 @@ fn main() -> Result<()> {
             out,
             model,
             skin,
+            no_calibration,
             reconstructors,
             runtime,
         } => {
@@ -565,7 +598,6 @@ fn main() -> Result<()> {
                 None => dbt_tissue::ClassifyOptions::default(),
             };
             use dbt_eval::accuracy::{run_cases, split_phantoms, summarise, Case, QUANTITIES};
-            let g = Geometry::paper().binned(binning)?;
             let noise = NoiseLevel::parse(&noise)?;
             let list = reconstructors
                 .unwrap_or_else(|| if model.is_some() { "fp32" } else { "mltr" }.to_string());
@@ -599,6 +631,15 @@ fn main() -> Result<()> {
                     "mltr" => "mltr".to_string(),
                     other => format!("dbtor-{other}"),
                 };
+                // The model's calibration, as the firmware loads it.
+                let calibration = match (&dbtor, no_calibration) {
+                    (Some(m), false) => dbtor_firmware::pipeline::load_calibration(m, &skin)?,
+                    _ => None,
+                };
+                let label = match calibration {
+                    Some(c) => format!("{label} [calibrated {:+.4} + {:.4} G]", c.offset, c.slope),
+                    None => label,
+                };
                 recs.push((
                     label,
                     tag,
@@ -608,10 +649,28 @@ fn main() -> Result<()> {
                         dose_uncertainty,
                         seed: 1,
                         classify: skin,
+                        calibration,
                     },
                 ));
             }
             anyhow::ensure!(!recs.is_empty(), "no reconstructor given");
+            // The model's geometry (a taller variant holds thicker breasts);
+            // without one, the paper's binned.
+            let g = match recs.iter().find_map(|(_, _, o)| o.dbtor.as_deref()) {
+                Some(m) => {
+                    if let Some(b) = binning {
+                        let want = Geometry::paper().binned(b)?;
+                        anyhow::ensure!(
+                            &want == m.geometry(),
+                            "--binning {b} gives {}, but the model was trained for {}",
+                            want.describe(),
+                            m.geometry().describe()
+                        );
+                    }
+                    m.geometry().clone()
+                }
+                None => Geometry::paper().binned(binning.unwrap_or(4))?,
+            };
             let split = split.resolve(recs.iter().find_map(|(_, _, o)| o.dbtor.as_deref()))?;
             let opts: Vec<_> = recs.iter().map(|(_, _, o)| o.clone()).collect();
             let inputs: Vec<anyhow::Result<(String, dbt_phantom::LabelVolume)>> = match &phantom {
@@ -794,6 +853,118 @@ fn main() -> Result<()> {
             )
             .with_context(|| format!("writing {}", json.display()))?;
             println!("\nJSON: {}", json.display());
+        }
+        Cmd::Calibrate {
+            model,
+            precision,
+            phantoms,
+            train_seed,
+            noise,
+            out,
+            runtime,
+        } => {
+            use dbtor_firmware::pipeline::{
+                manifest_sha256, CalibrationFile, CALIBRATION_FILE, CALIBRATION_FORMAT,
+            };
+            let m = load_models(Some(&model), &precision, &runtime)?
+                .pop()
+                .map(|(_, m)| std::sync::Arc::new(m))
+                .context("no model loaded")?;
+            let split = SplitArgs {
+                split: "validation".into(),
+                train_seed,
+            }
+            .resolve(Some(&m))?;
+            let g = m.geometry().clone();
+            let noise = NoiseLevel::parse(&noise)?;
+            let classify = dbt_tissue::ClassifyOptions::default();
+            let opts = dbtor_firmware::pipeline::PipelineOptions {
+                dbtor: Some(m.clone()),
+                classify,
+                ..Default::default()
+            };
+            let t0 = Instant::now();
+            let mut cases = Vec::new();
+            for (k, item) in dbt_eval::accuracy::split_phantoms(&g, split, phantoms).enumerate() {
+                let (name, vol) = item?;
+                let c = dbt_eval::classification::run_phantom(
+                    &name,
+                    &vol,
+                    &g,
+                    noise,
+                    &opts,
+                    &[classify],
+                    None,
+                    1000 + k as u64,
+                )?
+                .pop()
+                .context("no case")?;
+                eprintln!(
+                    "{name}: T {:.1} mm, G true {:.4}, partial volume {:.4}",
+                    c.thickness_mm, c.g_true, c.g_partial_volume
+                );
+                cases.push(c);
+            }
+            let (est, truth): (Vec<f64>, Vec<f64>) =
+                cases.iter().map(|c| (c.g_partial_volume, c.g_true)).unzip();
+            let cal = dbt_tissue::GlandularityCalibration::fit(&est, &truth)?;
+            let pp = |f: &dyn Fn(f64) -> f64| {
+                dbt_eval::accuracy::agreement(
+                    &est.iter()
+                        .zip(&truth)
+                        .map(|(e, t)| 100.0 * (f(*e) - t))
+                        .collect::<Vec<_>>(),
+                )
+            };
+            let (before, after) = (pp(&|e| e), pp(&|e| cal.apply(e)));
+            let label = m.precision_label();
+            println!(
+                "Calibration of {} ({label}) on {phantoms} phantoms of the {} split, {} ({:.0} s): G = {:+.5} + {:.5} x partial volume",
+                m.manifest().name,
+                split.describe(),
+                noise.name(),
+                t0.elapsed().as_secs_f64(),
+                cal.offset,
+                cal.slope
+            );
+            println!(
+                "  on these phantoms: error before bias {:+.2} sd {:.2} max {:.2} pp; after bias {:+.2} sd {:.2} max {:.2} pp",
+                before.bias, before.sd, before.max_abs, after.bias, after.sd, after.max_abs
+            );
+            let path = out.unwrap_or_else(|| model.join(CALIBRATION_FILE));
+            // Keep the other precisions' entries of a file fit for this model
+            // and classification; start afresh otherwise.
+            let mut file = match CalibrationFile::read(&path, &m) {
+                Ok(f) if f.classification == classify => f,
+                _ => CalibrationFile {
+                    format: CALIBRATION_FORMAT.into(),
+                    model: m.manifest().name.clone(),
+                    manifest_sha256: manifest_sha256(&m)?,
+                    classification: classify,
+                    calibrations: Default::default(),
+                    fits: Default::default(),
+                },
+            };
+            file.calibrations.insert(label.clone(), cal);
+            file.fits.insert(
+                label,
+                serde_json::json!({
+                    "command": std::env::args().collect::<Vec<_>>().join(" "),
+                    "split": split.describe(),
+                    "phantoms": phantoms,
+                    "noise": noise.name(),
+                    "estimator": "partial volume",
+                    "error_before_pp": before,
+                    "error_after_pp": after,
+                    "cases": cases.iter().map(|c| serde_json::json!({
+                        "phantom": c.phantom, "thickness_mm": c.thickness_mm,
+                        "g_true": c.g_true, "g_partial_volume": c.g_partial_volume,
+                    })).collect::<Vec<_>>(),
+                }),
+            );
+            std::fs::write(&path, serde_json::to_string_pretty(&file)? + "\n")
+                .with_context(|| format!("writing {}", path.display()))?;
+            println!("wrote {}", path.display());
         }
         Cmd::Picture {
             out,
