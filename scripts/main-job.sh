@@ -40,7 +40,8 @@ d = json.load(open(sys.argv[1]))
 # The truth stays with the simulator: the gantry never sends it.
 r, t = d["result"], json.load(open(sys.argv[2])).get("truth") or {}
 print(f"processed {d['acquisition']} in {d['seconds']:.1f} s ({r['reconstructor']})")
-print(f"glandularity: labels {r['density']['glandularity_labels']:.3f}, partial volume "
+print(f"glandularity: reported {r['glandularity']:.3f} ({'calibrated ' if r['calibrated'] else ''}partial volume), "
+      f"labels {r['density']['glandularity_labels']:.3f}, partial volume "
       f"{r['density']['glandularity_partial_volume']:.3f}; phantom truth {t.get('glandularity', float('nan')):.3f}")
 print(f"MGD {r['mgd_mgy']:.3f} mGy (+- {100 * r['dose_patient']['mgd_rel_uncertainty']:.2f} %), "
       f"model breast {r['model_mgd_mgy']:.3f} mGy, incident air kerma {r['kerma_mgy']:.2f} mGy")

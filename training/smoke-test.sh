@@ -6,7 +6,8 @@
 # checked by the firmware's runtime (`dbtor-diag model`: checksums, fp32 vs
 # PyTorch, int8 vs onnxruntime); then the same for a 2-iteration LPD (no mask,
 # trained with --precision bf16 so the autocast path is exported and checked too),
-# and a 2-iteration U-Net on FBP run once by the evaluation. Needs training/requirements.txt installed and
+# a 2-iteration fine-tuning (--init) on the taller geometry, and a 2-iteration
+# U-Net on FBP run once by the evaluation. Needs training/requirements.txt installed and
 # the release binaries (host-sim, dbtor-diag).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -35,6 +36,25 @@ cd ..
 grep -q '"kind": "lpd"' "$tmp/lpd/manifest.json" || { echo "smoke test: the LPD export is not kind lpd"; exit 1; }
 grep -q '"precision": "bf16"' "$tmp/lpd/manifest.json" || { echo "smoke test: the LPD manifest does not record bf16 training"; exit 1; }
 ./target/release/dbtor-diag model "$tmp/lpd"
+# Fine-tuning on the taller geometry (paper-tall.toml, 100 rows at x4): --init
+# from the DBToR run, 2 iterations, exported with the tall geometry and checked;
+# --init from a run of another kind is refused.
+./target/release/host-sim dataset --out "$tmp/ds-tall" --slices 1500 --test-phantoms 0 --levels N8 \
+    --binning 4 --geometry crates/dbt-geometry/geometry/paper-tall.toml 2>/dev/null
+cd training
+$PY -m dbtor.train --data "$tmp/ds-tall" --out "$tmp/tall-run" --init "$tmp/run" --iters 2 --batch 2 \
+    --blocks 2 --val-every 2 --log-every 1 | tee "$tmp/tall.log"
+grep -q "initialised from" "$tmp/tall.log" || { echo "smoke test: --init did not load the weights"; exit 1; }
+if $PY -m dbtor.train --data "$tmp/ds-tall" --out "$tmp/bad-run" --init "$tmp/lpd-run" --iters 2 --batch 2 \
+    --blocks 2 2> "$tmp/bad.log"; then
+    echo "smoke test: --init from an LPD run into a DBToR run was accepted"; exit 1
+fi
+grep -q "not a dbtor" "$tmp/bad.log" || { echo "smoke test: the --init refusal does not say why"; cat "$tmp/bad.log"; exit 1; }
+$PY -m dbtor.export --run "$tmp/tall-run" --data "$tmp/ds-tall" --out "$tmp/tall" --calibration 2 --fixtures 1
+cd ..
+grep -q '"rows": 100' "$tmp/tall/manifest.json" || { echo "smoke test: the tall export lost its geometry"; exit 1; }
+grep -q '"init"' "$tmp/tall/manifest.json" || { echo "smoke test: the manifest does not record --init"; exit 1; }
+./target/release/dbtor-diag model "$tmp/tall"
 # The U-Net baseline on FBP: the FBP array, 2 iterations, export (the exporter
 # checks onnxruntime against PyTorch), and one evaluation slice through the
 # Rust runtime (tract).

@@ -51,6 +51,7 @@ def provenance(run, ck, tool, argv):
         "train_command": run["command"], "options": run["options"],
         "iterations": ck["iteration"], "training_minutes": round(ck["elapsed_s"] / 60, 1),
         "dataset_provenance": run["dataset_provenance"], "torch": torch.__version__,
+        "init": run.get("init"),
         "export_command": " ".join([f"python -m {tool}"] + (argv or sys.argv[1:])),
     }
 

@@ -100,6 +100,10 @@ def main(argv=None):
     ap.add_argument("--precision", choices=["fp32", "bf16"], default="fp32",
                     help="bf16: convolutions under CPU autocast (weights and optimiser stay float32)")
     ap.add_argument("--compile", action="store_true", help="torch.compile each block's convolutions")
+    ap.add_argument("--init", default=None,
+                    help="start a new run from the weights of another run's checkpoint (RUN/checkpoint.pt or RUN): "
+                         "fine-tuning, e.g. on another geometry; same model kind and blocks; fresh optimiser, "
+                         "schedule and normalisation (this dataset's)")
     a = ap.parse_args(argv)
     if a.threads:
         torch.set_num_threads(a.threads)
@@ -137,6 +141,19 @@ def main(argv=None):
         it, elapsed, stats = ck["iteration"], ck["elapsed_s"], ck["stats"]
         print(f"resumed at iteration {it} ({elapsed / 60:.1f} min trained)", flush=True)
     else:
+        init = None
+        if a.init:
+            src = os.path.join(a.init, "checkpoint.pt") if os.path.isdir(a.init) else a.init
+            if not os.path.exists(src):
+                sys.exit(f"--init {a.init}: no checkpoint at {src}")
+            ick = torch.load(src, weights_only=False)
+            if ick.get("model_kind") != a.model or ick.get("blocks") != a.blocks:
+                sys.exit(f"--init {src}: a {ick.get('model_kind')} of {ick.get('blocks')} blocks, "
+                         f"not a {a.model} of {a.blocks}")
+            net.load_state_dict(ick["model"])
+            init = {"checkpoint": os.path.abspath(src), "iteration": ick["iteration"],
+                    "options": ick["options"]}
+            print(f"initialised from {src} (iteration {ick['iteration']})", flush=True)
         stats = statistics(train)
         if unet:
             # The FBP input in the target's unit (x_scale), not standardised.
@@ -145,7 +162,7 @@ def main(argv=None):
             json.dump({"options": opts, "data": os.path.abspath(a.data),
                        "dataset_provenance": train.manifest["provenance"],
                        "geometry": train.manifest["geometry"], "stats": stats,
-                       "operator_norm": op.norm,
+                       "operator_norm": op.norm, "init": init,
                        "command": " ".join(["python -m dbtor.train"] + (argv or sys.argv[1:]))}, f, indent=2)
 
     def save():

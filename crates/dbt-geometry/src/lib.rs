@@ -434,6 +434,23 @@ pub fn chord_in_rect(s: (f64, f64), p: (f64, f64), x0: f64, x1: f64, z0: f64, z1
 mod tests {
     use super::*;
 
+    /// The taller variant (issue #7's 58-75 mm breasts) is the paper's
+    /// geometry with an 80 mm image: valid, binnable, the same rays.
+    #[test]
+    fn the_tall_variant_is_the_paper_geometry_80_mm_high() {
+        let t = Geometry::from_toml_str(include_str!("../geometry/paper-tall.toml")).unwrap();
+        let p = Geometry::paper();
+        assert_eq!(t.image.rows, 400);
+        assert!((t.height_mm() - 80.0).abs() < 1e-9);
+        let mut same = t.clone();
+        same.image.rows = p.image.rows;
+        assert_eq!(same, p);
+        let b = t.binned(4).unwrap();
+        assert_eq!((b.image.rows, b.image.columns, b.n_det()), (100, 250, 320));
+        // Row centres at (k + 0.5) 0.8 mm <= 75 mm: k = 0..=93.
+        assert_eq!(b.rows_within_thickness(75.0), 94);
+    }
+
     fn field_of(e: GeometryError) -> &'static str {
         match e {
             GeometryError::Invalid { field, .. } => field,
