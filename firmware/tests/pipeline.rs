@@ -84,12 +84,15 @@ fn acquisition_to_reports() {
         (agd.iter().sum::<f64>() - acc).abs() < 1e-6 * acc.max(1e-9) + 1e-9,
         "{acc}"
     );
-    let (_, v) = read_values(&dens.to_bytes().unwrap()).unwrap();
-    let pft: f64 = v
-        .iter()
-        .find(|(k, _)| k == "Percent Fibroglandular Tissue")
-        .map(|(_, s)| s.split(' ').next().unwrap().parse().unwrap())
-        .unwrap();
+    // The density report's percent fibroglandular tissue, read back.
+    let percent = |r: &dbt_dicom::Report| -> f64 {
+        let (_, v) = read_values(&r.to_bytes().unwrap()).unwrap();
+        v.iter()
+            .find(|(k, _)| k == "Percent Fibroglandular Tissue")
+            .map(|(_, s)| s.split(' ').next().unwrap().parse().unwrap())
+            .unwrap()
+    };
+    let pft = percent(&dens);
     // The report carries the partial-volume estimate (the evaluation's choice).
     assert!((pft - 100.0 * d.glandularity_partial_volume).abs() < 1e-9);
     // With a calibration, the reported glandularity and the report's are
@@ -111,12 +114,7 @@ fn acquisition_to_reports() {
     );
     let mut uids = UidSource::new("1.2.3", 8).unwrap();
     let (_, dens_cal) = reports(&acq, &res_cal, &eq, &mut uids, "20261122", "120000").unwrap();
-    let (_, v) = read_values(&dens_cal.to_bytes().unwrap()).unwrap();
-    let pft_cal: f64 = v
-        .iter()
-        .find(|(k, _)| k == "Percent Fibroglandular Tissue")
-        .map(|(_, s)| s.split(' ').next().unwrap().parse().unwrap())
-        .unwrap();
+    let pft_cal = percent(&dens_cal);
     assert!((pft_cal - 100.0 * res_cal.glandularity).abs() < 1e-9);
     // The reports the product writes pass the validators (dicom3tools,
     // dcmtk; installed by .ci/run).

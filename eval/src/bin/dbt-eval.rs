@@ -328,6 +328,15 @@ fn skin_variant_name(o: &dbt_tissue::ClassifyOptions) -> String {
     }
 }
 
+/// Write `value` as pretty JSON (and a newline) to `path`, making its folder.
+fn write_json(path: &std::path::Path, value: &impl serde::Serialize) -> Result<()> {
+    if let Some(d) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(d).with_context(|| format!("creating {}", d.display()))?;
+    }
+    std::fs::write(path, serde_json::to_string_pretty(value)? + "\n")
+        .with_context(|| format!("writing {}", path.display()))
+}
+
 fn parse_levels(s: &str) -> Result<Vec<NoiseLevel>> {
     Ok(s.split(',')
         .map(NoiseLevel::parse)
@@ -479,11 +488,7 @@ fn main() -> Result<()> {
                 t.elapsed().as_secs_f64()
             );
             print!("{}", table(&report));
-            if let Some(d) = json.parent() {
-                std::fs::create_dir_all(d)?;
-            }
-            std::fs::write(&json, serde_json::to_string_pretty(&report)?)
-                .with_context(|| format!("writing {}", json.display()))?;
+            write_json(&json, &report)?;
             println!("\nJSON: {}", json.display());
         }
         Cmd::Mgd {
@@ -738,10 +743,7 @@ fn main() -> Result<()> {
                 "skin": skin_variant_name(&skin),
                 "reconstructors": results,
             });
-            std::fs::write(
-                out.join("accuracy.json"),
-                serde_json::to_string_pretty(&json)?,
-            )?;
+            write_json(&out.join("accuracy.json"), &json)?;
             println!("\nJSON and Bland-Altman PNGs (x: mean of truth and estimate; y: difference; solid: bias; dashed: 95 % limits): {}", out.display());
         }
         Cmd::Classification {
@@ -837,21 +839,17 @@ fn main() -> Result<()> {
                 );
                 out.push(serde_json::json!({"name": skin_variant_name(&o), "result": s}));
             }
-            if let Some(d) = json.parent() {
-                std::fs::create_dir_all(d).with_context(|| format!("creating {}", d.display()))?;
-            }
-            std::fs::write(
+            write_json(
                 &json,
-                serde_json::to_string_pretty(&serde_json::json!({
+                &serde_json::json!({
                     "split": split.describe(),
                     "reconstructor": reconstructor,
                     "noise": noise.name(),
                     "geometry": g.describe(),
                     "classes": CLASSES,
                     "variants": out,
-                }))?,
-            )
-            .with_context(|| format!("writing {}", json.display()))?;
+                }),
+            )?;
             println!("\nJSON: {}", json.display());
         }
         Cmd::Calibrate {
@@ -962,8 +960,7 @@ fn main() -> Result<()> {
                     })).collect::<Vec<_>>(),
                 }),
             );
-            std::fs::write(&path, serde_json::to_string_pretty(&file)? + "\n")
-                .with_context(|| format!("writing {}", path.display()))?;
+            write_json(&path, &file)?;
             println!("wrote {}", path.display());
         }
         Cmd::Picture {
