@@ -57,13 +57,7 @@ fn parse_args() -> Result<Args> {
             "--out" => a.out = PathBuf::from(val("--out")?),
             "--no-peers" => a.peers = false,
             "--no-tract" => a.tract = false,
-            "--mixed" => {
-                a.mixed = val("--mixed")?
-                    .split(',')
-                    .map(|b| b.trim().to_string())
-                    .filter(|b| !b.is_empty())
-                    .collect()
-            }
+            "--mixed" => a.mixed = dbt_dbtor::parse_block_list(&val("--mixed")?),
             "-h" | "--help" => {
                 println!("usage: dbtor-bench [--model DIR] [--reps N] [--geometry paper|model|both] [--out FILE.json] [--no-peers] [--no-tract] [--mixed primal08,primal09]");
                 std::process::exit(0);

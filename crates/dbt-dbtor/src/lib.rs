@@ -232,7 +232,16 @@ fn grid(g: &Geometry, role: Role) -> (usize, usize) {
     }
 }
 
-/// The first loaded block of `role` (all blocks of a role share widths).
+/// A comma-separated list of block names (`primal08, primal09`) as the
+/// command lines and configuration give it: trimmed, empty entries dropped.
+/// The names are checked against the model when it is loaded.
+pub fn parse_block_list(list: &str) -> Vec<String> {
+    list.split(',')
+        .map(|b| b.trim().to_string())
+        .filter(|b| !b.is_empty())
+        .collect()
+}
+
 /// A block's name: role and two-digit iteration (`dual00`, `primal09`), as
 /// the exporter and `dbtor.int8_sensitivity` name them.
 pub fn block_name(b: &BlockEntry) -> String {
@@ -243,7 +252,8 @@ pub fn block_name(b: &BlockEntry) -> String {
     format!("{role}{:02}", b.index)
 }
 
-/// The first fast block of `role` that `pick` accepts.
+/// The first fast block of `role` that `pick` accepts (all blocks of a role
+/// share widths).
 fn first_of_role<'a, T>(
     v: &'a [(FastBlock, PathBuf)],
     entries: &[BlockEntry],
@@ -378,8 +388,8 @@ impl Dbtor {
                 reason: format!("fast path: {e}"),
             }
         };
-        let blocks = match (engine, precision) {
-            (Engine::Tract, _) => {
+        let blocks = match engine {
+            Engine::Tract => {
                 let mut plans = Vec::with_capacity(manifest.blocks.len());
                 for (b, _, path) in files {
                     let (h, w) = grid(g, b.role);
@@ -402,7 +412,7 @@ impl Dbtor {
                 }
                 Blocks::Tract(plans)
             }
-            (Engine::Fast, _) => {
+            Engine::Fast => {
                 let mut v = Vec::new();
                 for (b, p, path) in files {
                     let blk = match p {

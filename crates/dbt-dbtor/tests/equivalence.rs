@@ -321,6 +321,10 @@ fn mixed_precision_runs_the_named_blocks_in_fp32() {
     let all: Vec<String> = man.blocks.iter().map(dbt_dbtor::block_name).collect();
     assert_eq!(all.len(), 20);
     assert_eq!(all[19], "primal09");
+    assert_eq!(
+        dbt_dbtor::parse_block_list(" primal08, ,primal09 "),
+        ["primal08", "primal09"]
+    );
     let fx = &man.fixtures[0];
     let sino = read_f32(&dir.join(&fx.files["sinogram"]));
     let fp32 = Dbtor::load_with(&dir, Precision::Fp32, Engine::Fast).unwrap();

@@ -383,11 +383,7 @@ fn load_models(
         let (p, fp32_blocks): (Precision, Vec<String>) = match token {
             "mixed" => (
                 Precision::Int8,
-                rt.mixed_fp32_blocks
-                    .split(',')
-                    .map(|b| b.trim().to_string())
-                    .filter(|b| !b.is_empty())
-                    .collect(),
+                dbt_dbtor::parse_block_list(&rt.mixed_fp32_blocks),
             ),
             p => (p.parse().map_err(anyhow::Error::msg)?, Vec::new()),
         };

@@ -51,13 +51,7 @@ fn main() -> Result<()> {
                     .map_err(anyhow::Error::msg)
                     .context("--precision")?
             }
-            "--fp32-blocks" => {
-                fp32_blocks = val("--fp32-blocks")?
-                    .split(',')
-                    .map(|b| b.trim().to_string())
-                    .filter(|b| !b.is_empty())
-                    .collect()
-            }
+            "--fp32-blocks" => fp32_blocks = dbt_dbtor::parse_block_list(&val("--fp32-blocks")?),
             "--engine" => {
                 engine = val("--engine")?
                     .parse()
