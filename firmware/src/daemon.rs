@@ -100,7 +100,7 @@ pub enum DaemonError {
     Geometry(#[from] dbt_geometry::GeometryError),
     /// The model's glandularity calibration is unreadable or another model's.
     #[error(transparent)]
-    Calibration(#[from] crate::pipeline::PipelineError),
+    Calibration(#[from] crate::calibration::CalibrationError),
 }
 
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> DaemonError + '_ {
@@ -168,7 +168,7 @@ impl Daemon {
                 .unwrap_or(dbt_dbtor::Precision::Fp32);
             let engine = cfg.recon.engine.parse().unwrap_or(dbt_dbtor::Engine::Fast);
             let m = dbt_dbtor::Dbtor::load_mixed(&dir, precision, &cfg.recon.fp32_blocks, engine)?;
-            opts.calibration = crate::pipeline::load_calibration(&m, &opts.classify)?;
+            opts.calibration = crate::calibration::load_calibration(&m, &opts.classify)?;
             let name = format!(
                 "DBToR {} ({}, {engine}{})",
                 m.manifest().name,

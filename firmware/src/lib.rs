@@ -3,6 +3,7 @@
 //! daemon (gantry I/O, reconstruction, tissue, dose, DICOM) is built on top of
 //! it by the open issues listed in the README.
 
+pub mod calibration;
 pub mod config;
 pub mod daemon;
 pub mod link;

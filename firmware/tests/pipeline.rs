@@ -165,7 +165,7 @@ fn copy_model(to: &std::path::Path) -> std::path::PathBuf {
 #[test]
 fn the_glandularity_calibration_is_bound_to_the_model() {
     use dbt_tissue::{ClassifyOptions, GlandularityCalibration};
-    use dbtor_firmware::pipeline::{
+    use dbtor_firmware::calibration::{
         load_calibration, manifest_sha256, CalibrationFile, CALIBRATION_FILE, CALIBRATION_FORMAT,
     };
     let t = tempfile::tempdir().unwrap();

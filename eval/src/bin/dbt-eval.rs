@@ -634,7 +634,7 @@ fn main() -> Result<()> {
                 };
                 // The model's calibration, as the firmware loads it.
                 let calibration = match (&dbtor, no_calibration) {
-                    (Some(m), false) => dbtor_firmware::pipeline::load_calibration(m, &skin)?,
+                    (Some(m), false) => dbtor_firmware::calibration::load_calibration(m, &skin)?,
                     _ => None,
                 };
                 let label = match calibration {
@@ -857,7 +857,7 @@ fn main() -> Result<()> {
             out,
             runtime,
         } => {
-            use dbtor_firmware::pipeline::{
+            use dbtor_firmware::calibration::{
                 manifest_sha256, CalibrationFile, CALIBRATION_FILE, CALIBRATION_FORMAT,
             };
             let m = load_models(Some(&model), &precision, &runtime)?

@@ -79,7 +79,7 @@ fn main() -> Result<()> {
         }
         let m = dbt_dbtor::Dbtor::load_mixed(dir, precision, &fp32_blocks, engine)
             .with_context(|| format!("loading the DBToR model {}", dir.display()))?;
-        opts.calibration = dbtor_firmware::pipeline::load_calibration(&m, &opts.classify)?;
+        opts.calibration = dbtor_firmware::calibration::load_calibration(&m, &opts.classify)?;
         opts.dbtor = Some(std::sync::Arc::new(m));
     }
     let acq = dbt_store::acquisition::read_acquisition(&acq_dir)?;

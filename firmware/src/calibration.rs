@@ -1,0 +1,108 @@
+//! The glandularity calibration file of a model folder (adapter: file I/O):
+//! `dbt-eval calibrate` writes it, the daemon and `dbtor-process` read it
+//! when they load the model. The calibration itself is
+//! `dbt_tissue::GlandularityCalibration` (pure); the pipeline applies it.
+
+use dbt_tissue::{ClassifyOptions, GlandularityCalibration};
+use serde::Serialize;
+use thiserror::Error;
+
+/// A calibration file is unreadable or belongs to another model.
+#[derive(Debug, Error)]
+#[error("glandularity calibration {path}: {reason}")]
+pub struct CalibrationError {
+    /// The file.
+    pub path: std::path::PathBuf,
+    /// Why.
+    pub reason: String,
+}
+
+/// The calibration file in a model folder.
+pub const CALIBRATION_FILE: &str = "glandularity-calibration.json";
+
+/// Format tag of [`CALIBRATION_FILE`].
+pub const CALIBRATION_FORMAT: &str = "dbtor-glandularity-calibration/1";
+
+/// A model's glandularity calibrations ([`CALIBRATION_FILE`]): one per
+/// precision label, for the partial-volume estimate under one
+/// classification, bound to the model by the SHA-256 of its manifest.
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
+pub struct CalibrationFile {
+    /// [`CALIBRATION_FORMAT`].
+    pub format: String,
+    /// The model's name.
+    pub model: String,
+    /// SHA-256 of the model's manifest.json.
+    pub manifest_sha256: String,
+    /// The classification the calibrations were fit with.
+    pub classification: ClassifyOptions,
+    /// Per precision label (`fp32`, `int8`, `int8 (fp32: ...)`).
+    pub calibrations: std::collections::BTreeMap<String, GlandularityCalibration>,
+    /// How each was fit (command, phantoms, residuals), per precision label.
+    #[serde(default)]
+    pub fits: std::collections::BTreeMap<String, serde_json::Value>,
+}
+
+impl CalibrationFile {
+    /// Read and check `path`: the format, and that it was fit for `model`
+    /// (its manifest's SHA-256).
+    pub fn read(
+        path: &std::path::Path,
+        model: &dbt_dbtor::Dbtor,
+    ) -> Result<Self, CalibrationError> {
+        let fail = |reason: String| CalibrationError {
+            path: path.to_path_buf(),
+            reason,
+        };
+        let text = std::fs::read_to_string(path).map_err(|e| fail(e.to_string()))?;
+        let f: Self = serde_json::from_str(&text).map_err(|e| fail(e.to_string()))?;
+        if f.format != CALIBRATION_FORMAT {
+            return Err(fail(format!(
+                "format {:?}, expected {CALIBRATION_FORMAT:?}",
+                f.format
+            )));
+        }
+        let sha = manifest_sha256(model).map_err(|e| fail(e.to_string()))?;
+        if f.manifest_sha256 != sha {
+            return Err(fail(format!(
+                "fit for another model (manifest SHA-256 {}), not {} ({sha}); refit with `dbt-eval calibrate`",
+                f.manifest_sha256,
+                model.manifest().name
+            )));
+        }
+        Ok(f)
+    }
+}
+
+/// SHA-256 of a loaded model's manifest.json.
+pub fn manifest_sha256(model: &dbt_dbtor::Dbtor) -> Result<String, dbt_dbtor::DbtorError> {
+    dbt_dbtor::sha256_file(&model.root().join("manifest.json"))
+}
+
+/// The calibration of `model` at its precision for `classify`, if its
+/// folder has one ([`CALIBRATION_FILE`]); `None` where there is no file, or
+/// no entry for this precision and classification (the estimate is then
+/// reported uncalibrated, and a warning logged). A file of another model is
+/// an error.
+pub fn load_calibration(
+    model: &dbt_dbtor::Dbtor,
+    classify: &ClassifyOptions,
+) -> Result<Option<GlandularityCalibration>, CalibrationError> {
+    let path = model.root().join(CALIBRATION_FILE);
+    if !path.is_file() {
+        return Ok(None);
+    }
+    let f = CalibrationFile::read(&path, model)?;
+    let label = model.precision_label();
+    match f.calibrations.get(&label) {
+        Some(c) if &f.classification == classify => Ok(Some(*c)),
+        Some(_) => {
+            tracing::warn!(path = %path.display(), "the calibration was fit with another classification; glandularity reported uncalibrated");
+            Ok(None)
+        }
+        None => {
+            tracing::warn!(path = %path.display(), precision = %label, "no calibration for this precision; glandularity reported uncalibrated");
+            Ok(None)
+        }
+    }
+}
