@@ -159,7 +159,7 @@ impl Daemon {
             dose_uncertainty: cfg.recon.dose_uncertainty,
             ..PipelineOptions::default()
         };
-        let reconstructor = if cfg.recon.reconstructor == "dbtor" {
+        if cfg.recon.reconstructor == "dbtor" {
             let dir = cfg.recon.model.clone().unwrap_or_default();
             let precision = cfg
                 .recon
@@ -169,21 +169,9 @@ impl Daemon {
             let engine = cfg.recon.engine.parse().unwrap_or(dbt_dbtor::Engine::Fast);
             let m = dbt_dbtor::Dbtor::load_mixed(&dir, precision, &cfg.recon.fp32_blocks, engine)?;
             opts.calibration = crate::calibration::load_calibration(&m, &opts.classify)?;
-            let name = format!(
-                "DBToR {} ({}, {engine}{})",
-                m.manifest().name,
-                m.precision_label(),
-                if opts.calibration.is_some() {
-                    ", calibrated"
-                } else {
-                    ""
-                }
-            );
             opts.dbtor = Some(Arc::new(m));
-            name
-        } else {
-            format!("MLTR {} iterations", cfg.recon.mltr_iterations)
-        };
+        }
+        let reconstructor = crate::pipeline::reconstructor_name(&opts);
         for sub in ["tmp", "incoming", "done", "faulted"] {
             let d = cfg.paths.spool.join(sub);
             std::fs::create_dir_all(&d).map_err(io(&d))?;

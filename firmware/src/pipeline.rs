@@ -156,6 +156,31 @@ pub struct Volume {
     pub mu: Vec<f32>,
 }
 
+/// The reconstructor of `opts` in words, as results, status and tables name
+/// it: `DBToR NAME (PRECISION, ENGINE[, raw][, calibrated])` (raw: a DBToR
+/// model without its support) or `MLTR N iterations`.
+pub fn reconstructor_name(opts: &PipelineOptions) -> String {
+    match &opts.dbtor {
+        Some(m) => format!(
+            "DBToR {} ({}, {}{}{})",
+            m.manifest().name,
+            m.precision_label(),
+            m.engine(),
+            if m.manifest().uses_mask() && !m.support() {
+                ", raw"
+            } else {
+                ""
+            },
+            if opts.calibration.is_some() {
+                ", calibrated"
+            } else {
+                ""
+            }
+        ),
+        None => format!("MLTR {} iterations", opts.mltr_iterations),
+    }
+}
+
 /// Reconstruct every coronal slice of `acq` with the reconstructor of
 /// `opts` and stack the rows within the compressed thickness into a volume,
 /// calling `progress` after each slice.
@@ -200,15 +225,7 @@ pub fn reconstruct_volume(
             )));
         }
     }
-    let reconstructor = match &opts.dbtor {
-        Some(m) => format!(
-            "DBToR {} ({}, {})",
-            m.manifest().name,
-            m.precision_label(),
-            m.engine()
-        ),
-        None => format!("MLTR {} iterations", opts.mltr_iterations),
-    };
+    let reconstructor = reconstructor_name(opts);
     for (d, counts) in acq.counts.iter().enumerate() {
         let _s = tracing::debug_span!("slice", d).entered();
         let img = match &opts.dbtor {

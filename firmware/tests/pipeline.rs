@@ -52,6 +52,7 @@ fn acquisition_to_reports() {
     assert!(d.glandularity_labels > 0.0 && d.glandularity_labels < 1.0);
     // Uncalibrated, the reported glandularity is the partial-volume estimate.
     assert!(!res.calibrated);
+    assert_eq!(res.reconstructor, "MLTR 30 iterations");
     assert_eq!(res.glandularity, d.glandularity_partial_volume);
     assert!(
         d.breast_cm3 > 0.5 * 80.0 * 30.0 * 32.0 / 1000.0 * 0.5,
@@ -195,6 +196,28 @@ fn the_glandularity_calibration_is_bound_to_the_model() {
     };
     write(&file);
     assert_eq!(load_calibration(&m, &classify).unwrap(), Some(cal));
+    // The reconstructor's name says which model, precision and engine, and
+    // that the estimate is calibrated.
+    let named = |calibration| {
+        dbtor_firmware::pipeline::reconstructor_name(&PipelineOptions {
+            dbtor: Some(std::sync::Arc::new(
+                dbt_dbtor::Dbtor::load_with(
+                    &dir,
+                    dbt_dbtor::Precision::Fp32,
+                    dbt_dbtor::Engine::Fast,
+                )
+                .unwrap(),
+            )),
+            calibration,
+            ..PipelineOptions::default()
+        })
+    };
+    let name = m.manifest().name.clone();
+    assert_eq!(
+        named(Some(cal)),
+        format!("DBToR {name} (fp32, fast, calibrated)")
+    );
+    assert_eq!(named(None), format!("DBToR {name} (fp32, fast)"));
     assert_eq!(
         load_calibration(&m, &ClassifyOptions::paper()).unwrap(),
         None

@@ -605,24 +605,15 @@ fn main() -> Result<()> {
             let mut recs: Vec<(String, String, dbtor_firmware::pipeline::PipelineOptions)> =
                 Vec::new();
             for r in list.split(',').map(str::trim).filter(|r| !r.is_empty()) {
-                let (label, dbtor) = match r {
-                    "mltr" => (format!("MLTR {iterations} iterations"), None),
+                let dbtor = match r {
+                    "mltr" => None,
                     "fp32" | "int8" | "mixed" => {
                         anyhow::ensure!(model.is_some(), "--reconstructors {r} needs --model");
                         let m = load_models(model.as_deref(), r, &runtime)?
                             .pop()
                             .map(|(_, m)| m)
                             .context("no model loaded")?;
-                        let raw = if runtime.no_support { ", raw" } else { "" };
-                        (
-                            format!(
-                                "DBToR {} ({}, {}{raw})",
-                                m.manifest().name,
-                                m.precision_label(),
-                                runtime.engine
-                            ),
-                            Some(std::sync::Arc::new(m)),
-                        )
+                        Some(std::sync::Arc::new(m))
                     }
                     other => {
                         anyhow::bail!("unknown reconstructor {other:?} (mltr, fp32, int8, mixed)")
@@ -637,22 +628,20 @@ fn main() -> Result<()> {
                     (Some(m), false) => dbtor_firmware::calibration::load_calibration(m, &skin)?,
                     _ => None,
                 };
+                let opts = dbtor_firmware::pipeline::PipelineOptions {
+                    dbtor,
+                    mltr_iterations: iterations,
+                    dose_uncertainty,
+                    seed: 1,
+                    classify: skin,
+                    calibration,
+                };
+                let label = dbtor_firmware::pipeline::reconstructor_name(&opts);
                 let label = match calibration {
-                    Some(c) => format!("{label} [calibrated {:+.4} + {:.4} G]", c.offset, c.slope),
+                    Some(c) => format!("{label} [G = {:+.4} + {:.4} x PV]", c.offset, c.slope),
                     None => label,
                 };
-                recs.push((
-                    label,
-                    tag,
-                    dbtor_firmware::pipeline::PipelineOptions {
-                        dbtor,
-                        mltr_iterations: iterations,
-                        dose_uncertainty,
-                        seed: 1,
-                        classify: skin,
-                        calibration,
-                    },
-                ));
+                recs.push((label, tag, opts));
             }
             anyhow::ensure!(!recs.is_empty(), "no reconstructor given");
             // The model's geometry (a taller variant holds thicker breasts);
@@ -769,19 +758,12 @@ fn main() -> Result<()> {
                 .split(',')
                 .map(|v| parse_skin_variant(v.trim()))
                 .collect::<Result<Vec<_>>>()?;
-            let reconstructor = match &model {
-                Some(m) => format!(
-                    "DBToR {} ({precision}, {})",
-                    m.manifest().name,
-                    runtime.engine
-                ),
-                None => format!("MLTR {iterations} iterations"),
-            };
             let opts = dbtor_firmware::pipeline::PipelineOptions {
                 dbtor: model,
                 mltr_iterations: iterations,
                 ..Default::default()
             };
+            let reconstructor = dbtor_firmware::pipeline::reconstructor_name(&opts);
             let t0 = Instant::now();
             let mut per_variant = vec![Vec::new(); variants.len()];
             for (k, item) in dbt_eval::accuracy::split_phantoms(&g, split, phantoms).enumerate() {
