@@ -407,12 +407,6 @@ pub struct GlandularityCalibration {
 }
 
 impl GlandularityCalibration {
-    /// The identity (no correction).
-    pub const IDENTITY: Self = Self {
-        offset: 0.0,
-        slope: 1.0,
-    };
-
     /// The calibrated glandularity of an estimate.
     pub fn apply(&self, estimate: f64) -> f64 {
         (self.offset + self.slope * estimate).clamp(0.0, 1.0)
@@ -619,7 +613,6 @@ mod tests {
         assert_eq!(c.apply(0.0), 0.0);
         assert_eq!(c.apply(1.0), 1.0);
         assert!((c.apply(0.5) - (-0.015 + 0.515)).abs() < 1e-12);
-        assert_eq!(GlandularityCalibration::IDENTITY.apply(0.37), 0.37);
         for bad in [
             GlandularityCalibration::fit(&est[..2], &truth[..2]),
             GlandularityCalibration::fit(&est, &truth[..3]),
