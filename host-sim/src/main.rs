@@ -4,7 +4,6 @@
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
 use dbt_acquisition::NoiseLevel;
-use dbt_geometry::Geometry;
 use dbt_phantom::{generate, PhantomSpec, Population};
 use host_sim::dataset::{export, ExportOptions};
 use std::path::PathBuf;
@@ -33,9 +32,9 @@ enum Cmd {
         /// Index of the phantom in the population.
         #[arg(long, default_value_t = 0)]
         index: u64,
-        /// Geometry TOML (default: the paper's).
-        #[arg(long)]
-        geometry: Option<PathBuf>,
+        /// Geometry: `paper`, `paper-tall` (the 80 mm image) or a TOML file.
+        #[arg(long, default_value = "paper")]
+        geometry: String,
         /// Binning of the geometry (1, 2, 4).
         #[arg(long, default_value_t = 1)]
         binning: usize,
@@ -49,7 +48,11 @@ enum Cmd {
         /// Phantom of the fixed test set (never trained on).
         #[arg(long, default_value_t = 0)]
         index: u64,
-        /// Binning of the paper geometry (phantom voxels = pixels).
+        /// Geometry: `paper`, `paper-tall` (the 80 mm image: breasts up to
+        /// 75 mm) or a TOML file; the test population is drawn for it.
+        #[arg(long, default_value = "paper")]
+        geometry: String,
+        /// Binning of the geometry (phantom voxels = pixels).
         #[arg(long, default_value_t = 4)]
         binning: usize,
         /// Noise level (`noise-free`, `N4`, `N8`, `N12`).
@@ -120,9 +123,9 @@ enum Cmd {
         /// Noise levels, comma separated (`noise-free,N4,N8,N12`).
         #[arg(long, default_value = "noise-free,N4,N8,N12")]
         levels: String,
-        /// Geometry TOML (default: the paper's).
-        #[arg(long)]
-        geometry: Option<PathBuf>,
+        /// Geometry: `paper`, `paper-tall` (the 80 mm image) or a TOML file.
+        #[arg(long, default_value = "paper")]
+        geometry: String,
         /// Binning of the geometry (1, 2, 4).
         #[arg(long, default_value_t = 4)]
         binning: usize,
@@ -142,17 +145,6 @@ enum Cmd {
     },
 }
 
-fn load_geometry(path: &Option<PathBuf>, binning: usize) -> Result<Geometry> {
-    let g = match path {
-        Some(p) => Geometry::from_toml_str(
-            &std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
-        )
-        .with_context(|| format!("geometry {}", p.display()))?,
-        None => Geometry::paper(),
-    };
-    Ok(g.binned(binning)?)
-}
-
 fn main() -> Result<()> {
     tracing_subscriber::fmt()
         .with_env_filter(
@@ -168,7 +160,7 @@ fn main() -> Result<()> {
             geometry,
             binning,
         } => {
-            let g = load_geometry(&geometry, binning)?;
+            let g = dbt_store::load_geometry(&geometry, binning)?;
             let spec: PhantomSpec = Population::for_geometry(&g).draw(seed, index);
             let vol = generate(&spec)?;
             dbt_store::save_phantom(&vol, &out)?;
@@ -184,10 +176,11 @@ fn main() -> Result<()> {
         Cmd::Acquire {
             out,
             index,
+            geometry,
             binning,
             noise,
         } => {
-            let g = load_geometry(&None, binning)?;
+            let g = dbt_store::load_geometry(&geometry, binning)?;
             let spec = Population::for_geometry(&g).draw(Population::TEST_SEED, index);
             let vol = generate(&spec)?;
             let noise = NoiseLevel::parse(&noise)?;
@@ -347,7 +340,7 @@ fn main() -> Result<()> {
                 bail!("--slices must be positive");
             }
             let opts = ExportOptions {
-                geometry: load_geometry(&geometry, binning)?,
+                geometry: dbt_store::load_geometry(&geometry, binning)?,
                 slices,
                 test_phantoms,
                 seed,

@@ -25,6 +25,15 @@ use thiserror::Error;
 /// The geometry of the paper, as shipped in `geometry/paper.toml`.
 pub const PAPER_TOML: &str = include_str!("../geometry/paper.toml");
 
+/// The paper's geometry with an 80 mm image (400 rows), for breasts
+/// compressed to 58-78 mm, as shipped in `geometry/paper-tall.toml`.
+pub const PAPER_TALL_TOML: &str = include_str!("../geometry/paper-tall.toml");
+
+/// The built-in geometries by name, for configuration files and command
+/// lines (`Geometry::builtin`).
+pub const BUILTIN_GEOMETRIES: [(&str, &str); 2] =
+    [("paper", PAPER_TOML), ("paper-tall", PAPER_TALL_TOML)];
+
 /// Errors from parsing or validating a geometry.
 #[derive(Debug, Error, PartialEq)]
 pub enum GeometryError {
@@ -125,6 +134,16 @@ impl Geometry {
     pub fn paper() -> Self {
         // The embedded file is part of this crate and covered by its tests.
         Self::from_toml_str(PAPER_TOML).expect("embedded paper geometry is valid")
+    }
+
+    /// A built-in geometry by name (`paper`, `paper-tall`), or `None` for
+    /// any other name.
+    pub fn builtin(name: &str) -> Option<Self> {
+        BUILTIN_GEOMETRIES
+            .iter()
+            .find(|(n, _)| *n == name)
+            // The embedded files are part of this crate and covered by its tests.
+            .map(|(_, text)| Self::from_toml_str(text).expect("embedded geometry is valid"))
     }
 
     /// A binned variant: pixels and detector elements `factor` times larger, with
@@ -438,8 +457,10 @@ mod tests {
     /// geometry with an 80 mm image: valid, binnable, the same rays.
     #[test]
     fn the_tall_variant_is_the_paper_geometry_80_mm_high() {
-        let t = Geometry::from_toml_str(include_str!("../geometry/paper-tall.toml")).unwrap();
+        let t = Geometry::builtin("paper-tall").unwrap();
         let p = Geometry::paper();
+        assert_eq!(Geometry::builtin("paper"), Some(p.clone()));
+        assert_eq!(Geometry::builtin("paper-tal"), None);
         assert_eq!(t.image.rows, 400);
         assert!((t.height_mm() - 80.0).abs() < 1e-9);
         let mut same = t.clone();

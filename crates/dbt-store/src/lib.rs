@@ -7,6 +7,7 @@ pub mod acquisition;
 pub mod dataset;
 pub mod operator;
 
+use dbt_geometry::{Geometry, BUILTIN_GEOMETRIES};
 use dbt_phantom::{ExternalSidecar, LabelVolume, PhantomError};
 use std::io::Read;
 use std::path::{Path, PathBuf};
@@ -63,6 +64,39 @@ pub fn read_maybe_gz(path: &Path) -> Result<Vec<u8>, StoreError> {
     } else {
         Ok(bytes)
     }
+}
+
+/// A geometry named on a command line or in a configuration file: a
+/// built-in name (`paper`, `paper-tall`: [`dbt_geometry::BUILTIN_GEOMETRIES`])
+/// or the path of a geometry TOML; then binned by `binning`.
+pub fn load_geometry(spec: &str, binning: usize) -> Result<Geometry, StoreError> {
+    let path = Path::new(spec);
+    let format = |reason: String| StoreError::Format {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let g = match Geometry::builtin(spec) {
+        Some(g) => g,
+        None => {
+            let text = std::fs::read_to_string(path).map_err(|source| {
+                if source.kind() == std::io::ErrorKind::NotFound {
+                    let names: Vec<&str> = BUILTIN_GEOMETRIES.iter().map(|(n, _)| *n).collect();
+                    format(format!(
+                        "no such geometry file, and not a built-in geometry ({})",
+                        names.join(", ")
+                    ))
+                } else {
+                    StoreError::Io {
+                        path: path.to_path_buf(),
+                        source,
+                    }
+                }
+            })?;
+            Geometry::from_toml_str(&text).map_err(|e| format(e.to_string()))?
+        }
+    };
+    g.binned(binning)
+        .map_err(|e| format(format!("binning {binning}: {e}")))
 }
 
 /// Load an external phantom from its sidecar (the raw file is resolved
@@ -176,6 +210,34 @@ mod tests {
         .unwrap();
         let e = load_external_phantom(&sc).unwrap_err().to_string();
         assert!(e.contains("gzip"), "{e}");
+    }
+
+    #[test]
+    fn geometry_by_name_or_file() {
+        let tall = load_geometry("paper-tall", 4).unwrap();
+        assert_eq!((tall.image.rows, tall.n_det()), (100, 320));
+        assert_eq!(load_geometry("paper", 1).unwrap(), Geometry::paper());
+        let dir = tempfile::tempdir().unwrap();
+        let f = dir.path().join("g.toml");
+        std::fs::write(&f, Geometry::paper().binned(2).unwrap().to_toml_string()).unwrap();
+        let s = f.to_str().unwrap();
+        assert_eq!(
+            load_geometry(s, 1).unwrap(),
+            Geometry::paper().binned(2).unwrap()
+        );
+        // A binning that does not divide the file's sizes names it.
+        let e = load_geometry(s, 7).unwrap_err().to_string();
+        assert!(e.contains("binning 7") && e.contains("g.toml"), "{e}");
+        // Neither a file nor a built-in name: both are said.
+        let e = load_geometry("paper_tall", 4).unwrap_err().to_string();
+        assert!(
+            e.contains("paper_tall") && e.contains("paper, paper-tall"),
+            "{e}"
+        );
+        // A file that is not a geometry.
+        std::fs::write(&f, "rows = 3").unwrap();
+        let e = load_geometry(s, 1).unwrap_err().to_string();
+        assert!(e.contains("g.toml"), "{e}");
     }
 
     #[test]

@@ -1,8 +1,8 @@
 //! Service diagnostics for the DBToR gantry PC.
 //!
 //! ```text
-//! dbtor-diag selftest [--geometry FILE.toml] [--binning N] [--json]
-//! dbtor-diag geometry [--geometry FILE.toml] [--binning N]
+//! dbtor-diag selftest [--geometry paper|paper-tall|FILE.toml] [--binning N] [--json]
+//! dbtor-diag geometry [--geometry paper|paper-tall|FILE.toml] [--binning N]
 //! dbtor-diag report FILE.dcm [--json]     # the values of a dose or density SR
 //! dbtor-diag echo AET@host:port            # DICOM C-ECHO to the PACS
 //! dbtor-diag modbus (HOST:PORT | --rtu PATH [--baud 19200]) [--unit N] [--base N] [--json]   # read and decode the gantry registers
@@ -36,9 +36,10 @@ struct Cli {
 
 #[derive(Args)]
 struct GeometryArgs {
-    /// Geometry file (TOML, as `dbtor-diag geometry` prints); default: the paper's.
-    #[arg(long)]
-    geometry: Option<PathBuf>,
+    /// Geometry: `paper`, `paper-tall` (the 80 mm image) or a TOML file (as
+    /// `dbtor-diag geometry` prints).
+    #[arg(long, default_value = "paper")]
+    geometry: String,
     /// Detector and image binning factor.
     #[arg(long, default_value_t = 1)]
     binning: usize,
@@ -140,16 +141,7 @@ enum Cmd {
 }
 
 fn load_geometry(a: &GeometryArgs) -> Result<Geometry> {
-    let g = match &a.geometry {
-        Some(p) => {
-            let text = std::fs::read_to_string(p)
-                .with_context(|| format!("reading geometry file {}", p.display()))?;
-            Geometry::from_toml_str(&text)
-                .with_context(|| format!("geometry file {}", p.display()))?
-        }
-        None => Geometry::paper(),
-    };
-    Ok(g.binned(a.binning)?)
+    Ok(dbt_store::load_geometry(&a.geometry, a.binning)?)
 }
 
 fn median_ms(mut v: Vec<f64>) -> f64 {

@@ -4,10 +4,11 @@
 //! acquisition fault (named on stderr; nothing is spooled); 2 on bad usage.
 //!
 //! `dbtor-receive (--connect HOST:PORT | --serial PATH [--baud 921600]) --out DIR
-//!  [--binning N] [--timeout-s 30] [--tube-output 0.11]`
+//!  [--geometry paper|paper-tall|FILE.toml] [--binning N] [--timeout-s 30]
+//!  [--tube-output 0.11]`: the geometry is the gantry's (as the daemon's
+//! `[frames] geometry` and `binning`).
 
 use anyhow::{bail, Context, Result};
-use dbt_geometry::Geometry;
 use dbtor_firmware::link::{receive, receive_from, to_acquisition};
 use std::net::TcpStream;
 use std::path::PathBuf;
@@ -19,6 +20,7 @@ fn run() -> Result<bool> {
     let (mut connect, mut out, mut binning, mut timeout, mut output) =
         (None, None, 4usize, 30u64, 0.11f64);
     let (mut serial, mut baud) = (None::<String>, 921_600u32);
+    let mut geometry = String::from("paper");
     let mut it = args.iter();
     while let Some(a) = it.next() {
         let mut val = |n: &str| {
@@ -31,6 +33,7 @@ fn run() -> Result<bool> {
             "--serial" => serial = Some(val("--serial")?),
             "--baud" => baud = val("--baud")?.parse().context("--baud")?,
             "--out" => out = Some(PathBuf::from(val("--out")?)),
+            "--geometry" => geometry = val("--geometry")?,
             "--binning" => binning = val("--binning")?.parse().context("--binning")?,
             "--timeout-s" => timeout = val("--timeout-s")?.parse().context("--timeout-s")?,
             "--tube-output" => output = val("--tube-output")?.parse().context("--tube-output")?,
@@ -38,7 +41,7 @@ fn run() -> Result<bool> {
         }
     }
     let out = out.context("--out DIR is required")?;
-    let geom = Geometry::paper().binned(binning)?;
+    let geom = dbt_store::load_geometry(&geometry, binning)?;
     let result = match (connect, serial) {
         (Some(addr), None) => {
             // The gantry may not be listening yet: retry the connection briefly.
