@@ -54,6 +54,20 @@ fn lpd_matches_pytorch_and_onnxruntime() {
     assert_eq!((m.kind.as_str(), m.aux_channels()), ("lpd", Some((2, 1))));
 }
 
+/// The tall-geometry model (`models/dbtor-x4t`, 250 x 100 pixels, the
+/// firmware's default), on both engines and precisions, with the same rules.
+#[test]
+fn tall_model_matches_pytorch_and_onnxruntime() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/dbtor-x4t");
+    for p in [Precision::Fp32, Precision::Int8] {
+        for e in [Engine::Fast, Engine::Tract] {
+            check_dir(&dir, p, e);
+        }
+    }
+    let m = ModelManifest::load(&dir).unwrap();
+    assert_eq!((m.kind.as_str(), m.geometry.image.rows), ("dbtor", 100));
+}
+
 /// fp32: the fast path + Rust projector against PyTorch, same tolerance.
 #[test]
 fn fast_fp32_matches_pytorch() {
