@@ -4,13 +4,14 @@
 #  1. dbtor-diag selftest: the shipped geometry and projector at the paper's
 #     full geometry (adjointness, analytic slab line integrals, norm bound).
 #  2. host-sim acquire: test-set phantom 0 (never trained on), every coronal
-#     slice simulated at N = 8 (Poisson), paper geometry binned x4, written as
-#     a recorded acquisition (acquisition.json + counts.f32).
+#     slice simulated at N = 8 (Poisson), the paper geometry with its 80 mm
+#     image (paper-tall, for breasts up to 75 mm) binned x4, written as a
+#     recorded acquisition (acquisition.json + counts.f32).
 #  3. host-sim stream | dbtor-receive: the gantry's projection stream
 #     (GANTRY_INTERFACE.md) over loopback TCP, two processes; the firmware
 #     acknowledges every frame and spools the acquisition atomically.
 #  4. dbtor-process: per-slice DBToR reconstruction with the shipped model
-#     (models/dbtor-x4, checksums verified at load; DBTOR_PRECISION=fp32|int8,
+#     (models/dbtor-x4t, trained for paper-tall; checksums verified at load; DBTOR_PRECISION=fp32|int8,
 #     default fp32: int8 costs SSIM at this training stage, eval/README.md), tissue classification, glandularity, Monte Carlo MGD (25
 #     views, patient-specific and model breast, 1 % uncertainty), dose SR and
 #     density SR to the output folder.
@@ -26,14 +27,14 @@ cargo build --release --locked -q -p dbtor-firmware -p host-sim
 ./target/release/dbtor-diag selftest
 rm -rf "$OUT"
 mkdir -p "$OUT"
-./target/release/host-sim acquire --out "$OUT/gantry-acquisition" --index 0 --binning 4 --noise N8 2>/dev/null
+./target/release/host-sim acquire --out "$OUT/gantry-acquisition" --index 0 --geometry paper-tall --binning 4 --noise N8 2>/dev/null
 PORT=$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
 ./target/release/host-sim stream --acq "$OUT/gantry-acquisition" --listen "127.0.0.1:$PORT" 2>/dev/null &
 SIM=$!
-./target/release/dbtor-receive --connect "127.0.0.1:$PORT" --out "$OUT/spool/acquisition-1"
+./target/release/dbtor-receive --connect "127.0.0.1:$PORT" --geometry paper-tall --binning 4 --out "$OUT/spool/acquisition-1"
 wait "$SIM"
 ./target/release/dbtor-process "$OUT/spool/acquisition-1" --out "$OUT/reports" \
-    --model models/dbtor-x4 --precision "${DBTOR_PRECISION:-fp32}" "$@" > "$OUT/summary.json"
+    --model models/dbtor-x4t --precision "${DBTOR_PRECISION:-fp32}" "$@" > "$OUT/summary.json"
 python3 - "$OUT/summary.json" "$OUT/gantry-acquisition/acquisition.json" <<'PY' || cat "$OUT/summary.json"
 import json, sys
 d = json.load(open(sys.argv[1]))

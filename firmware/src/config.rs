@@ -2,6 +2,7 @@
 //! the key and says what is wrong. `firmware/config/dbtor.toml` is the
 //! installed example.
 
+use dbt_geometry::Geometry;
 use serde::Deserialize;
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
@@ -57,9 +58,19 @@ pub struct FramesConfig {
     /// An acquisition fails when nothing arrives for this long, s.
     #[serde(default = "default_idle")]
     pub idle_timeout_s: f64,
-    /// Binning of the paper geometry the gantry sends.
+    /// The gantry's geometry: `paper` (the paper's, 60 mm image),
+    /// `paper-tall` (80 mm image, breasts up to 75 mm) or a geometry TOML
+    /// (relative to the configuration file's folder). A DBToR model must
+    /// have been trained for it (checked at start).
+    #[serde(default = "default_geometry")]
+    pub geometry: String,
+    /// Binning of that geometry (detector elements and image pixels).
     #[serde(default = "default_binning")]
     pub binning: usize,
+}
+
+fn default_geometry() -> String {
+    "paper".into()
 }
 
 fn default_baud() -> u32 {
@@ -227,6 +238,11 @@ impl Config {
                 *p = base.join(&*p);
             }
         };
+        if dbt_geometry::Geometry::builtin(&c.frames.geometry).is_none() {
+            let mut g = PathBuf::from(&c.frames.geometry);
+            abs(&mut g);
+            c.frames.geometry = g.to_string_lossy().into_owned();
+        }
         abs(&mut c.paths.spool);
         abs(&mut c.paths.output);
         abs(&mut c.paths.status);
@@ -285,6 +301,7 @@ impl Config {
                 format!("{}: expected 1, 2 or 4", self.frames.binning),
             ));
         }
+        self.gantry_geometry(path)?;
         match self.modbus.transport.as_str() {
             "tcp" | "rtu" => {
                 self.modbus_endpoint(path)?;
@@ -407,6 +424,17 @@ impl Config {
         Ok(crate::modbus::Endpoint::Tcp(addr))
     }
 
+    /// The gantry's geometry (`frames.geometry`, binned by `frames.binning`).
+    pub fn gantry_geometry(&self, path: &Path) -> Result<Geometry, ConfigError> {
+        dbt_store::load_geometry(&self.frames.geometry, self.frames.binning).map_err(|e| {
+            ConfigError::Invalid {
+                path: path.to_path_buf(),
+                key: "frames.geometry",
+                reason: e.to_string(),
+            }
+        })
+    }
+
     /// The idle timeout of the frame link.
     pub fn idle_timeout(&self) -> Duration {
         Duration::from_secs_f64(self.frames.idle_timeout_s)
@@ -421,9 +449,9 @@ mod tests {
     fn example(edit: impl Fn(String) -> String) -> Result<Config, ConfigError> {
         let root = Path::new(env!("CARGO_MANIFEST_DIR"));
         let text = std::fs::read_to_string(root.join("config/dbtor.toml")).unwrap();
-        let model = root.join("../models/dbtor-x4");
+        let model = root.join("../models/dbtor-x4t");
         let text = text.replace(
-            "\"/usr/share/dbtor/models/dbtor-x4\"",
+            "\"/usr/share/dbtor/models/dbtor-x4t\"",
             &format!("{:?}", model.display().to_string()),
         );
         let t = tempfile::tempdir().unwrap();
@@ -468,5 +496,44 @@ mod tests {
         .unwrap();
         assert_eq!(c.recon.fp32_blocks, ["primal08", "primal09"]);
         assert!(example(|t| t).unwrap().recon.fp32_blocks.is_empty());
+    }
+
+    /// The gantry geometry: a built-in name or a file (relative to the
+    /// configuration's folder); anything else is refused naming the key.
+    #[test]
+    fn gantry_geometry_by_name_or_file() {
+        let c = example(|t| t).unwrap();
+        let p = Path::new("dbtor.toml");
+        assert_eq!(c.frames.geometry, "paper-tall");
+        assert_eq!(c.gantry_geometry(p).unwrap().image.rows, 100);
+        let c =
+            example(|t| t.replace("geometry = \"paper-tall\"", "geometry = \"paper\"")).unwrap();
+        assert_eq!(
+            c.gantry_geometry(p).unwrap(),
+            Geometry::paper().binned(4).unwrap()
+        );
+        // Absent: the paper's.
+        let c = example(|t| {
+            t.lines()
+                .filter(|l| !l.starts_with("geometry"))
+                .collect::<Vec<_>>()
+                .join("\n")
+        })
+        .unwrap();
+        assert_eq!(c.frames.geometry, "paper");
+        let e = example(|t| t.replace("\"paper-tall\"", "\"tall\""))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("frames.geometry") && e.contains("tall") && e.contains("paper-tall"),
+            "{e}"
+        );
+        // A relative file is read from the configuration's folder.
+        let c = example(|t| t.replace("\"paper-tall\"", "\"no-such.toml\""));
+        let e = c.unwrap_err().to_string();
+        assert!(
+            e.contains("frames.geometry") && e.contains("no-such.toml"),
+            "{e}"
+        );
     }
 }

@@ -153,7 +153,7 @@ impl Daemon {
         config_path: PathBuf,
         stop: Arc<AtomicBool>,
     ) -> Result<Self, DaemonError> {
-        let geom = Geometry::paper().binned(cfg.frames.binning)?;
+        let geom = cfg.gantry_geometry(&config_path)?;
         let mut opts = PipelineOptions {
             mltr_iterations: cfg.recon.mltr_iterations,
             dose_uncertainty: cfg.recon.dose_uncertainty,
@@ -168,6 +168,21 @@ impl Daemon {
                 .unwrap_or(dbt_dbtor::Precision::Fp32);
             let engine = cfg.recon.engine.parse().unwrap_or(dbt_dbtor::Engine::Fast);
             let m = dbt_dbtor::Dbtor::load_mixed(&dir, precision, &cfg.recon.fp32_blocks, engine)?;
+            if m.geometry() != &geom {
+                return Err(crate::config::ConfigError::Invalid {
+                    path: config_path,
+                    key: "recon.model",
+                    reason: format!(
+                        "{} was trained for {}, the gantry (frames.geometry = {:?}, binning {}) is {}",
+                        dir.display(),
+                        m.geometry().describe(),
+                        cfg.frames.geometry,
+                        cfg.frames.binning,
+                        geom.describe()
+                    ),
+                }
+                .into());
+            }
             opts.calibration = crate::calibration::load_calibration(&m, &opts.classify)?;
             opts.dbtor = Some(Arc::new(m));
         }

@@ -200,6 +200,17 @@ pub fn reconstruct_volume(
     if acq.counts.is_empty() {
         return Err(PipelineError::Input("no slices".into()));
     }
+    // A breast taller than the image would be cut off at the top (its
+    // rows outside the grid), silently biasing the density: refuse it.
+    if h.thickness_mm > g.height_mm() {
+        return Err(PipelineError::Input(format!(
+            "compressed thickness {:.1} mm exceeds the image height {:.1} mm of the geometry ({}): \
+             reconstruct it on a taller image (the paper-tall geometry, 80 mm) with a model trained for it",
+            h.thickness_mm,
+            g.height_mm(),
+            g.describe()
+        )));
+    }
     let proj = Projector::new(g);
     let mask = dbt_phantom::thickness_mask(g, h.thickness_mm);
     let (rows, cols) = (g.image.rows, g.image.columns);

@@ -237,3 +237,43 @@ fn the_glandularity_calibration_is_bound_to_the_model() {
     let e = load_calibration(&m, &classify).unwrap_err().to_string();
     assert!(e.contains(CALIBRATION_FILE), "{e}");
 }
+
+/// A breast thicker than the image is refused, naming both heights, not
+/// reconstructed with its top cut off.
+#[test]
+fn a_breast_taller_than_the_image_is_refused() {
+    let g = Geometry::paper().binned(10).unwrap();
+    let spec = PhantomSpec {
+        thickness_mm: 30.0,
+        chest_to_nipple_mm: 20.0,
+        width_mm: 60.0,
+        ..PhantomSpec::typical(g.image.pixel_mm, 5)
+    };
+    let vol = generate(&spec).unwrap();
+    let mut acq = simulate_acquisition(
+        &vol,
+        &g,
+        NoiseLevel::NoiseFree,
+        3,
+        Technique::default(),
+        27.0,
+        "T2",
+        "1.2.3",
+    )
+    .unwrap();
+    let opts = PipelineOptions {
+        dbtor: None,
+        mltr_iterations: 2,
+        dose_uncertainty: 0.2,
+        ..PipelineOptions::default()
+    };
+    // At the image's height it still fits.
+    acq.header.thickness_mm = g.height_mm();
+    dbtor_firmware::pipeline::reconstruct_volume(&acq, &opts, &mut |_| {}).unwrap();
+    acq.header.thickness_mm = g.height_mm() + 0.5;
+    let e = process(&acq, &opts).unwrap_err().to_string();
+    assert!(
+        e.contains("thickness 60.5 mm exceeds the image height 60.0 mm") && e.contains("taller"),
+        "{e}"
+    );
+}

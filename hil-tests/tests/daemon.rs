@@ -321,6 +321,30 @@ fn bad_configuration_is_refused_naming_the_key() {
         !dir.path().join("spool").exists(),
         "nothing may start on a bad configuration"
     );
+    // A model trained for another geometry than the gantry's: refused at
+    // start, naming the key and both geometries.
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/dbtor-x4");
+    let cfg = write_config(
+        dir.path(),
+        "transport = \"tcp\"\naddress = \"127.0.0.1:1\"\ngeometry = \"paper-tall\"",
+        "transport = \"off\"",
+        &format!(
+            "reconstructor = \"dbtor\"\nmodel = {:?}",
+            model.display().to_string()
+        ),
+    );
+    let out = Command::new(workspace_bin("dbtor-daemon"))
+        .arg("--config")
+        .arg(&cfg)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("recon.model") && err.contains("250x75") && err.contains("250x100"),
+        "{err}"
+    );
+    assert!(!dir.path().join("spool").exists());
 }
 
 /// The same daemon with the gantry on serial lines only: frames on one socat
