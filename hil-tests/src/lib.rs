@@ -38,12 +38,20 @@ pub fn workspace_bin(name: &str) -> std::path::PathBuf {
 
 /// `host-sim acquire` of test phantom `index` (N = 8, binned x4) into `dir/acq`.
 pub fn acquire(dir: &std::path::Path, index: u32) -> std::path::PathBuf {
+    acquire_on(dir, index, "paper")
+}
+
+/// As [`acquire`], on another geometry (`host-sim acquire --geometry`):
+/// `paper-tall` is the shipped configuration's.
+pub fn acquire_on(dir: &std::path::Path, index: u32, geometry: &str) -> std::path::PathBuf {
     let acq = dir.join("acq");
     let st = std::process::Command::new(workspace_bin("host-sim"))
         .args([
             "acquire",
             "--index",
             &index.to_string(),
+            "--geometry",
+            geometry,
             "--binning",
             "4",
             "--noise",

@@ -12,7 +12,11 @@ use std::time::{Duration, Instant};
 
 /// Test phantom 1 acquired, with its compressed thickness.
 fn acquire(dir: &Path) -> (PathBuf, f64) {
-    let acq = hil_tests::acquire(dir, 1);
+    acquire_on(dir, "paper")
+}
+
+fn acquire_on(dir: &Path, geometry: &str) -> (PathBuf, f64) {
+    let acq = hil_tests::acquire_on(dir, 1, geometry);
     let h: serde_json::Value =
         serde_json::from_slice(&std::fs::read(acq.join("acquisition.json")).unwrap()).unwrap();
     (acq, h["thickness_mm"].as_f64().unwrap())
@@ -352,7 +356,7 @@ fn bad_configuration_is_refused_naming_the_key() {
 #[test]
 fn clean_acquisition_over_serial_lines() {
     let dir = tempfile::tempdir().unwrap();
-    let (acq, thickness) = acquire(dir.path());
+    let (acq, thickness) = acquire_on(dir.path(), "paper-tall");
     let frames = pty_pair(dir.path(), "frames");
     let regs = pty_pair(dir.path(), "modbus");
     let (frames_gantry, frames_pc) = (&frames.a, &frames.b);
@@ -364,11 +368,15 @@ fn clean_acquisition_over_serial_lines() {
         .stderr(Stdio::null())
         .spawn()
         .unwrap();
-    // The shipped model on the fast engine: the gantry PC's configuration.
-    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/dbtor-x4");
+    // The shipped model on the fast engine and its geometry: the gantry PC's
+    // configuration.
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/dbtor-x4t");
     let cfg = write_config(
         dir.path(),
-        &format!("transport = \"serial\"\nport = \"{}\"", frames_pc.display()),
+        &format!(
+            "transport = \"serial\"\nport = \"{}\"\ngeometry = \"paper-tall\"",
+            frames_pc.display()
+        ),
         &format!(
             "transport = \"rtu\"\nport = \"{}\"\nbaud = 19200\ntimeout_ms = 1000",
             modbus_pc.display()
