@@ -127,8 +127,12 @@ impl BlandAltman<'_> {
         {
             let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
             root.fill(&WHITE).map_err(|e| err(&e))?;
+            // Long titles (a calibrated reconstructor's name) get a smaller
+            // font so they fit the width: about 0.55 em per character.
+            let chars = self.title.chars().count().max(1) as f64;
+            let size = (f64::from(w) / (0.55 * chars)).clamp(10.0, 18.0);
             let mut chart = ChartBuilder::on(&root)
-                .caption(&self.title, ("sans-serif", 18))
+                .caption(&self.title, ("sans-serif", size))
                 .margin(12)
                 .x_label_area_size(46)
                 .y_label_area_size(64)
