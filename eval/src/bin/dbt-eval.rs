@@ -214,6 +214,9 @@ enum Cmd {
         phantoms: usize,
         #[command(flatten)]
         split: SplitArgs,
+        /// Classify this external phantom (sidecar) instead.
+        #[arg(long)]
+        phantom: Option<PathBuf>,
         /// Binning of the paper geometry, without a model.
         #[arg(long, default_value_t = 4)]
         binning: usize,
@@ -410,6 +413,24 @@ fn load_models(
     Ok(out)
 }
 
+/// The phantoms an evaluation runs on: the external phantom `phantom`
+/// (resampled to the geometry's pixel) if given, else the first `n` of
+/// `split`.
+fn phantom_inputs(
+    phantom: Option<&std::path::Path>,
+    g: &Geometry,
+    split: dbt_eval::accuracy::Split,
+    n: usize,
+) -> Vec<Result<(String, dbt_phantom::LabelVolume)>> {
+    match phantom {
+        Some(p) => vec![dbt_store::load_external_phantom(p)
+            .map_err(anyhow::Error::from)
+            .and_then(|v| Ok(v.resampled(g.image.pixel_mm)?))
+            .map(|v| (p.display().to_string(), v))],
+        None => dbt_eval::accuracy::split_phantoms(g, split, n).collect(),
+    }
+}
+
 fn main() -> Result<()> {
     tracing_subscriber::fmt()
         .with_env_filter(
@@ -598,7 +619,7 @@ fn main() -> Result<()> {
                 Some(v) => parse_skin_variant(&v)?,
                 None => dbt_tissue::ClassifyOptions::default(),
             };
-            use dbt_eval::accuracy::{run_cases, split_phantoms, summarise, Case, QUANTITIES};
+            use dbt_eval::accuracy::{run_cases, summarise, Case, QUANTITIES};
             let noise = NoiseLevel::parse(&noise)?;
             let list = reconstructors
                 .unwrap_or_else(|| if model.is_some() { "fp32" } else { "mltr" }.to_string());
@@ -663,13 +684,7 @@ fn main() -> Result<()> {
             };
             let split = split.resolve(recs.iter().find_map(|(_, _, o)| o.dbtor.as_deref()))?;
             let opts: Vec<_> = recs.iter().map(|(_, _, o)| o.clone()).collect();
-            let inputs: Vec<anyhow::Result<(String, dbt_phantom::LabelVolume)>> = match &phantom {
-                Some(p) => vec![dbt_store::load_external_phantom(p)
-                    .map_err(anyhow::Error::from)
-                    .and_then(|v| Ok(v.resampled(g.image.pixel_mm)?))
-                    .map(|v| (p.display().to_string(), v))],
-                None => split_phantoms(&g, split, phantoms).collect(),
-            };
+            let inputs = phantom_inputs(phantom.as_deref(), &g, split, phantoms);
             let mut cases: Vec<Vec<Case>> = vec![Vec::new(); recs.len()];
             for (k, item) in inputs.into_iter().enumerate() {
                 let (name, vol) = item?;
@@ -734,6 +749,7 @@ fn main() -> Result<()> {
         Cmd::Classification {
             phantoms,
             split,
+            phantom,
             binning,
             noise,
             model,
@@ -766,7 +782,9 @@ fn main() -> Result<()> {
             let reconstructor = dbtor_firmware::pipeline::reconstructor_name(&opts);
             let t0 = Instant::now();
             let mut per_variant = vec![Vec::new(); variants.len()];
-            for (k, item) in dbt_eval::accuracy::split_phantoms(&g, split, phantoms).enumerate() {
+            let inputs = phantom_inputs(phantom.as_deref(), &g, split, phantoms);
+            let phantoms = inputs.len();
+            for (k, item) in inputs.into_iter().enumerate() {
                 let (name, vol) = item?;
                 let cs = run_phantom(
                     &name,
@@ -794,9 +812,12 @@ fn main() -> Result<()> {
                     all.push(c);
                 }
             }
+            let source = match &phantom {
+                Some(p) => p.display().to_string(),
+                None => format!("{phantoms} phantoms of the {} split", split.describe()),
+            };
             println!(
-                "Classification on {phantoms} phantoms of the {} split, {reconstructor}, {} ({:.0} s)\n",
-                split.describe(),
+                "Classification on {source}, {reconstructor}, {} ({:.0} s)\n",
                 noise.name(),
                 t0.elapsed().as_secs_f64()
             );
@@ -820,7 +841,7 @@ fn main() -> Result<()> {
             write_json(
                 &json,
                 &serde_json::json!({
-                    "split": split.describe(),
+                    "split": source,
                     "reconstructor": reconstructor,
                     "noise": noise.name(),
                     "geometry": g.describe(),
