@@ -460,19 +460,21 @@ mod tests {
         Config::load(&p)
     }
 
+    /// `text` without the lines that set `key`.
+    fn without(text: &str, key: &str) -> String {
+        text.lines()
+            .filter(|l| !l.starts_with(key))
+            .collect::<Vec<_>>()
+            .join("\n")
+    }
+
     #[test]
     fn engine_is_validated_and_defaults_to_fast() {
         let c = example(|t| t).unwrap();
         assert_eq!(c.recon.engine, "fast");
         let c = example(|t| t.replace("engine = \"fast\"", "engine = \"tract\"")).unwrap();
         assert_eq!(c.recon.engine, "tract");
-        let c = example(|t| {
-            t.lines()
-                .filter(|l| !l.starts_with("engine"))
-                .collect::<Vec<_>>()
-                .join("\n")
-        })
-        .unwrap();
+        let c = example(|t| without(&t, "engine")).unwrap();
         assert_eq!(c.recon.engine, "fast");
         let e = example(|t| t.replace("engine = \"fast\"", "engine = \"warp\""))
             .unwrap_err()
@@ -513,13 +515,7 @@ mod tests {
             Geometry::paper().binned(4).unwrap()
         );
         // Absent: the paper's.
-        let c = example(|t| {
-            t.lines()
-                .filter(|l| !l.starts_with("geometry"))
-                .collect::<Vec<_>>()
-                .join("\n")
-        })
-        .unwrap();
+        let c = example(|t| without(&t, "geometry")).unwrap();
         assert_eq!(c.frames.geometry, "paper");
         let e = example(|t| t.replace("\"paper-tall\"", "\"tall\""))
             .unwrap_err()

@@ -303,6 +303,18 @@ fn thickness_disagreement_is_a_fault_not_a_report() {
     assert!(String::from_utf8_lossy(&out.stdout).contains("thickness"));
 }
 
+/// Start the daemon on `cfg`, expect exit 2 (refused at start), return its
+/// stderr.
+fn refused(cfg: &Path) -> String {
+    let out = Command::new(workspace_bin("dbtor-daemon"))
+        .arg("--config")
+        .arg(cfg)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
 #[test]
 fn bad_configuration_is_refused_naming_the_key() {
     let dir = tempfile::tempdir().unwrap();
@@ -312,14 +324,7 @@ fn bad_configuration_is_refused_naming_the_key() {
         frames: "127.0.0.1:1".into(),
         registers: "not-an-address".into(),
     };
-    let cfg = config(dir.path(), &g, 2);
-    let out = Command::new(workspace_bin("dbtor-daemon"))
-        .arg("--config")
-        .arg(&cfg)
-        .output()
-        .unwrap();
-    assert_eq!(out.status.code(), Some(2));
-    let err = String::from_utf8_lossy(&out.stderr);
+    let err = refused(&config(dir.path(), &g, 2));
     assert!(err.contains("modbus.address"), "{err}");
     assert!(
         !dir.path().join("spool").exists(),
@@ -337,13 +342,7 @@ fn bad_configuration_is_refused_naming_the_key() {
             model.display().to_string()
         ),
     );
-    let out = Command::new(workspace_bin("dbtor-daemon"))
-        .arg("--config")
-        .arg(&cfg)
-        .output()
-        .unwrap();
-    assert_eq!(out.status.code(), Some(2));
-    let err = String::from_utf8_lossy(&out.stderr);
+    let err = refused(&cfg);
     assert!(
         err.contains("recon.model") && err.contains("250x75") && err.contains("250x100"),
         "{err}"
