@@ -341,6 +341,23 @@ impl Config {
                         format!("{} has no manifest.json", m.display()),
                     ));
                 }
+                // The model must be trained for the gantry's geometry.
+                let manifest = dbt_dbtor::ModelManifest::load(m)
+                    .map_err(|e| bad("recon.model", e.to_string()))?;
+                let gantry = self.gantry_geometry(path)?;
+                if manifest.geometry != gantry {
+                    return Err(bad(
+                        "recon.model",
+                        format!(
+                            "{} was trained for {}, the gantry (frames.geometry = {:?}, binning {}) is {}",
+                            m.display(),
+                            manifest.geometry.describe(),
+                            self.frames.geometry,
+                            self.frames.binning,
+                            gantry.describe()
+                        ),
+                    ));
+                }
                 self.recon
                     .precision
                     .parse::<dbt_dbtor::Precision>()
@@ -508,20 +525,30 @@ mod tests {
         let p = Path::new("dbtor.toml");
         assert_eq!(c.frames.geometry, "paper-tall");
         assert_eq!(c.gantry_geometry(p).unwrap().image.rows, 100);
-        let c =
-            example(|t| t.replace("geometry = \"paper-tall\"", "geometry = \"paper\"")).unwrap();
+        // With MLTR, any geometry goes (a DBToR model must match it: below).
+        let mltr = |t: &str| t.replace("reconstructor = \"dbtor\"", "reconstructor = \"mltr\"");
+        let c = example(|t| mltr(&t).replace("geometry = \"paper-tall\"", "geometry = \"paper\""))
+            .unwrap();
         assert_eq!(
             c.gantry_geometry(p).unwrap(),
             Geometry::paper().binned(4).unwrap()
         );
         // Absent: the paper's.
-        let c = example(|t| without(&t, "geometry")).unwrap();
+        let c = example(|t| without(&mltr(&t), "geometry")).unwrap();
         assert_eq!(c.frames.geometry, "paper");
         let e = example(|t| t.replace("\"paper-tall\"", "\"tall\""))
             .unwrap_err()
             .to_string();
         assert!(
             e.contains("frames.geometry") && e.contains("tall") && e.contains("paper-tall"),
+            "{e}"
+        );
+        // The model must be trained for the configured geometry.
+        let e = example(|t| t.replace("\"paper-tall\"", "\"paper\""))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("recon.model") && e.contains("250x100") && e.contains("250x75"),
             "{e}"
         );
         // A relative file is read from the configuration's folder.

@@ -168,21 +168,7 @@ impl Daemon {
                 .unwrap_or(dbt_dbtor::Precision::Fp32);
             let engine = cfg.recon.engine.parse().unwrap_or(dbt_dbtor::Engine::Fast);
             let m = dbt_dbtor::Dbtor::load_mixed(&dir, precision, &cfg.recon.fp32_blocks, engine)?;
-            if m.geometry() != &geom {
-                return Err(crate::config::ConfigError::Invalid {
-                    path: config_path,
-                    key: "recon.model",
-                    reason: format!(
-                        "{} was trained for {}, the gantry (frames.geometry = {:?}, binning {}) is {}",
-                        dir.display(),
-                        m.geometry().describe(),
-                        cfg.frames.geometry,
-                        cfg.frames.binning,
-                        geom.describe()
-                    ),
-                }
-                .into());
-            }
+            // Config::load checked the manifest's geometry against `geom`.
             opts.calibration = crate::calibration::load_calibration(&m, &opts.classify)?;
             opts.dbtor = Some(Arc::new(m));
         }
