@@ -61,7 +61,7 @@ pub struct FramesConfig {
     /// The gantry's geometry: `paper` (the paper's, 60 mm image),
     /// `paper-tall` (80 mm image, breasts up to 75 mm) or a geometry TOML
     /// (relative to the configuration file's folder). A DBToR model must
-    /// have been trained for it (checked at start).
+    /// have been trained for it (checked when the configuration is loaded).
     #[serde(default = "default_geometry")]
     pub geometry: String,
     /// Binning of that geometry (detector elements and image pixels).
@@ -238,7 +238,7 @@ impl Config {
                 *p = base.join(&*p);
             }
         };
-        if dbt_geometry::Geometry::builtin(&c.frames.geometry).is_none() {
+        if Geometry::builtin(&c.frames.geometry).is_none() {
             let mut g = PathBuf::from(&c.frames.geometry);
             abs(&mut g);
             c.frames.geometry = g.to_string_lossy().into_owned();
@@ -301,7 +301,7 @@ impl Config {
                 format!("{}: expected 1, 2 or 4", self.frames.binning),
             ));
         }
-        self.gantry_geometry(path)?;
+        let gantry = self.gantry_geometry(path)?;
         match self.modbus.transport.as_str() {
             "tcp" | "rtu" => {
                 self.modbus_endpoint(path)?;
@@ -344,7 +344,6 @@ impl Config {
                 // The model must be trained for the gantry's geometry.
                 let manifest = dbt_dbtor::ModelManifest::load(m)
                     .map_err(|e| bad("recon.model", e.to_string()))?;
-                let gantry = self.gantry_geometry(path)?;
                 if manifest.geometry != gantry {
                     return Err(bad(
                         "recon.model",

@@ -95,9 +95,6 @@ pub enum DaemonError {
     /// Bad configuration.
     #[error(transparent)]
     Config(#[from] crate::config::ConfigError),
-    /// Geometry.
-    #[error("geometry: {0}")]
-    Geometry(#[from] dbt_geometry::GeometryError),
     /// The model's glandularity calibration is unreadable or another model's.
     #[error(transparent)]
     Calibration(#[from] crate::calibration::CalibrationError),
