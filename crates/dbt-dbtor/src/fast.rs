@@ -7,7 +7,9 @@
 //! fp32: `out = Add(state, Conv3(PRelu2(Conv2(PRelu1(Conv1(Concat(state, aux)))))))`.
 //! int8: the same with `DequantizeLinear(QuantizeLinear(.))` around every
 //! activation, int8 weights per output channel behind `DequantizeLinear`,
-//! and int32 biases behind `DequantizeLinear`.
+//! and int32 biases behind `DequantizeLinear`; the residual either quantized
+//! (`out = DQ(Q(Add(DQ(Q(state)), c3)))`, onnxruntime's graph) or float
+//! (`out = Add(state, c3)`, export.py's `--int8-residual float`).
 
 use crate::DbtorError;
 use dbt_conv::{BlockWeights, Conv3x3, Int8BlockWeights, Int8Conv, QuantParams};
@@ -312,14 +314,33 @@ pub(crate) fn int8_block(
     let proto = read_proto(path)?;
     let g = Graph::new(path, &proto)?;
     let (state, aux) = (g.inputs[0], g.inputs[1]);
-    let (sum, q_result) = g.qdq(g.output)?;
+    // The residual: quantized, DQ(Q(Add(DQ(Q(state)), c3))), or float,
+    // Add(state, c3).
+    let float_residual = matches!(g.producers.get(g.output), Some(n) if n.op_type == "Add");
+    let (sum, q_result) = if float_residual {
+        (g.output, None)
+    } else {
+        let (sum, q) = g.qdq(g.output)?;
+        (sum, Some(q))
+    };
     let add = g.node(sum, "Add")?;
-    let (x, qx) = g.qdq(g.input(add, 0)?)?;
-    let (y, qy) = g.qdq(g.input(add, 1)?)?;
-    let (c3, q_state, q_out3) = match (x, y) {
-        (a, b) if a == state => (b, qx, qy),
-        (a, b) if b == state => (a, qy, qx),
-        _ => return Err(g.err("the output Add does not add the quantized state")),
+    let (c3, q_state_add, q_out3) = if float_residual {
+        let (a, b) = (g.input(add, 0)?, g.input(add, 1)?);
+        let other = match (a, b) {
+            (a, b) if a == state => b,
+            (a, b) if b == state => a,
+            _ => return Err(g.err("the output Add does not add the state input")),
+        };
+        let (c3, q3) = g.qdq(other)?;
+        (c3, None, q3)
+    } else {
+        let (x, qx) = g.qdq(g.input(add, 0)?)?;
+        let (y, qy) = g.qdq(g.input(add, 1)?)?;
+        match (x, y) {
+            (a, b) if a == state => (b, Some(qx), qy),
+            (a, b) if b == state => (a, Some(qy), qx),
+            _ => return Err(g.err("the output Add does not add the quantized state")),
+        }
     };
     let conv3 = g.node(c3, "Conv")?;
     let (p2o, q_act2) = g.qdq(g.input(conv3, 0)?)?;
@@ -332,9 +353,13 @@ pub(crate) fn int8_block(
     let conv1 = g.node(c1, "Conv")?;
     let (cat_out, q_cat) = g.qdq(g.input(conv1, 0)?)?;
     let cat = g.node(cat_out, "Concat")?;
-    let (s_in, q_state_cat) = g.qdq(g.input(cat, 0)?)?;
+    let (s_in, q_state) = g.qdq(g.input(cat, 0)?)?;
     let (a_in, q_aux) = g.qdq(g.input(cat, 1)?)?;
-    if cat.input.len() != 2 || s_in != state || a_in != aux || q_state_cat != q_state {
+    if cat.input.len() != 2
+        || s_in != state
+        || a_in != aux
+        || q_state_add.is_some_and(|q| q != q_state)
+    {
         return Err(g.err(
             "the first Conv does not read Concat(DQ(Q(state)), DQ(Q(aux))) with the residual's state quantization",
         ));
