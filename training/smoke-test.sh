@@ -2,10 +2,13 @@
 # CI smoke test of the whole training path, in about a minute on 2 cores:
 # a small dataset (binned x4 geometry, N8) from host-sim, DBToR with 2+2 blocks
 # trained for 4 iterations in two runs (the second resumes from the first's
-# checkpoint), exported (fp32 + int8 QDQ, fixtures, manifest), and the export
-# checked by the firmware's runtime (`dbtor-diag model`: checksums, fp32 vs
-# PyTorch, int8 vs onnxruntime); then the same for a 2-iteration LPD (no mask,
-# trained with --precision bf16 so the autocast path is exported and checked too),
+# checkpoint), exported (fp32 + int8 QDQ with equalisation and the float
+# residual, fixtures, manifest), the int8 simulation checked against
+# onnxruntime, a 2-iteration quantisation-aware fine-tuning exported as the
+# int8 blocks, and both exports checked by the firmware's runtime
+# (`dbtor-diag model`: checksums, fp32 vs PyTorch, int8 vs onnxruntime); then
+# the same for a 2-iteration LPD (no mask, trained with --precision bf16 so the
+# autocast path is exported and checked too, int8 in onnxruntime's plain graph),
 # a 2-iteration fine-tuning (--init) on the taller geometry, and a 2-iteration
 # U-Net on FBP run once by the evaluation. Needs training/requirements.txt installed and
 # the release binaries (host-sim, dbtor-diag).
@@ -24,17 +27,34 @@ grep -q "resumed at iteration 2" "$tmp/second.log" || { echo "smoke test: the se
 [ "$(tail -n +2 "$tmp/run/curve.csv" | wc -l)" -ge 4 ] || { echo "smoke test: curve.csv is short"; exit 1; }
 mkdir -p "$tmp/model"
 $PY -m dbtor.plot --run "$tmp/run" --out "$tmp/model/training-curve.png"
-$PY -m dbtor.export --run "$tmp/run" --data "$tmp/ds" --out "$tmp/model" --calibration 2 --fixtures 1
+$PY -m dbtor.export --run "$tmp/run" --data "$tmp/ds" --out "$tmp/model" --calibration 2 --fixtures 1 | tee "$tmp/export.log"
+grep -q "equalised the hidden channels" "$tmp/export.log" || { echo "smoke test: the export did not equalise"; exit 1; }
+grep -q '"residual": "float"' "$tmp/model/manifest.json" || { echo "smoke test: the int8 residual is not float"; exit 1; }
+# The simulation of the int8 graph (qat.py) against onnxruntime, block by block.
+$PY -m dbtor.qat --model "$tmp/model" --run "$tmp/run" --data "$tmp/ds" --calibration 2 --slices 1
+# Quantisation-aware fine-tuning (2 iterations) and an export of its int8
+# blocks beside the first run's fp32 ones.
+$PY -m dbtor.train --data "$tmp/ds" --out "$tmp/qat-run" --init "$tmp/run" --qat --qat-calibration 2 \
+    --iters 2 --batch 2 --blocks 2 --val-every 2 --log-every 1
+$PY -m dbtor.export --run "$tmp/run" --int8-run "$tmp/qat-run" --data "$tmp/ds" --out "$tmp/qat-model" \
+    --calibration 2 --fixtures 1
+grep -q '"int8_run"' "$tmp/qat-model/manifest.json" || { echo "smoke test: the manifest does not record --int8-run"; exit 1; }
+cmp "$tmp/model/fp32/dual00.onnx" "$tmp/qat-model/fp32/dual00.onnx" || { echo "smoke test: --int8-run changed the fp32 blocks"; exit 1; }
+$PY -m dbtor.qat --model "$tmp/qat-model" --run "$tmp/qat-run" --data "$tmp/ds" --calibration 2 --slices 1
 cd ..
 ./target/release/dbtor-diag model "$tmp/model"
+./target/release/dbtor-diag model "$tmp/qat-model"
 # The LPD baseline (no mask): trained, exported and checked the same way.
 cd training
 $PY -m dbtor.train --data "$tmp/ds" --out "$tmp/lpd-run" --model lpd --iters 2 --batch 2 --blocks 2 \
     --val-every 2 --log-every 1 --precision bf16
-$PY -m dbtor.export --run "$tmp/lpd-run" --data "$tmp/ds" --out "$tmp/lpd" --calibration 2 --fixtures 1
+# (exported with onnxruntime's plain int8 graph, the other form the runtime reads)
+$PY -m dbtor.export --run "$tmp/lpd-run" --data "$tmp/ds" --out "$tmp/lpd" --calibration 2 --fixtures 1 \
+    --equalise 0 --int8-residual int8
 cd ..
 grep -q '"kind": "lpd"' "$tmp/lpd/manifest.json" || { echo "smoke test: the LPD export is not kind lpd"; exit 1; }
 grep -q '"precision": "bf16"' "$tmp/lpd/manifest.json" || { echo "smoke test: the LPD manifest does not record bf16 training"; exit 1; }
+grep -q '"residual": "int8"' "$tmp/lpd/manifest.json" || { echo "smoke test: the LPD int8 residual is not int8"; exit 1; }
 ./target/release/dbtor-diag model "$tmp/lpd"
 # Fine-tuning on the taller geometry (paper-tall.toml, 100 rows at x4): --init
 # from the DBToR run, 2 iterations, exported with the tall geometry and checked;

@@ -2,7 +2,7 @@
 
     python -m dbtor.train --data DS --out RUN [--model dbtor|lpd|unet] [--level N8]
         [--iters 100000] [--batch 4] [--blocks 10] [--max-minutes M] [--seed 0]
-        [--precision fp32|bf16] [--compile]
+        [--precision fp32|bf16] [--compile] [--init RUN] [--qat]
 
 RUN/checkpoint.pt holds the model, Adam, the cosine schedule, the iteration
 and the RNG states; running the same command again continues from it (the
@@ -14,6 +14,13 @@ convolutions in bfloat16 (AMX/AVX-512-BF16 on CPUs that have it), weights, Adam,
 the loss and the projector (operator.py) in float32; validation and export stay
 float32. --compile compiles each block's convolution stack (torch.compile); it
 changes speed only, so it is not part of the options a resume checks.
+
+--qat fine-tunes for int8 (quantisation-aware training, qat.py): every block
+runs with the rounding of the exported QDQ graph, the activation ranges
+re-measured on export.py's calibration slices at the start and at every
+validation; validation figures are then those of the simulated int8 network.
+Use it with --init from a trained run; export.py --int8-run takes the int8
+blocks from such a run.
 
 The U-Net (unet.py) learns from the FBP of the sinograms (the dataset's
 `fbp-<level>`, made by `host-sim fbp`) instead of the sinograms; its input is
@@ -32,11 +39,12 @@ import numpy as np
 import torch
 
 from .data import Split, statistics
+from . import qat
 from .model import PrimalDual
 from .operator import Operator
 from .unet import UNet
 
-FIXED = ("model", "level", "iters", "batch", "blocks", "seed", "lr", "precision")
+FIXED = ("model", "level", "iters", "batch", "blocks", "seed", "lr", "precision", "qat")
 
 
 def tensors(batch, stats):
@@ -104,7 +112,17 @@ def main(argv=None):
                     help="start a new run from the weights of another run's checkpoint (RUN/checkpoint.pt or RUN): "
                          "fine-tuning, e.g. on another geometry; same model kind and blocks; fresh optimiser, "
                          "schedule and normalisation (this dataset's)")
+    ap.add_argument("--qat", action="store_true",
+                    help="quantisation-aware fine-tuning for the int8 export (qat.py); with --compile the "
+                         "quantised blocks are compiled, with --precision bf16 the convolutions run in "
+                         "bfloat16 and the rounding in float32")
+    ap.add_argument("--qat-residual", choices=["float", "int8"], default="float",
+                    help="the residual form simulated (export.py --int8-residual)")
+    ap.add_argument("--qat-calibration", type=int, default=16,
+                    help="training slices the int8 ranges are measured on (export.py --calibration)")
     a = ap.parse_args(argv)
+    if a.qat and a.model == "unet":
+        sys.exit("--qat: DBToR or LPD only")
     if a.threads:
         torch.set_num_threads(a.threads)
     os.makedirs(a.out, exist_ok=True)
@@ -122,7 +140,9 @@ def main(argv=None):
     opts = {k: getattr(a, k) for k in FIXED}
     torch.manual_seed(a.seed)
     net = UNet() if unet else PrimalDual(op, blocks=a.blocks, use_mask=(a.model == "dbtor"))
-    if a.compile:
+    if a.qat:
+        qat.enable(net, compile=a.compile, float_residual=a.qat_residual == "float")
+    elif a.compile:
         compile_convolutions(net)
     adam = torch.optim.Adam(net.parameters(), lr=a.lr, betas=(0.9, 0.999), eps=1e-8, weight_decay=0)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(adam, T_max=a.iters)
@@ -130,8 +150,8 @@ def main(argv=None):
     it, elapsed = 0, 0.0
     if os.path.exists(ckpt_path):
         ck = torch.load(ckpt_path, weights_only=False)
-        # Runs made before --precision existed were float32.
-        if {"precision": "fp32", **ck["options"]} != opts:
+        # Runs made before --precision and --qat existed were float32 without QAT.
+        if {"precision": "fp32", "qat": False, **ck["options"]} != opts:
             sys.exit(f"{ckpt_path}: made with {ck['options']}, asked for {opts}; use another --out")
         net.load_state_dict(ck["model"])
         adam.load_state_dict(ck["adam"])
@@ -180,6 +200,12 @@ def main(argv=None):
     cw = csv.writer(curve)
     if curve.tell() == 0:
         cw.writerow(["iteration", "elapsed_s", "lr", "train_loss", "val_mse", "val_psnr_db"])
+    def calibrate_int8():
+        idx = qat.calibration_indices(train, a.qat_calibration)
+        qat.calibrate(net, [tensors(train.batch(idx[s:s + 4]), stats)[:2] for s in range(0, len(idx), 4)])
+
+    if a.qat:
+        calibrate_int8()
     t0, run_loss, run_n = time.time(), 0.0, 0
     start_elapsed = elapsed
     end = a.iters if a.stop_at is None else min(a.iters, a.stop_at)
@@ -196,6 +222,8 @@ def main(argv=None):
         run_n += 1
         val_mse = val_psnr = ""
         if it % a.val_every == 0 or it == end:
+            if a.qat:
+                calibrate_int8()
             val_mse, val_psnr = validate(net, val, stats)
         if it % a.log_every == 0 or val_mse != "":
             cw.writerow([it, f"{elapsed:.1f}", f"{sched.get_last_lr()[0]:.3e}", f"{run_loss / run_n:.6f}",
