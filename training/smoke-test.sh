@@ -36,8 +36,13 @@ $PY -m dbtor.qat --model "$tmp/model" --run "$tmp/run" --data "$tmp/ds" --calibr
 # blocks beside the first run's fp32 ones.
 $PY -m dbtor.train --data "$tmp/ds" --out "$tmp/qat-run" --init "$tmp/run" --qat --qat-calibration 2 \
     --iters 2 --batch 2 --blocks 2 --val-every 2 --log-every 1
+if $PY -m dbtor.export --run "$tmp/run" --int8-run "$tmp/qat-run" --data "$tmp/ds" --out "$tmp/bad-qat" \
+    --calibration 2 --fixtures 1 2> "$tmp/bad-qat.log"; then
+    echo "smoke test: a QAT run was exported equalised, unlike what it simulated"; exit 1
+fi
+grep -q "pass --equalise 0" "$tmp/bad-qat.log" || { echo "smoke test: the QAT export refusal does not say why"; cat "$tmp/bad-qat.log"; exit 1; }
 $PY -m dbtor.export --run "$tmp/run" --int8-run "$tmp/qat-run" --data "$tmp/ds" --out "$tmp/qat-model" \
-    --calibration 2 --fixtures 1
+    --calibration 2 --fixtures 1 --equalise 0
 grep -q '"int8_run"' "$tmp/qat-model/manifest.json" || { echo "smoke test: the manifest does not record --int8-run"; exit 1; }
 cmp "$tmp/model/fp32/dual00.onnx" "$tmp/qat-model/fp32/dual00.onnx" || { echo "smoke test: --int8-run changed the fp32 blocks"; exit 1; }
 $PY -m dbtor.qat --model "$tmp/qat-model" --run "$tmp/qat-run" --data "$tmp/ds" --calibration 2 --slices 1

@@ -10,7 +10,9 @@ int8 QDQ version (onnxruntime quantize_static: per-channel int8 weights, int8
 activations, calibrated on the inputs each block sees on training slices).
 With --int8-run, the int8 blocks are quantised from the weights of another
 run of the same model, normally a quantisation-aware fine-tuning of RUN
-(`train.py --init RUN --qat`, qat.py); the fp32 blocks stay RUN's.
+(`train.py --init RUN --qat`, qat.py); the fp32 blocks stay RUN's. A --qat
+run is exported in the form it simulated (--equalise 0, --int8-residual as
+its --qat-residual); anything else is refused.
 
 Two choices make the int8 blocks lose less than onnxruntime's plain output
 (measured in models/README.md):
@@ -220,6 +222,14 @@ def main(argv=None):
                      f"not a {kind} of {ck['blocks']}")
         if ck8["stats"] != stats or run8["geometry"] != run["geometry"]:
             sys.exit(f"--int8-run {a.int8_run}: trained with another normalisation or geometry than {a.run}")
+        if run8["options"].get("qat"):
+            # A QAT run learnt the rounding of one graph: export that one.
+            if a.equalise > 0:
+                sys.exit(f"--int8-run {a.int8_run}: a --qat run simulates the blocks unequalised; "
+                         "pass --equalise 0")
+            if run8.get("qat_residual", "int8") != a.int8_residual:
+                sys.exit(f"--int8-run {a.int8_run}: the run simulated the {run8.get('qat_residual', 'int8')} "
+                         f"residual, not --int8-residual {a.int8_residual}")
         qnet = PrimalDual(op, blocks=ck8["blocks"], use_mask=use_mask)
         qnet.load_state_dict(ck8["model"])
         qnet.eval()

@@ -183,6 +183,7 @@ def main(argv=None):
                        "dataset_provenance": train.manifest["provenance"],
                        "geometry": train.manifest["geometry"], "stats": stats,
                        "operator_norm": op.norm, "init": init,
+                       "qat_residual": a.qat_residual if a.qat else None,
                        "command": " ".join(["python -m dbtor.train"] + (argv or sys.argv[1:]))}, f, indent=2)
 
     def save():
