@@ -47,7 +47,7 @@ from onnxruntime.quantization import (CalibrationDataReader, CalibrationMethod, 
 from .data import Split
 from .model import STATE, PrimalDual
 from .equalize import equalise
-from .qat import calibration_indices
+from .qat import calibration_batches
 from .operator import Operator
 from .train import tensors
 
@@ -202,9 +202,13 @@ def main(argv=None):
     if kind not in ("dbtor", "lpd"):
         sys.exit(f"cannot export a {kind!r} run with this exporter")
     use_mask = kind == "dbtor"
-    net = PrimalDual(op, blocks=ck["blocks"], use_mask=use_mask)
-    net.load_state_dict(ck["model"])
-    net.eval()
+
+    def network(checkpoint):
+        n = PrimalDual(op, blocks=checkpoint["blocks"], use_mask=use_mask)
+        n.load_state_dict(checkpoint["model"])
+        return n.eval()
+
+    net = network(ck)
     stats = ck["stats"]
     level = ck["options"]["level"]
     os.makedirs(a.out, exist_ok=True)
@@ -230,20 +234,16 @@ def main(argv=None):
             if run8.get("qat_residual", "int8") != a.int8_residual:
                 sys.exit(f"--int8-run {a.int8_run}: the run simulated the {run8.get('qat_residual', 'int8')} "
                          f"residual, not --int8-residual {a.int8_residual}")
-        qnet = PrimalDual(op, blocks=ck8["blocks"], use_mask=use_mask)
-        qnet.load_state_dict(ck8["model"])
-        qnet.eval()
+        qnet = network(ck8)
 
     # Calibration inputs: training slices (never validation or test), the
     # slices train.py --qat measures its ranges on.
     train = Split(a.data, "train", level)
-    cal_idx = calibration_indices(train, a.calibration)
-    cal_batches = [tensors(train.batch(cal_idx[s:s + 4]), stats)[:2] for s in range(0, len(cal_idx), 4)]
+    cal_batches = calibration_batches(train, stats, a.calibration)
+    n_cal = sum(g.shape[0] for g, _ in cal_batches)
     if a.equalise > 0:
         if qnet is net:
-            qnet = PrimalDual(op, blocks=ck["blocks"], use_mask=use_mask)
-            qnet.load_state_dict(ck["model"])
-            qnet.eval()
+            qnet = network(ck)  # a copy: the fp32 blocks stay the trained weights
         with torch.no_grad():
             before = qnet(*cal_batches[0])
         equalise(qnet, lambda: [qnet(g, m) for g, m in cal_batches], a.equalise)
@@ -257,8 +257,7 @@ def main(argv=None):
         print(f"equalised the hidden channels (alpha {a.equalise}): float output moved by {drift:.1e} "
               "of its range", flush=True)
     samples = {}
-    for s in range(0, len(cal_idx), 4):
-        g, m, _ = tensors(train.batch(cal_idx[s:s + 4]), stats)
+    for g, m in cal_batches:
         _, seen = capture_block_inputs(qnet, g, m)
         for k, v in seen.items():
             for state, aux in v:
@@ -360,7 +359,7 @@ def main(argv=None):
         "blocks": [dict(b, fp32=os.path.relpath(f, a.out), int8=os.path.relpath(q, a.out))
                    for b, f, q in zip(blocks, fp32_files, int8_files)],
         "int8": {"format": "QDQ", "weights": "int8 per channel (symmetric)", "activations": "int8 per tensor",
-                 "calibration": f"MinMax on {len(cal_idx)} training slices", "tool": f"onnxruntime {ort.__version__}",
+                 "calibration": f"MinMax on {n_cal} training slices", "tool": f"onnxruntime {ort.__version__}",
                  "equalise_alpha": a.equalise, "residual": a.int8_residual,
                  "weights_from": ("the fp32 blocks' run" if ck8 is None else
                                   f"quantisation-aware fine-tuning ({run8['command']}), "

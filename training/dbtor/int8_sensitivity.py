@@ -24,6 +24,17 @@ from .operator import Operator
 from .train import tensors
 
 
+def mean_psnr_ssim(images, truths):
+    """Mean PSNR (dB) and SSIM of `images` against `truths` (stacks of 2-D
+    arrays, 1/cm), each slice with its truth's range: dbt-eval's conventions."""
+    ps, ss = [], []
+    for z, t in zip(np.asarray(images, np.float64), np.asarray(truths, np.float64)):
+        r = t.max() - t.min()
+        ps.append(10 * np.log10(r * r / np.mean((z - t) ** 2)))
+        ss.append(structural_similarity(t, z, data_range=r))
+    return float(np.mean(ps)), float(np.mean(ss))
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--model", required=True)
@@ -52,13 +63,7 @@ def main(argv=None):
 
     def score(precs):
         z = run_onnx_sessions([sessions[p][k] for k, p in enumerate(precs)], op, g, m, n // 2, use_mask)
-        z = z.numpy()[:, 0].astype(np.float64) * nrm["x_scale_per_mm"] * 10.0
-        ps, ss = [], []
-        for zi, t in zip(z, truth.astype(np.float64)):
-            r = t.max() - t.min()
-            ps.append(10 * np.log10(r * r / np.mean((zi - t) ** 2)))
-            ss.append(structural_similarity(t, zi, data_range=r))
-        return np.mean(ps), np.mean(ss)
+        return mean_psnr_ssim(z.numpy()[:, 0] * nrm["x_scale_per_mm"] * 10.0, truth)
 
     names = [f"{b['role']}{b['index']:02d}" for b in man["blocks"]]
     print(f"{len(idx)} validation slices, {a.level}; PSNR (dB) and SSIM of the network output")

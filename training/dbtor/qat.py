@@ -25,7 +25,7 @@ and that the Rust fast path runs (`crates/dbt-dbtor/src/fast.rs`):
   `zero_point = round(-128 - lo / scale)` clamped to int8.
 - Weights: per output channel, symmetric, `scale = max |w| / 127`.
 - Ranges: MinMax over the same calibration slices `export.py` uses
-  (`calibration_indices`), measured with the quantisation off
+  (`calibration_batches`), measured with the quantisation off
   (`calibrate`), at the start and at every validation of the run, so the
   ranges follow the weights as the export will see them.
 - Gradients: straight-through (the rounding's gradient is taken as 1).
@@ -43,10 +43,14 @@ POINTS = ("state", "aux", "cat", "c1", "p1", "c2", "p2", "c3", "out")
 CALIBRATION_SEED = 12345
 
 
-def calibration_indices(split, n):
-    """The training slices int8 is calibrated on (export.py and --qat alike)."""
+def calibration_batches(split, stats, n):
+    """The training slices int8 is calibrated on (export.py and --qat alike),
+    normalised, as batches of 4 (g, m)."""
+    from .train import tensors
+
     rng = np.random.default_rng(CALIBRATION_SEED)
-    return rng.choice(split.n, size=min(n, split.n), replace=False)
+    idx = rng.choice(split.n, size=min(n, split.n), replace=False)
+    return [tensors(split.batch(idx[s:s + 4]), stats)[:2] for s in range(0, len(idx), 4)]
 
 
 def fake_quant_activation(x, lo, hi):
@@ -209,8 +213,7 @@ def main(argv=None):
     stats = ck["stats"]
     level = ck["options"]["level"]
     train = Split(a.data, "train", level)
-    idx = calibration_indices(train, a.calibration)
-    batches = [tensors(train.batch(idx[s:s + 4]), stats)[:2] for s in range(0, len(idx), 4)]
+    batches = calibration_batches(train, stats, a.calibration)
     int8 = man.get("int8", {})
     alpha = float(int8.get("equalise_alpha", 0.0))
     if alpha > 0:
@@ -259,8 +262,7 @@ def main(argv=None):
 def budget(net, val, stats, n):
     """Where int8 loses: the simulated network scored with one quantisation
     point at a time (the points of every block together)."""
-    from skimage.metrics import structural_similarity
-
+    from .int8_sensitivity import mean_psnr_ssim
     from .train import tensors
 
     idx = np.linspace(0, val.n - 1, min(n, val.n)).astype(int)
@@ -274,12 +276,7 @@ def budget(net, val, stats, n):
         set_mode(net, mode)
         with torch.no_grad():
             z = net(g, m).numpy()[:, 0].astype(np.float64) * stats["x_scale"] * 10.0 * mask
-        ps, ss = [], []
-        for zi, t in zip(z, truth):
-            r = t.max() - t.min()
-            ps.append(10 * np.log10(r * r / np.mean((zi - t) ** 2)))
-            ss.append(structural_similarity(t, zi, data_range=r))
-        return float(np.mean(ps)), float(np.mean(ss))
+        return mean_psnr_ssim(z, truth)
 
     rows = [("fp32", "float", (), False), ("int8 weights only", "quant", (), True),
             ("int8 (weights and activations)", "quant", POINTS, True)]

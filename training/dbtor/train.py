@@ -202,8 +202,7 @@ def main(argv=None):
     if curve.tell() == 0:
         cw.writerow(["iteration", "elapsed_s", "lr", "train_loss", "val_mse", "val_psnr_db"])
     def calibrate_int8():
-        idx = qat.calibration_indices(train, a.qat_calibration)
-        qat.calibrate(net, [tensors(train.batch(idx[s:s + 4]), stats)[:2] for s in range(0, len(idx), 4)])
+        qat.calibrate(net, qat.calibration_batches(train, stats, a.qat_calibration))
 
     if a.qat:
         calibrate_int8()
