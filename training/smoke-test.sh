@@ -2,14 +2,15 @@
 # CI smoke test of the whole training path, in about a minute on 2 cores:
 # a small dataset (binned x4 geometry, N8) from host-sim, DBToR with 2+2 blocks
 # trained for 4 iterations in two runs (the second resumes from the first's
-# checkpoint), exported (fp32 + int8 QDQ with equalisation and the float
-# residual, fixtures, manifest), the int8 simulation checked against
+# checkpoint), exported (fp32 + int8 QDQ with equalisation, only the
+# convolutions' inputs quantised, fixtures, manifest), the int8 simulation checked against
 # onnxruntime, a 2-iteration quantisation-aware fine-tuning exported as the
 # int8 blocks, and both exports checked by the firmware's runtime
 # (`dbtor-diag model`: checksums, fp32 vs PyTorch, int8 vs onnxruntime); then
 # the same for a 2-iteration LPD (no mask, trained with --precision bf16 so the
 # autocast path is exported and checked too, int8 in onnxruntime's plain graph),
-# a 2-iteration fine-tuning (--init) on the taller geometry, and a 2-iteration
+# a 2-iteration fine-tuning (--init) on the taller geometry (int8 with the
+# float residual, the third graph form), and a 2-iteration
 # U-Net on FBP run once by the evaluation. Needs training/requirements.txt installed and
 # the release binaries (host-sim, dbtor-diag).
 set -euo pipefail
@@ -29,7 +30,7 @@ mkdir -p "$tmp/model"
 $PY -m dbtor.plot --run "$tmp/run" --out "$tmp/model/training-curve.png"
 $PY -m dbtor.export --run "$tmp/run" --data "$tmp/ds" --out "$tmp/model" --calibration 2 --fixtures 1 | tee "$tmp/export.log"
 grep -q "equalised the hidden channels" "$tmp/export.log" || { echo "smoke test: the export did not equalise"; exit 1; }
-grep -q '"residual": "float"' "$tmp/model/manifest.json" || { echo "smoke test: the int8 residual is not float"; exit 1; }
+grep -q '"form": "conv-inputs"' "$tmp/model/manifest.json" || { echo "smoke test: the int8 form is not conv-inputs"; exit 1; }
 # The simulation of the int8 graph (qat.py) against onnxruntime, block by block.
 $PY -m dbtor.qat --model "$tmp/model" --run "$tmp/run" --data "$tmp/ds" --calibration 2 --slices 1
 # Quantisation-aware fine-tuning (2 iterations) and an export of its int8
@@ -55,11 +56,11 @@ $PY -m dbtor.train --data "$tmp/ds" --out "$tmp/lpd-run" --model lpd --iters 2 -
     --val-every 2 --log-every 1 --precision bf16
 # (exported with onnxruntime's plain int8 graph, the other form the runtime reads)
 $PY -m dbtor.export --run "$tmp/lpd-run" --data "$tmp/ds" --out "$tmp/lpd" --calibration 2 --fixtures 1 \
-    --equalise 0 --int8-residual int8
+    --equalise 0 --int8-form plain
 cd ..
 grep -q '"kind": "lpd"' "$tmp/lpd/manifest.json" || { echo "smoke test: the LPD export is not kind lpd"; exit 1; }
 grep -q '"precision": "bf16"' "$tmp/lpd/manifest.json" || { echo "smoke test: the LPD manifest does not record bf16 training"; exit 1; }
-grep -q '"residual": "int8"' "$tmp/lpd/manifest.json" || { echo "smoke test: the LPD int8 residual is not int8"; exit 1; }
+grep -q '"form": "plain"' "$tmp/lpd/manifest.json" || { echo "smoke test: the LPD int8 form is not plain"; exit 1; }
 ./target/release/dbtor-diag model "$tmp/lpd"
 # Fine-tuning on the taller geometry (paper-tall.toml, 100 rows at x4): --init
 # from the DBToR run, 2 iterations, exported with the tall geometry and checked;
@@ -75,8 +76,11 @@ if $PY -m dbtor.train --data "$tmp/ds-tall" --out "$tmp/bad-run" --init "$tmp/lp
     echo "smoke test: --init from an LPD run into a DBToR run was accepted"; exit 1
 fi
 grep -q "not a dbtor" "$tmp/bad.log" || { echo "smoke test: the --init refusal does not say why"; cat "$tmp/bad.log"; exit 1; }
-$PY -m dbtor.export --run "$tmp/tall-run" --data "$tmp/ds-tall" --out "$tmp/tall" --calibration 2 --fixtures 1
+$PY -m dbtor.export --run "$tmp/tall-run" --data "$tmp/ds-tall" --out "$tmp/tall" --calibration 2 --fixtures 1 \
+    --int8-form float-residual
+$PY -m dbtor.qat --model "$tmp/tall" --run "$tmp/tall-run" --data "$tmp/ds-tall" --calibration 2 --slices 1
 cd ..
+grep -q '"form": "float-residual"' "$tmp/tall/manifest.json" || { echo "smoke test: the tall int8 form is not float-residual"; exit 1; }
 grep -q '"rows": 100' "$tmp/tall/manifest.json" || { echo "smoke test: the tall export lost its geometry"; exit 1; }
 grep -q '"init"' "$tmp/tall/manifest.json" || { echo "smoke test: the manifest does not record --init"; exit 1; }
 ./target/release/dbtor-diag model "$tmp/tall"

@@ -19,9 +19,16 @@ s_c = (m_c / max_k m_k) ** alpha, m_c the largest |value| of channel c on the
 calibration slices, alpha = 1 gives every channel the widest one's range
 (activations equalised fully), alpha = 1/2 splits the rescaling between the
 activations and the next convolution's weights (whose per-output-channel
-int8 scale is set by their largest input channel). The state, aux and
-concatenation (5 and 3 channels, shared with the residual sum) are not
-touched: their scaling cannot be folded anywhere.
+int8 scale is set by their largest input channel).
+
+The concatenation (5 state and 2-3 aux channels) is the first convolution's
+input. Its channels span very different ranges too (dbtor-x4t's dual09: the
+aux 40 times narrower than the state). Where the residual sum reads the
+state unquantised (export.py's float-residual and conv-inputs forms), the
+concatenation feeds nothing but conv1, so the conv-inputs form multiplies it
+by one factor per channel, `k_c = 1 / max |x_c|` (`prescale`), before
+quantising it, and divides conv1's input channel c by k_c: every channel
+then spans [-1, 1] at most, and the float function is unchanged.
 """
 import torch
 
@@ -48,6 +55,13 @@ def hidden_ranges(blocks, run_batches):
         for h in hooks:
             h.remove()
     return {b: tuple(v) for b, v in found.items()}
+
+
+def prescale(lo, hi):
+    """k_c = 1 / max(|lo_c|, |hi_c|) of a per-channel range; 1 for a channel
+    that is always 0 (the zero state of the first blocks). float32."""
+    m = torch.maximum(lo.abs(), hi.abs()).float()
+    return torch.where(m > 0, 1.0 / torch.where(m > 0, m, torch.ones_like(m)), torch.ones_like(m))
 
 
 def scales(m, alpha):

@@ -11,25 +11,35 @@ activations, calibrated on the inputs each block sees on training slices).
 With --int8-run, the int8 blocks are quantised from the weights of another
 run of the same model, normally a quantisation-aware fine-tuning of RUN
 (`train.py --init RUN --qat`, qat.py); the fp32 blocks stay RUN's. A --qat
-run is exported in the form it simulated (--equalise 0, --int8-residual as
-its --qat-residual); anything else is refused.
+run is exported in the form it simulated (--equalise 0, --int8-form as its
+--qat-form); anything else is refused.
 
 Two choices make the int8 blocks lose less than onnxruntime's plain output
 (measured in models/README.md):
 - --equalise ALPHA (default 0.5; 0 = off): cross-layer equalisation of the
   hidden channels before quantising (equalize.py), which leaves the float
   function unchanged.
-- --int8-residual float (default; `int8` = onnxruntime's plain graph): the
-  residual sum reads the state unquantised and the block output is not
-  quantised, `out = state + DQ(Q(conv3))`; the state is quantised only as
-  the first convolution's input. The state that flows from block to block
-  stays float, as it does in the runtime between blocks anyway.
+- --int8-form, which activations are quantised (qat.py writes the graphs
+  out):
+  - conv-inputs (default): only what the convolutions read, int8 x int8
+    into int32 as in every form; their outputs are dequantised and stay
+    float through the PReLU (quantised after it, as the next convolution's
+    input) and into the residual sum. The concatenation is multiplied by
+    one factor per channel before it is quantised (equalize.prescale; a Mul
+    node in the graph) and conv1's input channels are divided by it. Three
+    quantisations per block instead of eight.
+  - float-residual: every activation but the residual sum, which reads the
+    state unquantised, `out = state + DQ(Q(conv3))`.
+  - plain: onnxruntime's graph as quantize_static makes it.
+  The state that flows from block to block stays float in all three, as it
+  does in the runtime between blocks anyway.
 Also fixtures for the Rust equivalence test (a sinogram, its thickness, the
 PyTorch fp32 reconstruction and the onnxruntime int8 one) and manifest.json
 with the geometry, normalisation, block order, SHA-256 of every file,
 provenance and validation metrics.
 """
 import argparse
+import copy
 import hashlib
 import logging
 import json
@@ -46,8 +56,8 @@ from onnxruntime.quantization import (CalibrationDataReader, CalibrationMethod, 
 
 from .data import Split
 from .model import STATE, PrimalDual
-from .equalize import equalise
-from .qat import calibration_batches
+from .equalize import equalise, prescale
+from .qat import FORMS, calibration_batches
 from .operator import Operator
 from .train import tensors
 
@@ -121,6 +131,75 @@ def float_residual(path):
     onnx.save(mo, path)
 
 
+def conv_inputs_only(path):
+    """Keep only the activation quantisations that a Conv reads: every
+    QuantizeLinear -> DequantizeLinear pair on an activation whose result
+    feeds anything but a Conv's first input is taken out (its readers read
+    the unquantised tensor), so the convolutions' outputs, the PReLU inputs,
+    the state, aux and raw concatenation and the residual sum stay float.
+    Weights and biases keep their DequantizeLinear."""
+    mo = onnx.load(path)
+    g = mo.graph
+    inits = {i.name for i in g.initializer}
+    readers = {}
+    for n in g.node:
+        for k, i in enumerate(n.input):
+            readers.setdefault(i, []).append((n, k))
+    producer = {o: n for n in g.node for o in n.output}
+    rename = {}
+    drop = []
+    for dq in g.node:
+        if dq.op_type != "DequantizeLinear" or dq.input[0] in inits:
+            continue
+        q = producer.get(dq.input[0])
+        if q is None or q.op_type != "QuantizeLinear":
+            raise SystemExit(f"{path}: DequantizeLinear {dq.name!r} does not read a QuantizeLinear")
+        r = readers.get(dq.output[0], [])
+        if r and all(n.op_type == "Conv" and k == 0 for n, k in r):
+            continue
+        rename[dq.output[0]] = q.input[0]
+        drop.append(dq)
+    for n in drop:
+        g.node.remove(n)
+    # The graph output: the tensor that was quantised takes its name.
+    outs = {o.name for o in g.output}
+    for old, new in list(rename.items()):
+        if old in outs:
+            for n in g.node:
+                n.output[:] = [old if o == new else o for o in n.output]
+                n.input[:] = [old if i == new else i for i in n.input]
+            for k, v in rename.items():
+                if v == new:
+                    rename[k] = old
+    for n in g.node:
+        n.input[:] = [rename.get(i, i) for i in n.input]
+    used = {i for n in g.node for i in n.input}
+    for n in [n for n in g.node if n.op_type == "QuantizeLinear" and n.output[0] not in used]:
+        g.node.remove(n)
+    used = {i for n in g.node for i in n.input}
+    for init in list(g.initializer):
+        if init.name not in used:
+            g.initializer.remove(init)
+    onnx.checker.check_model(mo)
+    onnx.save(mo, path)
+
+
+class Prescaled(torch.nn.Module):
+    """A block with its concatenation multiplied by `k` per channel and its
+    first convolution's input channels divided by `k`: the same float
+    function (to rounding), the source of the conv-inputs int8 graph."""
+
+    def __init__(self, blk, k):
+        super().__init__()
+        self.net = copy.deepcopy(blk.net)
+        with torch.no_grad():
+            self.net[0].weight.div_(k.view(1, -1, 1, 1))
+        self.register_buffer("prescale", k.view(1, -1, 1, 1).clone())
+
+    def forward(self, state, aux):
+        return state + self.net(torch.cat([state, aux], 1) * self.prescale)
+
+
 def blocks_in_order(net):
     for i in range(net.n_blocks):
         yield "dual", i, net.dual[i]
@@ -189,9 +268,10 @@ def main(argv=None):
                     help="quantise the int8 blocks from this run's weights (a --qat fine-tuning of --run)")
     ap.add_argument("--equalise", type=float, default=0.5,
                     help="cross-layer equalisation exponent for the int8 blocks (equalize.py); 0 = off")
-    ap.add_argument("--int8-residual", choices=["float", "int8"], default="float",
-                    help="float: the residual sum of the int8 blocks reads the unquantised state and the "
-                         "output is not quantised; int8: onnxruntime's graph as it makes it")
+    ap.add_argument("--int8-form", choices=list(FORMS), default="conv-inputs",
+                    help="conv-inputs: only the convolutions' inputs quantised (the concatenation "
+                         "prescaled per channel); float-residual: every activation but the residual sum; "
+                         "plain: onnxruntime's graph as it makes it")
     a = ap.parse_args(argv)
     logging.getLogger().setLevel(logging.ERROR)  # onnxruntime's pre-processing advice
     ck = torch.load(os.path.join(a.run, "checkpoint.pt"), weights_only=False)
@@ -231,9 +311,11 @@ def main(argv=None):
             if a.equalise > 0:
                 sys.exit(f"--int8-run {a.int8_run}: a --qat run simulates the blocks unequalised; "
                          "pass --equalise 0")
-            if run8.get("qat_residual", "int8") != a.int8_residual:
-                sys.exit(f"--int8-run {a.int8_run}: the run simulated the {run8.get('qat_residual', 'int8')} "
-                         f"residual, not --int8-residual {a.int8_residual}")
+            # (runs made before --qat-form named only their residual)
+            simulated = run8.get("qat_form") or {"float": "float-residual"}.get(run8.get("qat_residual"), "plain")
+            if simulated != a.int8_form:
+                sys.exit(f"--int8-run {a.int8_run}: the run simulated the {simulated} graph, "
+                         f"not --int8-form {a.int8_form}")
         qnet = network(ck8)
 
     # Calibration inputs: training slices (never validation or test), the
@@ -282,17 +364,27 @@ def main(argv=None):
             onnx.checker.check_model(onnx.load(path))
 
         to_onnx(blk, f32)
-        q_src = f32
-        if qnet is not net:
+        q_src, q_blk, exclude = f32, qblocks[(role, i)], []
+        if a.int8_form == "conv-inputs":
+            # k from the concatenation's per-channel range on the calibration inputs
+            cat = np.concatenate([np.concatenate([s, x], 1) for s, x in samples[(role, i)]], 0)
+            k = prescale(torch.from_numpy(cat.min(axis=(0, 2, 3))), torch.from_numpy(cat.max(axis=(0, 2, 3))))
+            q_blk = Prescaled(q_blk, k)
+            exclude = ["/Mul"]  # the prescale stays a float multiplication
+        if q_blk is not blk:
             q_src = os.path.join(a.out, "int8", stem + ".fp32-source.onnx")
-            to_onnx(qblocks[(role, i)], q_src)
+            to_onnx(q_blk, q_src)
+            if exclude and not any(n.name in exclude for n in onnx.load(q_src).graph.node):
+                raise SystemExit(f"{q_src}: the prescale's Mul node is not named {exclude[0]!r}")
         quantize_static(q_src, i8, Reader(samples[(role, i)]), quant_format=QuantFormat.QDQ,
                         per_channel=True, activation_type=QuantType.QInt8, weight_type=QuantType.QInt8,
-                        calibrate_method=CalibrationMethod.MinMax)
+                        calibrate_method=CalibrationMethod.MinMax, nodes_to_exclude=exclude)
         if q_src != f32:
             os.remove(q_src)
-        if a.int8_residual == "float":
+        if a.int8_form == "float-residual":
             float_residual(i8)
+        elif a.int8_form == "conv-inputs":
+            conv_inputs_only(i8)
         for path in (f32, i8):
             # Intermediate shape annotations name the batch symbolically; a
             # runtime that fixes the input shapes (tract) infers them anew.
@@ -358,9 +450,11 @@ def main(argv=None):
         "opset": OPSET,
         "blocks": [dict(b, fp32=os.path.relpath(f, a.out), int8=os.path.relpath(q, a.out))
                    for b, f, q in zip(blocks, fp32_files, int8_files)],
-        "int8": {"format": "QDQ", "weights": "int8 per channel (symmetric)", "activations": "int8 per tensor",
+        "int8": {"format": "QDQ", "weights": "int8 per channel (symmetric)", "activations": ("int8 per tensor" if a.int8_form != "conv-inputs" else
+                                 "int8 per tensor, the convolutions' inputs only; the concatenation "
+                                 "prescaled per channel"),
                  "calibration": f"MinMax on {n_cal} training slices", "tool": f"onnxruntime {ort.__version__}",
-                 "equalise_alpha": a.equalise, "residual": a.int8_residual,
+                 "equalise_alpha": a.equalise, "form": a.int8_form,
                  "weights_from": ("the fp32 blocks' run" if ck8 is None else
                                   f"quantisation-aware fine-tuning ({run8['command']}), "
                                   f"{ck8['iteration']} iterations")},

@@ -116,8 +116,8 @@ def main(argv=None):
                     help="quantisation-aware fine-tuning for the int8 export (qat.py); with --compile the "
                          "quantised blocks are compiled, with --precision bf16 the convolutions run in "
                          "bfloat16 and the rounding in float32")
-    ap.add_argument("--qat-residual", choices=["float", "int8"], default="float",
-                    help="the residual form simulated (export.py --int8-residual)")
+    ap.add_argument("--qat-form", choices=list(qat.FORMS), default="conv-inputs",
+                    help="the int8 graph simulated (export.py --int8-form)")
     ap.add_argument("--qat-calibration", type=int, default=16,
                     help="training slices the int8 ranges are measured on (export.py --calibration)")
     a = ap.parse_args(argv)
@@ -141,7 +141,7 @@ def main(argv=None):
     torch.manual_seed(a.seed)
     net = UNet() if unet else PrimalDual(op, blocks=a.blocks, use_mask=(a.model == "dbtor"))
     if a.qat:
-        qat.enable(net, compile=a.compile, float_residual=a.qat_residual == "float")
+        qat.enable(net, compile=a.compile, form=a.qat_form)
     elif a.compile:
         compile_convolutions(net)
     adam = torch.optim.Adam(net.parameters(), lr=a.lr, betas=(0.9, 0.999), eps=1e-8, weight_decay=0)
@@ -183,7 +183,7 @@ def main(argv=None):
                        "dataset_provenance": train.manifest["provenance"],
                        "geometry": train.manifest["geometry"], "stats": stats,
                        "operator_norm": op.norm, "init": init,
-                       "qat_residual": a.qat_residual if a.qat else None,
+                       "qat_form": a.qat_form if a.qat else None,
                        "command": " ".join(["python -m dbtor.train"] + (argv or sys.argv[1:]))}, f, indent=2)
 
     def save():

@@ -5,11 +5,15 @@
 //! reproduce (tract, the reference executor, runs any graph).
 //!
 //! fp32: `out = Add(state, Conv3(PRelu2(Conv2(PRelu1(Conv1(Concat(state, aux)))))))`.
-//! int8: the same with `DequantizeLinear(QuantizeLinear(.))` around every
-//! activation, int8 weights per output channel behind `DequantizeLinear`,
-//! and int32 biases behind `DequantizeLinear`; the residual either quantized
-//! (`out = DQ(Q(Add(DQ(Q(state)), c3)))`, onnxruntime's graph) or float
-//! (`out = Add(state, c3)`, export.py's `--int8-residual float`).
+//! int8: the same with int8 weights per output channel and int32 biases
+//! behind `DequantizeLinear`, and `DequantizeLinear(QuantizeLinear(.))` on
+//! every convolution's input, and optionally on every other activation:
+//! export.py's three `--int8-form`s. `plain` (onnxruntime's graph) quantizes
+//! them all, the residual too: `out = DQ(Q(Add(DQ(Q(state)), c3)))`;
+//! `float-residual` all but the residual, `out = Add(state, DQ(Q(conv3)))`;
+//! `conv-inputs` only the convolutions' inputs, with the concatenation
+//! multiplied by per-channel factors first:
+//! `conv1(DQ(Q(Mul(Concat(state, aux), k))))`, `out = Add(state, conv3)`.
 
 use crate::DbtorError;
 use dbt_conv::{BlockWeights, Conv3x3, Int8BlockWeights, Int8Conv, QuantParams};
@@ -143,6 +147,17 @@ impl<'a> Graph<'a> {
         })
     }
 
+    /// `name = DQ(Q(x))`: `(x, Some(params))`; any other `name`: `(name, None)`.
+    fn maybe_qdq(&self, name: &'a str) -> Result<(&'a str, Option<QuantParams>), DbtorError> {
+        match self.producers.get(name) {
+            Some(n) if n.op_type == "DequantizeLinear" => {
+                let (x, q) = self.qdq(name)?;
+                Ok((x, Some(q)))
+            }
+            _ => Ok((name, None)),
+        }
+    }
+
     /// `name = DQ(Q(x))` with one quantization: returns `(x, params)`.
     fn qdq(&self, name: &str) -> Result<(&'a str, QuantParams), DbtorError> {
         let dq = self.node(name, "DequantizeLinear")?;
@@ -263,7 +278,7 @@ pub(crate) fn fp32_block(
 fn conv_int8(
     g: &Graph<'_>,
     conv: &pb::NodeProto,
-    q_out: QuantParams,
+    q_out: Option<QuantParams>,
     q_act: Option<QuantParams>,
 ) -> Result<Int8Conv, DbtorError> {
     g.check_conv(conv)?;
@@ -305,7 +320,7 @@ fn conv_int8(
     })
 }
 
-/// The static int8 (QDQ) block of `path`.
+/// The static int8 (QDQ) block of `path`, in any of export.py's forms.
 pub(crate) fn int8_block(
     path: &Path,
     state_ch: usize,
@@ -315,53 +330,61 @@ pub(crate) fn int8_block(
     let g = Graph::new(path, &proto)?;
     let (state, aux) = (g.inputs[0], g.inputs[1]);
     // The residual: quantized, DQ(Q(Add(DQ(Q(state)), c3))), or float,
-    // Add(state, c3).
-    let float_residual = matches!(g.producers.get(g.output), Some(n) if n.op_type == "Add");
-    let (sum, q_result) = if float_residual {
-        (g.output, None)
-    } else {
-        let (sum, q) = g.qdq(g.output)?;
-        (sum, Some(q))
-    };
+    // Add(state, c3), c3 quantized or not.
+    let (sum, q_result) = g.maybe_qdq(g.output)?;
     let add = g.node(sum, "Add")?;
-    let (c3, q_state_add, q_out3) = if float_residual {
-        let (a, b) = (g.input(add, 0)?, g.input(add, 1)?);
-        let other = match (a, b) {
-            (a, b) if a == state => b,
-            (a, b) if b == state => a,
-            _ => return Err(g.err("the output Add does not add the state input")),
-        };
-        let (c3, q3) = g.qdq(other)?;
-        (c3, None, q3)
-    } else {
-        let (x, qx) = g.qdq(g.input(add, 0)?)?;
-        let (y, qy) = g.qdq(g.input(add, 1)?)?;
-        match (x, y) {
-            (a, b) if a == state => (b, Some(qx), qy),
-            (a, b) if b == state => (a, Some(qy), qx),
-            _ => return Err(g.err("the output Add does not add the quantized state")),
-        }
+    let (x, qx) = g.maybe_qdq(g.input(add, 0)?)?;
+    let (y, qy) = g.maybe_qdq(g.input(add, 1)?)?;
+    let (c3, q_state_add, q_out3) = match (x, y) {
+        (a, b) if a == state => (b, qx, qy),
+        (a, b) if b == state => (a, qy, qx),
+        _ => return Err(g.err("the output Add does not add the state input")),
     };
+    if q_result.is_some() != q_state_add.is_some() {
+        return Err(g.err(
+            "the residual sum must be quantized with the quantized state, or float with the raw state",
+        ));
+    }
     let conv3 = g.node(c3, "Conv")?;
     let (p2o, q_act2) = g.qdq(g.input(conv3, 0)?)?;
     let p2 = g.node(p2o, "PRelu")?;
-    let (c2, q_out2) = g.qdq(g.input(p2, 0)?)?;
+    let (c2, q_out2) = g.maybe_qdq(g.input(p2, 0)?)?;
     let conv2 = g.node(c2, "Conv")?;
     let (p1o, q_act1) = g.qdq(g.input(conv2, 0)?)?;
     let p1 = g.node(p1o, "PRelu")?;
-    let (c1, q_out1) = g.qdq(g.input(p1, 0)?)?;
+    let (c1, q_out1) = g.maybe_qdq(g.input(p1, 0)?)?;
     let conv1 = g.node(c1, "Conv")?;
-    let (cat_out, q_cat) = g.qdq(g.input(conv1, 0)?)?;
+    let (mut cat_out, q_cat) = g.qdq(g.input(conv1, 0)?)?;
+    // The conv-inputs form's prescale: Mul(Concat(...), k), k [1, C, 1, 1].
+    let mut prescale = None;
+    if matches!(g.producers.get(cat_out), Some(n) if n.op_type == "Mul") {
+        let mul = g.node(cat_out, "Mul")?;
+        let (a, b) = (g.input(mul, 0)?, g.input(mul, 1)?);
+        let (x, k) = if g.inits.contains_key(b) {
+            (a, b)
+        } else {
+            (b, a)
+        };
+        let dims = g.inits.get(k).map(|t| t.dims.clone()).unwrap_or_default();
+        let c = (state_ch + aux_ch) as i64;
+        if dims != [1, c, 1, 1] {
+            return Err(g.err(format!(
+                "the Mul before the first Conv must scale each of the {c} concatenated channels by a constant [1, {c}, 1, 1], has {k:?} of shape {dims:?}"
+            )));
+        }
+        prescale = Some(g.f32s(k)?);
+        cat_out = x;
+    }
     let cat = g.node(cat_out, "Concat")?;
-    let (s_in, q_state) = g.qdq(g.input(cat, 0)?)?;
-    let (a_in, q_aux) = g.qdq(g.input(cat, 1)?)?;
+    let (s_in, q_state) = g.maybe_qdq(g.input(cat, 0)?)?;
+    let (a_in, q_aux) = g.maybe_qdq(g.input(cat, 1)?)?;
     if cat.input.len() != 2
         || s_in != state
         || a_in != aux
-        || q_state_add.is_some_and(|q| q != q_state)
+        || q_state_add.is_some_and(|q| Some(q) != q_state)
     {
         return Err(g.err(
-            "the first Conv does not read Concat(DQ(Q(state)), DQ(Q(aux))) with the residual's state quantization",
+            "the first Conv does not read Concat(state, aux) (each quantized or not) with the residual's state quantization",
         ));
     }
     let mut l1 = conv_int8(&g, conv1, q_out1, Some(q_act1))?;
@@ -374,6 +397,7 @@ pub(crate) fn int8_block(
         aux_ch,
         q_state,
         q_aux,
+        prescale,
         q_cat,
         layers: [l1, l2, l3],
         q_result,
