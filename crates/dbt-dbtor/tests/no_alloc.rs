@@ -3,6 +3,12 @@
 //! slices of each precision. The one allowance: each slice is handed to
 //! rayon's pool as one job through its injector queue, which allocates a
 //! block of 63 slots when one fills, so ten slices may allocate once.
+//!
+//! On a loaded machine rayon's own scheduling can allocate besides (seen:
+//! 7 allocations in two of six runs of ten fp32 slices beside a 2-core
+//! evaluation job, none when idle), so the ten slices are measured up to
+//! three times and the fewest count: an allocation made by a slice itself
+//! would be in every measurement (at least ten), never in none.
 
 use dbt_dbtor::{Dbtor, Engine, Precision};
 use std::alloc::{GlobalAlloc, Layout, System};
@@ -40,13 +46,24 @@ fn no_allocation_per_slice_after_warm_up() {
             .collect();
         let mut out = vec![0.0f32; g.n_pixels()];
         m.reconstruct_into(&sino, 50.0, &mut out).unwrap();
-        let before = ALLOCATIONS.load(Ordering::SeqCst);
-        for k in 0..10 {
-            m.reconstruct_into(&sino, 40.0 + k as f64, &mut out)
-                .unwrap();
+        let mut counts = Vec::new();
+        for _ in 0..3 {
+            let before = ALLOCATIONS.load(Ordering::SeqCst);
+            for k in 0..10 {
+                m.reconstruct_into(&sino, 40.0 + k as f64, &mut out)
+                    .unwrap();
+            }
+            counts.push(ALLOCATIONS.load(Ordering::SeqCst) - before);
+            if counts[counts.len() - 1] <= 1 {
+                break;
+            }
         }
-        let made = ALLOCATIONS.load(Ordering::SeqCst) - before;
-        assert!(made <= 1, "{p}: {made} allocations in ten warmed-up slices");
+        let fewest = counts.iter().copied().min().unwrap_or(usize::MAX);
+        assert!(
+            fewest <= 1,
+            "{p}: {counts:?} allocations in ten warmed-up slices (measured {} times)",
+            counts.len()
+        );
         assert!(out.iter().all(|v| v.is_finite()));
     }
 }
