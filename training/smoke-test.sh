@@ -31,8 +31,14 @@ $PY -m dbtor.plot --run "$tmp/run" --out "$tmp/model/training-curve.png"
 $PY -m dbtor.export --run "$tmp/run" --data "$tmp/ds" --out "$tmp/model" --calibration 2 --fixtures 1 | tee "$tmp/export.log"
 grep -q "equalised the hidden channels" "$tmp/export.log" || { echo "smoke test: the export did not equalise"; exit 1; }
 grep -q '"form": "conv-inputs"' "$tmp/model/manifest.json" || { echo "smoke test: the int8 form is not conv-inputs"; exit 1; }
-# The simulation of the int8 graph (qat.py) against onnxruntime, block by block.
+# The simulation of the int8 graph (qat.py) against onnxruntime, block by block;
+# the check refuses a simulation that leaves out the concatenation's quantisation.
 $PY -m dbtor.qat --model "$tmp/model" --run "$tmp/run" --data "$tmp/ds" --calibration 2 --slices 1
+if $PY -m dbtor.qat --model "$tmp/model" --run "$tmp/run" --data "$tmp/ds" --calibration 2 --slices 1 \
+    --omit cat 2> "$tmp/omit.log"; then
+    echo "smoke test: the int8 simulation check passed a simulation without the concatenation's quantisation"; exit 1
+fi
+grep -q "does not reproduce the exported int8 graph" "$tmp/omit.log" || { echo "smoke test: the check failed for another reason"; cat "$tmp/omit.log"; exit 1; }
 # Quantisation-aware fine-tuning (2 iterations) and an export of its int8
 # blocks beside the first run's fp32 ones.
 $PY -m dbtor.train --data "$tmp/ds" --out "$tmp/qat-run" --init "$tmp/run" --qat --qat-calibration 2 \
