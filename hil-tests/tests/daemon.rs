@@ -418,11 +418,13 @@ fn clean_acquisition_over_serial_lines() {
     let s = status(dir.path());
     assert_eq!(s["processed"], 1, "{s}");
     assert!(s["faults"].as_array().unwrap().is_empty(), "{s}");
+    // The shipped model carries an int8 glandularity calibration too.
     let rec = s["recent"][0]["reconstructor"].as_str().unwrap_or_default();
     assert!(
-        rec.starts_with("DBToR") && rec.ends_with("(int8, fast)"),
+        rec.starts_with("DBToR") && rec.ends_with("(int8, fast, calibrated)"),
         "{s}"
     );
+    assert_eq!(s["recent"][0]["calibrated"], true, "{s}");
     let reports = entries(&dir.path().join("output"))
         .into_iter()
         .filter(|n| n.ends_with(".dcm"))
