@@ -57,7 +57,7 @@ from onnxruntime.quantization import (CalibrationDataReader, CalibrationMethod, 
 from .data import Split
 from .model import STATE, PrimalDual
 from .equalize import equalise, prescale
-from .qat import FORMS, calibration_batches
+from .qat import FORMS, calibration_batches, form_of
 from .operator import Operator
 from .train import tensors
 
@@ -102,86 +102,67 @@ def trainer_validation(run_dir, level, flag):
     }
 
 
-def float_residual(path):
-    """Rewrite onnxruntime's QDQ block so that the residual sum reads the raw
-    state and its result is the output unquantised:
-    Add(DQ(Q(state)), c) -> Q -> DQ -> out   becomes   Add(state, c) -> out."""
-    mo = onnx.load(path)
-    nodes = list(mo.graph.node)
-    by_out = {o: n for n in nodes for o in n.output}
-    dq_out = by_out["out"]
-    q_out = by_out[dq_out.input[0]]
-    add = by_out[q_out.input[0]]
-    if (dq_out.op_type, q_out.op_type, add.op_type) != ("DequantizeLinear", "QuantizeLinear", "Add"):
-        raise SystemExit(f"{path}: the block output is not DQ(Q(Add(...)))")
-    state_dq = [k for k, i in enumerate(add.input) if by_out.get(i) is not None
-                and by_out[i].op_type == "DequantizeLinear"
-                and by_out[by_out[i].input[0]].input[0] == "state"]
-    if len(state_dq) != 1:
-        raise SystemExit(f"{path}: the residual Add does not read DQ(Q(state))")
-    add.input[state_dq[0]] = "state"
-    add.output[0] = "out"
-    for n in (q_out, dq_out):
-        mo.graph.node.remove(n)
-    used = {i for n in mo.graph.node for i in n.input}
-    for init in list(mo.graph.initializer):
-        if init.name not in used:
-            mo.graph.initializer.remove(init)
-    onnx.checker.check_model(mo)
-    onnx.save(mo, path)
-
-
-def conv_inputs_only(path):
-    """Keep only the activation quantisations that a Conv reads: every
-    QuantizeLinear -> DequantizeLinear pair on an activation whose result
-    feeds anything but a Conv's first input is taken out (its readers read
-    the unquantised tensor), so the convolutions' outputs, the PReLU inputs,
-    the state, aux and raw concatenation and the residual sum stay float.
-    Weights and biases keep their DequantizeLinear."""
+def drop_quantisations(path, keep):
+    """Take activation quantisations out of onnxruntime's QDQ block: every
+    edge that reads DQ(Q(x)) of an activation x, a node's input or the
+    graph's output, reads x instead unless `keep(node, k, x)` (node None for
+    the graph output, k the input's index); a graph output that becomes
+    unquantised keeps its name. Weights and biases keep their
+    DequantizeLinear."""
     mo = onnx.load(path)
     g = mo.graph
     inits = {i.name for i in g.initializer}
-    readers = {}
-    for n in g.node:
-        for k, i in enumerate(n.input):
-            readers.setdefault(i, []).append((n, k))
     producer = {o: n for n in g.node for o in n.output}
-    rename = {}
-    drop = []
+    source = {}  # DQ output -> the activation it quantises
     for dq in g.node:
         if dq.op_type != "DequantizeLinear" or dq.input[0] in inits:
             continue
         q = producer.get(dq.input[0])
         if q is None or q.op_type != "QuantizeLinear":
             raise SystemExit(f"{path}: DequantizeLinear {dq.name!r} does not read a QuantizeLinear")
-        r = readers.get(dq.output[0], [])
-        if r and all(n.op_type == "Conv" and k == 0 for n, k in r):
-            continue
-        rename[dq.output[0]] = q.input[0]
-        drop.append(dq)
-    for n in drop:
-        g.node.remove(n)
-    # The graph output: the tensor that was quantised takes its name.
-    outs = {o.name for o in g.output}
-    for old, new in list(rename.items()):
-        if old in outs:
-            for n in g.node:
-                n.output[:] = [old if o == new else o for o in n.output]
-                n.input[:] = [old if i == new else i for i in n.input]
-            for k, v in rename.items():
-                if v == new:
-                    rename[k] = old
+        source[dq.output[0]] = q.input[0]
     for n in g.node:
-        n.input[:] = [rename.get(i, i) for i in n.input]
-    used = {i for n in g.node for i in n.input}
-    for n in [n for n in g.node if n.op_type == "QuantizeLinear" and n.output[0] not in used]:
-        g.node.remove(n)
+        for k, i in enumerate(n.input):
+            if i in source and not keep(n, k, source[i]):
+                n.input[k] = source[i]
+    for out in g.output:
+        x = source.get(out.name)
+        if x is not None and not keep(None, 0, x):
+            # the tensor x takes the output's name; the output's DQ goes below
+            g.node.remove(producer[out.name])
+            for n in g.node:
+                n.output[:] = [out.name if o == x else o for o in n.output]
+                n.input[:] = [out.name if i == x else i for i in n.input]
+    # Q and DQ nodes nobody reads any more, DQ first.
+    outs = {o.name for o in g.output}
+    for op in ("DequantizeLinear", "QuantizeLinear"):
+        used = {i for n in g.node for i in n.input} | outs
+        for n in [n for n in g.node if n.op_type == op and n.output[0] not in used]:
+            g.node.remove(n)
     used = {i for n in g.node for i in n.input}
     for init in list(g.initializer):
         if init.name not in used:
             g.initializer.remove(init)
     onnx.checker.check_model(mo)
     onnx.save(mo, path)
+    return mo
+
+
+def float_residual(path):
+    """The float-residual form: the residual sum reads the raw state and its
+    result is the output unquantised,
+    Add(DQ(Q(state)), c) -> Q -> DQ -> out   becomes   Add(state, c) -> out."""
+    mo = drop_quantisations(path, lambda n, k, x: n is not None and not (n.op_type == "Add" and x == "state"))
+    add = [n for n in mo.graph.node if "out" in n.output]
+    if len(add) != 1 or add[0].op_type != "Add" or "state" not in add[0].input:
+        raise SystemExit(f"{path}: the block output is not Add(state, ...) after taking out its quantisation")
+
+
+def conv_inputs_only(path):
+    """The conv-inputs form: only the activation quantisations that a Conv
+    reads as its input stay, so the convolutions' outputs, the PReLU inputs,
+    the state, aux and raw concatenation and the residual sum are float."""
+    drop_quantisations(path, lambda n, k, x: n is not None and n.op_type == "Conv" and k == 0)
 
 
 class Prescaled(torch.nn.Module):
@@ -311,8 +292,9 @@ def main(argv=None):
             if a.equalise > 0:
                 sys.exit(f"--int8-run {a.int8_run}: a --qat run simulates the blocks unequalised; "
                          "pass --equalise 0")
-            # (runs made before --qat-form named only their residual)
-            simulated = run8.get("qat_form") or {"float": "float-residual"}.get(run8.get("qat_residual"), "plain")
+            # (runs made before --qat-form named only their residual, as
+            # manifests did)
+            simulated = run8.get("qat_form") or form_of({"residual": run8.get("qat_residual")})
             if simulated != a.int8_form:
                 sys.exit(f"--int8-run {a.int8_run}: the run simulated the {simulated} graph, "
                          f"not --int8-form {a.int8_form}")

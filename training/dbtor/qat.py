@@ -161,18 +161,16 @@ class QatBlock(Block):
         s = q(state, "state")
         x = torch.cat([s, q(aux, "aux")], 1)
         w1 = conv1.weight
-        if self.form == "conv-inputs":
-            if self.mode == "observe":
-                d = x.detach()
-                self.cat_lo.copy_(torch.minimum(self.cat_lo, d.amin(dim=(0, 2, 3))))
-                self.cat_hi.copy_(torch.maximum(self.cat_hi, d.amax(dim=(0, 2, 3))))
-            else:
+        if self.form == "conv-inputs" and self.mode == "observe":
+            # per channel; the range of cat * k follows once k is known (calibrate)
+            d = x.detach()
+            self.cat_lo.copy_(torch.minimum(self.cat_lo, d.amin(dim=(0, 2, 3))))
+            self.cat_hi.copy_(torch.maximum(self.cat_hi, d.amax(dim=(0, 2, 3))))
+        else:
+            if self.form == "conv-inputs":
                 k = self.prescale().view(1, -1, 1, 1)
                 x = x * k
                 w1 = w1 / k
-        if not (self.mode == "observe" and self.form == "conv-inputs"):
-            # (observing conv-inputs, the range of cat * k follows from
-            # cat_lo/hi once k is known: calibrate)
             x = q(x, "cat")
         x = q(F.conv2d(x, wq(w1), conv1.bias, padding=1), "c1")
         x = q(prelu1(x), "p1")

@@ -357,8 +357,7 @@ pub(crate) fn int8_block(
     let (mut cat_out, q_cat) = g.qdq(g.input(conv1, 0)?)?;
     // The conv-inputs form's prescale: Mul(Concat(...), k), k [1, C, 1, 1].
     let mut prescale = None;
-    if matches!(g.producers.get(cat_out), Some(n) if n.op_type == "Mul") {
-        let mul = g.node(cat_out, "Mul")?;
+    if let Some(mul) = g.producers.get(cat_out).filter(|n| n.op_type == "Mul") {
         let (a, b) = (g.input(mul, 0)?, g.input(mul, 1)?);
         let (x, k) = if g.inits.contains_key(b) {
             (a, b)
