@@ -65,6 +65,47 @@ pub struct Row {
     pub psnr: Stat,
     /// Number of slices.
     pub n: usize,
+    /// Where the SSIM is lost: its local map split by the truth under each
+    /// window (`dbt_metrics::ssim_regions`).
+    pub ssim_regions: RegionRow,
+}
+
+/// The SSIM of one row by region: mean +- sd over the slices that have
+/// windows of the region, and the region's mean share of the windows.
+#[derive(Debug, Clone, Serialize)]
+pub struct RegionRow {
+    /// Windows wholly inside the breast.
+    pub inside: RegionStat,
+    /// Windows across the breast's outline.
+    pub outline: RegionStat,
+    /// Windows wholly in air.
+    pub air: RegionStat,
+}
+
+/// One region of [`RegionRow`].
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct RegionStat {
+    /// Mean local SSIM over the region's windows, mean +- sd over slices.
+    pub ssim: Stat,
+    /// Mean share of the image's windows that fall in the region.
+    pub share: f64,
+    /// Slices with at least one window of the region.
+    pub n: usize,
+}
+
+fn region_stat(regions: &[dbt_metrics::RegionSsim]) -> RegionStat {
+    let with: Vec<f64> = regions
+        .iter()
+        .filter(|r| r.share > 0.0)
+        .map(|r| r.mean)
+        .collect();
+    let (mean, sd) = mean_sd(&with);
+    let share = regions.iter().map(|r| r.share).sum::<f64>() / regions.len().max(1) as f64;
+    RegionStat {
+        ssim: Stat { mean, sd },
+        share,
+        n: with.len(),
+    }
 }
 
 /// One slice of the test set.
@@ -269,6 +310,17 @@ pub fn evaluate_baselines(
                 ssim: stat(|s| s.ssim),
                 psnr: stat(|s| s.psnr),
                 n: sc.len(),
+                ssim_regions: RegionRow {
+                    inside: region_stat(
+                        &sc.iter().map(|s| s.ssim_regions.inside).collect::<Vec<_>>(),
+                    ),
+                    outline: region_stat(
+                        &sc.iter()
+                            .map(|s| s.ssim_regions.outline)
+                            .collect::<Vec<_>>(),
+                    ),
+                    air: region_stat(&sc.iter().map(|s| s.ssim_regions.air).collect::<Vec<_>>()),
+                },
             });
         }
     }
@@ -297,6 +349,36 @@ pub fn table(report: &BaselineReport) -> String {
             r.psnr.mean,
             r.psnr.sd,
             r.n
+        ));
+    }
+    s
+}
+
+/// The SSIM by region as Markdown: for each row, the local SSIM of the
+/// windows wholly inside the breast, across its outline and wholly in air
+/// (mean +- sd over slices) with each region's share of the windows.
+pub fn region_table(report: &BaselineReport) -> String {
+    let mut s = String::from(
+        "| Model | noise | SSIM | inside the breast | outline | air |\n|---|---|---|---|---|---|\n",
+    );
+    let cell = |r: &RegionStat| {
+        format!(
+            "{:.3} ± {:.1e} ({:.0} %)",
+            r.ssim.mean,
+            r.ssim.sd,
+            100.0 * r.share
+        )
+    };
+    for r in &report.rows {
+        let g = &r.ssim_regions;
+        s.push_str(&format!(
+            "| {} | {} | {:.3} | {} | {} | {} |\n",
+            r.method,
+            r.noise,
+            r.ssim.mean,
+            cell(&g.inside),
+            cell(&g.outline),
+            cell(&g.air)
         ));
     }
     s
@@ -354,5 +436,14 @@ mod tests {
         // MLTR is quantitative, limited-angle FBP is not: MLTR's L2 is lower.
         assert!(r.rows[0].l2.mean < r.rows[2].l2.mean);
         assert!(table(&r).contains("| MLTR | noise-free |"));
+        // The regions' shares cover every window; every slice has windows
+        // across the outline and in air.
+        for row in &r.rows {
+            let g = &row.ssim_regions;
+            let share = g.inside.share + g.outline.share + g.air.share;
+            assert!((share - 1.0).abs() < 1e-12, "shares sum to {share}");
+            assert!(g.outline.n == 2 && g.air.n == 2);
+        }
+        assert!(region_table(&r).contains("| MLTR | noise-free |"));
     }
 }

@@ -5,7 +5,7 @@
 
 use dbt_acquisition::NoiseLevel;
 use dbt_geometry::Geometry;
-use dbt_metrics::{data_range, mse, psnr, ssim, Shape};
+use dbt_metrics::{data_range, mse, psnr, score, ssim, RegionSsim, Shape};
 use dbt_projector::Projector;
 use dbt_recon::{mltr, Fbp, MltrOptions};
 use std::path::Path;
@@ -63,6 +63,34 @@ fn compare(dir: &Path, name: &str, a: &[f32], b: &[f32], shape: Shape) {
         (ss - pss).abs() <= 1e-4,
         "{name}: SSIM {ss} vs skimage {pss}"
     );
+    // The SSIM by region against skimage's full map split the same way
+    // (shares are window counts over the total, equal to rounding; means to
+    // the SSIM's 1e-4).
+    let regions = score(shape, a, b).unwrap().ssim_regions;
+    for (key, ours) in [
+        ("inside", regions.inside),
+        ("outline", regions.outline),
+        ("air", regions.air),
+    ] {
+        let RegionSsim { mean, share } = ours;
+        let theirs = &p["ssim_regions"][key];
+        eprintln!(
+            "{name} {key}: ssim {mean:.6}/{} share {share:.6}/{}",
+            theirs["mean"], theirs["share"]
+        );
+        let their_share = theirs["share"].as_f64().unwrap();
+        assert!(
+            (share - their_share).abs() < 1e-12,
+            "{name} {key}: share {share} vs skimage {their_share}"
+        );
+        match theirs["mean"].as_f64() {
+            Some(m) => assert!(
+                (mean - m).abs() <= 1e-4,
+                "{name} {key}: SSIM {mean} vs skimage {m}"
+            ),
+            None => assert!(mean.is_nan(), "{name} {key}: skimage has no such window"),
+        }
+    }
 }
 
 #[test]

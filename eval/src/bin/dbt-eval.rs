@@ -5,7 +5,7 @@ use clap::{Args, Parser, Subcommand};
 use dbt_acquisition::NoiseLevel;
 use dbt_dbtor::{Dbtor, Precision};
 use dbt_eval::picture::{auto_window, compose, Panel};
-use dbt_eval::{evaluate_baselines, table, test_set, BaselineOptions, Learned};
+use dbt_eval::{evaluate_baselines, region_table, table, test_set, BaselineOptions, Learned};
 use dbt_geometry::Geometry;
 use dbt_projector::Projector;
 use dbt_recon::{mltr, Fbp, MltrOptions};
@@ -61,11 +61,12 @@ struct Runtime {
     /// (fast engine; default: the whole image).
     #[arg(long)]
     crop_margin: Option<usize>,
-    /// DBToR/LPD without the support (the network's output also in the
-    /// rows outside the compressed thickness, which the firmware sets to
-    /// air: `Dbtor::with_support`); rows labelled "raw".
-    #[arg(long)]
-    no_support: bool,
+    /// DBToR/LPD's raw output: without the support (the network's output
+    /// also in the rows outside the compressed thickness, which the
+    /// firmware sets to air: `Dbtor::with_support`) and without the
+    /// non-negativity (`Dbtor::with_nonnegativity`); rows labelled "raw".
+    #[arg(long, alias = "no-support")]
+    raw: bool,
     /// The blocks the `mixed` precision runs in fp32 (the rest int8), comma
     /// separated block names (`primal07,primal08,primal09`).
     #[arg(long, default_value = "primal07,primal08,primal09")]
@@ -77,7 +78,7 @@ impl Default for Runtime {
         Self {
             engine: "fast".into(),
             crop_margin: None,
-            no_support: false,
+            raw: false,
             mixed_fp32_blocks: "primal07,primal08,primal09".into(),
         }
     }
@@ -393,16 +394,12 @@ fn load_models(
         let m = Dbtor::load_mixed(dir, p, &fp32_blocks, engine)
             .with_context(|| format!("loading {} ({token}, {engine})", dir.display()))?
             .with_crop(rt.crop_margin)?;
-        // The model's default support (DBToR: on; LPD: off), or none.
-        let raw = if m.support() && rt.no_support {
-            " raw"
+        // The model's default constraints (support: DBToR on, LPD off;
+        // non-negativity on), or none.
+        let (m, raw) = if rt.raw {
+            (m.with_support(false).with_nonnegativity(false), " raw")
         } else {
-            ""
-        };
-        let m = if rt.no_support {
-            m.with_support(false)
-        } else {
-            m
+            (m, "")
         };
         let kind = match m.manifest().kind.as_str() {
             "lpd" => "LPD",
@@ -505,6 +502,11 @@ fn main() -> Result<()> {
                 t.elapsed().as_secs_f64()
             );
             print!("{}", table(&report));
+            println!(
+                "\nSSIM by region (windows wholly inside the breast, across its outline, wholly in air; \
+                 share of the windows in brackets)\n"
+            );
+            print!("{}", region_table(&report));
             write_json(&json, &report)?;
             println!("\nJSON: {}", json.display());
         }
