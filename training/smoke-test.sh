@@ -39,6 +39,30 @@ if $PY -m dbtor.qat --model "$tmp/model" --run "$tmp/run" --data "$tmp/ds" --cal
     echo "smoke test: the int8 simulation check passed a simulation without the concatenation's quantisation"; exit 1
 fi
 grep -q "does not reproduce the exported int8 graph" "$tmp/omit.log" || { echo "smoke test: the check failed for another reason"; cat "$tmp/omit.log"; exit 1; }
+# A model folder read back into PyTorch (train.py --init MODEL, folder.py):
+# its fp32 blocks give exactly the run's weights; a folder with a changed
+# file is refused, naming the file.
+$PY - "$tmp/model" "$tmp/run/checkpoint.pt" <<'PYEOF'
+import sys, torch
+from dbtor import folder
+sd, _ = folder.load_state_dict(sys.argv[1], "dbtor", 2)
+ck = torch.load(sys.argv[2], weights_only=False)["model"]
+assert sd.keys() == ck.keys(), sorted(set(sd) ^ set(ck))
+bad = [k for k in ck if not torch.equal(sd[k], ck[k].reshape(sd[k].shape))]
+assert not bad, f"the model folder's weights differ from the run's: {bad}"
+print(f"model folder read back: {len(sd)} tensors equal to the run's")
+PYEOF
+$PY -m dbtor.train --data "$tmp/ds" --out "$tmp/from-model" --init "$tmp/model" --iters 1 --batch 2 --blocks 2 \
+    --val-every 1 --log-every 1 | tee "$tmp/from-model.log"
+grep -q "initialised from model folder" "$tmp/from-model.log" || { echo "smoke test: --init MODEL did not load the folder"; exit 1; }
+grep -q '"model_folder"' "$tmp/from-model/run.json" || { echo "smoke test: run.json does not record the model folder"; exit 1; }
+cp -r "$tmp/model" "$tmp/tampered"
+printf 'x' >> "$tmp/tampered/fp32/dual00.onnx"
+if $PY -m dbtor.train --data "$tmp/ds" --out "$tmp/from-tampered" --init "$tmp/tampered" --iters 1 --batch 2 \
+    --blocks 2 2> "$tmp/tampered.log"; then
+    echo "smoke test: --init from a tampered model folder was accepted"; exit 1
+fi
+grep -q "fp32/dual00.onnx does not match its SHA-256" "$tmp/tampered.log" || { echo "smoke test: the tampered-folder refusal does not name the file"; cat "$tmp/tampered.log"; exit 1; }
 # Quantisation-aware fine-tuning (2 iterations) and an export of its int8
 # blocks beside the first run's fp32 ones.
 $PY -m dbtor.train --data "$tmp/ds" --out "$tmp/qat-run" --init "$tmp/run" --qat --qat-calibration 2 \

@@ -2,7 +2,7 @@
 
     python -m dbtor.train --data DS --out RUN [--model dbtor|lpd|unet] [--level N8]
         [--iters 100000] [--batch 4] [--blocks 10] [--max-minutes M] [--seed 0]
-        [--precision fp32|bf16] [--compile] [--init RUN] [--qat]
+        [--precision fp32|bf16] [--compile] [--init RUN|MODEL] [--qat]
 
 RUN/checkpoint.pt holds the model, Adam, the cosine schedule, the iteration
 and the RNG states; running the same command again continues from it (the
@@ -39,7 +39,7 @@ import numpy as np
 import torch
 
 from .data import Split, statistics
-from . import qat
+from . import folder, qat
 from .model import PrimalDual
 from .operator import Operator
 from .unet import UNet
@@ -109,7 +109,8 @@ def main(argv=None):
                     help="bf16: convolutions under CPU autocast (weights and optimiser stay float32)")
     ap.add_argument("--compile", action="store_true", help="torch.compile each block's convolutions")
     ap.add_argument("--init", default=None,
-                    help="start a new run from the weights of another run's checkpoint (RUN/checkpoint.pt or RUN): "
+                    help="start a new run from the weights of another run's checkpoint (RUN/checkpoint.pt or RUN) "
+                         "or of a firmware model folder (models/NAME: its fp32 blocks, checksums verified): "
                          "fine-tuning, e.g. on another geometry; same model kind and blocks; fresh optimiser, "
                          "schedule and normalisation (this dataset's)")
     ap.add_argument("--qat", action="store_true",
@@ -162,10 +163,23 @@ def main(argv=None):
         print(f"resumed at iteration {it} ({elapsed / 60:.1f} min trained)", flush=True)
     else:
         init = None
-        if a.init:
+        if a.init and folder.is_model_folder(a.init):
+            # A firmware model folder (models/NAME): its fp32 blocks' weights.
+            try:
+                sd, man = folder.load_state_dict(a.init, a.model, a.blocks)
+            except folder.FolderError as e:
+                sys.exit(f"--init {e}")
+            net.load_state_dict(sd)
+            prov = man.get("provenance", {})
+            init = {"model_folder": os.path.abspath(a.init), "name": man.get("name"),
+                    "iteration": prov.get("iterations"), "options": prov.get("options"),
+                    "manifest_sha256": folder.manifest_sha256(a.init)}
+            print(f"initialised from model folder {a.init} ({man.get('name')}, "
+                  f"iteration {prov.get('iterations')})", flush=True)
+        elif a.init:
             src = os.path.join(a.init, "checkpoint.pt") if os.path.isdir(a.init) else a.init
             if not os.path.exists(src):
-                sys.exit(f"--init {a.init}: no checkpoint at {src}")
+                sys.exit(f"--init {a.init}: no checkpoint at {src} (and no manifest.json: not a model folder)")
             ick = torch.load(src, weights_only=False)
             if ick.get("model_kind") != a.model or ick.get("blocks") != a.blocks:
                 sys.exit(f"--init {src}: a {ick.get('model_kind')} of {ick.get('blocks')} blocks, "
