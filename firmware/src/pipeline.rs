@@ -158,7 +158,8 @@ pub struct Volume {
 
 /// The reconstructor of `opts` in words, as results, status and tables name
 /// it: `DBToR NAME (PRECISION, ENGINE[, raw][, calibrated])` (raw: a DBToR
-/// model without its support) or `MLTR N iterations`.
+/// model without its support, or any model without its non-negativity) or
+/// `MLTR N iterations`.
 pub fn reconstructor_name(opts: &PipelineOptions) -> String {
     match &opts.dbtor {
         Some(m) => format!(
@@ -166,7 +167,7 @@ pub fn reconstructor_name(opts: &PipelineOptions) -> String {
             m.manifest().name,
             m.precision_label(),
             m.engine(),
-            if m.manifest().uses_mask() && !m.support() {
+            if (m.manifest().uses_mask() && !m.support()) || !m.constraints().nonnegative {
                 ", raw"
             } else {
                 ""

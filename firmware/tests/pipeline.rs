@@ -277,3 +277,69 @@ fn a_breast_taller_than_the_image_is_refused() {
         "{e}"
     );
 }
+
+/// The non-negativity of the DBToR runtime (`Dbtor::with_nonnegativity`,
+/// on by default) zeroes the network's negative values and nothing else,
+/// and changes neither the classification, nor the density, nor the dose:
+/// the breast is what lies above half the adipose attenuation, and only its
+/// voxels' values are read. int8 at N8, where the network leaves the most
+/// negative values in the air.
+#[test]
+fn nonnegativity_changes_the_image_not_the_density_or_dose() {
+    let g = Geometry::paper().binned(4).unwrap();
+    let spec = PhantomSpec {
+        thickness_mm: 34.0,
+        chest_to_nipple_mm: 20.0,
+        width_mm: 90.0,
+        glandularity: 0.25,
+        ..PhantomSpec::typical(g.image.pixel_mm, 11)
+    };
+    let vol = generate(&spec).unwrap();
+    let acq = simulate_acquisition(
+        &vol,
+        &g,
+        NoiseLevel::Poisson(8),
+        4,
+        Technique::default(),
+        28.0,
+        "T3",
+        "1.2.3",
+    )
+    .unwrap();
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/dbtor-x4");
+    let opts = |on: bool| {
+        let m =
+            dbt_dbtor::Dbtor::load_with(&dir, dbt_dbtor::Precision::Int8, dbt_dbtor::Engine::Fast)
+                .unwrap()
+                .with_nonnegativity(on);
+        assert_eq!(m.constraints().nonnegative, on);
+        PipelineOptions {
+            dbtor: Some(std::sync::Arc::new(m)),
+            dose_uncertainty: 0.2,
+            seed: 3,
+            ..PipelineOptions::default()
+        }
+    };
+    let (on, off) = (opts(true), opts(false));
+    let raw = dbtor_firmware::pipeline::reconstruct_volume(&acq, &off, &mut |_| {}).unwrap();
+    let clamped = dbtor_firmware::pipeline::reconstruct_volume(&acq, &on, &mut |_| {}).unwrap();
+    let negative = raw.mu.iter().filter(|v| **v < 0.0).count();
+    assert!(
+        negative > 0,
+        "no negative value to zero: the test shows nothing"
+    );
+    let want: Vec<f32> = raw
+        .mu
+        .iter()
+        .map(|v| if *v < 0.0 { 0.0 } else { *v })
+        .collect();
+    assert_eq!(clamped.mu, want);
+    assert!(!dbtor_firmware::pipeline::reconstructor_name(&on).contains("raw"));
+    assert!(dbtor_firmware::pipeline::reconstructor_name(&off).contains("raw"));
+    let (a, b) = (process(&acq, &on).unwrap(), process(&acq, &off).unwrap());
+    assert_eq!(a.classification, b.classification);
+    assert_eq!(a.density, b.density);
+    assert_eq!(a.glandularity, b.glandularity);
+    assert_eq!(a.mgd_mgy, b.mgd_mgy);
+    assert_eq!(a.model_mgd_mgy, b.model_mgd_mgy);
+}

@@ -281,8 +281,27 @@ pub struct Dbtor {
     /// Primal blocks run only from this many rows above the breast (fast
     /// engine); `None`: on the whole image.
     crop_margin: Option<usize>,
-    /// Zero the output outside the compression slab (see [`Dbtor::with_support`]).
-    support: bool,
+    /// The physical constraints applied to the network's output.
+    constraints: Constraints,
+}
+
+/// What [`Dbtor::reconstruct`] enforces on the network's output: priors the
+/// acquisition guarantees, which the network only approximates.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Constraints {
+    /// Zero (air) in the rows outside the compression slab
+    /// ([`Dbtor::with_support`]).
+    pub support: bool,
+    /// No negative attenuation ([`Dbtor::with_nonnegativity`]).
+    pub nonnegative: bool,
+}
+
+impl Constraints {
+    /// The network's output as is: what the fixtures store.
+    pub const NONE: Self = Self {
+        support: false,
+        nonnegative: false,
+    };
 }
 
 impl std::fmt::Debug for Dbtor {
@@ -434,8 +453,12 @@ impl Dbtor {
                 Blocks::Fast(v)
             }
         };
-        // The support is the thickness prior: DBToR's, not LPD's.
-        let support = manifest.uses_mask();
+        // The support is the thickness prior: DBToR's, not LPD's. No
+        // attenuation is negative, whatever the network.
+        let constraints = Constraints {
+            support: manifest.uses_mask(),
+            nonnegative: true,
+        };
         let s = Self {
             projector: Projector::new(g),
             manifest,
@@ -446,7 +469,7 @@ impl Dbtor {
             blocks,
             buffers: std::sync::Mutex::new(None),
             crop_margin: None,
-            support,
+            constraints,
         };
         tracing::info!(model = %s.manifest.name, precision = %s.precision_label(), %engine, kernel = s.kernel().unwrap_or("tract"), blocks = s.manifest.blocks.len(), "DBToR model loaded");
         Ok(s)
@@ -477,13 +500,33 @@ impl Dbtor {
     /// approximates zero there (and its int8 version adds quantisation noise
     /// there). Off: the network's output as is, as the fixtures store it.
     pub fn with_support(mut self, on: bool) -> Self {
-        self.support = on;
+        self.constraints.support = on;
         self
     }
 
     /// Whether the support is applied.
     pub fn support(&self) -> bool {
-        self.support
+        self.constraints.support
+    }
+
+    /// Whether [`Dbtor::reconstruct`] sets negative values to zero (default:
+    /// yes, for DBToR and LPD). Attenuation is never negative; the network
+    /// only approximates that, with small values of either sign in the air
+    /// around the breast (int8 more than fp32). Zeroing them is the
+    /// projection onto the physically possible images, so it can only bring
+    /// every pixel closer to a non-negative truth. It cannot change the
+    /// tissue classification: breast voxels are those above half the
+    /// adipose attenuation (`dbt_tissue`), and only their values are read,
+    /// so density and dose are the same with it on or off (tested in
+    /// firmware/tests/pipeline.rs). Off: the network's output as is.
+    pub fn with_nonnegativity(mut self, on: bool) -> Self {
+        self.constraints.nonnegative = on;
+        self
+    }
+
+    /// The constraints applied to the network's output.
+    pub fn constraints(&self) -> Constraints {
+        self.constraints
     }
 
     /// The crop margin, if cropping.
@@ -675,18 +718,20 @@ impl Dbtor {
     /// (`ln(b / y)`, view-major, on the model's geometry) and the compressed
     /// thickness. Returns attenuation in 1/mm, row-major on the model's image.
     /// With the support on (the default, [`Dbtor::with_support`]) the rows
-    /// outside the compressed thickness are zero.
+    /// outside the compressed thickness are zero; with the non-negativity
+    /// (the default, [`Dbtor::with_nonnegativity`]) no value is negative.
     pub fn reconstruct(&self, g: &[f32], thickness_mm: f64) -> Result<Vec<f32>, DbtorError> {
         let mut out = vec![0.0f32; self.manifest.geometry.n_pixels()];
         self.reconstruct_into(g, thickness_mm, &mut out)?;
         Ok(out)
     }
 
-    /// The network's output f[0] (1/mm) without the support, whatever
-    /// [`Dbtor::with_support`] says: what the fixtures store.
+    /// The network's output f[0] (1/mm) without the support or the
+    /// non-negativity, whatever [`Dbtor::constraints`] says: what the
+    /// fixtures store.
     pub fn network_output(&self, g: &[f32], thickness_mm: f64) -> Result<Vec<f32>, DbtorError> {
         let mut out = vec![0.0f32; self.manifest.geometry.n_pixels()];
-        self.slice(g, thickness_mm, &mut out, None, false)?;
+        self.slice(g, thickness_mm, &mut out, None, Constraints::NONE)?;
         Ok(out)
     }
 
@@ -699,7 +744,7 @@ impl Dbtor {
         thickness_mm: f64,
         out: &mut [f32],
     ) -> Result<(), DbtorError> {
-        self.slice(g, thickness_mm, out, None, self.support)
+        self.slice(g, thickness_mm, out, None, self.constraints)
     }
 
     /// Reconstruct one slice (as [`Dbtor::reconstruct`]) timing every block
@@ -715,7 +760,7 @@ impl Dbtor {
             ..SliceProfile::default()
         };
         let t = std::time::Instant::now();
-        self.slice(g, thickness_mm, &mut out, Some(&mut p), self.support)?;
+        self.slice(g, thickness_mm, &mut out, Some(&mut p), self.constraints)?;
         p.total_ms = t.elapsed().as_secs_f64() * 1e3;
         Ok((out, p))
     }
@@ -726,7 +771,7 @@ impl Dbtor {
         thickness_mm: f64,
         out: &mut [f32],
         prof: Option<&mut SliceProfile>,
-        support: bool,
+        constraints: Constraints,
     ) -> Result<(), DbtorError> {
         let geom = &self.manifest.geometry;
         let n_img = geom.n_pixels();
@@ -773,7 +818,7 @@ impl Dbtor {
         // every 63 jobs). One job is injected per slice.
         let span = tracing::Span::current();
         let r = rayon::scope(|_| {
-            span.in_scope(|| self.run_slice(&mut bufs, g, thickness_mm, out, prof, support))
+            span.in_scope(|| self.run_slice(&mut bufs, g, thickness_mm, out, prof, constraints))
         });
         *self.buffers.lock().unwrap_or_else(|e| e.into_inner()) = Some(bufs);
         r
@@ -786,7 +831,7 @@ impl Dbtor {
         thickness_mm: f64,
         out: &mut [f32],
         mut prof: Option<&mut SliceProfile>,
-        support: bool,
+        constraints: Constraints,
     ) -> Result<(), DbtorError> {
         use std::time::Instant;
         let ms = |t: Instant| t.elapsed().as_secs_f64() * 1e3;
@@ -857,8 +902,12 @@ impl Dbtor {
         {
             *o = v * xs;
         }
-        if support {
+        if constraints.support {
             out[..first].fill(0.0);
+        }
+        if constraints.nonnegative {
+            // (not `max`, which would turn a NaN into 0 and hide it)
+            out.iter_mut().filter(|v| **v < 0.0).for_each(|v| *v = 0.0);
         }
         Ok(())
     }

@@ -110,10 +110,12 @@ fn fast_path_matches_tract() {
             / a.len() as f64)
             .sqrt()
     };
+    // The network's output, as onnxruntime's fixture stores it (without the
+    // support and the non-negativity).
     let run = |p, e| {
         Dbtor::load_with(&dir, p, e)
             .unwrap()
-            .reconstruct(&sino, fx.thickness_mm)
+            .network_output(&sino, fx.thickness_mm)
             .unwrap()
     };
     let (t32, f32_) = (
@@ -289,9 +291,9 @@ fn crop_is_fast_only_and_leaves_the_rows_above_empty() {
     assert!(b[r0 * cols..].iter().any(|v| *v != 0.0));
 }
 
-/// The support: `reconstruct` is the network's output inside the compression
-/// slab and zero (air) in the rows outside it; `network_output` and
-/// `with_support(false)` give the network's output everywhere.
+/// The support: `reconstruct` is zero (air) in the rows outside the
+/// compression slab; `network_output`, and `reconstruct` without the support
+/// and the non-negativity, give the network's output everywhere.
 #[test]
 fn the_support_zeroes_the_rows_outside_the_slab_only() {
     for p in [Precision::Fp32, Precision::Int8] {
@@ -310,10 +312,42 @@ fn the_support_zeroes_the_rows_outside_the_slab_only() {
             raw[..first].iter().any(|v| *v != 0.0),
             "{p}: nothing to zero"
         );
-        assert_eq!(with[first..], raw[first..], "{p}: inside the slab");
-        let off = m.with_support(false);
+        // Inside the slab: the network's output with its negative values
+        // zeroed (the non-negativity, also on by default).
+        let clamped: Vec<f32> = raw[first..].iter().map(|v| v.max(0.0)).collect();
+        assert_eq!(with[first..], clamped[..], "{p}: inside the slab");
+        let off = m.with_support(false).with_nonnegativity(false);
         assert_eq!(off.reconstruct(&sino, thickness).unwrap(), raw, "{p}");
     }
+}
+
+/// The non-negativity: on by default for DBToR and LPD; `reconstruct` has
+/// no negative value where the network's output has some, and is that
+/// output elsewhere; off, it is the network's output.
+#[test]
+fn the_nonnegativity_zeroes_the_negative_values_only() {
+    for p in [Precision::Fp32, Precision::Int8] {
+        let m = Dbtor::load_with(&model_dir(), p, Engine::Fast)
+            .unwrap()
+            .with_support(false);
+        assert!(m.constraints().nonnegative);
+        let g = m.geometry().clone();
+        let sino: Vec<f32> = (0..g.n_rays())
+            .map(|i| 1.5 + (i % 7) as f32 * 0.1)
+            .collect();
+        let raw = m.network_output(&sino, 35.0).unwrap();
+        let out = m.reconstruct(&sino, 35.0).unwrap();
+        let negative = raw.iter().filter(|v| **v < 0.0).count();
+        assert!(negative > 0, "{p}: the network gave no negative value");
+        for (o, r) in out.iter().zip(&raw) {
+            assert_eq!(*o, if *r < 0.0 { 0.0 } else { *r }, "{p}");
+        }
+        let off = m.with_nonnegativity(false);
+        assert_eq!(off.reconstruct(&sino, 35.0).unwrap(), raw, "{p}");
+    }
+    let lpd = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/lpd-x4");
+    let l = Dbtor::load_with(&lpd, Precision::Fp32, Engine::Fast).unwrap();
+    assert!(!l.support() && l.constraints().nonnegative);
 }
 
 fn read_f32(p: &Path) -> Vec<f32> {
