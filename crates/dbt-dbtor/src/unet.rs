@@ -64,6 +64,7 @@ pub struct Unet {
     manifest: UnetManifest,
     plan: std::sync::Arc<TypedSimplePlan>,
     path: PathBuf,
+    nonnegative: bool,
 }
 
 impl std::fmt::Debug for Unet {
@@ -127,6 +128,7 @@ impl Unet {
             manifest: m,
             plan,
             path,
+            nonnegative: true,
         })
     }
 
@@ -140,9 +142,28 @@ impl Unet {
         &self.manifest.geometry
     }
 
+    /// Whether [`Unet::reconstruct`] sets negative values to zero (default:
+    /// yes), the same physical constraint as DBToR's runtime
+    /// (`Dbtor::with_nonnegativity`), so that the baselines are compared on
+    /// equal terms.
+    pub fn with_nonnegativity(mut self, on: bool) -> Self {
+        self.nonnegative = on;
+        self
+    }
+
     /// The image (1/mm) from an FBP reconstruction (1/mm) of the model's image
-    /// size, as `dbt_recon::Fbp::reconstruct` gives it with the thickness mask.
+    /// size, as `dbt_recon::Fbp::reconstruct` gives it with the thickness mask;
+    /// no value negative unless [`Unet::with_nonnegativity`] turned that off.
     pub fn reconstruct(&self, fbp: &[f32]) -> Result<Vec<f32>, DbtorError> {
+        let mut out = self.network_output(fbp)?;
+        if self.nonnegative {
+            out.iter_mut().filter(|v| **v < 0.0).for_each(|v| *v = 0.0);
+        }
+        Ok(out)
+    }
+
+    /// The network's output (1/mm) as is: what the fixtures store.
+    pub fn network_output(&self, fbp: &[f32]) -> Result<Vec<f32>, DbtorError> {
         let g = &self.manifest.geometry;
         let (rows, cols) = (g.image.rows, g.image.columns);
         if fbp.len() != rows * cols {

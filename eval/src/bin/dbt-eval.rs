@@ -455,6 +455,7 @@ fn main() -> Result<()> {
             let unet = unet
                 .map(|d| {
                     dbt_dbtor::unet::Unet::load(&d)
+                        .map(|u| u.with_nonnegativity(!runtime.raw))
                         .with_context(|| format!("loading the U-Net {}", d.display()))
                 })
                 .transpose()?;
@@ -463,7 +464,8 @@ fn main() -> Result<()> {
                 .map(|(n, m)| (n.clone(), Learned::PrimalDual(m)))
                 .collect();
             if let Some(u) = &unet {
-                refs.push(("U-Net".into(), Learned::Unet(u)));
+                let name = if runtime.raw { "U-Net raw" } else { "U-Net" };
+                refs.push((name.into(), Learned::Unet(u)));
             }
             // The learned models' own geometry (evaluate_baselines checks they
             // all agree); --binning must give the same.
