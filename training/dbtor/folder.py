@@ -100,3 +100,56 @@ def manifest_sha256(folder):
     """SHA-256 of the folder's manifest.json: names the exact model a
     fine-tuning started from."""
     return _sha256(os.path.join(folder, "manifest.json"))
+
+
+def main(argv=None):
+    """python -m dbtor.folder --model DIR --data DS: read the folder back into
+    PyTorch, rerun its stored fixtures (max |PyTorch - fixture|, 1/mm) and
+    the trainer's validation (32 slices of DS's validation split, with the
+    model's own normalisation)."""
+    import argparse
+    import sys
+
+    import torch
+
+    from .data import Split
+    from .model import PrimalDual
+    from .operator import Operator
+    from .train import validate
+
+    ap = argparse.ArgumentParser(description=main.__doc__)
+    ap.add_argument("--model", required=True)
+    ap.add_argument("--data", required=True)
+    ap.add_argument("--level", default="N8")
+    a = ap.parse_args(argv)
+    try:
+        man = read_manifest(a.model)
+        kind, blocks = man.get("kind"), sum(1 for e in man.get("blocks", []) if e.get("role") == "dual")
+        sd, man = load_state_dict(a.model, kind, blocks)
+    except FolderError as e:
+        sys.exit(str(e))
+    op = Operator(os.path.join(a.data, "operator"))
+    net = PrimalDual(op, blocks=blocks, use_mask=(kind == "dbtor"))
+    net.load_state_dict(sd)
+    net.eval()
+    n = man["normalisation"]
+    stats = {"g_mean": n["g_mean"], "g_std": n["g_std"], "x_scale": n["x_scale_per_mm"]}
+    for fx in man.get("fixtures", []):
+        f = fx["files"]
+        g = np.fromfile(os.path.join(a.model, f["sinogram"]), dtype="<f4").reshape(op.sino_shape)
+        want = np.fromfile(os.path.join(a.model, f["torch_fp32"]), dtype="<f4").reshape(op.image_shape)
+        rows = op.image_shape[0]
+        m = np.zeros(op.image_shape, np.float32)
+        # Geometry::rows_within_thickness, the mask of DATASET.md
+        inside = min(rows, int(np.floor(fx["thickness_mm"] / man["geometry"]["image"]["pixel_mm"] + 0.5)))
+        m[rows - inside:] = 1.0
+        gn = torch.from_numpy((g - stats["g_mean"]) / stats["g_std"]).float()[None, None]
+        with torch.no_grad():
+            z = net(gn, torch.from_numpy(m)[None, None])[0, 0].numpy() * stats["x_scale"]
+        print(f"{fx['name']}: max |PyTorch - fixture| = {np.abs(z - want).max():.3e} /mm")
+    mse, psnr = validate(net, Split(a.data, "validation", a.level), stats)
+    print(f"validation ({a.level}, 32 slices): MSE {mse:.6f} network units, PSNR {psnr:.4f} dB")
+
+
+if __name__ == "__main__":
+    main()
