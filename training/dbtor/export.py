@@ -40,7 +40,6 @@ provenance and validation metrics.
 """
 import argparse
 import copy
-import hashlib
 import logging
 import json
 import os
@@ -57,19 +56,12 @@ from onnxruntime.quantization import (CalibrationDataReader, CalibrationMethod, 
 from .data import Split
 from .model import STATE, PrimalDual
 from .equalize import equalise, prescale
+from .folder import sha256
 from .qat import FORMS, calibration_batches, form_of
 from .operator import Operator
 from .train import tensors
 
 OPSET = 17
-
-
-def sha256(path):
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def provenance(run, ck, tool, argv):

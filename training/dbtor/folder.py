@@ -21,7 +21,7 @@ class FolderError(ValueError):
     pass
 
 
-def _sha256(path):
+def sha256(path):
     h = hashlib.sha256()
     with open(path, "rb") as f:
         for chunk in iter(lambda: f.read(1 << 20), b""):
@@ -80,7 +80,7 @@ def load_state_dict(folder, kind, blocks):
         p = os.path.join(folder, rel)
         if not os.path.exists(p):
             raise FolderError(f"{folder}: {rel} is listed in the manifest but missing")
-        if _sha256(p) != want:
+        if sha256(p) != want:
             raise FolderError(f"{folder}: {rel} does not match its SHA-256 in the manifest")
     if man.get("kind") != kind:
         raise FolderError(f"{folder}: a {man.get('kind')} model, not a {kind}")
@@ -99,7 +99,7 @@ def load_state_dict(folder, kind, blocks):
 def manifest_sha256(folder):
     """SHA-256 of the folder's manifest.json: names the exact model a
     fine-tuning started from."""
-    return _sha256(os.path.join(folder, "manifest.json"))
+    return sha256(os.path.join(folder, "manifest.json"))
 
 
 def main(argv=None):
