@@ -93,7 +93,12 @@ pub struct RegionStat {
     pub n: usize,
 }
 
-fn region_stat(regions: &[dbt_metrics::RegionSsim]) -> RegionStat {
+/// One region of the slices' [`ImageScores::ssim_regions`], picked by `region`.
+fn region_stat(
+    scores: &[ImageScores],
+    region: fn(&dbt_metrics::SsimRegions) -> dbt_metrics::RegionSsim,
+) -> RegionStat {
+    let regions: Vec<_> = scores.iter().map(|s| region(&s.ssim_regions)).collect();
     let with: Vec<f64> = regions
         .iter()
         .filter(|r| r.share > 0.0)
@@ -311,15 +316,9 @@ pub fn evaluate_baselines(
                 psnr: stat(|s| s.psnr),
                 n: sc.len(),
                 ssim_regions: RegionRow {
-                    inside: region_stat(
-                        &sc.iter().map(|s| s.ssim_regions.inside).collect::<Vec<_>>(),
-                    ),
-                    outline: region_stat(
-                        &sc.iter()
-                            .map(|s| s.ssim_regions.outline)
-                            .collect::<Vec<_>>(),
-                    ),
-                    air: region_stat(&sc.iter().map(|s| s.ssim_regions.air).collect::<Vec<_>>()),
+                    inside: region_stat(sc, |r| r.inside),
+                    outline: region_stat(sc, |r| r.outline),
+                    air: region_stat(sc, |r| r.air),
                 },
             });
         }

@@ -115,7 +115,7 @@ def main(argv=None):
     from .data import Split
     from .model import PrimalDual
     from .operator import Operator
-    from .train import validate
+    from .train import tensors, validate
 
     ap = argparse.ArgumentParser(description=main.__doc__)
     ap.add_argument("--model", required=True)
@@ -134,20 +134,18 @@ def main(argv=None):
     net.eval()
     n = man["normalisation"]
     stats = {"g_mean": n["g_mean"], "g_std": n["g_std"], "x_scale": n["x_scale_per_mm"]}
+    val = Split(a.data, "validation", a.level)
     for fx in man.get("fixtures", []):
         f = fx["files"]
         g = np.fromfile(os.path.join(a.model, f["sinogram"]), dtype="<f4").reshape(op.sino_shape)
         want = np.fromfile(os.path.join(a.model, f["torch_fp32"]), dtype="<f4").reshape(op.image_shape)
-        rows = op.image_shape[0]
-        m = np.zeros(op.image_shape, np.float32)
-        # Geometry::rows_within_thickness, the mask of DATASET.md
-        inside = min(rows, int(np.floor(fx["thickness_mm"] / man["geometry"]["image"]["pixel_mm"] + 0.5)))
-        m[rows - inside:] = 1.0
-        gn = torch.from_numpy((g - stats["g_mean"]) / stats["g_std"]).float()[None, None]
+        # the stored sinogram with its slice's mask from the dataset, as the export ran it
+        _, m, x = val.batch([fx["validation_slice"]])
+        gn, mt, _ = tensors((g[None], m, x), stats)
         with torch.no_grad():
-            z = net(gn, torch.from_numpy(m)[None, None])[0, 0].numpy() * stats["x_scale"]
+            z = net(gn, mt)[0, 0].numpy() * stats["x_scale"]
         print(f"{fx['name']}: max |PyTorch - fixture| = {np.abs(z - want).max():.3e} /mm")
-    mse, psnr = validate(net, Split(a.data, "validation", a.level), stats)
+    mse, psnr = validate(net, val, stats)
     print(f"validation ({a.level}, 32 slices): MSE {mse:.6f} network units, PSNR {psnr:.4f} dB")
 
 

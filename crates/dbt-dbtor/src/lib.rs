@@ -296,6 +296,13 @@ pub struct Constraints {
     pub nonnegative: bool,
 }
 
+/// Set the negative values of an image to zero: the non-negativity of
+/// DBToR's runtime and of the U-Net baseline. Not `max(0)`, which would turn
+/// a NaN into 0 and hide it.
+pub(crate) fn zero_negatives(img: &mut [f32]) {
+    img.iter_mut().filter(|v| **v < 0.0).for_each(|v| *v = 0.0);
+}
+
 impl Constraints {
     /// The network's output as is: what the fixtures store.
     pub const NONE: Self = Self {
@@ -906,8 +913,7 @@ impl Dbtor {
             out[..first].fill(0.0);
         }
         if constraints.nonnegative {
-            // (not `max`, which would turn a NaN into 0 and hide it)
-            out.iter_mut().filter(|v| **v < 0.0).for_each(|v| *v = 0.0);
+            zero_negatives(out);
         }
         Ok(())
     }

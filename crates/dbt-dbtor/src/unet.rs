@@ -157,7 +157,7 @@ impl Unet {
     pub fn reconstruct(&self, fbp: &[f32]) -> Result<Vec<f32>, DbtorError> {
         let mut out = self.network_output(fbp)?;
         if self.nonnegative {
-            out.iter_mut().filter(|v| **v < 0.0).for_each(|v| *v = 0.0);
+            crate::zero_negatives(&mut out);
         }
         Ok(out)
     }

@@ -91,8 +91,7 @@ const WIN: usize = 7;
 
 /// Mean structural similarity (skimage defaults, see the crate docs).
 pub fn ssim(shape: Shape, a: &[f32], b: &[f32], range: f64) -> Result<f64, MetricError> {
-    let map = ssim_map(shape, a, b, range)?;
-    Ok(map.values.iter().sum::<f64>() / map.values.len() as f64)
+    Ok(ssim_map(shape, a, b, range)?.mean())
 }
 
 /// Summed-area table of `K` per-pixel quantities, `(rows + 1) x (cols + 1)`.
@@ -139,6 +138,21 @@ pub struct SsimMap {
     /// Row-major; entry `(i, j)` is the window centred at image pixel
     /// `(i + 3, j + 3)`.
     pub values: Vec<f64>,
+}
+
+impl SsimMap {
+    /// The mean SSIM ([`ssim`]).
+    pub fn mean(&self) -> f64 {
+        self.values.iter().sum::<f64>() / self.values.len() as f64
+    }
+
+    /// The shape of the image the map was computed on.
+    pub fn image_shape(&self) -> Shape {
+        Shape {
+            rows: self.rows + WIN - 1,
+            cols: self.cols + WIN - 1,
+        }
+    }
 }
 
 /// The local SSIM map (skimage defaults, see the crate docs); [`ssim`] is
@@ -208,23 +222,17 @@ pub struct SsimRegions {
 }
 
 /// [`ssim_map`] split by the windows' content of `tissue` (one flag per
-/// image pixel, normally `truth > 0`).
-pub fn ssim_regions(
-    shape: Shape,
-    map: &SsimMap,
-    tissue: &[bool],
-) -> Result<SsimRegions, MetricError> {
+/// pixel of the map's image, normally `truth > 0`).
+pub fn ssim_regions(map: &SsimMap, tissue: &[bool]) -> Result<SsimRegions, MetricError> {
+    let shape = map.image_shape();
     let expected = shape.rows * shape.cols;
-    if tissue.len() != expected
-        || map.rows + WIN - 1 != shape.rows
-        || map.cols + WIN - 1 != shape.cols
-    {
+    if tissue.len() != expected {
         return Err(MetricError::Shape {
             rows: shape.rows,
             cols: shape.cols,
             expected,
             a: tissue.len(),
-            b: (map.rows + WIN - 1) * (map.cols + WIN - 1),
+            b: expected,
         });
     }
     let sat = summed_area(shape.rows, shape.cols, |i| [f64::from(u8::from(tissue[i]))]);
@@ -281,9 +289,9 @@ pub fn score(shape: Shape, truth: &[f32], test: &[f32]) -> Result<ImageScores, M
     let tissue: Vec<bool> = truth.iter().map(|&v| v > 0.0).collect();
     Ok(ImageScores {
         l2: mse(truth, test),
-        ssim: map.values.iter().sum::<f64>() / map.values.len() as f64,
+        ssim: map.mean(),
         psnr: psnr(truth, test, range)?,
-        ssim_regions: ssim_regions(shape, &map, &tissue)?,
+        ssim_regions: ssim_regions(&map, &tissue)?,
     })
 }
 
@@ -352,7 +360,8 @@ mod tests {
         let tissue: Vec<bool> = truth.iter().map(|&v| v > 0.0).collect();
         let map = ssim_map(shape, &truth, &test, 0.52).unwrap();
         assert_eq!((map.rows, map.cols), (1, 14));
-        let r = ssim_regions(shape, &map, &tissue).unwrap();
+        assert_eq!(map.image_shape(), shape);
+        let r = ssim_regions(&map, &tissue).unwrap();
         assert!((r.inside.share - 4.0 / 14.0).abs() < 1e-12);
         assert!((r.outline.share - 6.0 / 14.0).abs() < 1e-12);
         assert!((r.air.share - 4.0 / 14.0).abs() < 1e-12);
@@ -364,12 +373,12 @@ mod tests {
             + r.air.mean * r.air.share;
         assert!((whole - weighted).abs() < 1e-12, "{whole} vs {weighted}");
         // No tissue at all: every window is air, the others are empty.
-        let r = ssim_regions(shape, &map, &[false; 140]).unwrap();
+        let r = ssim_regions(&map, &[false; 140]).unwrap();
         assert_eq!(r.air.share, 1.0);
         assert!(r.inside.mean.is_nan() && r.inside.share == 0.0);
         // A tissue mask of the wrong size is refused.
         assert!(matches!(
-            ssim_regions(shape, &map, &[false; 139]),
+            ssim_regions(&map, &[false; 139]),
             Err(MetricError::Shape { .. })
         ));
     }
