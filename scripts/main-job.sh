@@ -11,7 +11,7 @@
 #     (GANTRY_INTERFACE.md) over loopback TCP, two processes; the firmware
 #     acknowledges every frame and spools the acquisition atomically.
 #  4. dbtor-process: per-slice DBToR reconstruction with the shipped model
-#     (models/dbtor-x4t, trained for paper-tall; checksums verified at load; DBTOR_PRECISION=fp32|int8,
+#     (models/dbtor-x4t2, trained for paper-tall; checksums verified at load; DBTOR_PRECISION=fp32|int8,
 #     default fp32: int8 costs SSIM at this training stage, eval/README.md), tissue classification, glandularity, Monte Carlo MGD (25
 #     views, patient-specific and model breast, 1 % uncertainty), dose SR and
 #     density SR to the output folder.
@@ -34,7 +34,7 @@ SIM=$!
 ./target/release/dbtor-receive --connect "127.0.0.1:$PORT" --geometry paper-tall --binning 4 --out "$OUT/spool/acquisition-1"
 wait "$SIM"
 ./target/release/dbtor-process "$OUT/spool/acquisition-1" --out "$OUT/reports" \
-    --model models/dbtor-x4t --precision "${DBTOR_PRECISION:-fp32}" "$@" > "$OUT/summary.json"
+    --model models/dbtor-x4t2 --precision "${DBTOR_PRECISION:-fp32}" "$@" > "$OUT/summary.json"
 python3 - "$OUT/summary.json" "$OUT/gantry-acquisition/acquisition.json" <<'PY' || cat "$OUT/summary.json"
 import json, sys
 d = json.load(open(sys.argv[1]))

@@ -465,9 +465,9 @@ mod tests {
     fn example(edit: impl Fn(String) -> String) -> Result<Config, ConfigError> {
         let root = Path::new(env!("CARGO_MANIFEST_DIR"));
         let text = std::fs::read_to_string(root.join("config/dbtor.toml")).unwrap();
-        let model = root.join("../models/dbtor-x4t");
+        let model = root.join("../models/dbtor-x4t2");
         let text = text.replace(
-            "\"/usr/share/dbtor/models/dbtor-x4t\"",
+            "\"/usr/share/dbtor/models/dbtor-x4t2\"",
             &format!("{:?}", model.display().to_string()),
         );
         let t = tempfile::tempdir().unwrap();

@@ -369,7 +369,7 @@ fn clean_acquisition_over_serial_lines() {
         .unwrap();
     // The shipped model on the fast engine and its geometry: the gantry PC's
     // configuration.
-    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/dbtor-x4t");
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/dbtor-x4t2");
     let cfg = write_config(
         dir.path(),
         &format!(

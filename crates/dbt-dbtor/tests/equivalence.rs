@@ -54,18 +54,23 @@ fn lpd_matches_pytorch_and_onnxruntime() {
     assert_eq!((m.kind.as_str(), m.aux_channels()), ("lpd", Some((2, 1))));
 }
 
-/// The tall-geometry model (`models/dbtor-x4t`, 250 x 100 pixels, the
-/// firmware's default), on both engines and precisions, with the same rules.
+/// The tall-geometry models (250 x 100 pixels): `models/dbtor-x4t2`, the
+/// firmware's default, and `models/dbtor-x4t`, the one it was fine-tuned
+/// from, on both engines and precisions, with the same rules.
 #[test]
-fn tall_model_matches_pytorch_and_onnxruntime() {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/dbtor-x4t");
-    for p in [Precision::Fp32, Precision::Int8] {
-        for e in [Engine::Fast, Engine::Tract] {
-            check_dir(&dir, p, e);
+fn tall_models_match_pytorch_and_onnxruntime() {
+    for name in ["dbtor-x4t2", "dbtor-x4t"] {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../models")
+            .join(name);
+        for p in [Precision::Fp32, Precision::Int8] {
+            for e in [Engine::Fast, Engine::Tract] {
+                check_dir(&dir, p, e);
+            }
         }
+        let m = ModelManifest::load(&dir).unwrap();
+        assert_eq!((m.kind.as_str(), m.geometry.image.rows), ("dbtor", 100));
     }
-    let m = ModelManifest::load(&dir).unwrap();
-    assert_eq!((m.kind.as_str(), m.geometry.image.rows), ("dbtor", 100));
 }
 
 /// fp32: the fast path + Rust projector against PyTorch, same tolerance.
