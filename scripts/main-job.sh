@@ -11,8 +11,10 @@
 #     (GANTRY_INTERFACE.md) over loopback TCP, two processes; the firmware
 #     acknowledges every frame and spools the acquisition atomically.
 #  4. dbtor-process: per-slice DBToR reconstruction with the shipped model
-#     (models/dbtor-x4t2, trained for paper-tall; checksums verified at load; DBTOR_PRECISION=fp32|int8,
-#     default fp32: int8 costs SSIM at this training stage, eval/README.md), tissue classification, glandularity, Monte Carlo MGD (25
+#     (the repository's copy of the model and precision that the shipped
+#     firmware/config/dbtor.toml names, trained for paper-tall; checksums
+#     verified at load; DBTOR_PRECISION=fp32|int8 overrides the precision),
+#     tissue classification, glandularity, Monte Carlo MGD (25
 #     views, patient-specific and model breast, 1 % uncertainty), dose SR and
 #     density SR to the output folder.
 #  5. Validation: every report is read back (dbtor-diag report) and, where
@@ -33,8 +35,13 @@ PORT=$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0));
 SIM=$!
 ./target/release/dbtor-receive --connect "127.0.0.1:$PORT" --geometry paper-tall --binning 4 --out "$OUT/spool/acquisition-1"
 wait "$SIM"
+# The shipped configuration is the one place that names the model.
+read -r MODEL PRECISION < <(python3 -c '
+import pathlib, sys, tomllib
+r = tomllib.load(open(sys.argv[1], "rb"))["recon"]
+print("models/" + pathlib.PurePosixPath(r["model"]).name, r["precision"])' firmware/config/dbtor.toml)
 ./target/release/dbtor-process "$OUT/spool/acquisition-1" --out "$OUT/reports" \
-    --model models/dbtor-x4t2 --precision "${DBTOR_PRECISION:-fp32}" "$@" > "$OUT/summary.json"
+    --model "$MODEL" --precision "${DBTOR_PRECISION:-$PRECISION}" "$@" > "$OUT/summary.json"
 python3 - "$OUT/summary.json" "$OUT/gantry-acquisition/acquisition.json" <<'PY' || cat "$OUT/summary.json"
 import json, sys
 d = json.load(open(sys.argv[1]))

@@ -461,13 +461,19 @@ impl Config {
 mod tests {
     use super::*;
 
-    /// The shipped example with the model pointed at the repository's.
+    /// The shipped example with the model pointed at the repository's copy of
+    /// the one it names (`models/<name>` for `recon.model = ".../<name>"`), so
+    /// that switching the shipped model is one edit of the shipped file.
     fn example(edit: impl Fn(String) -> String) -> Result<Config, ConfigError> {
         let root = Path::new(env!("CARGO_MANIFEST_DIR"));
         let text = std::fs::read_to_string(root.join("config/dbtor.toml")).unwrap();
-        let model = root.join("../models/dbtor-x4t2");
+        let shipped: toml::Value = toml::from_str(&text).unwrap();
+        let installed = shipped["recon"]["model"].as_str().unwrap().to_string();
+        let name = Path::new(&installed).file_name().unwrap();
+        let model = root.join("../models").join(name);
+        assert!(model.join("manifest.json").is_file(), "{}", model.display());
         let text = text.replace(
-            "\"/usr/share/dbtor/models/dbtor-x4t2\"",
+            &format!("{installed:?}"),
             &format!("{:?}", model.display().to_string()),
         );
         let t = tempfile::tempdir().unwrap();

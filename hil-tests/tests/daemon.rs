@@ -70,6 +70,20 @@ fn gantry(acq: &Path, thickness_mm: f64) -> Gantry {
 
 /// A daemon configuration in `dir` from its frames, Modbus and recon
 /// sections; the paths and report sections are common to every test.
+/// The repository's copy of the model the shipped configuration names
+/// (`firmware/config/dbtor.toml`, `recon.model = ".../<name>"` ->
+/// `models/<name>`): switching the shipped model is one edit of that file.
+fn shipped_model() -> PathBuf {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let text = std::fs::read_to_string(root.join("firmware/config/dbtor.toml")).unwrap();
+    let shipped: toml::Value = toml::from_str(&text).unwrap();
+    let installed = shipped["recon"]["model"].as_str().unwrap();
+    let name = Path::new(installed).file_name().unwrap();
+    let model = root.join("models").join(name);
+    assert!(model.join("manifest.json").is_file(), "{}", model.display());
+    model
+}
+
 fn write_config(dir: &Path, frames: &str, modbus: &str, recon: &str) -> PathBuf {
     let text = format!(
         r#"
@@ -369,7 +383,7 @@ fn clean_acquisition_over_serial_lines() {
         .unwrap();
     // The shipped model on the fast engine and its geometry: the gantry PC's
     // configuration.
-    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/dbtor-x4t2");
+    let model = shipped_model();
     let cfg = write_config(
         dir.path(),
         &format!(
