@@ -660,6 +660,7 @@ fn main() -> Result<()> {
                     seed: 1,
                     classify: skin,
                     calibration,
+                    shadow: None,
                 };
                 let label = dbtor_firmware::pipeline::reconstructor_name(&opts);
                 let label = match calibration {
