@@ -9,8 +9,7 @@
 //!
 //! Each phantom is acquired (noise-free unless `N8`) and reconstructed by
 //! MLTR (100 iterations) and by DBToR fp32 (`MODEL`) with the firmware's
-//! reconstruction step, each with the thickness support and with the
-//! shadow support (`dbt_recon::shadow_support`). For each, against the truth on the same grid:
+//! reconstruction step. For each, against the truth on the same grid:
 //! - the total attenuation (data consistency: 1 for a reconstruction that
 //!   fits the data and puts nothing outside the image);
 //! - the partial-volume glandularity with the **truth's** labels (the
@@ -86,13 +85,7 @@ fn main() -> Result<()> {
             noise.name(),
             100.0 * skin / breast
         );
-        let shadow = Some(dbt_recon::ShadowOptions::default());
-        for (rname, dbtor, shadow) in [
-            ("MLTR", None, None),
-            ("MLTR, shadow support", None, shadow),
-            ("DBToR fp32", Some(model.clone()), None),
-            ("DBToR fp32, shadow support", Some(model.clone()), shadow),
-        ] {
+        for (rname, dbtor) in [("MLTR", None), ("DBToR fp32", Some(model.clone()))] {
             let opts = PipelineOptions {
                 dbtor,
                 mltr_iterations: 100,
@@ -100,7 +93,6 @@ fn main() -> Result<()> {
                 seed: 1,
                 classify: ClassifyOptions::default(),
                 calibration: None,
-                shadow,
             };
             let v = reconstruct_volume(&acq, &opts, &mut |_| {})?;
             ensure!(v.dims == dims, "volume {:?} against {:?}", v.dims, dims);

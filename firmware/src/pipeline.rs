@@ -11,7 +11,7 @@ use dbt_dicom::{
 };
 use dbt_dose::patient::{dbt_views, mgd_to_uncertainty, Breast, MgdResult, Model};
 use dbt_projector::Projector;
-use dbt_recon::{mltr, shadow_support, MltrOptions, ShadowOptions};
+use dbt_recon::{mltr, MltrOptions};
 use dbt_store::acquisition::Acquisition;
 use dbt_tissue::{
     classify, density, Classification, ClassifyOptions, Density, GlandularityCalibration,
@@ -71,11 +71,6 @@ pub struct PipelineOptions {
     /// this reconstructor on validation phantoms
     /// ([`crate::calibration::load_calibration`]).
     pub calibration: Option<GlandularityCalibration>,
-    /// The reconstruction support: `None`, the compressed thickness (the
-    /// paper's); `Some`, the thickness with the air that the breast's
-    /// shadow reveals carved out (`dbt_recon::shadow_support`). MLTR is
-    /// restricted to it; DBToR's output is set to air outside it.
-    pub shadow: Option<ShadowOptions>,
 }
 
 impl Default for PipelineOptions {
@@ -87,7 +82,6 @@ impl Default for PipelineOptions {
             seed: 1,
             classify: ClassifyOptions::default(),
             calibration: None,
-            shadow: None,
         }
     }
 }
@@ -246,28 +240,12 @@ pub fn reconstruct_volume(
     let reconstructor = reconstructor_name(opts);
     for (d, counts) in acq.counts.iter().enumerate() {
         let _s = tracing::debug_span!("slice", d).entered();
-        let line = log_transform(counts, h.flux);
-        let support = match &opts.shadow {
-            Some(o) => shadow_support(&proj, &line, h.flux, &mask, o)
-                .map_err(|source| PipelineError::Recon { slice: d, source })?,
-            None => mask.clone(),
-        };
         let img = match &opts.dbtor {
-            Some(m) => {
-                let mut img = m
-                    .reconstruct(&line, h.thickness_mm)
-                    .map_err(|source| PipelineError::Dbtor { slice: d, source })?;
-                if opts.shadow.is_some() {
-                    for (x, &s) in img.iter_mut().zip(&support) {
-                        if s == 0.0 {
-                            *x = 0.0;
-                        }
-                    }
-                }
-                img
-            }
+            Some(m) => m
+                .reconstruct(&log_transform(counts, h.flux), h.thickness_mm)
+                .map_err(|source| PipelineError::Dbtor { slice: d, source })?,
             None => {
-                mltr(&proj, counts, h.flux, &support, &mopts)
+                mltr(&proj, counts, h.flux, &mask, &mopts)
                     .map_err(|source| PipelineError::Recon { slice: d, source })?
                     .0
             }

@@ -4,16 +4,12 @@
 //!   thickness (the paper's 100 iterations are the caller's choice).
 //! * [`Fbp`]: filtered backprojection for the limited-angle fan beam, ramp
 //!   filter with a Hann window, a fast look and the U-Net's input.
-//! * [`shadow_support`]: a tighter support than the compressed thickness,
-//!   carved by the rays that miss the breast.
 
 pub mod fbp;
 pub mod mltr;
-pub mod shadow;
 
 pub use fbp::Fbp;
 pub use mltr::{mltr, MltrOptions, MltrReport};
-pub use shadow::{shadow_support, ShadowOptions};
 
 use dbt_projector::ProjectorError;
 use thiserror::Error;

@@ -660,7 +660,6 @@ fn main() -> Result<()> {
                     seed: 1,
                     classify: skin,
                     calibration,
-                    shadow: None,
                 };
                 let label = dbtor_firmware::pipeline::reconstructor_name(&opts);
                 let label = match calibration {
