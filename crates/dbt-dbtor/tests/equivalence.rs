@@ -54,12 +54,13 @@ fn lpd_matches_pytorch_and_onnxruntime() {
     assert_eq!((m.kind.as_str(), m.aux_channels()), ("lpd", Some((2, 1))));
 }
 
-/// The tall-geometry models (250 x 100 pixels): `models/dbtor-x4t2`, the
-/// firmware's default, and `models/dbtor-x4t`, the one it was fine-tuned
-/// from, on both engines and precisions, with the same rules.
+/// The tall-geometry models (250 x 100 pixels): `models/dbtor-x4t3`, the
+/// firmware's default, and `models/dbtor-x4t2` and `models/dbtor-x4t`, the
+/// ones it was fine-tuned from, on both engines and precisions, with the
+/// same rules.
 #[test]
 fn tall_models_match_pytorch_and_onnxruntime() {
-    for name in ["dbtor-x4t2", "dbtor-x4t"] {
+    for name in ["dbtor-x4t3", "dbtor-x4t2", "dbtor-x4t"] {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("../../models")
             .join(name);
