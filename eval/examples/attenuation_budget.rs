@@ -25,7 +25,7 @@ use dbt_acquisition::NoiseLevel;
 use dbt_dbtor::{Dbtor, Precision};
 use dbt_eval::accuracy::{split_phantoms, Split};
 use dbt_eval::classification::{confusion, truth_on_grid};
-use dbt_materials::Tissue;
+use dbt_phantom::labels_to_mu;
 use dbt_tissue::{classify, density, ClassifyOptions};
 use dbtor_firmware::pipeline::{reconstruct_volume, PipelineOptions};
 use host_sim::{simulate_acquisition, Technique};
@@ -72,10 +72,7 @@ fn main() -> Result<()> {
             vol.n_coronal(),
         ];
         let truth = truth_on_grid(&vol, &g, dims)?;
-        let mu_t = truth
-            .iter()
-            .map(|&l| Ok(Tissue::from_label(l)?.mu_per_mm()))
-            .collect::<Result<Vec<f32>>>()?;
+        let mu_t = labels_to_mu(&truth);
         let breast = truth.iter().filter(|&&l| l != 0).count() as f64;
         let skin = truth.iter().filter(|&&l| l == 2).count() as f64;
         println!(

@@ -68,8 +68,6 @@ fn gantry(acq: &Path, thickness_mm: f64) -> Gantry {
     }
 }
 
-/// A daemon configuration in `dir` from its frames, Modbus and recon
-/// sections; the paths and report sections are common to every test.
 /// The repository's copy of the model the shipped configuration names
 /// (`firmware/config/dbtor.toml`, `recon.model = ".../<name>"` ->
 /// `models/<name>`): switching the shipped model is one edit of that file.
@@ -84,6 +82,8 @@ fn shipped_model() -> PathBuf {
     model
 }
 
+/// A daemon configuration in `dir` from its frames, Modbus and recon
+/// sections; the paths and report sections are common to every test.
 fn write_config(dir: &Path, frames: &str, modbus: &str, recon: &str) -> PathBuf {
     let text = format!(
         r#"
