@@ -82,6 +82,7 @@ fn main() -> Result<()> {
             noise.name(),
             100.0 * skin / breast
         );
+        print_outline(&truth, dims, vox);
         for (rname, dbtor) in [("MLTR", None), ("DBToR fp32", Some(model.clone()))] {
             let opts = PipelineOptions {
                 dbtor,
@@ -97,6 +98,31 @@ fn main() -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// The breast's extent in every tenth of its coronal slices (depth from the
+/// chest wall), against the compressed thickness.
+fn print_outline(truth: &[u8], dims: [usize; 3], vox: f64) {
+    let [cols, nv, nd] = dims;
+    for d in (0..nd).step_by(nd.div_ceil(10).max(1)) {
+        let s = &truth[d * nv * cols..(d + 1) * nv * cols];
+        let rows: Vec<usize> = (0..nv)
+            .filter(|&v| s[v * cols..(v + 1) * cols].iter().any(|&l| l != 0))
+            .collect();
+        let c: Vec<usize> = (0..cols)
+            .filter(|&x| (0..nv).any(|v| s[v * cols + x] != 0))
+            .collect();
+        if let (Some(r0), Some(r1), Some(c0), Some(c1)) =
+            (rows.first(), rows.last(), c.first(), c.last())
+        {
+            println!(
+                "    depth {:5.1} mm: breast {:5.1} mm wide, {:4.1} mm tall (rows {r0}..={r1} of {nv} under the paddle)",
+                d as f64 * vox,
+                (c1 - c0 + 1) as f64 * vox,
+                (r1 - r0 + 1) as f64 * vox
+            );
+        }
+    }
 }
 
 fn report(
