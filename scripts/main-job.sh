@@ -36,12 +36,12 @@ SIM=$!
 ./target/release/dbtor-receive --connect "127.0.0.1:$PORT" --geometry paper-tall --binning 4 --out "$OUT/spool/acquisition-1"
 wait "$SIM"
 # The shipped configuration is the one place that names the model.
-read -r MODEL PRECISION < <(python3 -c '
+read -r MODEL PRECISION DIGEST < <(python3 -c '
 import pathlib, sys, tomllib
 r = tomllib.load(open(sys.argv[1], "rb"))["recon"]
-print("models/" + pathlib.PurePosixPath(r["model"]).name, r["precision"])' firmware/config/dbtor.toml)
+print("models/" + pathlib.PurePosixPath(r["model"]).name, r["precision"], r["model_digest"])' firmware/config/dbtor.toml)
 ./target/release/dbtor-process "$OUT/spool/acquisition-1" --out "$OUT/reports" \
-    --model "$MODEL" --precision "${DBTOR_PRECISION:-$PRECISION}" "$@" > "$OUT/summary.json"
+    --model "$MODEL" --model-digest "$DIGEST" --precision "${DBTOR_PRECISION:-$PRECISION}" "$@" > "$OUT/summary.json"
 python3 - "$OUT/summary.json" "$OUT/gantry-acquisition/acquisition.json" <<'PY' || cat "$OUT/summary.json"
 import json, sys
 d = json.load(open(sys.argv[1]))

@@ -8,7 +8,7 @@ use dbt_acquisition::NoiseLevel;
 use dbt_dose::patient::{dbt_views, mgd_to_uncertainty, Breast, Model};
 use dbt_geometry::Geometry;
 use dbt_phantom::{generate, LabelVolume, Population};
-use dbtor_firmware::pipeline::{process, PipelineOptions};
+use dbt_pipeline::{process, PipelineOptions};
 use host_sim::{simulate_acquisition, Technique};
 use serde::Serialize;
 
@@ -36,6 +36,9 @@ pub struct Case {
     pub mgd_model: f64,
     /// Processing seconds.
     pub seconds: f64,
+    /// What the firmware's plausibility checks measured (a case they
+    /// refuse fails the run, naming the reason).
+    pub plausibility: dbt_pipeline::Plausibility,
 }
 
 /// Bland-Altman summary of differences.
@@ -237,6 +240,7 @@ pub fn run_cases(
             mgd_est: res.mgd_mgy,
             mgd_model: res.model_mgd_mgy,
             seconds: acquired + t.elapsed().as_secs_f64(),
+            plausibility: res.plausibility.clone(),
         });
     }
     Ok(cases)

@@ -15,8 +15,8 @@ use dbt_acquisition::NoiseLevel;
 use dbt_dose::patient::{dbt_views, mgd_to_uncertainty, Breast, Model};
 use dbt_geometry::Geometry;
 use dbt_phantom::{coronal_slice, LabelVolume};
+use dbt_pipeline::{reconstruct_volume, PipelineOptions, Volume};
 use dbt_tissue::{classify, density, ClassifyOptions};
-use dbtor_firmware::pipeline::{reconstruct_volume, PipelineOptions, Volume};
 use host_sim::{simulate_acquisition, Technique};
 use serde::Serialize;
 

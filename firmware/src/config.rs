@@ -141,6 +141,11 @@ pub struct ReconConfig {
     /// Model folder (for dbtor).
     #[serde(default)]
     pub model: Option<PathBuf>,
+    /// The model folder's signed-off digest (`sha256:<hex>`, its
+    /// `signoff.json`; `dbtor-diag model DIR` prints it). Required for dbtor:
+    /// the daemon refuses to start on a folder whose files differ.
+    #[serde(default)]
+    pub model_digest: Option<String>,
     /// `fp32` or `int8`.
     #[serde(default = "default_precision")]
     pub precision: String,
@@ -228,7 +233,13 @@ impl Config {
             path: path.to_path_buf(),
             source,
         })?;
-        let mut c: Config = toml::from_str(&text).map_err(|e| ConfigError::Parse {
+        Self::parse(&text, path)
+    }
+
+    /// Parse and validate a configuration's text as if read from `path`
+    /// (relative paths are taken from its folder).
+    pub fn parse(text: &str, path: &Path) -> Result<Self, ConfigError> {
+        let mut c: Config = toml::from_str(text).map_err(|e| ConfigError::Parse {
             path: path.to_path_buf(),
             reason: e.to_string(),
         })?;
@@ -264,8 +275,14 @@ impl Config {
                 let a = self.frames.address.as_deref().ok_or_else(|| {
                     bad("frames.address", "required with transport = \"tcp\"".into())
                 })?;
-                if !a.contains(':') {
-                    return Err(bad("frames.address", format!("{a:?} is not host:port")));
+                let addr: SocketAddr = a.parse().map_err(|e| {
+                    bad(
+                        "frames.address",
+                        format!("{a:?}: {e} (an IP address and a port, e.g. 192.168.10.2:5000)"),
+                    )
+                })?;
+                if addr.port() == 0 {
+                    return Err(bad("frames.address", format!("{a:?}: port 0")));
                 }
             }
             "serial" => {
@@ -355,6 +372,22 @@ impl Config {
                             self.frames.binning,
                             gantry.describe()
                         ),
+                    ));
+                }
+                let digest = self.recon.model_digest.as_deref().ok_or_else(|| {
+                    bad(
+                        "recon.model_digest",
+                        format!(
+                            "required with reconstructor = \"dbtor\": the signed-off digest of {} (`dbtor-diag model DIR` prints it)",
+                            m.display()
+                        ),
+                    )
+                })?;
+                let hex = digest.strip_prefix("sha256:").unwrap_or("");
+                if hex.len() != 64 || !hex.bytes().all(|b| b.is_ascii_hexdigit()) {
+                    return Err(bad(
+                        "recon.model_digest",
+                        format!("{digest:?} is not sha256:<64 hex digits>"),
                     ));
                 }
                 self.recon
@@ -502,6 +535,52 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("recon.engine") && e.contains("warp"), "{e}");
+    }
+
+    /// The model's signed-off digest is required with DBToR and must be a
+    /// SHA-256; the frame server's address must parse, port 1-65535.
+    #[test]
+    fn model_digest_and_addresses_are_checked() {
+        let c = example(|t| t).unwrap();
+        assert!(c.recon.model_digest.unwrap().starts_with("sha256:"));
+        let e = example(|t| without(&t, "model_digest"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("recon.model_digest") && e.contains("required"),
+            "{e}"
+        );
+        let e = example(|t| {
+            let d = t
+                .lines()
+                .find(|l| l.starts_with("model_digest"))
+                .unwrap()
+                .to_string();
+            t.replace(&d, "model_digest = \"md5:1234\"")
+        })
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("recon.model_digest") && e.contains("md5:1234"),
+            "{e}"
+        );
+        for bad in [
+            "127.0.0.1:70000",
+            "::::",
+            "127.0.0.1",
+            "gantry:5000",
+            "127.0.0.1:0",
+        ] {
+            let e = example(|t| t.replace("127.0.0.1:5000", bad))
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("frames.address") && e.contains(bad),
+                "{bad}: {e}"
+            );
+        }
+        let c = example(|t| t.replace("127.0.0.1:5000", "[::1]:5000")).unwrap();
+        assert_eq!(c.frames.address.as_deref(), Some("[::1]:5000"));
     }
 
     /// fp32 blocks are an int8 option: listed with fp32 they are refused,

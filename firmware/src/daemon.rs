@@ -18,12 +18,13 @@
 //! every acquisition is reported exactly once.
 
 use crate::config::Config;
-use crate::link::{data_fault, receive, receive_from, to_acquisition, LinkError};
+use crate::link::{data_fault, receive, receive_from, to_acquisition, LinkError, LinkOptions};
 use crate::modbus::{read_registers, ModbusLink};
-use crate::pipeline::{process, reports, PipelineOptions};
 use dbt_dicom::{Equipment, UidSource};
 use dbt_geometry::Geometry;
-use dbt_store::acquisition::{read_acquisition, write_acquisition, Acquisition};
+use dbt_pipeline::acquisition::Acquisition;
+use dbt_pipeline::{process, reports, PipelineOptions};
+use dbt_store::acquisition::{read_acquisition, write_acquisition};
 use serde::Serialize;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -41,7 +42,8 @@ pub struct FaultRecord {
     pub at_unix: u64,
     /// Spool entry, if one exists.
     pub acquisition: Option<String>,
-    /// `link`, `modbus`, `thickness`, `processing`, `delivery`, `spool`.
+    /// `link`, `modbus`, `thickness`, `input`, `implausible`, `data`,
+    /// `processing`, `delivery`, `spool`.
     pub kind: String,
     /// What happened.
     pub message: String,
@@ -76,6 +78,8 @@ pub struct Status {
     pub recent: Vec<serde_json::Value>,
     /// The last faults (most recent last).
     pub faults: Vec<FaultRecord>,
+    /// Faults since start, by kind (the list above keeps the last 50).
+    pub fault_counts: std::collections::BTreeMap<String, u64>,
 }
 
 /// Errors that stop the daemon (everything else is a fault record).
@@ -92,12 +96,23 @@ pub enum DaemonError {
     /// The model could not be loaded.
     #[error("model: {0}")]
     Model(#[from] dbt_dbtor::DbtorError),
+    /// The model folder fails its sign-off, or its calibration is unusable.
+    #[error(transparent)]
+    ModelFolder(#[from] dbt_model::ModelError),
+    /// A resource the daemon needs is missing or unusable.
+    #[error("{what}: {reason}")]
+    Resource {
+        /// The resource (a configuration key and its value).
+        what: String,
+        /// Why it cannot be used.
+        reason: String,
+    },
     /// Bad configuration.
     #[error(transparent)]
     Config(#[from] crate::config::ConfigError),
     /// The model's glandularity calibration is unreadable or another model's.
     #[error(transparent)]
-    Calibration(#[from] crate::calibration::CalibrationError),
+    Calibration(#[from] dbt_model::CalibrationError),
 }
 
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> DaemonError + '_ {
@@ -112,6 +127,85 @@ fn now_unix() -> u64 {
         .duration_since(UNIX_EPOCH)
         .map(|d| d.as_secs())
         .unwrap_or(0)
+}
+
+/// Check everything the daemon will need without starting it (`dbtor-daemon
+/// --check-config`): the model folder against its sign-off and the
+/// configured digest, the model and its calibration load, the spool, output
+/// and status folders are writable, and the serial devices exist. Returns
+/// one line per check passed; the first failure is the error.
+pub fn preflight(cfg: &Config, config_path: &Path) -> Result<Vec<String>, DaemonError> {
+    let mut done = Vec::new();
+    let geom = cfg.gantry_geometry(config_path)?;
+    done.push(format!("geometry: {}", geom.describe()));
+    if cfg.recon.reconstructor == "dbtor" {
+        let dir = cfg.recon.model.clone().unwrap_or_default();
+        let precision = cfg
+            .recon
+            .precision
+            .parse()
+            .unwrap_or(dbt_dbtor::Precision::Fp32);
+        let engine = cfg.recon.engine.parse().unwrap_or(dbt_dbtor::Engine::Fast);
+        let signed = dbt_model::load_signed(
+            &dir,
+            precision,
+            &cfg.recon.fp32_blocks,
+            engine,
+            &dbt_tissue::ClassifyOptions::default(),
+            cfg.recon.model_digest.as_deref(),
+        )?;
+        done.push(format!(
+            "model: {} ({}), {} files match the sign-off {}, calibration {}",
+            signed.model.manifest().name,
+            signed.model.precision_label(),
+            signed.signoff.files.len(),
+            signed.signoff.digest,
+            if signed.calibration.is_some() {
+                "loaded"
+            } else {
+                "none (reported uncalibrated)"
+            }
+        ));
+    }
+    for (key, d) in [
+        ("paths.spool", cfg.paths.spool.clone()),
+        ("paths.output", cfg.paths.output.clone()),
+        (
+            "paths.status",
+            cfg.paths
+                .status
+                .parent()
+                .map(Path::to_path_buf)
+                .unwrap_or_default(),
+        ),
+    ] {
+        let fail = |e: std::io::Error| DaemonError::Resource {
+            what: format!("{key} = {}", d.display()),
+            reason: format!("not a writable folder: {e}"),
+        };
+        std::fs::create_dir_all(&d).map_err(fail)?;
+        let probe = d.join(format!(".dbtor-preflight-{}", std::process::id()));
+        std::fs::write(&probe, b"probe").map_err(fail)?;
+        let _ = std::fs::remove_file(&probe);
+        done.push(format!("{key}: {} writable", d.display()));
+    }
+    let mut devices = Vec::new();
+    if cfg.frames.transport == "serial" {
+        devices.push(("frames.port", cfg.frames.port.clone().unwrap_or_default()));
+    }
+    if cfg.modbus.transport == "rtu" {
+        devices.push(("modbus.port", cfg.modbus.port.clone().unwrap_or_default()));
+    }
+    for (key, dev) in devices {
+        if !Path::new(&dev).exists() {
+            return Err(DaemonError::Resource {
+                what: format!("{key} = {dev}"),
+                reason: "no such device".into(),
+            });
+        }
+        done.push(format!("{key}: {dev} present"));
+    }
+    Ok(done)
 }
 
 fn fsync_dir(dir: &Path) -> std::io::Result<()> {
@@ -141,6 +235,10 @@ pub struct Daemon {
     opts: PipelineOptions,
     stop: Arc<AtomicBool>,
     status: Status,
+    /// Since when the gantry's frame server refuses connections.
+    unreachable_since: Option<Instant>,
+    /// When that was last recorded as a fault.
+    unreachable_logged: Option<Instant>,
 }
 
 impl Daemon {
@@ -164,12 +262,20 @@ impl Daemon {
                 .parse()
                 .unwrap_or(dbt_dbtor::Precision::Fp32);
             let engine = cfg.recon.engine.parse().unwrap_or(dbt_dbtor::Engine::Fast);
-            let m = dbt_dbtor::Dbtor::load_mixed(&dir, precision, &cfg.recon.fp32_blocks, engine)?;
-            // Config::load checked the manifest's geometry against `geom`.
-            opts.calibration = crate::calibration::load_calibration(&m, &opts.classify)?;
-            opts.dbtor = Some(Arc::new(m));
+            // The sign-off and the configured digest first, then the ONNX
+            // checksums; Config::load checked the manifest's geometry.
+            let signed = dbt_model::load_signed(
+                &dir,
+                precision,
+                &cfg.recon.fp32_blocks,
+                engine,
+                &opts.classify,
+                cfg.recon.model_digest.as_deref(),
+            )?;
+            opts.calibration = signed.calibration;
+            opts.dbtor = Some(Arc::new(signed.model));
         }
-        let reconstructor = crate::pipeline::reconstructor_name(&opts);
+        let reconstructor = dbt_pipeline::reconstructor_name(&opts);
         for sub in ["tmp", "incoming", "done", "faulted"] {
             let d = cfg.paths.spool.join(sub);
             std::fs::create_dir_all(&d).map_err(io(&d))?;
@@ -197,6 +303,7 @@ impl Daemon {
             recovered: 0,
             incoming: 0,
             recent: vec![],
+            fault_counts: Default::default(),
             faults: vec![],
         };
         let mut d = Self {
@@ -206,6 +313,8 @@ impl Daemon {
             opts,
             stop,
             status,
+            unreachable_since: None,
+            unreachable_logged: None,
         };
         d.publish("starting", None);
         Ok(d)
@@ -229,6 +338,11 @@ impl Daemon {
 
     fn fault(&mut self, acquisition: Option<&str>, kind: &str, message: String) {
         tracing::error!(acquisition, kind, %message, "fault");
+        *self
+            .status
+            .fault_counts
+            .entry(kind.to_string())
+            .or_default() += 1;
         self.status.faults.push(FaultRecord {
             at_unix: now_unix(),
             acquisition: acquisition.map(String::from),
@@ -251,6 +365,11 @@ impl Daemon {
             .collect();
         v.sort();
         Ok(v)
+    }
+
+    /// Faults recorded since start.
+    pub fn fault_count(&self) -> u64 {
+        self.status.fault_counts.values().sum()
     }
 
     /// Run until SIGTERM (the stop flag): recover the spool, then receive and
@@ -293,7 +412,11 @@ impl Daemon {
     /// Wait for the gantry, receive one acquisition, spool it. `Ok(None)`:
     /// nothing arrived (or stop); `Err`: a fault was recorded.
     fn receive_one(&mut self) -> Result<Option<String>, ()> {
-        let idle = self.cfg.idle_timeout();
+        let link = LinkOptions {
+            stop: Some(Arc::clone(&self.stop)),
+            ..LinkOptions::new(self.cfg.idle_timeout())
+                .for_site(&self.geom, self.cfg.report.tube_output_mgy_per_mas)
+        };
         let received = if self.cfg.frames.transport == "tcp" {
             let addr = self.cfg.frames.address.clone().unwrap_or_default();
             let mut stream = loop {
@@ -301,16 +424,40 @@ impl Daemon {
                     return Ok(None);
                 }
                 match std::net::TcpStream::connect(&addr) {
-                    Ok(s) => break s,
+                    Ok(s) => {
+                        self.unreachable_since = None;
+                        break s;
+                    }
                     Err(e) => {
-                        tracing::trace!(%addr, %e, "gantry frame server not reachable");
+                        // Quiet while the gantry is off; a fault once the
+                        // link has been down for the idle timeout, then a
+                        // warning every 10 minutes.
+                        let since = *self.unreachable_since.get_or_insert_with(Instant::now);
+                        let down = since.elapsed();
+                        if down > self.cfg.idle_timeout()
+                            && self
+                                .unreachable_logged
+                                .is_none_or(|t| t.elapsed() > Duration::from_secs(600))
+                        {
+                            self.unreachable_logged = Some(Instant::now());
+                            self.fault(
+                                None,
+                                "link",
+                                format!(
+                                    "gantry frame server {addr} unreachable for {:.0} s: {e}",
+                                    down.as_secs_f64()
+                                ),
+                            );
+                        } else {
+                            tracing::debug!(%addr, %e, "gantry frame server not reachable");
+                        }
                         std::thread::sleep(Duration::from_millis(200));
                     }
                 }
             };
             let gantry = self.read_gantry();
             self.publish("receiving", None);
-            (receive(&mut stream, idle), gantry)
+            (receive(&mut stream, &link), gantry)
         } else {
             let port = self.cfg.frames.port.clone().unwrap_or_default();
             let opened = serialport::new(&port, self.cfg.frames.baud)
@@ -326,11 +473,14 @@ impl Daemon {
             };
             let gantry = self.read_gantry();
             self.publish("receiving", None);
-            (receive_from(&mut s, idle), gantry)
+            (receive_from(&mut s, &link), gantry)
         };
         let ((rx, stats), gantry) = match received {
             (Ok(r), g) => (r, g),
-            (Err(LinkError::Incomplete(missing)), _) if missing.is_empty() => return Ok(None),
+            // Nothing at all arrived (the gantry connected and left), or stop.
+            (Err(LinkError::NoHeader { bytes: 0, .. }), _) | (Err(LinkError::Stopped), _) => {
+                return Ok(None)
+            }
             (Err(e), _) => {
                 self.fault(None, "link", format!("acquisition not received: {e} (nothing spooled; the gantry keeps it for a resend)"));
                 return Err(());
@@ -357,8 +507,8 @@ impl Daemon {
             .collect();
         let id = format!("{ms:013}-{safe}");
         let gantry_json = serde_json::json!({
-            "link": {"frames": stats.frames, "crc_errors": stats.crc_errors, "naks": stats.naks,
-                     "garbage_bytes": stats.garbage_bytes, "saturated_pixels": rx.saturated},
+            "link": stats,
+            "saturated_pixels": rx.saturated,
             "modbus": gantry,
             "modbus_end": self.read_gantry(),
             "data_fault": data_fault(&rx),
@@ -454,8 +604,8 @@ impl Daemon {
         let acq = match read_acquisition(&dir) {
             Ok(a) => a,
             Err(e) => {
-                let msg = format!("spooled acquisition unreadable: {e}");
-                self.reject(id, "spool", msg);
+                let msg = format!("spooled acquisition refused: {e}");
+                self.reject(id, "input", msg);
                 return;
             }
         };
@@ -497,8 +647,14 @@ impl Daemon {
         let res = match process(&acq, &self.opts) {
             Ok(r) => r,
             Err(e) => {
-                let msg = e.to_string();
-                self.reject(id, "processing", msg);
+                // Physically impossible data are named apart from failures
+                // of the processing itself; both keep the entry in faulted/.
+                let kind = match e {
+                    dbt_pipeline::PipelineError::Implausible(_)
+                    | dbt_pipeline::PipelineError::Header(_) => "implausible",
+                    _ => "processing",
+                };
+                self.reject(id, kind, e.to_string());
                 return;
             }
         };
@@ -590,24 +746,7 @@ impl Daemon {
 }
 
 fn dicom_now() -> (String, String) {
-    // Civil date from unix days (proleptic Gregorian, UTC).
-    let secs = now_unix();
-    let days = (secs / 86_400) as i64;
-    let rem = secs % 86_400;
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let y = yoe + era * 400;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = doy - (153 * mp + 2) / 5 + 1;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 };
-    let y = if m <= 2 { y + 1 } else { y };
-    (
-        format!("{y:04}{m:02}{d:02}"),
-        format!("{:02}{:02}{:02}", rem / 3600, (rem / 60) % 60, rem % 60),
-    )
+    dbt_dicom::dicom_datetime_utc(now_unix())
 }
 
 #[cfg(test)]
@@ -615,7 +754,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn civil_date() {
+    fn content_date_is_today() {
         let (d, t) = dicom_now();
         assert_eq!(d.len(), 8);
         assert_eq!(t.len(), 6);

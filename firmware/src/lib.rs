@@ -1,12 +1,11 @@
-//! Firmware library: checks and services shared by the daemon and the
-//! diagnostics CLI. Today it holds the projector self-test; the acquisition
-//! daemon (gantry I/O, reconstruction, tissue, dose, DICOM) is built on top of
-//! it by the open issues listed in the README.
+//! Firmware library: the adapters and services of the gantry PC (the frame
+//! link, Modbus, the daemon with its spool and status, the configuration,
+//! the projector self-test). The processing itself is `dbt_pipeline` (pure);
+//! the model folder's sign-off and calibration are `dbt_model`.
 
-pub mod calibration;
+pub mod cli;
 pub mod config;
 pub mod daemon;
 pub mod link;
 pub mod modbus;
-pub mod pipeline;
 pub mod selftest;

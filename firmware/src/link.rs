@@ -4,10 +4,10 @@
 //! transport here is TCP (the bench and test transport of the interface); the
 //! serial line carries the same bytes.
 
-use dbt_gantry::assemble::{Assembler, Received, Reply};
-use dbt_gantry::frame::{encode, Decoder, Frame, FrameError};
+use dbt_gantry::assemble::{Assembler, Budget, Received, Reply};
+use dbt_gantry::frame::{encode, AcquisitionHeader as GantryHeader, Decoder, Frame, FrameError};
 use dbt_geometry::Geometry;
-use dbt_store::acquisition::{Acquisition, AcquisitionHeader, Patient, Study, ACQ_FORMAT};
+use dbt_pipeline::acquisition::{Acquisition, AcquisitionHeader, Patient, Study, ACQ_FORMAT};
 use std::io::{Read, Write};
 use std::net::TcpStream;
 use std::time::Duration;
@@ -16,7 +16,7 @@ use thiserror::Error;
 /// Link faults: each is reported, none is silently accepted.
 #[derive(Debug, Error)]
 pub enum LinkError {
-    /// Transport failure (cable pulled, peer gone, timeout).
+    /// Transport failure (cable pulled, peer gone).
     #[error("link: {0}")]
     Io(#[from] std::io::Error),
     /// A frame that cannot be repaired by retransmission.
@@ -25,9 +25,43 @@ pub enum LinkError {
     /// The acquisition does not assemble.
     #[error("acquisition: {0}")]
     Assembly(#[from] dbt_gantry::assemble::AssemblyError),
-    /// The stream ended before the acquisition was complete.
-    #[error("the stream ended before the acquisition was complete (views {0:?} missing; all views are listed if the header never arrived)")]
+    /// The stream ended or went quiet after the header, views missing.
+    #[error("the stream ended before the acquisition was complete (views {0:?} missing)")]
     Incomplete(Vec<u16>),
+    /// Bytes arrived but no acquisition header.
+    #[error("{bytes} bytes arrived but no acquisition header ({frames} intact frames, {crc_errors} CRC errors, {garbage_bytes} bytes of garbage)")]
+    NoHeader {
+        /// Bytes received.
+        bytes: usize,
+        /// Intact frames.
+        frames: usize,
+        /// CRC errors.
+        crc_errors: usize,
+        /// Garbage bytes skipped.
+        garbage_bytes: usize,
+    },
+    /// Bytes keep arriving, but the acquisition does not advance.
+    #[error(
+        "the acquisition has not advanced for {secs:.0} s although bytes keep arriving ({stats})"
+    )]
+    NoProgress {
+        /// Seconds since the last intact frame (or the start).
+        secs: f64,
+        /// What arrived meanwhile.
+        stats: String,
+    },
+    /// The gantry stopped reading our acknowledgements.
+    #[error("the gantry has not read our acknowledgements for {secs:.0} s (write timed out)")]
+    Stalled {
+        /// The write timeout, s.
+        secs: f64,
+    },
+    /// The receiver was asked to stop.
+    #[error("stopped (SIGTERM) during the reception")]
+    Stopped,
+    /// The acquisition header is implausible: refused before its projections.
+    #[error("acquisition refused at its header: {0}")]
+    Header(#[from] dbt_pipeline::HeaderError),
     /// The data cannot be used (e.g. a flat field that is not a positive number).
     #[error("data: {0}")]
     Data(String),
@@ -37,20 +71,120 @@ pub enum LinkError {
 }
 
 /// What a reception did (for the logs and the status file).
-#[derive(Debug, Clone, Default, PartialEq)]
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
 pub struct LinkStats {
+    /// Bytes received.
+    pub bytes: usize,
     /// Intact frames.
     pub frames: usize,
     /// Frames rejected by their CRC.
     pub crc_errors: usize,
+    /// Frames refused for their declared length.
+    pub length_errors: usize,
     /// Sequence numbers asked again.
     pub naks: usize,
     /// Bytes skipped while resynchronising.
     pub garbage_bytes: usize,
+    /// Log lines suppressed by the rate limit.
+    pub suppressed_logs: usize,
+}
+
+impl std::fmt::Display for LinkStats {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} bytes, {} intact frames, {} CRC errors, {} length errors, {} bytes of garbage",
+            self.bytes, self.frames, self.crc_errors, self.length_errors, self.garbage_bytes
+        )
+    }
+}
+
+/// How a reception is bounded.
+#[derive(Debug, Clone)]
+pub struct LinkOptions {
+    /// The acquisition fails when no byte arrives for this long.
+    pub idle_timeout: Duration,
+    /// A write (ack, nak) that does not complete within this is a stalled peer.
+    pub write_timeout: Duration,
+    /// What the configured geometry allows; `None`: anything the codec accepts.
+    pub budget: Option<Budget>,
+    /// Slowest useful transfer rate, bytes/s: when the acquisition has not
+    /// advanced for `idle_timeout` (plus, while a frame is in progress, its
+    /// declared length at this rate), a trickle of bytes is a fault. 8 kB/s
+    /// is below what the slowest supported frame line, 115200 baud, moves
+    /// (11.5 kB/s).
+    pub min_rate: f64,
+    /// Set to stop the reception (SIGTERM).
+    pub stop: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
+    /// The configured geometry and tube output: the header is validated as
+    /// soon as it arrives ([`dbt_pipeline::validate_header`]).
+    pub site: Option<(Geometry, f64)>,
+}
+
+impl LinkOptions {
+    /// Options with `idle_timeout` (also the write timeout), no budget and
+    /// no stop flag.
+    pub fn new(idle_timeout: Duration) -> Self {
+        Self {
+            idle_timeout,
+            write_timeout: idle_timeout,
+            budget: None,
+            min_rate: 8192.0,
+            stop: None,
+            site: None,
+        }
+    }
+
+    /// With the memory budget of `geom`, and the header validated against it
+    /// and the site's tube output (mGy/mAs) on arrival.
+    pub fn for_site(mut self, geom: &Geometry, tube_output_mgy_per_mas: f64) -> Self {
+        self.budget = Some(budget_for(geom));
+        self.site = Some((geom.clone(), tube_output_mgy_per_mas));
+        self
+    }
+}
+
+/// The receiver's budget for `geom`: its views and detector elements, and
+/// at most `DEPTH_MAX_MM / pixel` detector rows (coronal slices).
+pub fn budget_for(geom: &Geometry) -> Budget {
+    let rows = (dbt_pipeline::acquisition::limits::DEPTH_MAX_MM / geom.image.pixel_mm).floor();
+    Budget {
+        projections: geom.n_views().min(u16::MAX as usize) as u16,
+        columns: geom.n_det().min(u16::MAX as usize) as u16,
+        max_rows: rows.clamp(1.0, u16::MAX as f64) as u16,
+    }
+}
+
+/// At most one log line per second per kind; the rest are counted.
+#[derive(Debug, Default)]
+struct LogLimiter {
+    last: Option<std::time::Instant>,
+    suppressed: usize,
+}
+
+impl LogLimiter {
+    fn allow(&mut self) -> Option<usize> {
+        let now = std::time::Instant::now();
+        match self.last {
+            Some(t) if now.duration_since(t) < Duration::from_secs(1) => {
+                self.suppressed += 1;
+                None
+            }
+            _ => {
+                self.last = Some(now);
+                Some(std::mem::take(&mut self.suppressed))
+            }
+        }
+    }
 }
 
 /// Send a control frame; a peer that is gone means an incomplete acquisition.
-fn send<S: Write>(stream: &mut S, f: &Frame, asm: &Assembler) -> Result<(), LinkError> {
+fn send<S: Write>(
+    stream: &mut S,
+    f: &Frame,
+    asm: &Assembler,
+    opts: &LinkOptions,
+) -> Result<(), LinkError> {
     match stream.write_all(&encode(f, 0)) {
         Ok(()) => Ok(()),
         Err(e)
@@ -61,44 +195,99 @@ fn send<S: Write>(stream: &mut S, f: &Frame, asm: &Assembler) -> Result<(), Link
         {
             Err(LinkError::Incomplete(asm.missing()))
         }
+        Err(e)
+            if matches!(
+                e.kind(),
+                std::io::ErrorKind::TimedOut | std::io::ErrorKind::WouldBlock
+            ) =>
+        {
+            Err(LinkError::Stalled {
+                secs: opts.write_timeout.as_secs_f64(),
+            })
+        }
         Err(e) => Err(e.into()),
     }
 }
 
-/// Receive one acquisition over `stream`.
+/// Receive one acquisition over `stream` (TCP): reads poll every 200 ms,
+/// writes time out after `opts.write_timeout`.
 pub fn receive(
     stream: &mut TcpStream,
-    timeout: Duration,
+    opts: &LinkOptions,
 ) -> Result<(Received, LinkStats), LinkError> {
     // Short reads let the overall deadline apply to any transport.
     stream.set_read_timeout(Some(Duration::from_millis(200)))?;
-    receive_from(stream, timeout)
+    stream.set_write_timeout(Some(opts.write_timeout.max(Duration::from_millis(1))))?;
+    receive_from(stream, opts)
 }
 
 /// Receive one acquisition over any byte stream (TCP, a serial line). Reads
-/// may time out (serial ports do): the acquisition fails only when nothing
-/// arrives for `idle_timeout`.
+/// may time out (serial ports do). The reception fails when nothing arrives
+/// for `opts.idle_timeout`, when bytes arrive but no intact frame for
+/// `idle_timeout + largest frame / min_rate`, when a write stalls, or when
+/// the stop flag is set. Memory is bounded by the budget: the decoder
+/// refuses longer payloads, the assembler larger headers.
 pub fn receive_from<S: Read + Write>(
     stream: &mut S,
-    idle_timeout: Duration,
+    opts: &LinkOptions,
 ) -> Result<(Received, LinkStats), LinkError> {
-    let mut last_data = std::time::Instant::now();
-    let mut dec = Decoder::new();
-    let mut asm = Assembler::new();
+    let t0 = std::time::Instant::now();
+    let mut last_data = t0;
+    let mut last_frame = t0;
+    let (mut dec, mut asm) = match opts.budget {
+        Some(b) => (
+            Decoder::with_max_payload(b.projection_payload().max(1024)),
+            Assembler::with_budget(b),
+        ),
+        None => (Decoder::new(), Assembler::new()),
+    };
     let mut stats = LinkStats::default();
+    let mut crc_log = LogLimiter::default();
     let mut buf = vec![0u8; 1 << 16];
+    let ended = |asm: &Assembler, stats: &LinkStats| {
+        if asm.has_header() {
+            LinkError::Incomplete(asm.missing())
+        } else {
+            LinkError::NoHeader {
+                bytes: stats.bytes,
+                frames: stats.frames,
+                crc_errors: stats.crc_errors,
+                garbage_bytes: stats.garbage_bytes,
+            }
+        }
+    };
     loop {
+        if opts
+            .stop
+            .as_ref()
+            .is_some_and(|s| s.load(std::sync::atomic::Ordering::SeqCst))
+        {
+            return Err(LinkError::Stopped);
+        }
+        // Bytes that do not advance the acquisition (garbage, corrupt or
+        // repeated frames) get `idle_timeout`; a frame in progress the time
+        // its declared length takes at `min_rate` on top.
+        let in_flight = dec.frame_in_progress().unwrap_or(0) as f64 / opts.min_rate.max(1.0);
+        let progress_limit = opts.idle_timeout + Duration::from_secs_f64(in_flight);
+        if stats.bytes > 0 && last_frame.elapsed() > progress_limit {
+            return Err(LinkError::NoProgress {
+                secs: last_frame.elapsed().as_secs_f64(),
+                stats: stats.to_string(),
+            });
+        }
         let n = match stream.read(&mut buf) {
             Ok(n) => n,
             Err(e) if e.kind() == std::io::ErrorKind::ConnectionReset => 0,
             Err(e)
                 if matches!(
                     e.kind(),
-                    std::io::ErrorKind::TimedOut | std::io::ErrorKind::WouldBlock
+                    std::io::ErrorKind::TimedOut
+                        | std::io::ErrorKind::WouldBlock
+                        | std::io::ErrorKind::Interrupted
                 ) =>
             {
-                if last_data.elapsed() > idle_timeout {
-                    return Err(LinkError::Incomplete(asm.missing()));
+                if last_data.elapsed() > opts.idle_timeout {
+                    return Err(ended(&asm, &stats));
                 }
                 continue;
             }
@@ -107,20 +296,32 @@ pub fn receive_from<S: Read + Write>(
         last_data = std::time::Instant::now();
         if n == 0 {
             // Peer gone (cable pulled, gantry restarted) before completion.
-            return Err(LinkError::Incomplete(asm.missing()));
+            return Err(ended(&asm, &stats));
         }
+        stats.bytes += n;
         dec.push(&buf[..n]);
         while let Some(r) = dec.next_frame() {
             match r {
                 Ok((seq, frame)) => {
                     stats.frames += 1;
+                    let before = asm.progress();
+                    let had_header = asm.has_header();
                     let (reply, done) = asm.accept(seq, frame)?;
+                    if let (false, Some(h), Some((g, out))) = (had_header, asm.header(), &opts.site)
+                    {
+                        // The domain's validation, before any projection is
+                        // kept (the flat field is checked with the data).
+                        dbt_pipeline::validate_header(&domain_header(h, g, *out, 1000.0))?;
+                    }
+                    if asm.progress() != before {
+                        last_frame = std::time::Instant::now();
+                    }
                     match reply {
-                        Reply::Ack(s) => send(stream, &Frame::Ack { seq: s }, &asm)?,
+                        Reply::Ack(s) => send(stream, &Frame::Ack { seq: s }, &asm, opts)?,
                         Reply::Nak(list) => {
                             for s in list {
                                 stats.naks += 1;
-                                send(stream, &Frame::Nak { seq: s }, &asm)?;
+                                send(stream, &Frame::Nak { seq: s }, &asm, opts)?;
                             }
                         }
                     }
@@ -130,18 +331,26 @@ pub fn receive_from<S: Read + Write>(
                         let end = 1 + acq.header.projections as u32;
                         let _ = stream.write_all(&encode(&Frame::Ack { seq: end }, 0));
                         let _ = stream.flush();
-                        tracing::info!(?stats, "acquisition received");
+                        stats.suppressed_logs = crc_log.suppressed;
+                        tracing::info!(%stats, "acquisition received");
                         return Ok((acq, stats));
                     }
                 }
                 Err(FrameError::Crc { seq, .. }) => {
                     stats.crc_errors += 1;
                     stats.naks += 1;
-                    tracing::warn!(seq, "CRC error: asking for retransmission");
-                    send(stream, &Frame::Nak { seq }, &asm)?;
+                    if let Some(suppressed) = crc_log.allow() {
+                        tracing::warn!(
+                            seq,
+                            crc_errors = stats.crc_errors,
+                            suppressed,
+                            "CRC error: asking for retransmission"
+                        );
+                    }
+                    send(stream, &Frame::Nak { seq }, &asm, opts)?;
                 }
                 Err(FrameError::Garbage(n)) => stats.garbage_bytes += n,
-                Err(FrameError::Length { .. }) => {}
+                Err(FrameError::Length { .. }) => stats.length_errors += 1,
                 Err(e) => return Err(e.into()),
             }
         }
@@ -236,40 +445,159 @@ pub fn to_acquisition(
         })
         .collect();
     Ok(Acquisition {
-        header: AcquisitionHeader {
-            format: ACQ_FORMAT.into(),
-            geometry: geom.clone(),
-            thickness_mm: h.thickness_mm,
-            flux: flux as f64,
-            slices: rows,
-            slice_spacing_mm: geom.image.pixel_mm,
-            kvp: h.kvp,
-            mas_total: h.mas_total,
-            tube_output_mgy_per_mas,
-            laterality: h.laterality.clone(),
-            patient: Patient {
-                name: h.patient_name.clone(),
-                id: h.patient_id.clone(),
-                birth_date: String::new(),
-                sex: String::new(),
-            },
-            study: Study {
-                study_uid: h.study_uid.clone(),
-                date: h.study_date.clone(),
-                time: h.study_time.clone(),
-                accession: h.accession.clone(),
-                study_id: String::new(),
-                // Projections are not stored as DICOM here: a series UID
-                // derived from the study's stands in for the evidence.
-                series_uid: if h.study_uid.len() <= 62 {
-                    h.study_uid.clone() + ".1"
-                } else {
-                    h.study_uid.clone()
-                },
-                instance_uids: vec![],
-            },
-            truth: None,
-        },
+        header: domain_header(h, geom, tube_output_mgy_per_mas, flux as f64),
         counts,
     })
+}
+
+/// The domain's acquisition header from the gantry's header frame: detector
+/// rows are coronal slices one pixel apart.
+pub fn domain_header(
+    h: &GantryHeader,
+    geom: &Geometry,
+    tube_output_mgy_per_mas: f64,
+    flux: f64,
+) -> AcquisitionHeader {
+    AcquisitionHeader {
+        format: ACQ_FORMAT.into(),
+        geometry: geom.clone(),
+        thickness_mm: h.thickness_mm,
+        flux,
+        slices: h.rows as usize,
+        slice_spacing_mm: geom.image.pixel_mm,
+        kvp: h.kvp,
+        mas_total: h.mas_total,
+        tube_output_mgy_per_mas,
+        laterality: h.laterality.clone(),
+        patient: Patient {
+            name: h.patient_name.clone(),
+            id: h.patient_id.clone(),
+            birth_date: String::new(),
+            sex: String::new(),
+        },
+        study: Study {
+            study_uid: h.study_uid.clone(),
+            date: h.study_date.clone(),
+            time: h.study_time.clone(),
+            accession: h.accession.clone(),
+            study_id: String::new(),
+            // Projections are not stored as DICOM here: a series UID
+            // derived from the study's stands in for the evidence.
+            series_uid: if h.study_uid.len() <= 62 {
+                h.study_uid.clone() + ".1"
+            } else {
+                h.study_uid.clone()
+            },
+            instance_uids: vec![],
+        },
+        truth: None,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dbt_gantry::frame::AcquisitionHeader as H;
+
+    /// A byte stream that delivers `input` then times out, and whose writes
+    /// time out (a peer that stopped reading) or succeed.
+    struct Peer {
+        input: std::io::Cursor<Vec<u8>>,
+        writes_stall: bool,
+    }
+
+    impl Read for Peer {
+        fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+            match self.input.read(buf)? {
+                0 => {
+                    std::thread::sleep(Duration::from_millis(20));
+                    Err(std::io::ErrorKind::TimedOut.into())
+                }
+                n => Ok(n),
+            }
+        }
+    }
+
+    impl Write for Peer {
+        fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+            if self.writes_stall {
+                Err(std::io::ErrorKind::WouldBlock.into())
+            } else {
+                Ok(buf.len())
+            }
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    fn header() -> H {
+        H {
+            patient_id: "P1".into(),
+            patient_name: "Doe^Jane".into(),
+            study_uid: "1.2.826.0.1.3680043.10.543.5".into(),
+            accession: "A1".into(),
+            study_date: "20261122".into(),
+            study_time: "101500".into(),
+            thickness_mm: 45.0,
+            kvp: 28.0,
+            mas_total: 60.0,
+            projections: 25,
+            rows: 186,
+            columns: 320,
+            laterality: "L".into(),
+        }
+    }
+
+    fn run(input: Vec<u8>, writes_stall: bool, site: bool) -> LinkError {
+        let mut p = Peer {
+            input: std::io::Cursor::new(input),
+            writes_stall,
+        };
+        let g = Geometry::builtin("paper").unwrap().binned(4).unwrap();
+        let mut o = LinkOptions::new(Duration::from_millis(300));
+        if site {
+            o = o.for_site(&g, 0.11);
+        }
+        receive_from(&mut p, &o).unwrap_err()
+    }
+
+    #[test]
+    fn a_peer_that_stops_reading_is_a_stalled_link() {
+        let e = run(encode(&Frame::Header(header()), 0), true, true);
+        assert!(matches!(e, LinkError::Stalled { .. }), "{e}");
+        assert!(e.to_string().contains("write timed out"), "{e}");
+    }
+
+    #[test]
+    fn a_header_is_validated_on_arrival() {
+        let mut h = header();
+        h.mas_total = 0.0;
+        let e = run(encode(&Frame::Header(h), 0), false, true).to_string();
+        assert!(
+            e.contains("refused at its header") && e.contains("mas_total"),
+            "{e}"
+        );
+        let mut h = header();
+        h.rows = 4095;
+        let e = run(encode(&Frame::Header(h), 0), false, true).to_string();
+        assert!(
+            e.contains("announces 4095 rows") && e.contains("375"),
+            "{e}"
+        );
+        // Without a site configuration only the codec's checks apply.
+        let e = run(encode(&Frame::Header(header()), 0), false, false);
+        assert!(
+            matches!(e, LinkError::Incomplete(ref v) if v.len() == 25),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn headerless_bytes_are_a_fault_and_silence_is_not() {
+        let e = run(vec![0x55; 100], false, true);
+        assert!(matches!(e, LinkError::NoHeader { bytes: 100, .. }), "{e}");
+        let e = run(vec![], false, true);
+        assert!(matches!(e, LinkError::NoHeader { bytes: 0, .. }), "{e}");
+    }
 }

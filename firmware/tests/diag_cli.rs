@@ -52,3 +52,70 @@ fn geometry_prints_the_binned_geometry_and_bad_input_exits_2() {
     assert_eq!(code, 2);
     assert!(err.contains("/nonexistent/x.dcm"), "{err}");
 }
+
+/// `dbtor-diag report` on a report whose one element length was corrupted
+/// (0xFFFFFFF0): refused naming the element, without allocating what the
+/// length claims (the read-back is bounded by the file's size).
+#[test]
+fn a_corrupted_dicom_length_is_refused_not_allocated() {
+    use dbt_dicom::*;
+    let header = Header {
+        patient_name: "Doe^Jane".into(),
+        patient_id: "P-0001".into(),
+        patient_birth_date: "".into(),
+        patient_sex: "F".into(),
+        study_uid: "1.2.826.0.1.3680043.10.543.77.1".into(),
+        study_date: "20261122".into(),
+        study_time: "101500".into(),
+        study_id: "S1".into(),
+        accession_number: "A1".into(),
+        referring_physician: "".into(),
+        laterality: Laterality::Left,
+        source_series_uid: "1.2.826.0.1.3680043.10.543.77.2".into(),
+        source_instance_uids: vec![],
+    };
+    let equipment = Equipment {
+        manufacturer: "DBToR".into(),
+        model: "DBToR gantry PC".into(),
+        serial: "SN-1".into(),
+        software_version: "0.1.0".into(),
+        device_uid: "1.2.826.0.1.3680043.10.543.77.9".into(),
+    };
+    let r = density_report(
+        &DensityInput {
+            header,
+            equipment,
+            glandularity: 0.2,
+            fibroglandular_cm3: 100.0,
+            breast_cm3: 500.0,
+            reconstructor: "MLTR 100 iterations".into(),
+            model_version: "none".into(),
+            content_date: "20261124".into(),
+            content_time: "120000".into(),
+        },
+        &mut UidSource::new("1.2.3", 1).unwrap(),
+    )
+    .unwrap();
+    let bytes = r.to_bytes().unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let good = dir.path().join("good.dcm");
+    std::fs::write(&good, &bytes).unwrap();
+    let (code, out, err) = diag(&["report", good.to_str().unwrap()]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("Percent"), "{out}");
+    // The Content Sequence (0040,A730), an SQ with a 32-bit length.
+    let at = bytes
+        .windows(6)
+        .position(|w| w == [0x40, 0x00, 0x30, 0xA7, b'S', b'Q'])
+        .unwrap();
+    let mut bad = bytes.clone();
+    bad[at + 8..at + 12].copy_from_slice(&0xFFFF_FFF0u32.to_le_bytes());
+    let badp = dir.path().join("bad.dcm");
+    std::fs::write(&badp, &bad).unwrap();
+    let (code, _, err) = diag(&["report", badp.to_str().unwrap()]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("(0040,A730) declares 4294967280 bytes"),
+        "{err}"
+    );
+}

@@ -5,7 +5,7 @@ use dbt_acquisition::NoiseLevel;
 use dbt_dicom::{read_values, Equipment, UidSource};
 use dbt_geometry::Geometry;
 use dbt_phantom::{generate, PhantomSpec};
-use dbtor_firmware::pipeline::{process, process_with_progress, reports, PipelineOptions, Stage};
+use dbt_pipeline::{process, process_with_progress, reports, PipelineOptions, Stage};
 use host_sim::{simulate_acquisition, Technique};
 
 #[test]
@@ -165,10 +165,10 @@ fn copy_model(to: &std::path::Path) -> std::path::PathBuf {
 /// error that names the file.
 #[test]
 fn the_glandularity_calibration_is_bound_to_the_model() {
-    use dbt_tissue::{ClassifyOptions, GlandularityCalibration};
-    use dbtor_firmware::calibration::{
+    use dbt_model::{
         load_calibration, manifest_sha256, CalibrationFile, CALIBRATION_FILE, CALIBRATION_FORMAT,
     };
+    use dbt_tissue::{ClassifyOptions, GlandularityCalibration};
     let t = tempfile::tempdir().unwrap();
     let dir = copy_model(t.path());
     let m = dbt_dbtor::Dbtor::load_with(&dir, dbt_dbtor::Precision::Fp32, dbt_dbtor::Engine::Fast)
@@ -199,7 +199,7 @@ fn the_glandularity_calibration_is_bound_to_the_model() {
     // The reconstructor's name says which model, precision and engine, and
     // that the estimate is calibrated.
     let named = |calibration| {
-        dbtor_firmware::pipeline::reconstructor_name(&PipelineOptions {
+        dbt_pipeline::reconstructor_name(&PipelineOptions {
             dbtor: Some(std::sync::Arc::new(
                 dbt_dbtor::Dbtor::load_with(
                     &dir,
@@ -269,7 +269,7 @@ fn a_breast_taller_than_the_image_is_refused() {
     };
     // At the image's height it still fits.
     acq.header.thickness_mm = g.height_mm();
-    dbtor_firmware::pipeline::reconstruct_volume(&acq, &opts, &mut |_| {}).unwrap();
+    dbt_pipeline::reconstruct_volume(&acq, &opts, &mut |_| {}).unwrap();
     acq.header.thickness_mm = g.height_mm() + 0.5;
     let e = process(&acq, &opts).unwrap_err().to_string();
     assert!(
@@ -321,8 +321,8 @@ fn nonnegativity_changes_the_image_not_the_density_or_dose() {
         }
     };
     let (on, off) = (opts(true), opts(false));
-    let raw = dbtor_firmware::pipeline::reconstruct_volume(&acq, &off, &mut |_| {}).unwrap();
-    let clamped = dbtor_firmware::pipeline::reconstruct_volume(&acq, &on, &mut |_| {}).unwrap();
+    let raw = dbt_pipeline::reconstruct_volume(&acq, &off, &mut |_| {}).unwrap();
+    let clamped = dbt_pipeline::reconstruct_volume(&acq, &on, &mut |_| {}).unwrap();
     let negative = raw.mu.iter().filter(|v| **v < 0.0).count();
     assert!(
         negative > 0,
@@ -334,8 +334,8 @@ fn nonnegativity_changes_the_image_not_the_density_or_dose() {
         .map(|v| if *v < 0.0 { 0.0 } else { *v })
         .collect();
     assert_eq!(clamped.mu, want);
-    assert!(!dbtor_firmware::pipeline::reconstructor_name(&on).contains("raw"));
-    assert!(dbtor_firmware::pipeline::reconstructor_name(&off).contains("raw"));
+    assert!(!dbt_pipeline::reconstructor_name(&on).contains("raw"));
+    assert!(dbt_pipeline::reconstructor_name(&off).contains("raw"));
     let (a, b) = (process(&acq, &on).unwrap(), process(&acq, &off).unwrap());
     assert_eq!(a.classification, b.classification);
     assert_eq!(a.density, b.density);

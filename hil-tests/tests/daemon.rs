@@ -71,7 +71,8 @@ fn gantry(acq: &Path, thickness_mm: f64) -> Gantry {
 /// The repository's copy of the model the shipped configuration names
 /// (`firmware/config/dbtor.toml`, `recon.model = ".../<name>"` ->
 /// `models/<name>`): switching the shipped model is one edit of that file.
-fn shipped_model() -> PathBuf {
+/// Returns the folder and its signed-off digest (`recon.model_digest`).
+fn shipped_model() -> (PathBuf, String) {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let text = std::fs::read_to_string(root.join("firmware/config/dbtor.toml")).unwrap();
     let shipped: toml::Value = toml::from_str(&text).unwrap();
@@ -79,7 +80,11 @@ fn shipped_model() -> PathBuf {
     let name = Path::new(installed).file_name().unwrap();
     let model = root.join("models").join(name);
     assert!(model.join("manifest.json").is_file(), "{}", model.display());
-    model
+    let digest = shipped["recon"]["model_digest"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    (model, digest)
 }
 
 /// A daemon configuration in `dir` from its frames, Modbus and recon
@@ -288,7 +293,7 @@ fn thickness_disagreement_is_a_fault_not_a_report() {
     let g = gantry(&acq, thickness + 5.0);
     let cfg = config(dir.path(), &g, 2);
     let st = daemon(&cfg, &["--once"]).wait().unwrap();
-    assert!(st.success());
+    assert_eq!(st.code(), Some(1), "--once after a fault exits 1");
     let s = status(dir.path());
     let faults = s["faults"].as_array().unwrap();
     assert!(
@@ -383,7 +388,7 @@ fn clean_acquisition_over_serial_lines() {
         .unwrap();
     // The shipped model on the fast engine and its geometry: the gantry PC's
     // configuration.
-    let model = shipped_model();
+    let (model, digest) = shipped_model();
     let cfg = write_config(
         dir.path(),
         &format!(
@@ -395,7 +400,7 @@ fn clean_acquisition_over_serial_lines() {
             modbus_pc.display()
         ),
         &format!(
-            "reconstructor = \"dbtor\"\nmodel = {:?}\nprecision = \"int8\"\nengine = \"fast\"",
+            "reconstructor = \"dbtor\"\nmodel = {:?}\nmodel_digest = {digest:?}\nprecision = \"int8\"\nengine = \"fast\"",
             model.display().to_string()
         ),
     );
@@ -500,8 +505,9 @@ fn saturated_counts_and_nan_flat_field_are_faults_not_reports() {
             registers: format!("127.0.0.1:{mp}"),
         };
         let cfg = config(dir.path(), &g, 2);
+        // With --once, a fault is a failure (exit 1), and the status names it.
         let st = daemon(&cfg, &["--once"]).wait().unwrap();
-        assert!(st.success(), "{fault}");
+        assert_eq!(st.code(), Some(1), "{fault}");
         let s = status(dir.path());
         let f = &s["faults"].as_array().unwrap()[0];
         assert_eq!(f["kind"], kind, "{fault}: {s}");
@@ -562,7 +568,7 @@ fn absurd_or_changing_thickness_is_a_fault() {
             registers: listen.clone(),
         };
         let cfg = config(dir.path(), &g, 2);
-        assert!(daemon(&cfg, &["--once"]).wait().unwrap().success());
+        assert_eq!(daemon(&cfg, &["--once"]).wait().unwrap().code(), Some(1));
         let s = status(dir.path());
         let f = &s["faults"].as_array().unwrap()[0];
         assert_eq!(f["kind"], "thickness", "{extra:?}: {s}");
@@ -573,4 +579,129 @@ fn absurd_or_changing_thickness_is_a_fault() {
         assert_eq!(s["processed"], 0);
         assert_eq!(entries(&dir.path().join("spool/faulted")).len(), 1);
     }
+}
+
+/// Physically impossible data from a well-behaved link: an all-zero stream
+/// (a dead detector) is refused before any report, naming the check; the
+/// acquisition is kept in faulted/ for the service engineer (nothing received
+/// is lost) and `--once` exits 1.
+#[test]
+fn an_all_zero_stream_is_refused_not_reported() {
+    let dir = tempfile::tempdir().unwrap();
+    let (acq, thickness) = acquire(dir.path());
+    let (fp, mp) = (free_port(), free_port());
+    let g = Gantry {
+        modbus: Command::new(workspace_bin("host-sim"))
+            .args([
+                "modbus",
+                "--listen",
+                &format!("127.0.0.1:{mp}"),
+                "--thickness-mm",
+                &format!("{thickness:.1}"),
+            ])
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+        stream: Command::new(workspace_bin("host-sim"))
+            .args(["stream", "--acq"])
+            .arg(&acq)
+            .args(["--listen", &format!("127.0.0.1:{fp}"), "--fault", "zeros:1"])
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+        frames: format!("127.0.0.1:{fp}"),
+        registers: format!("127.0.0.1:{mp}"),
+    };
+    let cfg = config(dir.path(), &g, 2);
+    let st = daemon(&cfg, &["--once"]).wait().unwrap();
+    assert_eq!(st.code(), Some(1));
+    let s = status(dir.path());
+    let f = &s["faults"].as_array().unwrap()[0];
+    assert_eq!(f["kind"], "implausible", "{s}");
+    assert!(
+        f["message"].as_str().unwrap().contains("are zero (dead)"),
+        "{s}"
+    );
+    assert_eq!(s["fault_counts"]["implausible"], 1, "{s}");
+    assert_eq!(s["processed"], 0);
+    assert!(entries(&dir.path().join("output"))
+        .iter()
+        .all(|n| !n.ends_with(".dcm")));
+    assert_eq!(entries(&dir.path().join("spool/faulted")).len(), 1);
+}
+
+/// `--check-config` checks what the daemon will need, not only the syntax:
+/// a model folder that fails its sign-off, a spool that cannot be written,
+/// a serial device that does not exist; each refused naming it (exit 2).
+#[test]
+fn check_config_checks_the_model_the_spool_and_the_devices() {
+    let check = |cfg: &Path| {
+        let out = Command::new(workspace_bin("dbtor-daemon"))
+            .arg("--config")
+            .arg(cfg)
+            .arg("--check-config")
+            .output()
+            .unwrap();
+        (
+            out.status.code(),
+            String::from_utf8_lossy(&out.stdout).to_string()
+                + &String::from_utf8_lossy(&out.stderr),
+        )
+    };
+    let dir = tempfile::tempdir().unwrap();
+    // A copy of the shipped model: first as signed off, then tampered.
+    let (model, digest) = shipped_model();
+    let copy = dir.path().join("model");
+    let cp = Command::new("cp")
+        .arg("-r")
+        .arg(&model)
+        .arg(&copy)
+        .status()
+        .unwrap();
+    assert!(cp.success());
+    let recon = format!(
+        "reconstructor = \"dbtor\"\nmodel = {:?}\nmodel_digest = {digest:?}",
+        copy.display().to_string()
+    );
+    let frames = "transport = \"tcp\"\naddress = \"127.0.0.1:5000\"\ngeometry = \"paper-tall\"";
+    let cfg = write_config(dir.path(), frames, "transport = \"off\"", &recon);
+    let (code, out) = check(&cfg);
+    assert_eq!(code, Some(0), "{out}");
+    assert!(
+        out.contains("match the sign-off") && out.contains("writable"),
+        "{out}"
+    );
+    // The calibration's slope changed.
+    let cal = copy.join("glandularity-calibration.json");
+    let text = std::fs::read_to_string(&cal).unwrap();
+    std::fs::write(&cal, text.replacen("\"slope\": 1.", "\"slope\": 2.", 1)).unwrap();
+    let (code, out) = check(&cfg);
+    assert_eq!(code, Some(2), "{out}");
+    assert!(
+        out.contains("glandularity-calibration.json has SHA-256"),
+        "{out}"
+    );
+    std::fs::write(&cal, text).unwrap();
+    // A spool that is a file, not a folder.
+    std::fs::write(dir.path().join("spool"), b"not a folder").unwrap();
+    let (code, out) = check(&cfg);
+    assert_eq!(code, Some(2), "{out}");
+    assert!(
+        out.contains("paths.spool") && out.contains("not a writable folder"),
+        "{out}"
+    );
+    std::fs::remove_file(dir.path().join("spool")).unwrap();
+    // A serial frame line that does not exist.
+    let cfg = write_config(
+        dir.path(),
+        "transport = \"serial\"\nport = \"/dev/ttyDBTOR-NONE\"\ngeometry = \"paper-tall\"",
+        "transport = \"off\"",
+        &recon,
+    );
+    let (code, out) = check(&cfg);
+    assert_eq!(code, Some(2), "{out}");
+    assert!(
+        out.contains("frames.port = /dev/ttyDBTOR-NONE: no such device"),
+        "{out}"
+    );
 }

@@ -9,6 +9,10 @@ use std::path::Path;
 use std::process::Command;
 
 fn transfer(acq: &Path, out: &Path, faults: &[&str]) -> (bool, String) {
+    transfer_within(acq, out, faults, 20)
+}
+
+fn transfer_within(acq: &Path, out: &Path, faults: &[&str], timeout_s: u32) -> (bool, String) {
     let port = free_port();
     let addr = format!("127.0.0.1:{port}");
     let mut sim = Command::new(workspace_bin("host-sim"));
@@ -22,9 +26,10 @@ fn transfer(acq: &Path, out: &Path, faults: &[&str]) -> (bool, String) {
     let rx = Command::new(workspace_bin("dbtor-receive"))
         .args(["--connect", &addr, "--out"])
         .arg(out)
-        .args(["--timeout-s", "20"])
+        .args(["--timeout-s", &timeout_s.to_string()])
         .output()
         .unwrap();
+    let _ = sim.kill();
     let _ = sim.wait();
     (
         rx.status.success(),
@@ -117,4 +122,88 @@ fn serial_line_over_a_pty_pair() {
         std::fs::read(out.join("counts.f32")).unwrap(),
         "received counts differ from those sent"
     );
+}
+
+/// A gantry that misbehaves cannot freeze or exhaust the receiver: an
+/// announcement beyond the configured geometry is refused at the header, a
+/// header without exposure (0 mAs) likewise, a gantry that stops reading our
+/// acknowledgements is a named fault after the write timeout, not a hang.
+/// Nothing is spooled in any case.
+#[test]
+fn a_misbehaving_gantry_is_refused_or_timed_out() {
+    let dir = tempfile::tempdir().unwrap();
+    let acq = acquire(dir.path(), 3);
+    for (faults, timeout, words) in [
+        (
+            &["announce:4096"][..],
+            20,
+            "announces 4096 projections, the receiver is configured for 25",
+        ),
+        (&["mas:0"][..], 20, "`mas_total` = 0"),
+        // Acknowledgements of a flood of repeated headers that nobody reads:
+        // whichever comes first, the write timeout or the acquisition not
+        // advancing, ends it.
+        (&["freeze:1"][..], 3, "s (write timed out)|has not advanced"),
+    ] {
+        let out = dir
+            .path()
+            .join(format!("rx-{}", faults[0].replace(':', "-")));
+        let t0 = std::time::Instant::now();
+        let (ok, log) = transfer_within(&acq, &out, faults, timeout);
+        assert!(!ok, "{faults:?}: {log}");
+        assert!(
+            log.contains("FAULT") && words.split('|').any(|w| log.contains(w)),
+            "{faults:?}: {log}"
+        );
+        assert!(!out.exists(), "{faults:?}: nothing may be spooled");
+        // Bounded by the configured timeouts (the old receiver froze for
+        // 50 s with --timeout-s 3); a generous bound, not a speed goal.
+        assert!(
+            t0.elapsed() < std::time::Duration::from_secs(40),
+            "{faults:?}"
+        );
+    }
+}
+
+/// A peer that sends only garbage: one byte every 100 ms never lets the
+/// acquisition advance, so it fails after the idle timeout (the old receiver
+/// reset its timer on every byte and never timed out); garbage and then a
+/// closed connection is a fault from the first byte ("no acquisition
+/// header"), not "nothing arrived".
+#[test]
+fn garbage_trickles_and_headerless_streams_are_faults() {
+    use std::io::Write;
+    for trickle in [true, false] {
+        let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = listener.local_addr().unwrap().to_string();
+        let server = std::thread::spawn(move || {
+            let (mut s, _) = listener.accept().unwrap();
+            if trickle {
+                for _ in 0..200 {
+                    if s.write_all(b"x").is_err() {
+                        return;
+                    }
+                    std::thread::sleep(std::time::Duration::from_millis(100));
+                }
+            } else {
+                let _ = s.write_all(&[0x55u8; 100]);
+            }
+        });
+        let dir = tempfile::tempdir().unwrap();
+        let rx = Command::new(workspace_bin("dbtor-receive"))
+            .args(["--connect", &addr, "--out"])
+            .arg(dir.path().join("rx"))
+            .args(["--timeout-s", "2"])
+            .output()
+            .unwrap();
+        let log = String::from_utf8_lossy(&rx.stderr).to_string();
+        assert_eq!(rx.status.code(), Some(1), "{log}");
+        let words = if trickle {
+            "has not advanced for"
+        } else {
+            "100 bytes arrived but no acquisition header"
+        };
+        assert!(log.contains(words), "{log}");
+        let _ = server.join();
+    }
 }

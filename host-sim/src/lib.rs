@@ -6,7 +6,7 @@ pub mod dataset;
 pub mod modbus;
 pub mod stream;
 
-use dbt_store::acquisition::{
+use dbt_pipeline::acquisition::{
     Acquisition as AcqFile, AcquisitionHeader, Patient, Study, ACQ_FORMAT,
 };
 

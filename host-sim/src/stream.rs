@@ -4,7 +4,7 @@
 //! receiver acknowledges the end frame or closes the connection.
 
 use dbt_gantry::frame::{encode, AcquisitionHeader, Decoder, Frame, Projection};
-use dbt_store::acquisition::Acquisition;
+use dbt_pipeline::acquisition::Acquisition;
 use std::io::{Read, Write};
 use std::net::TcpListener;
 use std::time::Duration;
@@ -27,6 +27,17 @@ pub enum Fault {
     Saturate(u32),
     /// A flat field of projection frame `seq` that is NaN (valid CRC).
     NanFlat(u32),
+    /// A dead detector: every count of every projection frame from `seq`
+    /// on is zero (valid CRC).
+    Zeros(u32),
+    /// The header announces this many projections (more than the geometry
+    /// has: an oversized announcement).
+    Announce(u32),
+    /// A gantry that stops reading acknowledgements after frame `seq`: it
+    /// keeps resending the header without ever reading.
+    Freeze(u32),
+    /// The header's tube loading set to this many mAs (`mas:0`: no exposure).
+    Mas(u32),
 }
 
 impl Fault {
@@ -47,6 +58,10 @@ impl Fault {
             "cut" => Ok(Fault::Cut(n(v)?)),
             "saturate" => Ok(Fault::Saturate(n(v)?)),
             "nanflat" => Ok(Fault::NanFlat(n(v)?)),
+            "zeros" => Ok(Fault::Zeros(n(v)?)),
+            "announce" => Ok(Fault::Announce(n(v)?)),
+            "freeze" => Ok(Fault::Freeze(n(v)?)),
+            "mas" => Ok(Fault::Mas(n(v)?)),
             "reorder" => {
                 let (a, b) = v
                     .split_once(',')
@@ -54,7 +69,7 @@ impl Fault {
                 Ok(Fault::Reorder(n(a)?, n(b)?))
             }
             _ => Err(format!(
-                "fault `{s}`: kind must be corrupt, drop, dup, reorder, cut, saturate or nanflat"
+                "fault `{s}`: kind must be corrupt, drop, dup, reorder, cut, saturate, nanflat, zeros, announce, freeze or mas"
             )),
         }
     }
@@ -155,6 +170,23 @@ pub fn serve_stream<S: Read + Write>(
                     }
                 }
             }
+            Fault::Zeros(q) => {
+                for f in owned.iter_mut().skip(q as usize) {
+                    if let Frame::Projection(p) = f {
+                        p.counts.iter_mut().for_each(|c| *c = 0);
+                    }
+                }
+            }
+            Fault::Announce(n) => {
+                if let Some(Frame::Header(h)) = owned.get_mut(0) {
+                    h.projections = n.min(u16::MAX as u32) as u16;
+                }
+            }
+            Fault::Mas(n) => {
+                if let Some(Frame::Header(h)) = owned.get_mut(0) {
+                    h.mas_total = n as f64;
+                }
+            }
             _ => {}
         }
     }
@@ -176,7 +208,13 @@ pub fn serve_stream<S: Read + Write>(
                     order.swap(i, j);
                 }
             }
-            Fault::Corrupt(_) | Fault::Saturate(_) | Fault::NanFlat(_) => {}
+            Fault::Corrupt(_)
+            | Fault::Saturate(_)
+            | Fault::NanFlat(_)
+            | Fault::Zeros(_)
+            | Fault::Announce(_)
+            | Fault::Freeze(_)
+            | Fault::Mas(_) => {}
             Fault::Cut(q) => {
                 if let Some(i) = order.iter().position(|&x| x == q) {
                     order.truncate(i);
@@ -196,6 +234,18 @@ pub fn serve_stream<S: Read + Write>(
             corrupted.push(q);
         }
         s.write_all(&bytes)?;
+        if faults.contains(&Fault::Freeze(q)) {
+            // Never read again: resend the header (each one acknowledged)
+            // until the receiver gives up and closes, or `idle_timeout`.
+            let header = encode(&frames[0], 0);
+            let t0 = std::time::Instant::now();
+            while t0.elapsed() < idle_timeout {
+                if s.write_all(&header).is_err() {
+                    return Ok(0);
+                }
+            }
+            return Ok(0);
+        }
     }
     s.flush()?;
     if cut {

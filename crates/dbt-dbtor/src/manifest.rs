@@ -146,11 +146,17 @@ impl ModelManifest {
             path: path.clone(),
             source,
         })?;
+        Self::parse(&text, &path)
+    }
+
+    /// Parse and check a manifest's text (`path` names it in errors).
+    pub fn parse(text: &str, path: &Path) -> Result<Self, DbtorError> {
+        let path = path.to_path_buf();
         let bad = |reason: String| DbtorError::Manifest {
             path: path.clone(),
             reason,
         };
-        let m: ModelManifest = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
+        let m: ModelManifest = serde_json::from_str(text).map_err(|e| bad(e.to_string()))?;
         if m.format != FORMAT {
             return Err(bad(format!(
                 "format is {:?}, expected {FORMAT:?}",

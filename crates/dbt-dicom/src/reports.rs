@@ -876,6 +876,8 @@ pub fn density_report(input: &DensityInput, uids: &mut UidSource) -> Result<Repo
 /// Read back a report: `(concept meaning, value)` for every NUM, CODE, TEXT
 /// and UIDREF item in document order (values as strings), plus the SOP class.
 pub fn read_values(bytes: &[u8]) -> Result<(String, Vec<(String, String)>), DicomError> {
+    // Bounded by the file's size: no declared length is trusted beyond it.
+    crate::bounds::check_lengths(bytes)?;
     let obj = dicom_object::from_reader(bytes).map_err(|e| DicomError::Encoding(e.to_string()))?;
     let class = obj
         .element(tags::SOP_CLASS_UID)

@@ -36,6 +36,16 @@ pub enum AssemblyError {
     /// The same view arrived twice with different content.
     #[error("view {0} arrived twice with different content")]
     Conflict(u16),
+    /// The header announces more than the receiver is configured for.
+    #[error("the header announces {announced} {what}, the receiver is configured for {allowed} (its memory budget comes from the configured geometry, not from the sender)")]
+    Budget {
+        /// `projections`, `columns` or `rows`.
+        what: &'static str,
+        /// What the header says.
+        announced: u16,
+        /// What the configuration allows.
+        allowed: u16,
+    },
     /// The end frame disagrees with the header.
     #[error("end frame says {sent} projections, the header {expected}")]
     Count {
@@ -66,6 +76,59 @@ pub struct Assembler {
     views: Vec<Option<Projection>>,
     end_seen: bool,
     early: Vec<(u32, Frame)>,
+    budget: Option<Budget>,
+}
+
+/// What a receiver is configured for (from its geometry, never from what
+/// the sender announces): a header announcing more is refused before any
+/// projection is kept, and projections that arrive before the header are
+/// kept only within it, so one acquisition holds at most
+/// [`Budget::bytes`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Budget {
+    /// Projections (views) of the configured geometry.
+    pub projections: u16,
+    /// Detector columns (elements) of the configured geometry.
+    pub columns: u16,
+    /// The most detector rows (coronal slices) a projection may have.
+    pub max_rows: u16,
+}
+
+impl Budget {
+    /// The largest projection payload, bytes (`10 + 6 rows columns`).
+    pub fn projection_payload(&self) -> usize {
+        10 + 6 * self.max_rows as usize * self.columns as usize
+    }
+
+    /// The most projection bytes one acquisition may hold.
+    pub fn bytes(&self) -> usize {
+        self.projections as usize * self.projection_payload()
+    }
+
+    fn check(
+        &self,
+        what: &'static str,
+        announced: u16,
+        allowed: u16,
+        exact: bool,
+    ) -> Result<(), AssemblyError> {
+        if (exact && announced != allowed) || announced > allowed || announced == 0 {
+            return Err(AssemblyError::Budget {
+                what,
+                announced,
+                allowed,
+            });
+        }
+        Ok(())
+    }
+
+    /// A header within the budget: the configured projections and columns,
+    /// at most `max_rows` rows.
+    pub fn check_header(&self, h: &AcquisitionHeader) -> Result<(), AssemblyError> {
+        self.check("projections", h.projections, self.projections, true)?;
+        self.check("columns", h.columns, self.columns, true)?;
+        self.check("rows", h.rows, self.max_rows, false)
+    }
 }
 
 /// Frames kept while the header is missing; beyond that the acquisition is a
@@ -73,9 +136,37 @@ pub struct Assembler {
 pub const MAX_EARLY: usize = 4096;
 
 impl Assembler {
-    /// A new, empty assembler.
+    /// A new, empty assembler without a budget (any header the codec
+    /// accepts; for tools and tests).
     pub fn new() -> Self {
         Self::default()
+    }
+
+    /// A new assembler that refuses what exceeds `budget`.
+    pub fn with_budget(budget: Budget) -> Self {
+        Self {
+            budget: Some(budget),
+            ..Self::default()
+        }
+    }
+
+    /// Whether the header has arrived.
+    pub fn has_header(&self) -> bool {
+        self.header.is_some()
+    }
+
+    /// The header, once it has arrived.
+    pub fn header(&self) -> Option<&AcquisitionHeader> {
+        self.header.as_ref()
+    }
+
+    /// How far the acquisition has come: the header, each view in, the end
+    /// frame (retransmissions, duplicates and control frames do not count).
+    pub fn progress(&self) -> usize {
+        self.header.is_some() as usize
+            + self.views.iter().filter(|v| v.is_some()).count()
+            + self.end_seen as usize
+            + self.early.len()
     }
 
     /// Views still missing (after the header).
@@ -99,6 +190,9 @@ impl Assembler {
             Frame::Header(h) => {
                 match &self.header {
                     None => {
+                        if let Some(b) = &self.budget {
+                            b.check_header(&h)?;
+                        }
                         self.views = vec![None; h.projections as usize];
                         self.header = Some(h);
                         // Replay what arrived early, acknowledging nothing
@@ -180,8 +274,15 @@ impl Assembler {
     }
 
     fn hold(&mut self, seq: u32, f: Frame) -> Result<(Reply, Option<Received>), AssemblyError> {
-        if self.early.len() >= MAX_EARLY {
+        let limit = self
+            .budget
+            .map_or(MAX_EARLY, |b| (b.projections as usize + 1).min(MAX_EARLY));
+        if self.early.len() >= limit {
             return Err(AssemblyError::NoHeader(seq));
+        }
+        if let (Some(b), Frame::Projection(p)) = (&self.budget, &f) {
+            b.check("columns", p.columns, b.columns, true)?;
+            b.check("rows", p.rows, b.max_rows, false)?;
         }
         self.early.push((seq, f));
         Ok((Reply::Ack(seq), None))

@@ -52,13 +52,15 @@ pub enum FrameError {
         /// Type byte.
         kind: u8,
     },
-    /// Declared length beyond [`MAX_PAYLOAD`].
-    #[error("frame {seq}: payload length {len} exceeds {MAX_PAYLOAD}")]
+    /// Declared length beyond the decoder's limit (at most [`MAX_PAYLOAD`]).
+    #[error("frame {seq}: payload length {len} exceeds the {max} bytes accepted")]
     Length {
         /// Sequence number.
         seq: u32,
         /// Declared length.
         len: usize,
+        /// The decoder's limit.
+        max: usize,
     },
     /// The payload does not parse for its type.
     #[error("frame {seq}: bad {kind} payload: {reason}")]
@@ -333,84 +335,169 @@ fn decode_payload(kind: u8, seq: u32, p: &[u8]) -> Result<Frame, FrameError> {
 
 /// A streaming decoder: feed it bytes as they arrive, take frames (or errors)
 /// out. After a bad frame it resynchronises on the next start marker.
-#[derive(Debug, Default)]
+///
+/// Linear in the bytes received, whatever they are: consumed bytes are
+/// skipped by an offset (the buffer is compacted once half of it is
+/// consumed), the marker search resumes where it stopped, and a candidate
+/// frame's CRC comes from prefix CRCs in O(log n) ([`crate::crc`]). Payloads
+/// longer than the decoder's limit ([`Decoder::with_max_payload`]; by
+/// default [`MAX_PAYLOAD`]) are refused from their header, never buffered.
+#[derive(Debug)]
 pub struct Decoder {
     buf: Vec<u8>,
+    /// `prefix[i]`: CRC-32 of every byte received before `buf[i]` (one more
+    /// entry than `buf`).
+    prefix: Vec<u32>,
+    /// Consumed bytes at the front of `buf`.
+    pos: usize,
+    /// Bytes from `pos` known to hold no marker start.
+    scanned: usize,
+    max_payload: usize,
+    work: u64,
+}
+
+impl Default for Decoder {
+    fn default() -> Self {
+        Self::with_max_payload(MAX_PAYLOAD)
+    }
 }
 
 impl Decoder {
-    /// A new decoder.
+    /// A new decoder accepting payloads up to [`MAX_PAYLOAD`].
     pub fn new() -> Self {
         Self::default()
     }
 
+    /// A new decoder accepting payloads up to `max_payload` bytes (the
+    /// receiver's memory budget; at most [`MAX_PAYLOAD`]).
+    pub fn with_max_payload(max_payload: usize) -> Self {
+        Self {
+            buf: Vec::new(),
+            prefix: vec![0],
+            pos: 0,
+            scanned: 0,
+            max_payload: max_payload.min(MAX_PAYLOAD),
+            work: 0,
+        }
+    }
+
+    /// Byte-steps spent so far (bytes hashed on arrival, bytes searched for
+    /// a marker, 64 per CRC check): the measure by which the tests hold the
+    /// decoder to linear time, whatever the input.
+    pub fn work(&self) -> u64 {
+        self.work
+    }
+
+    /// The largest payload this decoder accepts.
+    pub fn max_payload(&self) -> usize {
+        self.max_payload
+    }
+
     /// Append received bytes.
     pub fn push(&mut self, bytes: &[u8]) {
+        if self.pos > 0 && self.pos * 2 >= self.buf.len() {
+            self.buf.drain(..self.pos);
+            self.prefix.drain(..self.pos);
+            self.pos = 0;
+        }
+        self.work += bytes.len() as u64;
+        let c = *self.prefix.last().unwrap_or(&0);
+        crate::crc::prefixes(c, bytes, &mut self.prefix);
         self.buf.extend_from_slice(bytes);
     }
 
     /// Bytes waiting for the rest of a frame.
     pub fn pending(&self) -> usize {
-        self.buf.len()
+        self.buf.len() - self.pos
+    }
+
+    /// The declared payload length of the frame being received, once its
+    /// marker and header are in (and within the limit); `None` between
+    /// frames.
+    pub fn frame_in_progress(&self) -> Option<usize> {
+        let b = &self.buf[self.pos..];
+        if b.len() < HEAD || b[..4] != MARKER {
+            return None;
+        }
+        let len = u32::from_le_bytes([b[10], b[11], b[12], b[13]]) as usize;
+        (len <= self.max_payload).then_some(len)
+    }
+
+    fn consume(&mut self, n: usize) {
+        self.pos += n;
+        self.scanned = self.scanned.saturating_sub(n);
     }
 
     /// The next complete frame as `(sequence, frame)`, an error about the
     /// bytes skipped or rejected, or `None` until more bytes arrive.
     pub fn next_frame(&mut self) -> Option<Result<(u32, Frame), FrameError>> {
-        // Find the marker.
-        let start = self.buf.windows(4).position(|w| w == MARKER);
+        // Find the marker, resuming the search where it stopped.
+        let avail = &self.buf[self.pos..];
+        let from = self.scanned.min(avail.len());
+        let start = avail[from..]
+            .windows(4)
+            .position(|w| w == MARKER)
+            .map(|i| i + from);
+        self.work +=
+            (start.unwrap_or(avail.len()) - from.min(start.unwrap_or(avail.len())) + 1) as u64;
         match start {
             None => {
                 // Keep the last 3 bytes: they may begin a marker.
-                let keep = self.buf.len().min(3);
-                let drop = self.buf.len() - keep;
+                let keep = avail.len().min(3);
+                let drop = avail.len() - keep;
+                self.scanned = avail.len().saturating_sub(3).max(self.scanned);
                 if drop > 0 {
-                    self.buf.drain(..drop);
+                    self.consume(drop);
                     return Some(Err(FrameError::Garbage(drop)));
                 }
                 return None;
             }
             Some(s) if s > 0 => {
-                self.buf.drain(..s);
+                self.scanned = s;
+                self.consume(s);
                 return Some(Err(FrameError::Garbage(s)));
             }
-            _ => {}
+            _ => self.scanned = 0,
         }
-        if self.buf.len() < HEAD {
+        let b = &self.buf[self.pos..];
+        if b.len() < HEAD {
             return None;
         }
-        let version = self.buf[4];
-        let kind = self.buf[5];
-        let seq = u32::from_le_bytes([self.buf[6], self.buf[7], self.buf[8], self.buf[9]]);
-        let len =
-            u32::from_le_bytes([self.buf[10], self.buf[11], self.buf[12], self.buf[13]]) as usize;
-        if len > MAX_PAYLOAD {
-            // Corrupt length: skip this marker and resynchronise.
-            self.buf.drain(..4);
-            return Some(Err(FrameError::Length { seq, len }));
+        let version = b[4];
+        let kind = b[5];
+        let seq = u32::from_le_bytes([b[6], b[7], b[8], b[9]]);
+        let len = u32::from_le_bytes([b[10], b[11], b[12], b[13]]) as usize;
+        if len > self.max_payload {
+            // Corrupt length, or more than the budget: skip this marker and
+            // resynchronise.
+            self.consume(4);
+            return Some(Err(FrameError::Length {
+                seq,
+                len,
+                max: self.max_payload,
+            }));
         }
-        if self.buf.len() < HEAD + len + 4 {
+        if b.len() < HEAD + len + 4 {
             return None;
         }
         let end = HEAD + len;
-        let got = u32::from_le_bytes([
-            self.buf[end],
-            self.buf[end + 1],
-            self.buf[end + 2],
-            self.buf[end + 3],
-        ]);
-        let want = crc32fast::hash(&self.buf[4..end]);
+        let got = u32::from_le_bytes([b[end], b[end + 1], b[end + 2], b[end + 3]]);
+        let (a, z) = (self.pos + 4, self.pos + end);
+        let want = crate::crc::range(self.prefix[a], self.prefix[z], (z - a) as u64);
+        self.work += 64;
         if got != want {
             // Do not trust the length: resynchronise after this marker.
-            self.buf.drain(..4);
+            self.consume(4);
             return Some(Err(FrameError::Crc { seq, got, want }));
         }
-        let payload: Vec<u8> = self.buf[HEAD..end].to_vec();
-        self.buf.drain(..end + 4);
-        if version != VERSION {
-            return Some(Err(FrameError::Version { seq, version }));
-        }
-        Some(decode_payload(kind, seq, &payload).map(|f| (seq, f)))
+        let payload = &self.buf[self.pos + HEAD..self.pos + end];
+        let r = if version != VERSION {
+            Err(FrameError::Version { seq, version })
+        } else {
+            decode_payload(kind, seq, payload).map(|f| (seq, f))
+        };
+        self.consume(end + 4);
+        Some(r)
     }
 }
 
@@ -572,6 +659,86 @@ mod tests {
                     break;
                 }
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod linear {
+    use super::*;
+
+    /// Crafted input that made the old decoder quadratic: 2 MB of start
+    /// markers, each with a header announcing the largest payload (every one
+    /// a false start whose "frame" is hashed, then skipped by 4 bytes), and a
+    /// real frame at the end. The decoder must spend a bounded number of
+    /// byte-steps per byte received, and still find the real frame.
+    #[test]
+    fn resynchronisation_is_linear_in_the_bytes_received() {
+        let max = 64 * 1024;
+        let mut fake = Vec::new();
+        fake.extend(MARKER);
+        fake.push(VERSION);
+        fake.push(2);
+        fake.extend(7u32.to_le_bytes());
+        fake.extend((max as u32).to_le_bytes());
+        let mut stream = Vec::new();
+        while stream.len() < 2 << 20 {
+            stream.extend(&fake);
+        }
+        let good = encode(&Frame::End { projections: 25 }, 26);
+        stream.extend(&good);
+        // Pad so the last false frames can complete and fail their CRC.
+        stream.extend(vec![0u8; max + 64]);
+        let mut d = Decoder::with_max_payload(max);
+        let mut found = None;
+        let (mut crc, mut steps) = (0usize, 0usize);
+        for chunk in stream.chunks(4096) {
+            d.push(chunk);
+            while let Some(r) = d.next_frame() {
+                steps += 1;
+                match r {
+                    Ok(f) => found = Some(f),
+                    Err(FrameError::Crc { .. }) => crc += 1,
+                    Err(_) => {}
+                }
+            }
+        }
+        assert_eq!(found, Some((26, Frame::End { projections: 25 })));
+        assert!(crc > 100_000, "{crc} false starts checked");
+        let per_byte = d.work() as f64 / stream.len() as f64;
+        assert!(
+            per_byte < 16.0,
+            "{per_byte:.1} byte-steps per byte ({steps} results)"
+        );
+        assert!(d.pending() < max + 64 + 4);
+    }
+
+    #[test]
+    fn payloads_beyond_the_budget_are_refused_from_their_header() {
+        let mut d = Decoder::with_max_payload(100);
+        let big = encode(&Frame::Header(tests_header()), 0);
+        d.push(&big[..HEAD]);
+        match d.next_frame() {
+            Some(Err(FrameError::Length { len, max: 100, .. })) => assert!(len > 100),
+            other => panic!("{other:?}"),
+        }
+    }
+
+    fn tests_header() -> AcquisitionHeader {
+        AcquisitionHeader {
+            patient_id: "P1".into(),
+            patient_name: "Doe^Jane".into(),
+            study_uid: "1.2.826.0.1.3680043.10.543.5".into(),
+            accession: "A1".into(),
+            study_date: "20261122".into(),
+            study_time: "101500".into(),
+            thickness_mm: 45.0,
+            kvp: 28.0,
+            mas_total: 60.0,
+            projections: 25,
+            rows: 3,
+            columns: 4,
+            laterality: "L".into(),
         }
     }
 }

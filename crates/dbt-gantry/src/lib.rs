@@ -9,5 +9,6 @@
 //! Pure: transports (serial, TCP, Modbus client) are adapters elsewhere.
 
 pub mod assemble;
+pub mod crc;
 pub mod frame;
 pub mod registers;

@@ -1,7 +1,8 @@
 //! A recorded acquisition on disk (`dbtor-acquisition/1`): what the gantry
 //! delivers for one breast, as files. `host-sim acquire` writes it; the
-//! firmware's offline processing reads it (the daemon of issue #8 receives
-//! the same content over Modbus and the frame stream).
+//! firmware's offline processing and the daemon's spool read it. The type and
+//! its header validation are the domain's (`dbt_pipeline::acquisition`); this
+//! is the file adapter.
 //!
 //! ```text
 //! DIR/acquisition.json   header: geometry, thickness, flux, technique, patient, study
@@ -10,89 +11,9 @@
 //! Slices are coronal, chest wall first, `slice_spacing_mm` apart.
 
 use crate::{io_err, StoreError};
-use dbt_geometry::Geometry;
-use serde::{Deserialize, Serialize};
+use dbt_pipeline::acquisition::{counts_bytes, validate_header, Acquisition, AcquisitionHeader};
+use std::io::Read;
 use std::path::Path;
-
-/// Format tag.
-pub const ACQ_FORMAT: &str = "dbtor-acquisition/1";
-
-/// Patient attributes.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Patient {
-    /// `Family^Given`.
-    pub name: String,
-    /// Patient ID.
-    pub id: String,
-    /// `YYYYMMDD` or empty.
-    pub birth_date: String,
-    /// `F`, `M`, `O` or empty.
-    pub sex: String,
-}
-
-/// Study attributes.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Study {
-    /// Study Instance UID.
-    pub study_uid: String,
-    /// `YYYYMMDD`.
-    pub date: String,
-    /// `HHMMSS`.
-    pub time: String,
-    /// Accession number.
-    pub accession: String,
-    /// Study ID.
-    pub study_id: String,
-    /// Series Instance UID of the projections.
-    pub series_uid: String,
-    /// SOP Instance UIDs of the projections (one per view).
-    pub instance_uids: Vec<String>,
-}
-
-/// The acquisition header.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct AcquisitionHeader {
-    /// [`ACQ_FORMAT`].
-    pub format: String,
-    /// Geometry of every slice.
-    pub geometry: Geometry,
-    /// Compressed thickness from the paddle, mm.
-    pub thickness_mm: f64,
-    /// Photons per ray without the breast (flat field), `b`.
-    pub flux: f64,
-    /// Number of coronal slices.
-    pub slices: usize,
-    /// Distance between coronal slices, mm.
-    pub slice_spacing_mm: f64,
-    /// Tube voltage, kV.
-    pub kvp: f64,
-    /// Tube loading of the whole sweep, mAs.
-    pub mas_total: f64,
-    /// Incident air kerma at the reference point per mAs, mGy/mAs.
-    pub tube_output_mgy_per_mas: f64,
-    /// `L` or `R`.
-    pub laterality: String,
-    /// Patient.
-    pub patient: Patient,
-    /// Study.
-    pub study: Study,
-    /// Ground truth of a simulated acquisition (for evaluation only; the
-    /// processing never reads it).
-    #[serde(default)]
-    pub truth: Option<serde_json::Value>,
-}
-
-/// A loaded acquisition.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Acquisition {
-    /// Header.
-    pub header: AcquisitionHeader,
-    /// Counts, `[slices][views * elements]`.
-    pub counts: Vec<Vec<f32>>,
-}
 
 fn bad(path: &Path, reason: impl Into<String>) -> StoreError {
     StoreError::Format {
@@ -128,46 +49,47 @@ pub fn read_acquisition(dir: &Path) -> Result<Acquisition, StoreError> {
     let text = std::fs::read_to_string(&h).map_err(io_err(&h))?;
     let header: AcquisitionHeader =
         serde_json::from_str(&text).map_err(|e| bad(&h, e.to_string()))?;
-    if header.format != ACQ_FORMAT {
-        return Err(bad(
-            &h,
-            format!("format `{}`, expected `{ACQ_FORMAT}`", header.format),
-        ));
-    }
-    header
-        .geometry
-        .validate()
-        .map_err(|e| bad(&h, e.to_string()))?;
-    for (field, v) in [
-        ("thickness_mm", header.thickness_mm),
-        ("flux", header.flux),
-        ("slice_spacing_mm", header.slice_spacing_mm),
-        ("kvp", header.kvp),
-    ] {
-        if !(v.is_finite() && v > 0.0) {
-            return Err(bad(&h, format!("`{field}` = {v} must be positive")));
-        }
-    }
-    if header.laterality != "L" && header.laterality != "R" {
-        return Err(bad(
-            &h,
-            format!("`laterality` = `{}` must be L or R", header.laterality),
-        ));
-    }
+    validate_header(&header).map_err(|e| bad(&h, e.to_string()))?;
+    let want = counts_bytes(&header).map_err(|e| bad(&h, e.to_string()))?;
     let c = dir.join("counts.f32");
-    let bytes = std::fs::read(&c).map_err(io_err(&c))?;
-    let n = header.geometry.n_rays();
-    if bytes.len() != header.slices * n * 4 {
+    let len = std::fs::metadata(&c).map_err(io_err(&c))?.len();
+    if len != want as u64 {
         return Err(bad(
             &c,
             format!(
-                "{} bytes, {} slices of {n} rays need {}",
-                bytes.len(),
+                "{len} bytes, {} slices of {} rays need {want}",
                 header.slices,
-                header.slices * n * 4
+                header.geometry.n_rays()
             ),
         ));
     }
+    let mut bytes = Vec::with_capacity(want);
+    std::fs::File::open(&c)
+        .and_then(|f| f.take(want as u64).read_to_end(&mut bytes))
+        .map_err(io_err(&c))?;
+    decode_counts(header, &bytes).map_err(|reason| bad(&c, reason))
+}
+
+/// An acquisition from its header's JSON and its counts' bytes, checked as
+/// [`read_acquisition`] checks the files (the fuzz target's entry).
+pub fn decode_acquisition(header_json: &[u8], counts: &[u8]) -> Result<Acquisition, String> {
+    let header: AcquisitionHeader =
+        serde_json::from_slice(header_json).map_err(|e| e.to_string())?;
+    validate_header(&header).map_err(|e| e.to_string())?;
+    let want = counts_bytes(&header).map_err(|e| e.to_string())?;
+    if counts.len() != want {
+        return Err(format!(
+            "{} bytes, {} slices of {} rays need {want}",
+            counts.len(),
+            header.slices,
+            header.geometry.n_rays()
+        ));
+    }
+    decode_counts(header, counts)
+}
+
+fn decode_counts(header: AcquisitionHeader, bytes: &[u8]) -> Result<Acquisition, String> {
+    let n = header.geometry.n_rays();
     let counts: Vec<Vec<f32>> = bytes
         .chunks_exact(n * 4)
         .map(|s| {
@@ -181,10 +103,7 @@ pub fn read_acquisition(dir: &Path) -> Result<Acquisition, StoreError> {
         .enumerate()
         .find(|(_, s)| s.iter().any(|v| !v.is_finite() || *v < 0.0))
     {
-        return Err(bad(
-            &c,
-            format!("slice {i} holds a negative or non-finite count"),
-        ));
+        return Err(format!("slice {i} holds a negative or non-finite count"));
     }
     Ok(Acquisition { header, counts })
 }

@@ -627,8 +627,7 @@ fn main() -> Result<()> {
             let noise = NoiseLevel::parse(&noise)?;
             let list = reconstructors
                 .unwrap_or_else(|| if model.is_some() { "fp32" } else { "mltr" }.to_string());
-            let mut recs: Vec<(String, String, dbtor_firmware::pipeline::PipelineOptions)> =
-                Vec::new();
+            let mut recs: Vec<(String, String, dbt_pipeline::PipelineOptions)> = Vec::new();
             for r in list.split(',').map(str::trim).filter(|r| !r.is_empty()) {
                 let dbtor = match r {
                     "mltr" => None,
@@ -650,10 +649,10 @@ fn main() -> Result<()> {
                 };
                 // The model's calibration, as the firmware loads it.
                 let calibration = match (&dbtor, no_calibration) {
-                    (Some(m), false) => dbtor_firmware::calibration::load_calibration(m, &skin)?,
+                    (Some(m), false) => dbt_model::load_calibration(m, &skin)?,
                     _ => None,
                 };
-                let opts = dbtor_firmware::pipeline::PipelineOptions {
+                let opts = dbt_pipeline::PipelineOptions {
                     dbtor,
                     mltr_iterations: iterations,
                     dose_uncertainty,
@@ -661,7 +660,7 @@ fn main() -> Result<()> {
                     classify: skin,
                     calibration,
                 };
-                let label = dbtor_firmware::pipeline::reconstructor_name(&opts);
+                let label = dbt_pipeline::reconstructor_name(&opts);
                 let label = match calibration {
                     Some(c) => format!("{label} [G = {:+.4} + {:.4} x PV]", c.offset, c.slope),
                     None => label,
@@ -778,12 +777,12 @@ fn main() -> Result<()> {
                 .split(',')
                 .map(|v| parse_skin_variant(v.trim()))
                 .collect::<Result<Vec<_>>>()?;
-            let opts = dbtor_firmware::pipeline::PipelineOptions {
+            let opts = dbt_pipeline::PipelineOptions {
                 dbtor: model,
                 mltr_iterations: iterations,
                 ..Default::default()
             };
-            let reconstructor = dbtor_firmware::pipeline::reconstructor_name(&opts);
+            let reconstructor = dbt_pipeline::reconstructor_name(&opts);
             let t0 = Instant::now();
             let mut per_variant = vec![Vec::new(); variants.len()];
             let inputs = phantom_inputs(phantom.as_deref(), &g, split, phantoms);
@@ -864,7 +863,7 @@ fn main() -> Result<()> {
             out,
             runtime,
         } => {
-            use dbtor_firmware::calibration::{
+            use dbt_model::{
                 manifest_sha256, CalibrationFile, CALIBRATION_FILE, CALIBRATION_FORMAT,
             };
             let m = load_models(Some(&model), &precision, &runtime)?
@@ -879,7 +878,7 @@ fn main() -> Result<()> {
             let g = m.geometry().clone();
             let noise = NoiseLevel::parse(&noise)?;
             let classify = dbt_tissue::ClassifyOptions::default();
-            let opts = dbtor_firmware::pipeline::PipelineOptions {
+            let opts = dbt_pipeline::PipelineOptions {
                 dbtor: Some(m.clone()),
                 classify,
                 ..Default::default()

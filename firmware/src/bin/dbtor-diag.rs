@@ -88,12 +88,21 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
-    /// Verify a DBToR model's checksums and its stored fixtures.
+    /// Verify a DBToR model folder: its sign-off (one digest over the
+    /// manifest, the calibration and every ONNX file), the network's
+    /// checksums and its stored fixtures.
     Model {
         dir: PathBuf,
         /// Check one precision only (default: both).
         #[arg(long)]
         precision: Option<Precision>,
+        /// The digest the site's configuration pins (`recon.model_digest`).
+        #[arg(long)]
+        digest: Option<String>,
+        /// Sign the folder off as it is now (writes signoff.json and prints
+        /// the digest for `recon.model_digest`), after its checks pass.
+        #[arg(long)]
+        sign_off: bool,
         #[arg(long)]
         json: bool,
     },
@@ -295,7 +304,7 @@ fn run_cmd(cmd: Cmd) -> Result<bool> {
         } => {
             let entry = entry.as_path();
             let acq = dbt_store::acquisition::read_acquisition(entry)?;
-            let mut opts = dbtor_firmware::pipeline::PipelineOptions::default();
+            let mut opts = dbt_pipeline::PipelineOptions::default();
             if let Some(n) = iterations {
                 opts.mltr_iterations = n;
             }
@@ -314,8 +323,8 @@ fn run_cmd(cmd: Cmd) -> Result<bool> {
                 acq.header.slices
             );
             let mut last = std::time::Instant::now();
-            let r = dbtor_firmware::pipeline::process_with_progress(&acq, &opts, &mut |st| {
-                use dbtor_firmware::pipeline::Stage;
+            let r = dbt_pipeline::process_with_progress(&acq, &opts, &mut |st| {
+                use dbt_pipeline::Stage;
                 match st {
                     // At most a few updates a second on the terminal.
                     Stage::Slice { done, total } => {
@@ -457,6 +466,8 @@ fn run_cmd(cmd: Cmd) -> Result<bool> {
         Cmd::Model {
             dir,
             precision,
+            digest,
+            sign_off,
             json,
         } => {
             let precisions = match precision {
@@ -489,11 +500,34 @@ fn run_cmd(cmd: Cmd) -> Result<bool> {
                 }
                 all.extend(checks);
             }
-            let ok = !all.is_empty() && all.iter().all(|c| c.pass);
+            let mut ok = !all.is_empty() && all.iter().all(|c| c.pass);
+            if sign_off && ok {
+                dbt_model::sign_off(dir)?;
+            }
+            let signoff = match dbt_model::verify(dir, digest.as_deref()) {
+                Ok(s) => {
+                    serde_json::json!({"passed": true, "digest": s.digest, "files": s.files.len()})
+                }
+                Err(e) => {
+                    ok = false;
+                    serde_json::json!({"passed": false, "error": e.to_string()})
+                }
+            };
             if json {
                 println!(
                     "{}",
-                    serde_json::json!({"model": dir.display().to_string(), "passed": ok, "fixtures": all})
+                    serde_json::json!({"model": dir.display().to_string(), "passed": ok, "signoff": signoff, "fixtures": all})
+                );
+            } else if signoff["passed"] == true {
+                println!(
+                    "sign-off: PASS  {} files, digest {}",
+                    signoff["files"],
+                    signoff["digest"].as_str().unwrap_or_default()
+                );
+            } else {
+                println!(
+                    "sign-off: FAIL  {}",
+                    signoff["error"].as_str().unwrap_or_default()
                 );
             }
             Ok(ok)
@@ -600,7 +634,10 @@ fn main() -> ExitCode {
         Ok(true) => ExitCode::SUCCESS,
         Ok(false) => ExitCode::from(1),
         Err(e) => {
-            eprintln!("dbtor-diag: error: {e:#}");
+            eprintln!(
+                "dbtor-diag: error: {}",
+                dbtor_firmware::cli::error_chain(&e)
+            );
             ExitCode::from(2)
         }
     }

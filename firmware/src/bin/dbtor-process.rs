@@ -5,82 +5,110 @@
 //! received from the gantry.
 //!
 //! `dbtor-process ACQ_DIR --out DIR [--pacs AET@host:port] [--uid-root ROOT]
-//!   [--model models/dbtor-x4 [--precision fp32|int8 [--fp32-blocks primal08,primal09]]] [--iterations N]
+//!   [--model models/dbtor-x4t3 [--model-digest sha256:...] [--precision fp32|int8 [--fp32-blocks primal08,primal09]]] [--iterations N]
 //!   [--dose-uncertainty 0.01]`
 //!
-//! With `--model`, slices are reconstructed by DBToR (the model's checksums are
-//! verified first); without it by MLTR (`--iterations`, default 100).
+//! With `--model`, slices are reconstructed by DBToR; the model folder is
+//! checked against its sign-off first (and against `--model-digest
+//! sha256:...`, the configuration's `recon.model_digest`, when given), then
+//! the network's checksums. Without it, by MLTR (`--iterations`, default
+//! 100). The reports' content date and time are the clock's (UTC).
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
+use clap::Parser;
 use dbt_dicom::{Equipment, UidSource};
-use dbtor_firmware::pipeline::{process, reports, PipelineOptions};
+use dbt_pipeline::{process, reports, PipelineOptions};
+use dbtor_firmware::cli::error_chain;
 use std::path::PathBuf;
+use std::process::ExitCode;
 
-fn main() -> Result<()> {
+#[derive(Parser)]
+#[command(
+    name = "dbtor-process",
+    about = "Process one recorded acquisition into the dose and density DICOM reports",
+    after_help = "Exit codes: 0 reported; 2 bad usage, refused input (named) or a processing error."
+)]
+struct Cli {
+    /// The recorded acquisition (acquisition.json + counts.f32).
+    acquisition: PathBuf,
+    /// Output folder of the reports (and its outbox).
+    #[arg(long)]
+    out: PathBuf,
+    /// Also send the reports to this PACS, AET@host:port.
+    #[arg(long)]
+    pacs: Option<String>,
+    #[arg(long, default_value = "1.2.826.0.1.3680043.10.543.1")]
+    uid_root: String,
+    /// DBToR model folder (default: MLTR).
+    #[arg(long)]
+    model: Option<PathBuf>,
+    /// The model folder's configured digest (`recon.model_digest`).
+    #[arg(long, requires = "model")]
+    model_digest: Option<String>,
+    #[arg(long, default_value = "fp32", requires = "model")]
+    precision: dbt_dbtor::Precision,
+    #[arg(long, default_value = "fast", requires = "model")]
+    engine: dbt_dbtor::Engine,
+    /// With int8: blocks kept in fp32, e.g. `primal08,primal09`.
+    #[arg(long, requires = "model")]
+    fp32_blocks: Option<String>,
+    /// MLTR iterations.
+    #[arg(long, default_value_t = 100)]
+    iterations: usize,
+    /// Relative statistical uncertainty the Monte Carlo dose runs to.
+    #[arg(long, default_value_t = 0.01)]
+    dose_uncertainty: f64,
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn".into()),
         )
         .with_writer(std::io::stderr)
         .init();
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let mut acq_dir = None;
-    let mut out = None;
-    let mut pacs = None;
-    let mut uid_root = "1.2.826.0.1.3680043.10.543.1".to_string();
-    let mut opts = PipelineOptions::default();
-    let mut model = None;
-    let mut precision = dbt_dbtor::Precision::Fp32;
-    let mut engine = dbt_dbtor::Engine::Fast;
-    let mut fp32_blocks: Vec<String> = Vec::new();
-    let mut it = args.iter();
-    while let Some(a) = it.next() {
-        let mut val = |name: &str| {
-            it.next()
-                .cloned()
-                .with_context(|| format!("{name} needs a value"))
-        };
-        match a.as_str() {
-            "--out" => out = Some(PathBuf::from(val("--out")?)),
-            "--pacs" => pacs = Some(dbt_pacs::PacsConfig::parse(&val("--pacs")?)?),
-            "--uid-root" => uid_root = val("--uid-root")?,
-            "--model" => model = Some(PathBuf::from(val("--model")?)),
-            "--precision" => {
-                precision = val("--precision")?
-                    .parse()
-                    .map_err(anyhow::Error::msg)
-                    .context("--precision")?
-            }
-            "--fp32-blocks" => fp32_blocks = dbt_dbtor::parse_block_list(&val("--fp32-blocks")?),
-            "--engine" => {
-                engine = val("--engine")?
-                    .parse()
-                    .map_err(anyhow::Error::msg)
-                    .context("--engine")?
-            }
-            "--iterations" => {
-                opts.mltr_iterations = val("--iterations")?.parse().context("--iterations")?
-            }
-            "--dose-uncertainty" => {
-                opts.dose_uncertainty = val("--dose-uncertainty")?
-                    .parse()
-                    .context("--dose-uncertainty")?
-            }
-            s if s.starts_with("--") => bail!("unknown option `{s}`"),
-            s => acq_dir = Some(PathBuf::from(s)),
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("dbtor-process: error: {}", error_chain(&e));
+            ExitCode::from(2)
         }
     }
-    let acq_dir =
-        acq_dir.context("usage: dbtor-process ACQ_DIR --out DIR [--pacs AET@host:port]")?;
-    let out = out.context("--out DIR is required")?;
-    if let Some(dir) = &model {
-        if !fp32_blocks.is_empty() && precision != dbt_dbtor::Precision::Int8 {
-            bail!("--fp32-blocks needs --precision int8");
+}
+
+fn run(cli: Cli) -> Result<()> {
+    let pacs = cli
+        .pacs
+        .as_deref()
+        .map(dbt_pacs::PacsConfig::parse)
+        .transpose()?;
+    let (acq_dir, out, uid_root) = (cli.acquisition, cli.out, cli.uid_root);
+    let mut opts = PipelineOptions {
+        mltr_iterations: cli.iterations,
+        dose_uncertainty: cli.dose_uncertainty,
+        ..PipelineOptions::default()
+    };
+    if let Some(dir) = &cli.model {
+        let fp32_blocks = cli
+            .fp32_blocks
+            .as_deref()
+            .map(dbt_dbtor::parse_block_list)
+            .unwrap_or_default();
+        if !fp32_blocks.is_empty() && cli.precision != dbt_dbtor::Precision::Int8 {
+            anyhow::bail!("--fp32-blocks needs --precision int8");
         }
-        let m = dbt_dbtor::Dbtor::load_mixed(dir, precision, &fp32_blocks, engine)
-            .with_context(|| format!("loading the DBToR model {}", dir.display()))?;
-        opts.calibration = dbtor_firmware::calibration::load_calibration(&m, &opts.classify)?;
-        opts.dbtor = Some(std::sync::Arc::new(m));
+        let signed = dbt_model::load_signed(
+            dir,
+            cli.precision,
+            &fp32_blocks,
+            cli.engine,
+            &opts.classify,
+            cli.model_digest.as_deref(),
+        )
+        .with_context(|| format!("loading the DBToR model {}", dir.display()))?;
+        opts.calibration = signed.calibration;
+        opts.dbtor = Some(std::sync::Arc::new(signed.model));
     }
     let acq = dbt_store::acquisition::read_acquisition(&acq_dir)?;
     let t = std::time::Instant::now();
@@ -98,13 +126,13 @@ fn main() -> Result<()> {
         software_version: env!("CARGO_PKG_VERSION").into(),
         device_uid: format!("{uid_root}.9.1"),
     };
-    let (date, time) = ("20261122".to_string(), "120000".to_string());
+    let (date, time) = dbt_dicom::dicom_datetime_utc(now / 1_000_000);
     let (dose, dens) = reports(&acq, &res, &equipment, &mut uids, &date, &time)?;
     let outbox = dbt_pacs::Outbox::open(&out, &out.join("outbox"))?;
     let mut delivery = Vec::new();
     for (name, r) in [("dose-sr", &dose), ("density-sr", &dens)] {
         let rep = outbox.deliver(
-            &format!("{}-{name}", acq.header.patient.id),
+            &format!("{}-{name}", file_stem(&acq.header.patient.id)),
             &r.to_bytes()?,
             pacs.as_ref(),
         )?;
@@ -125,4 +153,20 @@ fn main() -> Result<()> {
     });
     println!("{}", serde_json::to_string_pretty(&summary)?);
     Ok(())
+}
+
+/// A file-name stem from a patient ID: a DICOM LO may hold `/`, `.` and
+/// spaces, which must not reach a path; everything but ASCII letters, digits,
+/// `-` and `_` becomes `_`.
+fn file_stem(id: &str) -> String {
+    id.chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .take(64)
+        .collect()
 }

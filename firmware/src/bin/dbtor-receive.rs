@@ -1,69 +1,83 @@
 //! `dbtor-receive`: receive one acquisition from the gantry's projection
-//! stream over TCP and spool it as a recorded acquisition (atomically: a
-//! temporary folder, then a rename). Exit 0 when received; 1 on a link or
-//! acquisition fault (named on stderr; nothing is spooled); 2 on bad usage.
+//! stream over TCP or a serial line and spool it as a recorded acquisition
+//! (atomically: a temporary folder, then a rename). Exit 0 when received; 1
+//! on a link or acquisition fault (named on stderr; nothing is spooled); 2
+//! on bad usage.
 //!
 //! `dbtor-receive (--connect HOST:PORT | --serial PATH [--baud 921600]) --out DIR
 //!  [--geometry paper|paper-tall|FILE.toml] [--binning N] [--timeout-s 30]
 //!  [--tube-output 0.11]`: the geometry is the gantry's (as the daemon's
-//! `[frames] geometry` and `binning`).
+//! `[frames] geometry` and `binning`); it also sets the receiver's memory
+//! budget.
 
 use anyhow::{bail, Context, Result};
-use dbtor_firmware::link::{receive, receive_from, to_acquisition};
+use clap::Parser;
+use dbtor_firmware::cli::error_chain;
+use dbtor_firmware::link::{receive, receive_from, to_acquisition, LinkOptions};
 use std::net::TcpStream;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
-fn run() -> Result<bool> {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let (mut connect, mut out, mut binning, mut timeout, mut output) =
-        (None, None, 4usize, 30u64, 0.11f64);
-    let (mut serial, mut baud) = (None::<String>, 921_600u32);
-    let mut geometry = String::from("paper");
-    let mut it = args.iter();
-    while let Some(a) = it.next() {
-        let mut val = |n: &str| {
-            it.next()
-                .cloned()
-                .with_context(|| format!("{n} needs a value"))
-        };
-        match a.as_str() {
-            "--connect" => connect = Some(val("--connect")?),
-            "--serial" => serial = Some(val("--serial")?),
-            "--baud" => baud = val("--baud")?.parse().context("--baud")?,
-            "--out" => out = Some(PathBuf::from(val("--out")?)),
-            "--geometry" => geometry = val("--geometry")?,
-            "--binning" => binning = val("--binning")?.parse().context("--binning")?,
-            "--timeout-s" => timeout = val("--timeout-s")?.parse().context("--timeout-s")?,
-            "--tube-output" => output = val("--tube-output")?.parse().context("--tube-output")?,
-            other => bail!("unknown argument `{other}`"),
+#[derive(Parser)]
+#[command(
+    name = "dbtor-receive",
+    about = "Receive one acquisition from the gantry's projection stream and spool it",
+    after_help = "Exit codes: 0 received and spooled; 1 link or acquisition fault (nothing spooled); 2 bad usage."
+)]
+struct Cli {
+    /// The gantry's frame server, HOST:PORT.
+    #[arg(long, required_unless_present = "serial", conflicts_with = "serial")]
+    connect: Option<String>,
+    /// The serial line of the frame stream.
+    #[arg(long)]
+    serial: Option<String>,
+    #[arg(long, default_value_t = 921_600)]
+    baud: u32,
+    /// The spool folder to create.
+    #[arg(long)]
+    out: PathBuf,
+    /// The gantry's geometry: `paper`, `paper-tall` or a TOML file.
+    #[arg(long, default_value = "paper")]
+    geometry: String,
+    /// Detector and image binning of that geometry.
+    #[arg(long, default_value_t = 4)]
+    binning: usize,
+    /// Idle and write timeout, s.
+    #[arg(long, default_value_t = 30)]
+    timeout_s: u64,
+    /// Tube output at the reference point, mGy/mAs (the site's calibration).
+    #[arg(long, default_value_t = 0.11)]
+    tube_output: f64,
+}
+
+/// Connect to the gantry, which may not be listening yet: retry briefly.
+fn connect(addr: &str, timeout: Duration) -> Result<TcpStream> {
+    let t0 = Instant::now();
+    loop {
+        match TcpStream::connect(addr) {
+            Ok(s) => return Ok(s),
+            Err(e) if t0.elapsed() < timeout => {
+                tracing::debug!(%e, "gantry not reachable yet");
+                std::thread::sleep(Duration::from_millis(50));
+            }
+            Err(e) => bail!("connecting to {addr}: {e}"),
         }
     }
-    let out = out.context("--out DIR is required")?;
-    let geom = dbt_store::load_geometry(&geometry, binning)?;
-    let result = match (connect, serial) {
-        (Some(addr), None) => {
-            // The gantry may not be listening yet: retry the connection briefly.
-            let t0 = Instant::now();
-            let mut stream = loop {
-                match TcpStream::connect(&addr) {
-                    Ok(s) => break s,
-                    Err(e) if t0.elapsed() < Duration::from_secs(timeout) => {
-                        tracing::debug!(%e, "gantry not reachable yet");
-                        std::thread::sleep(Duration::from_millis(50));
-                    }
-                    Err(e) => bail!("connecting to {addr}: {e}"),
-                }
-            };
-            receive(&mut stream, Duration::from_secs(timeout))
-        }
+}
+
+fn run(cli: Cli) -> Result<bool> {
+    let geom = dbt_store::load_geometry(&cli.geometry, cli.binning)?;
+    let timeout = Duration::from_secs(cli.timeout_s);
+    let link = LinkOptions::new(timeout).for_site(&geom, cli.tube_output);
+    let result = match (&cli.connect, &cli.serial) {
+        (Some(addr), None) => receive(&mut connect(addr, timeout)?, &link),
         (None, Some(path)) => {
-            let mut port = serialport::new(&path, baud)
+            let mut port = serialport::new(path, cli.baud)
                 .timeout(Duration::from_millis(200))
                 .open()
                 .with_context(|| format!("opening serial line {path}"))?;
-            receive_from(&mut port, Duration::from_secs(timeout))
+            receive_from(&mut port, &link)
         }
         _ => bail!("give --connect HOST:PORT or --serial PATH"),
     };
@@ -74,13 +88,14 @@ fn run() -> Result<bool> {
             return Ok(false);
         }
     };
-    let acq = match to_acquisition(&received, &geom, output) {
+    let acq = match to_acquisition(&received, &geom, cli.tube_output) {
         Ok(a) => a,
         Err(e) => {
             eprintln!("dbtor-receive: FAULT: {e}");
             return Ok(false);
         }
     };
+    let out = &cli.out;
     let tmp = out.with_extension("part");
     let _ = std::fs::remove_dir_all(&tmp);
     dbt_store::acquisition::write_acquisition(&tmp, &acq)?;
@@ -90,7 +105,7 @@ fn run() -> Result<bool> {
             out.display()
         );
     }
-    std::fs::rename(&tmp, &out)
+    std::fs::rename(&tmp, out)
         .with_context(|| format!("renaming {} to {}", tmp.display(), out.display()))?;
     println!(
         "{}",
@@ -98,6 +113,7 @@ fn run() -> Result<bool> {
             "spooled": out.display().to_string(),
             "patient_id": acq.header.patient.id,
             "slices": acq.header.slices,
+            "link": stats,
             "frames": stats.frames,
             "crc_errors": stats.crc_errors,
             "naks": stats.naks,
@@ -109,11 +125,12 @@ fn run() -> Result<bool> {
 }
 
 fn main() -> ExitCode {
-    match run() {
+    let cli = Cli::parse();
+    match run(cli) {
         Ok(true) => ExitCode::SUCCESS,
         Ok(false) => ExitCode::from(1),
         Err(e) => {
-            eprintln!("dbtor-receive: error: {e:#}");
+            eprintln!("dbtor-receive: error: {}", error_chain(&e));
             ExitCode::from(2)
         }
     }

@@ -1,9 +1,16 @@
-//! Processing of one acquisition, from counts to report contents: per coronal
+//! Processing of one acquisition, from counts to report contents: the
+//! header's validation and the counts' plausibility first, then per coronal
 //! slice reconstruction (DBToR with a trained model, or MLTR, the paper's
 //! baseline, as the fallback chosen by configuration), stacking into a volume, tissue classification, density,
 //! Monte Carlo MGD (patient-specific and model breast), and the two DICOM
-//! reports. Pure: the adapters read the acquisition and deliver the reports.
+//! reports, with the reconstructed breast's plausibility checked before any
+//! figure is returned. Pure: the adapters read the acquisition and deliver
+//! the reports.
 
+use crate::acquisition::{validate_header, Acquisition, HeaderError};
+use crate::plausibility::{
+    check_counts, check_volume, footprint_mm, CountsCheck, Implausible, VolumeCheck,
+};
 use dbt_acquisition::log_transform;
 use dbt_dicom::{
     density_report, dose_report, DensityInput, DoseEvent, DoseInput, Equipment, Header, Laterality,
@@ -12,7 +19,6 @@ use dbt_dicom::{
 use dbt_dose::patient::{dbt_views, mgd_to_uncertainty, Breast, MgdResult, Model};
 use dbt_projector::Projector;
 use dbt_recon::{mltr, MltrOptions};
-use dbt_store::acquisition::Acquisition;
 use dbt_tissue::{
     classify, density, Classification, ClassifyOptions, Density, GlandularityCalibration,
 };
@@ -25,6 +31,12 @@ pub enum PipelineError {
     /// The acquisition cannot be processed as given.
     #[error("acquisition: {0}")]
     Input(String),
+    /// A header field is implausible (checked before any work).
+    #[error(transparent)]
+    Header(#[from] HeaderError),
+    /// The counts or the reconstruction cannot come from a breast.
+    #[error("implausible acquisition: {0}")]
+    Implausible(#[from] Implausible),
     /// DBToR failed.
     #[error("DBToR reconstruction of slice {slice}: {source}")]
     Dbtor {
@@ -69,7 +81,7 @@ pub struct PipelineOptions {
     pub classify: ClassifyOptions,
     /// Calibration of the reported (partial-volume) glandularity, fit for
     /// this reconstructor on validation phantoms
-    /// ([`crate::calibration::load_calibration`]).
+    /// (`dbt_model::load_calibration` reads it from the model folder).
     pub calibration: Option<GlandularityCalibration>,
 }
 
@@ -119,6 +131,19 @@ pub struct ProcessResult {
     pub model_mgd_mgy: f64,
     /// The tube spectrum the dose used (paper Table 3 for the thickness).
     pub tube: dbt_dose::xray::TubeSpectrum,
+    /// The plausibility checks' measurements.
+    pub plausibility: Plausibility,
+    /// Quality flags the report carries (empty when nothing was corrected).
+    pub flags: Vec<String>,
+}
+
+/// What the plausibility checks measured on an acquisition that passed them.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct Plausibility {
+    /// The counts against the flat field and the thickness.
+    pub counts: CountsCheck,
+    /// The reconstructed breast against its tissues and its box.
+    pub volume: VolumeCheck,
 }
 
 /// Reconstruct, classify, and compute density and dose.
@@ -154,6 +179,12 @@ pub struct Volume {
     pub voxel_mm: f64,
     /// Attenuation, 1/mm, lateral fastest.
     pub mu: Vec<f32>,
+    /// The counts' plausibility check (defects corrected before the
+    /// reconstruction).
+    pub counts_check: CountsCheck,
+    /// The breast's footprint per slice, mm
+    /// ([`crate::plausibility::footprint_mm`]).
+    pub footprint_mm: Vec<f64>,
 }
 
 /// The reconstructor of `opts` in words, as results, status and tables name
@@ -192,14 +223,26 @@ pub fn reconstruct_volume(
 ) -> Result<Volume, PipelineError> {
     let h = &acq.header;
     let g = &h.geometry;
+    validate_header(h)?;
+    let defects = check_counts(h, &acq.counts)?;
+    let corrected;
+    let (counts, counts_check) = if defects.is_empty() {
+        (&acq.counts, defects.check)
+    } else {
+        let mut c = acq.counts.clone();
+        let chk = defects.correct(&mut c)?;
+        tracing::warn!(
+            corrected = chk.corrected,
+            "defective detector counts corrected"
+        );
+        corrected = c;
+        (&corrected, chk)
+    };
     if (h.slice_spacing_mm - g.image.pixel_mm).abs() > 1e-6 {
         return Err(PipelineError::Input(format!(
             "slice spacing {} mm differs from the pixel {} mm (the dose grid must be isotropic)",
             h.slice_spacing_mm, g.image.pixel_mm
         )));
-    }
-    if acq.counts.is_empty() {
-        return Err(PipelineError::Input("no slices".into()));
     }
     // A breast taller than the image would be cut off at the top (its
     // rows outside the grid), silently biasing the density: refuse it.
@@ -222,7 +265,7 @@ pub fn reconstruct_volume(
             h.thickness_mm
         )));
     }
-    let nd = acq.counts.len();
+    let nd = counts.len();
     let mut mu = vec![0f32; cols * nv * nd];
     let mopts = MltrOptions {
         iterations: opts.mltr_iterations,
@@ -238,7 +281,7 @@ pub fn reconstruct_volume(
         }
     }
     let reconstructor = reconstructor_name(opts);
-    for (d, counts) in acq.counts.iter().enumerate() {
+    for (d, counts) in counts.iter().enumerate() {
         let _s = tracing::debug_span!("slice", d).entered();
         let img = match &opts.dbtor {
             Some(m) => m
@@ -258,7 +301,7 @@ pub fn reconstruct_volume(
         }
         progress(Stage::Slice {
             done: d + 1,
-            total: acq.counts.len(),
+            total: nd,
         });
     }
     Ok(Volume {
@@ -266,6 +309,8 @@ pub fn reconstruct_volume(
         dims: [cols, nv, nd],
         voxel_mm: g.image.pixel_mm,
         mu,
+        footprint_mm: footprint_mm(h, counts),
+        counts_check,
     })
 }
 
@@ -284,10 +329,19 @@ pub fn process_with_progress(
         reconstructor,
         dims,
         mu,
+        counts_check,
+        footprint_mm,
         ..
     } = reconstruct_volume(acq, opts, progress)?;
     progress(Stage::Classification);
     let classification = classify(&mu, dims, g.image.pixel_mm, &opts.classify)?;
+    let volume_check = check_volume(
+        h,
+        &footprint_mm,
+        &mu,
+        &classification.labels,
+        g.image.pixel_mm,
+    )?;
     let dens = density(&mu, &classification.labels, g.image.pixel_mm);
     progress(Stage::Dose);
     let tube = dbt_dose::xray::paper_spectrum(h.thickness_mm)?;
@@ -342,6 +396,11 @@ pub fn process_with_progress(
         dose_patient,
         dose_model,
         tube,
+        flags: counts_check.flag().into_iter().collect(),
+        plausibility: Plausibility {
+            counts: counts_check,
+            volume: volume_check,
+        },
     })
 }
 

@@ -1,0 +1,130 @@
+//! A trained model's folder as the firmware reads it (adapter: file I/O):
+//! * [`signoff`]: one digest over every file the firmware reads, written when
+//!   the model is released and checked at every load;
+//! * [`calibration`]: the glandularity calibration file that `dbt-eval
+//!   calibrate` writes;
+//! * [`load_signed`]: the firmware's load: sign-off verified, the network's
+//!   checksums verified (by `dbt_dbtor`), and the calibration for the
+//!   configured precision required where the model was signed off calibrated.
+
+pub mod calibration;
+pub mod signoff;
+
+pub use calibration::{
+    load_calibration, manifest_sha256, CalibrationError, CalibrationFile, CALIBRATION_FILE,
+    CALIBRATION_FORMAT,
+};
+pub use signoff::{sign_off, verify, Signoff, SIGNOFF_FILE, SIGNOFF_FORMAT};
+
+use dbt_dbtor::{Dbtor, Engine, Precision};
+use dbt_tissue::{ClassifyOptions, GlandularityCalibration};
+use std::path::{Path, PathBuf};
+use thiserror::Error;
+
+/// A model folder that cannot be used; each names the folder or file and why.
+#[derive(Debug, Error)]
+pub enum ModelError {
+    /// A file cannot be read.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// The folder does not match its sign-off or the configured digest.
+    #[error("model folder {dir}: {reason}")]
+    Integrity {
+        /// The folder.
+        dir: PathBuf,
+        /// What does not match.
+        reason: String,
+    },
+    /// The network cannot be loaded.
+    #[error("model {dir}: {source}")]
+    Network {
+        /// The folder.
+        dir: PathBuf,
+        /// Why.
+        source: dbt_dbtor::DbtorError,
+    },
+    /// The calibration file is unusable.
+    #[error(transparent)]
+    Calibration(#[from] CalibrationError),
+}
+
+impl ModelError {
+    pub(crate) fn io(path: &Path, source: std::io::Error) -> Self {
+        Self::Io {
+            path: path.to_path_buf(),
+            source,
+        }
+    }
+}
+
+/// A model loaded the firmware's way.
+pub struct SignedModel {
+    /// The network.
+    pub model: Dbtor,
+    /// Its glandularity calibration for the loaded precision, `None` only
+    /// for a model signed off without a calibration file.
+    pub calibration: Option<GlandularityCalibration>,
+    /// The verified sign-off.
+    pub signoff: Signoff,
+}
+
+/// Load `dir` as the firmware does: [`verify`] against its sign-off and the
+/// configured digest `pinned`, load the network (which verifies the ONNX
+/// checksums of its manifest), and read the calibration. A model signed off
+/// with a calibration file must have a calibration for this precision and
+/// `classify`; a model signed off without one is reported uncalibrated (and
+/// logged as such).
+pub fn load_signed(
+    dir: &Path,
+    precision: Precision,
+    fp32_blocks: &[String],
+    engine: Engine,
+    classify: &ClassifyOptions,
+    pinned: Option<&str>,
+) -> Result<SignedModel, ModelError> {
+    let signoff = verify(dir, pinned)?;
+    let model = Dbtor::load_mixed(dir, precision, fp32_blocks, engine).map_err(|source| {
+        ModelError::Network {
+            dir: dir.to_path_buf(),
+            source,
+        }
+    })?;
+    let calibration = if signoff.files.contains_key(CALIBRATION_FILE) {
+        let path = dir.join(CALIBRATION_FILE);
+        let f = CalibrationFile::read(&path, &model)?;
+        let label = model.precision_label();
+        if f.classification != *classify {
+            return Err(CalibrationError {
+                path,
+                reason: "fit with another tissue classification than the configured one; refit with `dbt-eval calibrate`".into(),
+            }
+            .into());
+        }
+        match f.calibrations.get(&label) {
+            Some(c) => Some(*c),
+            None => {
+                return Err(CalibrationError {
+                    path,
+                    reason: format!(
+                        "no calibration for precision `{label}` (it has {:?}); refit with `dbt-eval calibrate` or configure a calibrated precision",
+                        f.calibrations.keys().collect::<Vec<_>>()
+                    ),
+                }
+                .into())
+            }
+        }
+    } else {
+        tracing::warn!(model = %dir.display(), "the model was signed off without a glandularity calibration: glandularity reported uncalibrated");
+        None
+    };
+    Ok(SignedModel {
+        model,
+        calibration,
+        signoff,
+    })
+}

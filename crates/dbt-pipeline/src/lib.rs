@@ -1,0 +1,20 @@
+//! The pure processing of one acquisition, shared by the firmware (daemon,
+//! `dbtor-process`, `dbtor-diag`) and the evaluation (`dbt-eval`): no file,
+//! socket or serial line here; the adapters read the acquisition and deliver
+//! the reports.
+//!
+//! * [`acquisition`]: the [`Acquisition`] type and [`validate_header`], the
+//!   one header validation of every input (frame link, files, DICOM);
+//! * [`plausibility`]: the counts against the flat field and the thickness,
+//!   and the reconstructed breast against its tissues and its box;
+//! * [`process`]: reconstruction, classification, density, dose, reports.
+
+pub mod acquisition;
+pub mod plausibility;
+pub mod process;
+
+pub use acquisition::{
+    validate_header, Acquisition, AcquisitionHeader, HeaderError, Patient, Study, ACQ_FORMAT,
+};
+pub use plausibility::{CountsCheck, Implausible, VolumeCheck};
+pub use process::*;

@@ -1,0 +1,390 @@
+//! The header validation and the physical plausibility checks, each limit
+//! tried just inside and just outside, on an acquisition whose counts follow
+//! Beer-Lambert through a breast-like block (analytic chords, Poisson noise).
+
+use dbt_geometry::{chord_in_rect, Geometry};
+use dbt_materials::Tissue;
+use dbt_pipeline::acquisition::{
+    limits, validate_header, Acquisition, AcquisitionHeader, Patient, Study, ACQ_FORMAT,
+};
+use dbt_pipeline::plausibility::{
+    check_counts, check_volume, footprint_mm, Implausible, DEFECT_FRACTION_MAX, DETECTOR_MAX_COUNT,
+    VOLUME_FILL_MAX,
+};
+
+const FLUX: f64 = 16_000.0; // N8
+
+fn geometry() -> Geometry {
+    Geometry::builtin("paper-tall").unwrap().binned(4).unwrap()
+}
+
+fn header(slices: usize, thickness: f64) -> AcquisitionHeader {
+    let g = geometry();
+    AcquisitionHeader {
+        format: ACQ_FORMAT.into(),
+        slice_spacing_mm: g.image.pixel_mm,
+        geometry: g,
+        thickness_mm: thickness,
+        flux: FLUX,
+        slices,
+        kvp: 28.0,
+        mas_total: 60.0,
+        tube_output_mgy_per_mas: 0.11,
+        laterality: "L".into(),
+        patient: Patient {
+            name: "Doe^Jane".into(),
+            id: "P-0001".into(),
+            birth_date: "19700101".into(),
+            sex: "F".into(),
+        },
+        study: Study {
+            study_uid: "1.2.826.0.1.3680043.10.543.7".into(),
+            date: "20261124".into(),
+            time: "101500".into(),
+            accession: "A1".into(),
+            study_id: "1".into(),
+            series_uid: "1.2.826.0.1.3680043.10.543.7.1".into(),
+            instance_uids: vec![],
+        },
+        truth: None,
+    }
+}
+
+/// Counts through a block of fibroglandular tissue `width` mm wide and
+/// `height` mm high on the support (the breast in its box), Poisson at N8.
+fn acquisition(slices: usize, thickness: f64, width: f64, height: f64, seed: u64) -> Acquisition {
+    let h = header(slices, thickness);
+    let g = &h.geometry;
+    let z0 = g.support_z_mm();
+    let mu = Tissue::Fibroglandular.mu_per_mm() as f64;
+    let mut expected = Vec::with_capacity(g.n_rays());
+    for v in 0..g.n_views() {
+        for k in 0..g.n_det() {
+            let (s, p) = g.ray_endpoints_mm(v, k);
+            let l = chord_in_rect(s, p, -width / 2.0, width / 2.0, z0, z0 + height);
+            expected.push((FLUX * (-mu * l).exp()) as f32);
+        }
+    }
+    let counts = (0..slices)
+        .map(|i| dbt_acquisition::poisson_counts(&expected, seed + i as u64))
+        .collect();
+    Acquisition { header: h, counts }
+}
+
+#[test]
+fn a_clean_acquisition_passes_without_corrections() {
+    let a = acquisition(4, 50.0, 120.0, 50.0, 1);
+    validate_header(&a.header).unwrap();
+    let d = check_counts(&a.header, &a.counts).unwrap();
+    assert!(d.is_empty(), "{:?}", d.check);
+    assert_eq!(d.check.rays, 4 * a.header.geometry.n_rays());
+    assert_eq!(d.check.flag(), None);
+    // The densest breast the box can hold (skin-like attenuation, filling
+    // the box) still passes: the dark bound is the thickness's.
+    let mut h = a.header.clone();
+    h.slices = 2;
+    let g = &h.geometry;
+    let z0 = g.support_z_mm();
+    let mu = Tissue::Skin.mu_per_mm() as f64;
+    let c: Vec<f32> = (0..g.n_views())
+        .flat_map(|v| (0..g.n_det()).map(move |k| (v, k)))
+        .map(|(v, k)| {
+            let (s, p) = g.ray_endpoints_mm(v, k);
+            let w = g.width_mm() / 2.0;
+            (FLUX * (-mu * chord_in_rect(s, p, -w, w, z0, z0 + 50.0)).exp()) as f32
+        })
+        .collect();
+    let c = dbt_acquisition::poisson_counts(&c, 9);
+    assert!(check_counts(&h, &[c.clone(), c]).unwrap().is_empty());
+}
+
+fn refused_kind(r: Result<dbt_pipeline::plausibility::Defects, Implausible>) -> String {
+    match r {
+        Err(Implausible::Counts { kind, .. }) => kind.to_string(),
+        other => panic!("expected a refusal, got {other:?}"),
+    }
+}
+
+#[test]
+fn impossible_counts_are_refused_with_their_reason() {
+    let a = acquisition(2, 50.0, 120.0, 50.0, 2);
+    let n = a.counts[0].len();
+    // All zero (a dead detector or no exposure).
+    assert_eq!(
+        refused_kind(check_counts(&a.header, &[vec![0.0; n], vec![0.0; n]])),
+        "zero (dead)"
+    );
+    // Saturated at the 16-bit maximum.
+    assert_eq!(
+        refused_kind(check_counts(
+            &a.header,
+            &[vec![DETECTOR_MAX_COUNT; n], vec![DETECTOR_MAX_COUNT; n]]
+        )),
+        "saturated"
+    );
+    // Far above the flat field (56 % of the counts at twice the flux).
+    let mut hot = a.counts.clone();
+    for s in &mut hot {
+        for (i, c) in s.iter_mut().enumerate() {
+            if i % 25 < 14 {
+                *c = 2.0 * FLUX as f32;
+            }
+        }
+    }
+    let e = check_counts(&a.header, &hot).unwrap_err().to_string();
+    assert!(
+        e.contains("above the flat field") && e.contains("56.0"),
+        "{e}"
+    );
+    // Darker than a 50 mm breast can be: the counts of a 150 mm block.
+    let thick = acquisition(2, 150.0, 200.0, 150.0, 3);
+    let e = refused_kind(check_counts(&a.header, &thick.counts));
+    assert!(
+        e == "darker than the thickness allows" || e == "zero (dead)",
+        "{e}"
+    );
+    // A stuck readout: every element of every slice the same in all views.
+    let nd = a.header.geometry.n_det();
+    let stuck: Vec<Vec<f32>> = a
+        .counts
+        .iter()
+        .map(|s| (0..s.len()).map(|i| s[i % nd]).collect())
+        .collect();
+    // (The central view's counts everywhere: every element is one value
+    // across views; air elements equal to the flat field are not stuck but
+    // noisy counts are never exactly the flux.)
+    assert_eq!(refused_kind(check_counts(&a.header, &stuck)), "stuck");
+}
+
+#[test]
+fn a_few_defects_are_corrected_and_flagged_more_are_refused() {
+    let a = acquisition(8, 50.0, 120.0, 50.0, 4);
+    let total = a.counts.len() * a.counts[0].len();
+    let limit = (DEFECT_FRACTION_MAX * total as f64).floor() as usize;
+    // Dead pixels spread over the breast's rays, just inside the limit.
+    let mut c = a.counts.clone();
+    let nd = a.header.geometry.n_det();
+    let mut placed = 0;
+    'outer: for s in c.iter_mut() {
+        for v in 0..a.header.geometry.n_views() {
+            for k in (nd / 2 - 40..nd / 2 + 40).step_by(7) {
+                if placed == limit {
+                    break 'outer;
+                }
+                s[v * nd + k] = 0.0;
+                placed += 1;
+            }
+        }
+    }
+    assert_eq!(placed, limit);
+    let d = check_counts(&a.header, &c).unwrap();
+    assert_eq!(d.check.dead, limit);
+    let fixed = d.correct(&mut c).unwrap();
+    assert_eq!(fixed.corrected, limit);
+    assert!(fixed
+        .flag()
+        .unwrap()
+        .contains(&format!("{limit} defective detector counts")));
+    // Each corrected count lies between its neighbours' (interpolation).
+    for (orig, s) in a.counts.iter().zip(&c) {
+        for (i, (&o, &n)) in orig.iter().zip(s).enumerate() {
+            if o != n {
+                let (l, r) = (s[i - 1], s[i + 1]);
+                assert!(
+                    n >= l.min(r) - 1e-3 && n <= l.max(r) + 1e-3,
+                    "{n} not within {l}..{r}"
+                );
+            }
+        }
+    }
+    assert!(check_counts(&a.header, &c).unwrap().is_empty());
+    // One more dead count than the limit is refused.
+    let mut c2 = a.counts.clone();
+    let mut placed = 0;
+    'outer2: for s in c2.iter_mut() {
+        for i in (0..s.len()).step_by(3) {
+            let lam_ok = s[i] > 200.0;
+            if lam_ok {
+                s[i] = 0.0;
+                placed += 1;
+                if placed == limit + 1 {
+                    break 'outer2;
+                }
+            }
+        }
+    }
+    assert_eq!(refused_kind(check_counts(&a.header, &c2)), "zero (dead)");
+}
+
+#[test]
+fn header_limits_just_inside_and_just_outside() {
+    let ok = header(186, 50.0);
+    validate_header(&ok).unwrap();
+    type Edit = fn(&mut AcquisitionHeader);
+    let cases: Vec<(&str, Edit, Edit)> = vec![
+        (
+            "thickness_mm",
+            |h| h.thickness_mm = limits::THICKNESS_MIN_MM,
+            |h| h.thickness_mm = limits::THICKNESS_MIN_MM - 0.01,
+        ),
+        (
+            "thickness_mm",
+            |h| h.thickness_mm = limits::THICKNESS_MAX_MM,
+            |h| h.thickness_mm = f64::NAN,
+        ),
+        (
+            "kvp",
+            |h| h.kvp = limits::KVP_MIN,
+            |h| h.kvp = limits::KVP_MIN - 0.1,
+        ),
+        ("kvp", |h| h.kvp = limits::KVP_MAX, |h| h.kvp = 1000.0),
+        ("mas_total", |h| h.mas_total = 1e-3, |h| h.mas_total = 0.0),
+        (
+            "mas_total",
+            |h| h.mas_total = limits::MAS_MAX,
+            |h| h.mas_total = -5.0,
+        ),
+        (
+            "tube_output_mgy_per_mas",
+            |h| h.tube_output_mgy_per_mas = 1.0,
+            |h| h.tube_output_mgy_per_mas = 0.0,
+        ),
+        ("flux", |h| h.flux = limits::FLUX_MIN, |h| h.flux = 1e-30),
+        (
+            "flux",
+            |h| h.flux = limits::FLUX_MAX,
+            |h| h.flux = f64::INFINITY,
+        ),
+        (
+            "slices",
+            |h| h.slices = 375,
+            |h| h.slices = (1usize << 56) + 3,
+        ),
+        ("slices", |h| h.slices = 1, |h| h.slices = 0),
+        (
+            "study.study_uid",
+            |h| h.study.study_uid = "1.2.0.3".into(),
+            |h| h.study.study_uid = "1.2.03".into(),
+        ),
+        (
+            "study.study_uid",
+            |h| h.study.study_uid = "1.".repeat(31) + "12",
+            |h| h.study.study_uid = "1.2.x".into(),
+        ),
+        (
+            "study.series_uid",
+            |h| h.study.series_uid = "2.25.1".into(),
+            |h| h.study.series_uid = "".into(),
+        ),
+        (
+            "study.date",
+            |h| h.study.date = "20240229".into(),
+            |h| h.study.date = "20260229".into(),
+        ),
+        (
+            "study.date",
+            |h| h.study.date = "20261231".into(),
+            |h| h.study.date = "20261301".into(),
+        ),
+        (
+            "study.time",
+            |h| h.study.time = "235960.123456".into(),
+            |h| h.study.time = "240000".into(),
+        ),
+        (
+            "patient.id",
+            |h| h.patient.id = "../x".into(),
+            |h| h.patient.id = " ".into(),
+        ),
+        (
+            "patient.id",
+            |h| h.patient.id = "x".repeat(64),
+            |h| h.patient.id = "a\\b".into(),
+        ),
+        (
+            "patient.name",
+            |h| h.patient.name = "".into(),
+            |h| h.patient.name = "Doe\nJane".into(),
+        ),
+        (
+            "patient.birth_date",
+            |h| h.patient.birth_date = "".into(),
+            |h| h.patient.birth_date = "1970-01-01".into(),
+        ),
+        (
+            "patient.sex",
+            |h| h.patient.sex = "O".into(),
+            |h| h.patient.sex = "X".into(),
+        ),
+        (
+            "laterality",
+            |h| h.laterality = "R".into(),
+            |h| h.laterality = "B".into(),
+        ),
+        (
+            "study.accession",
+            |h| h.study.accession = "x".repeat(16),
+            |h| h.study.accession = "x".repeat(17),
+        ),
+        (
+            "format",
+            |h| h.format = ACQ_FORMAT.into(),
+            |h| h.format = "dbtor-acquisition/0".into(),
+        ),
+    ];
+    for (field, inside, outside) in cases {
+        let mut h = ok.clone();
+        inside(&mut h);
+        validate_header(&h).unwrap_or_else(|e| panic!("{field} just inside refused: {e}"));
+        let mut h = ok.clone();
+        outside(&mut h);
+        let e = validate_header(&h).expect_err(field);
+        assert_eq!(e.field, field, "{e}");
+        assert!(e.to_string().contains(field), "{e}");
+    }
+}
+
+#[test]
+fn the_reconstructed_breast_must_fit_its_tissues_and_its_box() {
+    // A 120 x 50 mm block of fibroglandular tissue, reconstructed exactly.
+    let a = acquisition(3, 50.0, 120.0, 50.0, 5);
+    let g = &a.header.geometry;
+    let fp = footprint_mm(&a.header, &a.counts);
+    for w in &fp {
+        // The footprint at the isocentre: the block's width, to within the
+        // magnification between the isocentre and the block's faces.
+        assert!((w - 120.0).abs() < 12.0, "footprint {w} mm");
+    }
+    let (cols, nv, nd) = (g.image.columns, g.rows_within_thickness(50.0), 3);
+    let px = g.image.pixel_mm;
+    let mut mu = vec![0f32; cols * nv * nd];
+    let mut labels = vec![0u8; cols * nv * nd];
+    for d in 0..nd {
+        for v in 0..nv {
+            for c in 0..cols {
+                let x = -g.width_mm() / 2.0 + (c as f64 + 0.5) * px;
+                if x.abs() < 60.0 {
+                    let i = (d * nv + v) * cols + c;
+                    mu[i] = Tissue::Fibroglandular.mu_per_mm();
+                    labels[i] = 3;
+                }
+            }
+        }
+    }
+    let ok = check_volume(&a.header, &fp, &mu, &labels, px).unwrap();
+    assert!((ok.fill - 1.0).abs() < 0.12, "{ok:?}");
+    // Attenuation beyond any tissue (a reconstruction of garbage).
+    let hot: Vec<f32> = mu.iter().map(|m| m * 2.0).collect();
+    assert!(matches!(
+        check_volume(&a.header, &fp, &hot, &labels, px),
+        Err(Implausible::Attenuation { .. })
+    ));
+    // A breast wider than its footprint (the box overfilled).
+    let small: Vec<f64> = fp.iter().map(|w| w / (VOLUME_FILL_MAX + 0.05)).collect();
+    assert!(matches!(
+        check_volume(&a.header, &small, &mu, &labels, px),
+        Err(Implausible::Volume { .. })
+    ));
+    // No breast at all.
+    assert!(check_volume(&a.header, &fp, &mu, &vec![0u8; labels.len()], px).is_err());
+}
