@@ -239,6 +239,8 @@ pub struct Daemon {
     unreachable_since: Option<Instant>,
     /// When that was last recorded as a fault.
     unreachable_logged: Option<Instant>,
+    /// When the outbox was last flushed while waiting.
+    last_flush: Option<Instant>,
 }
 
 impl Daemon {
@@ -315,6 +317,7 @@ impl Daemon {
             status,
             unreachable_since: None,
             unreachable_logged: None,
+            last_flush: None,
         };
         d.publish("starting", None);
         Ok(d)
@@ -365,6 +368,46 @@ impl Daemon {
             .collect();
         v.sort();
         Ok(v)
+    }
+
+    /// While waiting for the gantry, send the reports that wait in the
+    /// outbox (the PACS was down) every 10 s, so they do not wait for the
+    /// next acquisition.
+    fn flush_outbox(&mut self) {
+        let Some(p) = &self.cfg.report.pacs else {
+            return;
+        };
+        if self
+            .last_flush
+            .is_some_and(|t| t.elapsed() < Duration::from_secs(10))
+        {
+            return;
+        }
+        self.last_flush = Some(Instant::now());
+        let outbox = match dbt_pacs::Outbox::open(
+            &self.cfg.paths.output,
+            &self.cfg.paths.output.join("outbox"),
+        ) {
+            Ok(o) => o,
+            Err(e) => {
+                tracing::warn!(%e, "outbox unreadable");
+                return;
+            }
+        };
+        if outbox.pending().map(|v| v.is_empty()).unwrap_or(true) {
+            return;
+        }
+        match dbt_pacs::PacsConfig::parse(p).map(|pacs| outbox.flush(&pacs)) {
+            Ok(Ok(r)) if !r.sent.is_empty() => {
+                tracing::info!(
+                    sent = r.sent.len(),
+                    waiting = r.waiting.len(),
+                    "outbox flushed"
+                )
+            }
+            Ok(Ok(_)) => {}
+            Ok(Err(e)) | Err(e) => tracing::debug!(%e, "outbox not flushed"),
+        }
     }
 
     /// Faults recorded since start.
@@ -429,6 +472,7 @@ impl Daemon {
                         break s;
                     }
                     Err(e) => {
+                        self.flush_outbox();
                         // Quiet while the gantry is off; a fault once the
                         // link has been down for the idle timeout, then a
                         // warning every 10 minutes.

@@ -116,3 +116,89 @@ pub fn wait_for_port(port: u16, what: &str) {
         std::thread::sleep(std::time::Duration::from_millis(50));
     }
 }
+
+use std::io::{Read, Write};
+use std::net::TcpStream;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// Orthanc (Debian package `orthanc`) on loopback ports with its own
+/// configuration and storage under a folder; killed on drop.
+pub struct Orthanc {
+    child: Child,
+}
+
+impl Orthanc {
+    /// Start it and wait for its REST API (at most 30 s).
+    pub fn start(dir: &Path, dicom: u16, http: u16) -> Orthanc {
+        let cfg = dir.join("orthanc.json");
+        let db = dir.join("db");
+        std::fs::create_dir_all(&db).unwrap();
+        let conf = serde_json::json!({
+            "Name": "DBTOR-HIL",
+            "StorageDirectory": db,
+            "IndexDirectory": db,
+            "DicomAet": "ORTHANC",
+            "DicomPort": dicom,
+            "HttpPort": http,
+            "RemoteAccessAllowed": false,
+            "AuthenticationEnabled": false,
+            "DicomCheckCalledAet": true,
+            "Plugins": [],
+        });
+        std::fs::write(&cfg, conf.to_string()).unwrap();
+        let bin = ["/usr/sbin/Orthanc", "/usr/bin/Orthanc"]
+            .into_iter()
+            .map(PathBuf::from)
+            .find(|p| p.exists())
+            .expect("Orthanc not found: apt-get install orthanc");
+        let log = std::fs::File::create(dir.join("orthanc.log")).unwrap();
+        let child = Command::new(bin)
+            .arg(&cfg)
+            .stdout(Stdio::from(log.try_clone().unwrap()))
+            .stderr(Stdio::from(log))
+            .spawn()
+            .unwrap();
+        let o = Orthanc { child };
+        let t = Instant::now();
+        while http_get(http, "/system").is_none() {
+            assert!(
+                t.elapsed() < Duration::from_secs(30),
+                "Orthanc did not start; see {}",
+                dir.join("orthanc.log").display()
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        o
+    }
+
+    /// Stop it (kill and reap).
+    pub fn stop(mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for Orthanc {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Minimal HTTP/1.0 GET on loopback: the body, or None when not reachable or
+/// not 200.
+pub fn http_get(port: u16, path: &str) -> Option<Vec<u8>> {
+    let mut s = TcpStream::connect(("127.0.0.1", port)).ok()?;
+    s.set_read_timeout(Some(Duration::from_secs(10))).ok()?;
+    write!(s, "GET {path} HTTP/1.0\r\nHost: 127.0.0.1\r\n\r\n").ok()?;
+    let mut buf = Vec::new();
+    s.read_to_end(&mut buf).ok()?;
+    let split = buf.windows(4).position(|w| w == b"\r\n\r\n")?;
+    let head = String::from_utf8_lossy(&buf[..split]).to_string();
+    if !head.starts_with("HTTP/1.1 200") && !head.starts_with("HTTP/1.0 200") {
+        return None;
+    }
+    Some(buf[split + 4..].to_vec())
+}

@@ -683,6 +683,7 @@ fn check_config_checks_the_model_the_spool_and_the_devices() {
     );
     std::fs::write(&cal, text).unwrap();
     // A spool that is a file, not a folder.
+    let _ = std::fs::remove_dir_all(dir.path().join("spool"));
     std::fs::write(dir.path().join("spool"), b"not a folder").unwrap();
     let (code, out) = check(&cfg);
     assert_eq!(code, Some(2), "{out}");

@@ -747,6 +747,27 @@ fn main() -> Result<()> {
                 "reconstructors": results,
             });
             write_json(&out.join("accuracy.json"), &json)?;
+            // What the firmware's plausibility checks measured (none refused,
+            // or the run would have stopped naming the case).
+            for ((label, _, _), cases) in recs.iter().zip(&cases) {
+                let range = |f: &dyn Fn(&Case) -> f64| {
+                    cases
+                        .iter()
+                        .map(f)
+                        .fold([f64::INFINITY, f64::NEG_INFINITY], |r, v| {
+                            [r[0].min(v), r[1].max(v)]
+                        })
+                };
+                let fill = range(&|c| c.plausibility.volume.fill);
+                let mu = range(&|c| c.plausibility.volume.breast_mean_mu);
+                let corrected: usize = cases.iter().map(|c| c.plausibility.counts.corrected).sum();
+                println!(
+                    "plausibility [{label}]: {} cases passed; breast volume / (thickness x footprint) {:.3}-{:.3} (limits {}-{}); breast mean attenuation {:.4}-{:.4} /mm; {corrected} counts corrected",
+                    cases.len(), fill[0], fill[1],
+                    dbt_pipeline::plausibility::VOLUME_FILL_MIN, dbt_pipeline::plausibility::VOLUME_FILL_MAX,
+                    mu[0], mu[1]
+                );
+            }
             println!("\nJSON and Bland-Altman PNGs (x: mean of truth and estimate; y: difference; solid: bias; dashed: 95 % limits): {}", out.display());
         }
         Cmd::Classification {
