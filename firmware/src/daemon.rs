@@ -129,6 +129,31 @@ fn now_unix() -> u64 {
         .unwrap_or(0)
 }
 
+/// The configured DBToR model, loaded the firmware's way: the sign-off and
+/// the configured digest first, then the ONNX checksums, and the
+/// calibration for the configured precision (`Config::load` checked the
+/// manifest's geometry and validated precision and engine).
+fn load_model(
+    cfg: &Config,
+    classify: &dbt_tissue::ClassifyOptions,
+) -> Result<dbt_model::SignedModel, DaemonError> {
+    let dir = cfg.recon.model.clone().unwrap_or_default();
+    let precision = cfg
+        .recon
+        .precision
+        .parse()
+        .unwrap_or(dbt_dbtor::Precision::Fp32);
+    let engine = cfg.recon.engine.parse().unwrap_or(dbt_dbtor::Engine::Fast);
+    Ok(dbt_model::load_signed(
+        &dir,
+        precision,
+        &cfg.recon.fp32_blocks,
+        engine,
+        classify,
+        cfg.recon.model_digest.as_deref(),
+    )?)
+}
+
 /// Check everything the daemon will need without starting it (`dbtor-daemon
 /// --check-config`): the model folder against its sign-off and the
 /// configured digest, the model and its calibration load, the spool, output
@@ -139,21 +164,7 @@ pub fn preflight(cfg: &Config, config_path: &Path) -> Result<Vec<String>, Daemon
     let geom = cfg.gantry_geometry(config_path)?;
     done.push(format!("geometry: {}", geom.describe()));
     if cfg.recon.reconstructor == "dbtor" {
-        let dir = cfg.recon.model.clone().unwrap_or_default();
-        let precision = cfg
-            .recon
-            .precision
-            .parse()
-            .unwrap_or(dbt_dbtor::Precision::Fp32);
-        let engine = cfg.recon.engine.parse().unwrap_or(dbt_dbtor::Engine::Fast);
-        let signed = dbt_model::load_signed(
-            &dir,
-            precision,
-            &cfg.recon.fp32_blocks,
-            engine,
-            &dbt_tissue::ClassifyOptions::default(),
-            cfg.recon.model_digest.as_deref(),
-        )?;
+        let signed = load_model(cfg, &PipelineOptions::default().classify)?;
         done.push(format!(
             "model: {} ({}), {} files match the sign-off {}, calibration {}",
             signed.model.manifest().name,
@@ -257,23 +268,7 @@ impl Daemon {
             ..PipelineOptions::default()
         };
         if cfg.recon.reconstructor == "dbtor" {
-            let dir = cfg.recon.model.clone().unwrap_or_default();
-            let precision = cfg
-                .recon
-                .precision
-                .parse()
-                .unwrap_or(dbt_dbtor::Precision::Fp32);
-            let engine = cfg.recon.engine.parse().unwrap_or(dbt_dbtor::Engine::Fast);
-            // The sign-off and the configured digest first, then the ONNX
-            // checksums; Config::load checked the manifest's geometry.
-            let signed = dbt_model::load_signed(
-                &dir,
-                precision,
-                &cfg.recon.fp32_blocks,
-                engine,
-                &opts.classify,
-                cfg.recon.model_digest.as_deref(),
-            )?;
+            let signed = load_model(&cfg, &opts.classify)?;
             opts.calibration = signed.calibration;
             opts.dbtor = Some(Arc::new(signed.model));
         }

@@ -39,6 +39,11 @@ impl Drop for Gantry {
 }
 
 fn gantry(acq: &Path, thickness_mm: f64) -> Gantry {
+    gantry_with(acq, thickness_mm, &[])
+}
+
+/// As [`gantry`], the stream with host-sim `--fault`s.
+fn gantry_with(acq: &Path, thickness_mm: f64, faults: &[&str]) -> Gantry {
     let (fp, mp) = (free_port(), free_port());
     let frames = format!("127.0.0.1:{fp}");
     let registers = format!("127.0.0.1:{mp}");
@@ -57,6 +62,7 @@ fn gantry(acq: &Path, thickness_mm: f64) -> Gantry {
         .args(["stream", "--acq"])
         .arg(acq)
         .args(["--listen", &frames])
+        .args(faults.iter().flat_map(|f| ["--fault", f]))
         .stderr(Stdio::null())
         .spawn()
         .unwrap();
@@ -481,29 +487,7 @@ fn saturated_counts_and_nan_flat_field_are_faults_not_reports() {
     ] {
         let dir = tempfile::tempdir().unwrap();
         let (acq, thickness) = acquire(dir.path());
-        let (fp, mp) = (free_port(), free_port());
-        let g = Gantry {
-            modbus: Command::new(workspace_bin("host-sim"))
-                .args([
-                    "modbus",
-                    "--listen",
-                    &format!("127.0.0.1:{mp}"),
-                    "--thickness-mm",
-                    &format!("{thickness:.1}"),
-                ])
-                .stderr(Stdio::null())
-                .spawn()
-                .unwrap(),
-            stream: Command::new(workspace_bin("host-sim"))
-                .args(["stream", "--acq"])
-                .arg(&acq)
-                .args(["--listen", &format!("127.0.0.1:{fp}"), "--fault", fault])
-                .stderr(Stdio::null())
-                .spawn()
-                .unwrap(),
-            frames: format!("127.0.0.1:{fp}"),
-            registers: format!("127.0.0.1:{mp}"),
-        };
+        let g = gantry_with(&acq, thickness, &[fault]);
         let cfg = config(dir.path(), &g, 2);
         // With --once, a fault is a failure (exit 1), and the status names it.
         let st = daemon(&cfg, &["--once"]).wait().unwrap();
@@ -589,29 +573,7 @@ fn absurd_or_changing_thickness_is_a_fault() {
 fn an_all_zero_stream_is_refused_not_reported() {
     let dir = tempfile::tempdir().unwrap();
     let (acq, thickness) = acquire(dir.path());
-    let (fp, mp) = (free_port(), free_port());
-    let g = Gantry {
-        modbus: Command::new(workspace_bin("host-sim"))
-            .args([
-                "modbus",
-                "--listen",
-                &format!("127.0.0.1:{mp}"),
-                "--thickness-mm",
-                &format!("{thickness:.1}"),
-            ])
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-        stream: Command::new(workspace_bin("host-sim"))
-            .args(["stream", "--acq"])
-            .arg(&acq)
-            .args(["--listen", &format!("127.0.0.1:{fp}"), "--fault", "zeros:1"])
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-        frames: format!("127.0.0.1:{fp}"),
-        registers: format!("127.0.0.1:{mp}"),
-    };
+    let g = gantry_with(&acq, thickness, &["zeros:1"]);
     let cfg = config(dir.path(), &g, 2);
     let st = daemon(&cfg, &["--once"]).wait().unwrap();
     assert_eq!(st.code(), Some(1));

@@ -505,7 +505,7 @@ impl Decoder {
 mod tests {
     use super::*;
 
-    fn header() -> AcquisitionHeader {
+    pub(super) fn header() -> AcquisitionHeader {
         AcquisitionHeader {
             patient_id: "P1".into(),
             patient_name: "Doe^Jane".into(),
@@ -716,29 +716,11 @@ mod linear {
     #[test]
     fn payloads_beyond_the_budget_are_refused_from_their_header() {
         let mut d = Decoder::with_max_payload(100);
-        let big = encode(&Frame::Header(tests_header()), 0);
+        let big = encode(&Frame::Header(super::tests::header()), 0);
         d.push(&big[..HEAD]);
         match d.next_frame() {
             Some(Err(FrameError::Length { len, max: 100, .. })) => assert!(len > 100),
             other => panic!("{other:?}"),
-        }
-    }
-
-    fn tests_header() -> AcquisitionHeader {
-        AcquisitionHeader {
-            patient_id: "P1".into(),
-            patient_name: "Doe^Jane".into(),
-            study_uid: "1.2.826.0.1.3680043.10.543.5".into(),
-            accession: "A1".into(),
-            study_date: "20261122".into(),
-            study_time: "101500".into(),
-            thickness_mm: 45.0,
-            kvp: 28.0,
-            mas_total: 60.0,
-            projections: 25,
-            rows: 3,
-            columns: 4,
-            laterality: "L".into(),
         }
     }
 }
