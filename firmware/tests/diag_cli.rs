@@ -119,3 +119,25 @@ fn a_corrupted_dicom_length_is_refused_not_allocated() {
         "{err}"
     );
 }
+
+/// Every firmware binary answers `--help` (exit 0, its usage) and refuses an
+/// unknown option (exit 2, naming it); they used to parse their arguments by
+/// hand and took `--help` for an unknown option.
+#[test]
+fn every_binary_has_help_and_refuses_unknown_options() {
+    for exe in [
+        env!("CARGO_BIN_EXE_dbtor-diag"),
+        env!("CARGO_BIN_EXE_dbtor-daemon"),
+        env!("CARGO_BIN_EXE_dbtor-process"),
+        env!("CARGO_BIN_EXE_dbtor-receive"),
+    ] {
+        let out = Command::new(exe).arg("--help").output().unwrap();
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert_eq!(out.status.code(), Some(0), "{exe}: {text}");
+        assert!(text.contains("Usage:"), "{exe}: {text}");
+        let out = Command::new(exe).arg("--frobnicate").output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{exe}: {err}");
+        assert!(err.contains("--frobnicate"), "{exe}: {err}");
+    }
+}
