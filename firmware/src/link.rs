@@ -593,6 +593,24 @@ mod tests {
         );
     }
 
+    /// One CRC error per frame must not write one log line each: at most one
+    /// a second, the rest counted.
+    #[test]
+    fn log_lines_are_rate_limited_and_counted() {
+        let mut l = LogLimiter::default();
+        assert_eq!(l.allow(), Some(0));
+        for _ in 0..1000 {
+            assert_eq!(l.allow(), None);
+        }
+        assert_eq!(l.suppressed, 1000);
+        l.last = Some(std::time::Instant::now() - Duration::from_millis(1100));
+        assert_eq!(
+            l.allow(),
+            Some(1000),
+            "the next line reports what was suppressed"
+        );
+    }
+
     #[test]
     fn headerless_bytes_are_a_fault_and_silence_is_not() {
         let e = run(vec![0x55; 100], false, true);

@@ -668,3 +668,41 @@ fn check_config_checks_the_model_the_spool_and_the_devices() {
         "{out}"
     );
 }
+
+/// A gantry frame server that stays unreachable is a `link` fault in the
+/// status once the idle timeout has passed (it used to be retried forever,
+/// logged at trace level only), and SIGTERM still stops the daemon.
+#[test]
+fn an_unreachable_gantry_is_a_fault_in_the_status() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = free_port(); // nothing listens there
+    let cfg = write_config(
+        dir.path(),
+        &format!("transport = \"tcp\"\naddress = \"127.0.0.1:{port}\""),
+        "transport = \"off\"",
+        "reconstructor = \"mltr\"\nmltr_iterations = 20",
+    );
+    let text = std::fs::read_to_string(&cfg)
+        .unwrap()
+        .replace("idle_timeout_s = 20", "idle_timeout_s = 1");
+    std::fs::write(&cfg, text).unwrap();
+    let mut d = daemon(&cfg, &[]);
+    let t0 = Instant::now();
+    let s = loop {
+        let s = status(dir.path());
+        if s["fault_counts"]["link"].as_u64().unwrap_or(0) > 0 {
+            break s;
+        }
+        assert!(t0.elapsed() < Duration::from_secs(30), "no link fault: {s}");
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    let f = &s["faults"].as_array().unwrap()[0];
+    assert!(
+        f["message"]
+            .as_str()
+            .unwrap()
+            .contains(&format!("127.0.0.1:{port} unreachable")),
+        "{s}"
+    );
+    assert!(sigterm(&mut d).success());
+}
