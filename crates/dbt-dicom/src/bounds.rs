@@ -13,6 +13,13 @@ use crate::DicomError;
 const LONG_VRS: [&[u8; 2]; 12] = [
     b"OB", b"OD", b"OF", b"OL", b"OV", b"OW", b"SQ", b"SV", b"UC", b"UN", b"UR", b"UT",
 ];
+/// Every value representation of PS3.5 table 6.2-1; an explicit-VR element
+/// with any other two bytes is not DICOM.
+const VRS: [&[u8; 2]; 34] = [
+    b"AE", b"AS", b"AT", b"CS", b"DA", b"DS", b"DT", b"FD", b"FL", b"IS", b"LO", b"LT", b"OB",
+    b"OD", b"OF", b"OL", b"OV", b"OW", b"PN", b"SH", b"SL", b"SQ", b"SS", b"ST", b"SV", b"TM",
+    b"UC", b"UI", b"UL", b"UN", b"UR", b"US", b"UT", b"UV",
+];
 const UNDEFINED: u32 = 0xFFFF_FFFF;
 const ITEM: (u16, u16) = (0xFFFE, 0xE000);
 const ITEM_END: (u16, u16) = (0xFFFE, 0xE00D);
@@ -65,6 +72,15 @@ impl Walker<'_> {
                     .b
                     .get(at + 4..at + 6)
                     .ok_or_else(|| fail(at, "truncated"))?;
+                if !VRS.iter().any(|v| v[..] == *vr) {
+                    return Err(fail(
+                        at,
+                        format!(
+                            "element ({:04X},{:04X}) has the value representation {:02X} {:02X}, not a DICOM one",
+                            tag.0, tag.1, vr[0], vr[1]
+                        ),
+                    ));
+                }
                 if LONG_VRS.iter().any(|v| v[..] == *vr) {
                     (self.u32(at + 8)?, 12, vr == b"SQ")
                 } else {
@@ -283,5 +299,14 @@ mod tests {
         bad[lo + 6..lo + 8].copy_from_slice(&0xFFFFu16.to_le_bytes());
         assert!(check_lengths(&bad).is_err());
         assert!(check_lengths(b"not dicom").is_err());
+        // A value representation that is not DICOM's (fuzzing found such
+        // files costing dicom-rs seconds of CPU).
+        let mut bad = good.clone();
+        bad[lo + 4..lo + 6].copy_from_slice(&[0x01, 0x01]);
+        let e = check_lengths(&bad).unwrap_err().to_string();
+        assert!(
+            e.contains("(0010,0020) has the value representation 01 01"),
+            "{e}"
+        );
     }
 }
