@@ -41,12 +41,7 @@ pub struct Signoff {
 /// The files of `dir` that the firmware reads: `manifest.json`, the
 /// calibration file if present, and every block's ONNX files.
 pub fn firmware_files(dir: &Path) -> Result<Vec<String>, ModelError> {
-    let mpath = dir.join("manifest.json");
-    let text = std::fs::read_to_string(&mpath).map_err(|e| ModelError::io(&mpath, e))?;
-    let m: ModelManifest = serde_json::from_str(&text).map_err(|e| ModelError::Integrity {
-        dir: dir.to_path_buf(),
-        reason: format!("manifest.json: {e}"),
-    })?;
+    let m = read_manifest(dir)?;
     let mut files = vec!["manifest.json".to_string()];
     if dir.join(crate::CALIBRATION_FILE).is_file() {
         files.push(crate::CALIBRATION_FILE.to_string());
@@ -88,7 +83,7 @@ pub fn compute(dir: &Path) -> Result<Signoff, ModelError> {
         })?;
         files.insert(f, sha);
     }
-    let model = read_manifest_name(dir)?;
+    let model = read_manifest(dir)?.name;
     Ok(Signoff {
         format: SIGNOFF_FORMAT.into(),
         model,
@@ -97,14 +92,14 @@ pub fn compute(dir: &Path) -> Result<Signoff, ModelError> {
     })
 }
 
-fn read_manifest_name(dir: &Path) -> Result<String, ModelError> {
+/// The folder's manifest as JSON (its checks are `dbt_dbtor`'s, at load).
+fn read_manifest(dir: &Path) -> Result<ModelManifest, ModelError> {
     let mpath = dir.join("manifest.json");
     let text = std::fs::read_to_string(&mpath).map_err(|e| ModelError::io(&mpath, e))?;
-    let m: ModelManifest = serde_json::from_str(&text).map_err(|e| ModelError::Integrity {
+    serde_json::from_str(&text).map_err(|e| ModelError::Integrity {
         dir: dir.to_path_buf(),
         reason: format!("manifest.json: {e}"),
-    })?;
-    Ok(m.name)
+    })
 }
 
 /// Write [`SIGNOFF_FILE`] for the folder as it is now; returns the sign-off
