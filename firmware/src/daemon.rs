@@ -93,12 +93,10 @@ pub enum DaemonError {
         /// Why.
         source: std::io::Error,
     },
-    /// The model could not be loaded.
-    #[error("model: {0}")]
-    Model(#[from] dbt_dbtor::DbtorError),
-    /// The model folder fails its sign-off, or its calibration is unusable.
+    /// The model folder fails its sign-off, its network does not load, or
+    /// its calibration is unusable.
     #[error(transparent)]
-    ModelFolder(#[from] dbt_model::ModelError),
+    Model(#[from] dbt_model::ModelError),
     /// A resource the daemon needs is missing or unusable.
     #[error("{what}: {reason}")]
     Resource {
@@ -110,9 +108,6 @@ pub enum DaemonError {
     /// Bad configuration.
     #[error(transparent)]
     Config(#[from] crate::config::ConfigError),
-    /// The model's glandularity calibration is unreadable or another model's.
-    #[error(transparent)]
-    Calibration(#[from] dbt_model::CalibrationError),
 }
 
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> DaemonError + '_ {
@@ -369,9 +364,6 @@ impl Daemon {
     /// outbox (the PACS was down) every 10 s, so they do not wait for the
     /// next acquisition.
     fn flush_outbox(&mut self) {
-        let Some(p) = &self.cfg.report.pacs else {
-            return;
-        };
         if self
             .last_flush
             .is_some_and(|t| t.elapsed() < Duration::from_secs(10))
@@ -379,11 +371,9 @@ impl Daemon {
             return;
         }
         self.last_flush = Some(Instant::now());
-        let outbox = match dbt_pacs::Outbox::open(
-            &self.cfg.paths.output,
-            &self.cfg.paths.output.join("outbox"),
-        ) {
-            Ok(o) => o,
+        let (outbox, pacs) = match self.outbox() {
+            Ok((o, Some(p))) => (o, p),
+            Ok((_, None)) => return,
             Err(e) => {
                 tracing::warn!(%e, "outbox unreadable");
                 return;
@@ -392,17 +382,31 @@ impl Daemon {
         if outbox.pending().map(|v| v.is_empty()).unwrap_or(true) {
             return;
         }
-        match dbt_pacs::PacsConfig::parse(p).map(|pacs| outbox.flush(&pacs)) {
-            Ok(Ok(r)) if !r.sent.is_empty() => {
+        match outbox.flush(&pacs) {
+            Ok(r) if !r.sent.is_empty() => {
                 tracing::info!(
                     sent = r.sent.len(),
                     waiting = r.waiting.len(),
                     "outbox flushed"
                 )
             }
-            Ok(Ok(_)) => {}
-            Ok(Err(e)) | Err(e) => tracing::debug!(%e, "outbox not flushed"),
+            Ok(_) => {}
+            Err(e) => tracing::debug!(%e, "outbox not flushed"),
         }
+    }
+
+    /// The output folder's outbox and the configured PACS, if any.
+    fn outbox(&self) -> Result<(dbt_pacs::Outbox, Option<dbt_pacs::PacsConfig>), String> {
+        let outbox = dbt_pacs::Outbox::open(
+            &self.cfg.paths.output,
+            &self.cfg.paths.output.join("outbox"),
+        )
+        .map_err(|e| e.to_string())?;
+        let pacs = match &self.cfg.report.pacs {
+            Some(p) => Some(dbt_pacs::PacsConfig::parse(p).map_err(|e| e.to_string())?),
+            None => None,
+        };
+        Ok((outbox, pacs))
     }
 
     /// Faults recorded since start.
@@ -716,15 +720,7 @@ impl Daemon {
             let (date, time) = dicom_now();
             let (dose, dens) = reports(&acq, &res, &equipment, &mut uids, &date, &time)
                 .map_err(|e| e.to_string())?;
-            let outbox = dbt_pacs::Outbox::open(
-                &self.cfg.paths.output,
-                &self.cfg.paths.output.join("outbox"),
-            )
-            .map_err(|e| e.to_string())?;
-            let pacs = match &self.cfg.report.pacs {
-                Some(p) => Some(dbt_pacs::PacsConfig::parse(p).map_err(|e| e.to_string())?),
-                None => None,
-            };
+            let (outbox, pacs) = self.outbox()?;
             let mut waiting = Vec::new();
             for (name, r) in [("dose-sr", &dose), ("density-sr", &dens)] {
                 let bytes = r.to_bytes().map_err(|e| e.to_string())?;
@@ -751,6 +747,8 @@ impl Daemon {
                 "finished_unix": now_unix(),
                 "reports": [format!("{id}-dose-sr.dcm"), format!("{id}-density-sr.dcm")],
                 "pacs_waiting": waiting,
+                // Defective counts corrected before the reconstruction.
+                "flags": res.flags,
             }))
         })();
         match delivered {

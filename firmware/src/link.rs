@@ -223,10 +223,11 @@ pub fn receive(
 
 /// Receive one acquisition over any byte stream (TCP, a serial line). Reads
 /// may time out (serial ports do). The reception fails when nothing arrives
-/// for `opts.idle_timeout`, when bytes arrive but no intact frame for
-/// `idle_timeout + largest frame / min_rate`, when a write stalls, or when
-/// the stop flag is set. Memory is bounded by the budget: the decoder
-/// refuses longer payloads, the assembler larger headers.
+/// for `opts.idle_timeout`, when bytes arrive but the acquisition does not
+/// advance for `idle_timeout` (plus the frame in progress at `min_rate`),
+/// when a write stalls, or when the stop flag is set. Memory is bounded by
+/// the budget: the decoder refuses longer payloads, the assembler larger
+/// headers.
 pub fn receive_from<S: Read + Write>(
     stream: &mut S,
     opts: &LinkOptions,
@@ -310,8 +311,12 @@ pub fn receive_from<S: Read + Write>(
                     if let (false, Some(h), Some((g, out))) = (had_header, asm.header(), &opts.site)
                     {
                         // The domain's validation, before any projection is
-                        // kept (the flat field is checked with the data).
-                        dbt_pipeline::validate_header(&domain_header(h, g, *out, 1000.0))?;
+                        // kept. The flat field comes with the projections
+                        // (`to_acquisition` checks it is positive and uniform,
+                        // the spool's reader validates its value); the lowest
+                        // plausible one stands in for it here.
+                        let flux = dbt_pipeline::acquisition::limits::FLUX_MIN;
+                        dbt_pipeline::validate_header(&domain_header(h, g, *out, flux))?;
                     }
                     if asm.progress() != before {
                         last_frame = std::time::Instant::now();

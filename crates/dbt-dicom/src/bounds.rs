@@ -50,6 +50,33 @@ impl Walker<'_> {
             .ok_or_else(|| fail(at, "truncated"))
     }
 
+    /// The header of the element at `at`: its tag, its value's declared
+    /// length, the header's size, and whether it is an explicit SQ.
+    fn element(&self, at: usize) -> Result<((u16, u16), u32, usize, bool), DicomError> {
+        let tag = (self.u16(at)?, self.u16(at + 2)?);
+        if !self.explicit || tag.0 == 0xFFFE {
+            return Ok((tag, self.u32(at + 4)?, 8, false));
+        }
+        let vr = self
+            .b
+            .get(at + 4..at + 6)
+            .ok_or_else(|| fail(at, "truncated"))?;
+        if !VRS.iter().any(|v| v[..] == *vr) {
+            return Err(fail(
+                at,
+                format!(
+                    "element ({:04X},{:04X}) has the value representation {:02X} {:02X}, not a DICOM one",
+                    tag.0, tag.1, vr[0], vr[1]
+                ),
+            ));
+        }
+        Ok(if LONG_VRS.iter().any(|v| v[..] == *vr) {
+            (tag, self.u32(at + 8)?, 12, vr == b"SQ")
+        } else {
+            (tag, self.u16(at + 6)? as u32, 8, false)
+        })
+    }
+
     /// Walk the elements in `[at, end)` (or up to a delimiter when
     /// `undefined`); returns the position after the last one.
     fn dataset(
@@ -63,52 +90,18 @@ impl Walker<'_> {
             return Err(fail(at, format!("nested deeper than {MAX_DEPTH}")));
         }
         while at < end {
-            let tag = (self.u16(at)?, self.u16(at + 2)?);
+            let (tag, len, head, is_seq) = self.element(at)?;
             if undefined && tag == ITEM_END {
                 return Ok(at + 8);
             }
-            let (len, head, is_seq) = if self.explicit && tag.0 != 0xFFFE {
-                let vr = self
-                    .b
-                    .get(at + 4..at + 6)
-                    .ok_or_else(|| fail(at, "truncated"))?;
-                if !VRS.iter().any(|v| v[..] == *vr) {
-                    return Err(fail(
-                        at,
-                        format!(
-                            "element ({:04X},{:04X}) has the value representation {:02X} {:02X}, not a DICOM one",
-                            tag.0, tag.1, vr[0], vr[1]
-                        ),
-                    ));
-                }
-                if LONG_VRS.iter().any(|v| v[..] == *vr) {
-                    (self.u32(at + 8)?, 12, vr == b"SQ")
-                } else {
-                    (self.u16(at + 6)? as u32, 8, false)
-                }
-            } else {
-                (self.u32(at + 4)?, 8, false)
-            };
             let value = at + head;
             if len == UNDEFINED {
                 // A sequence (or UN/implicit SQ) of items up to its delimiter.
                 at = self.items(value, end, depth + 1)?;
                 continue;
             }
-            let stop = value
-                .checked_add(len as usize)
-                .filter(|&s| s <= end)
-                .ok_or_else(|| {
-                    fail(
-                        at,
-                        format!(
-                            "element ({:04X},{:04X}) declares {len} bytes, only {} remain",
-                            tag.0,
-                            tag.1,
-                            end.saturating_sub(value)
-                        ),
-                    )
-                })?;
+            let what = || format!("element ({:04X},{:04X})", tag.0, tag.1);
+            let stop = value_end(at, value, len, end, what)?;
             if is_seq {
                 self.items(value, stop, depth + 1)?;
             }
@@ -140,24 +133,37 @@ impl Walker<'_> {
             if len == UNDEFINED {
                 at = self.dataset(at + 8, end, true, depth)?;
             } else {
-                let stop = (at + 8)
-                    .checked_add(len as usize)
-                    .filter(|&s| s <= end)
-                    .ok_or_else(|| {
-                        fail(
-                            at,
-                            format!(
-                                "an item declares {len} bytes, only {} remain",
-                                end.saturating_sub(at + 8)
-                            ),
-                        )
-                    })?;
+                let stop = value_end(at, at + 8, len, end, || "an item".to_string())?;
                 self.dataset(at + 8, stop, false, depth)?;
                 at = stop;
             }
         }
         Ok(at)
     }
+}
+
+/// The end of a value of `len` bytes from `value`, refused (naming `what`,
+/// which starts at `at`) if it runs past `end`.
+fn value_end(
+    at: usize,
+    value: usize,
+    len: u32,
+    end: usize,
+    what: impl FnOnce() -> String,
+) -> Result<usize, DicomError> {
+    value
+        .checked_add(len as usize)
+        .filter(|&s| s <= end)
+        .ok_or_else(|| {
+            fail(
+                at,
+                format!(
+                    "{} declares {len} bytes, only {} remain",
+                    what(),
+                    end.saturating_sub(value)
+                ),
+            )
+        })
 }
 
 /// Check every element length of a DICOM Part 10 file against its size.
@@ -201,19 +207,16 @@ pub fn check_lengths(bytes: &[u8]) -> Result<(), DicomError> {
     let mut ts = String::new();
     let mut at = start;
     while at < meta_end {
-        let (g, e) = (meta.u16(at)?, meta.u16(at + 2)?);
-        let len = meta.u16(at + 6)? as usize;
-        if (g, e) == (0x0002, 0x0010) {
-            ts = String::from_utf8_lossy(bytes.get(at + 8..at + 8 + len).unwrap_or_default())
+        let (tag, len, head, _) = meta.element(at)?;
+        let stop = value_end(at, at + head, len, meta_end, || {
+            "a file meta element".into()
+        })?;
+        if tag == (0x0002, 0x0010) {
+            ts = String::from_utf8_lossy(&bytes[at + head..stop])
                 .trim_end_matches(['\0', ' '])
                 .to_string();
         }
-        let vr = &bytes[at + 4..at + 6];
-        at += if LONG_VRS.iter().any(|v| v[..] == *vr) {
-            12 + meta.u32(at + 8)? as usize
-        } else {
-            8 + len
-        };
+        at = stop;
     }
     let explicit = match ts.as_str() {
         "1.2.840.10008.1.2" => false,

@@ -438,8 +438,8 @@ impl Decoder {
             .windows(4)
             .position(|w| w == MARKER)
             .map(|i| i + from);
-        self.work +=
-            (start.unwrap_or(avail.len()) - from.min(start.unwrap_or(avail.len())) + 1) as u64;
+        // `start`, when found, is at or after `from`.
+        self.work += (start.unwrap_or(avail.len()) - from + 1) as u64;
         match start {
             None => {
                 // Keep the last 3 bytes: they may begin a marker.

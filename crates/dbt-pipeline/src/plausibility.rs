@@ -79,14 +79,17 @@ pub fn mu_max_per_mm() -> f64 {
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum Implausible {
     /// Too many defective counts of one kind.
-    #[error("{fraction_pct:.3} % of the {rays} counts are {kind} ({detail}); at most {limit_pct} % can be corrected")]
+    #[error("{fraction_pct:.3} % of the {rays} counts are {kind} ({detail}); {total_pct:.3} % are defective in all, at most {limit_pct} % can be corrected")]
     Counts {
-        /// `zero (dead)`, `darker than the thickness allows`, `above the flat field`, `saturated`, `stuck`.
+        /// The most frequent defect: `zero (dead)`, `darker than the
+        /// thickness allows`, `above the flat field`, `saturated`, `stuck`.
         kind: &'static str,
         /// How they were judged.
         detail: String,
-        /// Percentage of all counts.
+        /// That kind's percentage of all counts.
         fraction_pct: f64,
+        /// Every defective count's percentage of all counts.
+        total_pct: f64,
         /// Counts checked.
         rays: usize,
         /// [`DEFECT_FRACTION_MAX`] in percent.
@@ -185,17 +188,20 @@ pub fn box_chords(g: &Geometry, t: f64) -> Vec<f64> {
     out
 }
 
-/// The per-ray count bounds `(dark_below, hot_above)` of a header.
-fn bounds(h: &AcquisitionHeader) -> Vec<(f64, f64)> {
-    let b = h.flux;
-    let hot = b + NOISE_Z * b.sqrt() + 1.0;
+/// The count above which a ray holds more photons than the unattenuated
+/// beam, beyond its Poisson noise.
+fn hot_bound(flux: f64) -> f64 {
+    flux + NOISE_Z * flux.sqrt() + 1.0
+}
+
+/// The per-ray count below which a ray is darker than the thickness allows.
+fn dark_bounds(h: &AcquisitionHeader) -> Vec<f64> {
     let mu = mu_max_per_mm();
     box_chords(&h.geometry, h.thickness_mm)
         .into_iter()
         .map(|l| {
-            let lam = b * (-mu * l).exp();
-            let dark = lam - NOISE_Z * lam.sqrt();
-            (dark, hot)
+            let lam = h.flux * (-mu * l).exp();
+            lam - NOISE_Z * lam.sqrt()
         })
         .collect()
 }
@@ -283,9 +289,11 @@ pub fn check_counts(h: &AcquisitionHeader, counts: &[Vec<f32>]) -> Result<Defect
             rays: nr,
         });
     }
-    let bnd = bounds(h);
+    let dark_below = dark_bounds(h);
     let b = h.flux;
-    let saturable = (DETECTOR_MAX_COUNT as f64) > b + NOISE_Z * b.sqrt() + 1.0;
+    let hot = hot_bound(b);
+    // A record of a 16-bit detector: its flat field lies below the maximum.
+    let saturable = (DETECTOR_MAX_COUNT as f64) > hot;
     let mut chk = CountsCheck {
         rays: nr * counts.len(),
         ..Default::default()
@@ -294,7 +302,7 @@ pub fn check_counts(h: &AcquisitionHeader, counts: &[Vec<f32>]) -> Result<Defect
     let mut defects: Vec<(usize, Vec<bool>)> = Vec::new();
     for (si, s) in counts.iter().enumerate() {
         let mut any = false;
-        for (r, (&c, &(dark, hot))) in s.iter().zip(&bnd).enumerate() {
+        for (r, (&c, &dark)) in s.iter().zip(&dark_below).enumerate() {
             let c64 = c as f64;
             let d = if !c64.is_finite() || c64 < 0.0 {
                 chk.dead += 1;
@@ -369,10 +377,12 @@ pub fn check_counts(h: &AcquisitionHeader, counts: &[Vec<f32>]) -> Result<Defect
         .into_iter()
         .max_by_key(|(_, n, _)| *n)
         .unwrap_or(("defective", total, String::new()));
+        let pct = |k: usize| 100.0 * k as f64 / chk.rays.max(1) as f64;
         return Err(Implausible::Counts {
             kind,
             detail,
-            fraction_pct: 100.0 * n.max(total) as f64 / chk.rays.max(1) as f64,
+            fraction_pct: pct(n),
+            total_pct: pct(total),
             rays: chk.rays,
             limit_pct: DEFECT_FRACTION_MAX * 100.0,
         });

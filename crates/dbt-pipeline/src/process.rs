@@ -224,20 +224,6 @@ pub fn reconstruct_volume(
     let h = &acq.header;
     let g = &h.geometry;
     validate_header(h)?;
-    let defects = check_counts(h, &acq.counts)?;
-    let corrected;
-    let (counts, counts_check) = if defects.is_empty() {
-        (&acq.counts, defects.check)
-    } else {
-        let mut c = acq.counts.clone();
-        let chk = defects.correct(&mut c)?;
-        tracing::warn!(
-            corrected = chk.corrected,
-            "defective detector counts corrected"
-        );
-        corrected = c;
-        (&corrected, chk)
-    };
     if (h.slice_spacing_mm - g.image.pixel_mm).abs() > 1e-6 {
         return Err(PipelineError::Input(format!(
             "slice spacing {} mm differs from the pixel {} mm (the dose grid must be isotropic)",
@@ -255,8 +241,6 @@ pub fn reconstruct_volume(
             g.describe()
         )));
     }
-    let proj = Projector::new(g);
-    let mask = dbt_phantom::thickness_mask(g, h.thickness_mm);
     let (rows, cols) = (g.image.rows, g.image.columns);
     let nv = g.rows_within_thickness(h.thickness_mm);
     if nv == 0 {
@@ -265,8 +249,6 @@ pub fn reconstruct_volume(
             h.thickness_mm
         )));
     }
-    let nd = counts.len();
-    let mut mu = vec![0f32; cols * nv * nd];
     let mopts = MltrOptions {
         iterations: opts.mltr_iterations,
         track_likelihood: false,
@@ -280,6 +262,25 @@ pub fn reconstruct_volume(
             )));
         }
     }
+    // The counts last: every cheaper refusal above comes first.
+    let defects = check_counts(h, &acq.counts)?;
+    let corrected;
+    let (counts, counts_check) = if defects.is_empty() {
+        (&acq.counts, defects.check)
+    } else {
+        let mut c = acq.counts.clone();
+        let chk = defects.correct(&mut c)?;
+        tracing::warn!(
+            corrected = chk.corrected,
+            "defective detector counts corrected"
+        );
+        corrected = c;
+        (&corrected, chk)
+    };
+    let proj = Projector::new(g);
+    let mask = dbt_phantom::thickness_mask(g, h.thickness_mm);
+    let nd = counts.len();
+    let mut mu = vec![0f32; cols * nv * nd];
     let reconstructor = reconstructor_name(opts);
     for (d, counts) in counts.iter().enumerate() {
         let _s = tracing::debug_span!("slice", d).entered();
