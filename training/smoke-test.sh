@@ -6,7 +6,7 @@
 # convolutions' inputs quantised, fixtures, manifest), the int8 simulation checked against
 # onnxruntime, a 2-iteration quantisation-aware fine-tuning exported as the
 # int8 blocks, and both exports checked by the firmware's runtime
-# (`dbtor-diag model`: checksums, fp32 vs PyTorch, int8 vs onnxruntime); then
+# (`dbtor-diag model --sign-off`: checksums, fp32 vs PyTorch, int8 vs onnxruntime, then the sign-off the firmware requires, written and verified); then
 # the same for a 2-iteration LPD (no mask, trained with --precision bf16 so the
 # autocast path is exported and checked too, int8 in onnxruntime's plain graph),
 # a 2-iteration fine-tuning (--init) on the taller geometry (int8 with the
@@ -78,8 +78,8 @@ grep -q '"int8_run"' "$tmp/qat-model/manifest.json" || { echo "smoke test: the m
 cmp "$tmp/model/fp32/dual00.onnx" "$tmp/qat-model/fp32/dual00.onnx" || { echo "smoke test: --int8-run changed the fp32 blocks"; exit 1; }
 $PY -m dbtor.qat --model "$tmp/qat-model" --run "$tmp/qat-run" --data "$tmp/ds" --calibration 2 --slices 1
 cd ..
-./target/release/dbtor-diag model "$tmp/model"
-./target/release/dbtor-diag model "$tmp/qat-model"
+./target/release/dbtor-diag model "$tmp/model" --sign-off
+./target/release/dbtor-diag model "$tmp/qat-model" --sign-off
 # The LPD baseline (no mask): trained, exported and checked the same way.
 cd training
 $PY -m dbtor.train --data "$tmp/ds" --out "$tmp/lpd-run" --model lpd --iters 2 --batch 2 --blocks 2 \
@@ -91,7 +91,7 @@ cd ..
 grep -q '"kind": "lpd"' "$tmp/lpd/manifest.json" || { echo "smoke test: the LPD export is not kind lpd"; exit 1; }
 grep -q '"precision": "bf16"' "$tmp/lpd/manifest.json" || { echo "smoke test: the LPD manifest does not record bf16 training"; exit 1; }
 grep -q '"form": "plain"' "$tmp/lpd/manifest.json" || { echo "smoke test: the LPD int8 form is not plain"; exit 1; }
-./target/release/dbtor-diag model "$tmp/lpd"
+./target/release/dbtor-diag model "$tmp/lpd" --sign-off
 # Fine-tuning on the taller geometry (paper-tall.toml, 100 rows at x4): --init
 # from the DBToR run, 2 iterations, exported with the tall geometry and checked;
 # --init from a run of another kind is refused.
@@ -113,7 +113,7 @@ cd ..
 grep -q '"form": "float-residual"' "$tmp/tall/manifest.json" || { echo "smoke test: the tall int8 form is not float-residual"; exit 1; }
 grep -q '"rows": 100' "$tmp/tall/manifest.json" || { echo "smoke test: the tall export lost its geometry"; exit 1; }
 grep -q '"init"' "$tmp/tall/manifest.json" || { echo "smoke test: the manifest does not record --init"; exit 1; }
-./target/release/dbtor-diag model "$tmp/tall"
+./target/release/dbtor-diag model "$tmp/tall" --sign-off
 # The U-Net baseline on FBP: the FBP array, 2 iterations, export (the exporter
 # checks onnxruntime against PyTorch), and one evaluation slice through the
 # Rust runtime (tract).

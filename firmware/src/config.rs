@@ -425,12 +425,15 @@ impl Config {
         }
         dbt_dicom::UidSource::new(&self.report.uid_root, 1)
             .map_err(|e| bad("report.uid_root", e.to_string()))?;
+        // The acquisition header's limit: a configuration every acquisition's
+        // header would be refused for is refused at start instead.
+        let max = dbt_pipeline::acquisition::limits::TUBE_OUTPUT_MAX_MGY_PER_MAS;
         if !(self.report.tube_output_mgy_per_mas > 0.0
-            && self.report.tube_output_mgy_per_mas < 10.0)
+            && self.report.tube_output_mgy_per_mas <= max)
         {
             return Err(bad(
                 "report.tube_output_mgy_per_mas",
-                "must be in (0, 10) mGy/mAs".into(),
+                format!("must be in (0, {max}] mGy/mAs"),
             ));
         }
         Ok(())
@@ -581,6 +584,21 @@ mod tests {
         }
         let c = example(|t| t.replace("127.0.0.1:5000", "[::1]:5000")).unwrap();
         assert_eq!(c.frames.address.as_deref(), Some("[::1]:5000"));
+        // The tube output every acquisition header would be refused for.
+        let e = example(|t| {
+            t.replace(
+                "tube_output_mgy_per_mas = 0.11",
+                "tube_output_mgy_per_mas = 1.5",
+            )
+        })
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("report.tube_output_mgy_per_mas"), "{e}");
+        assert!(example(|t| t.replace(
+            "tube_output_mgy_per_mas = 0.11",
+            "tube_output_mgy_per_mas = 1.0"
+        ))
+        .is_ok());
     }
 
     /// fp32 blocks are an int8 option: listed with fp32 they are refused,
