@@ -7,7 +7,7 @@
 use dbt_acquisition::NoiseLevel;
 use dbt_dose::patient::{dbt_views, mgd_to_uncertainty, Breast, Model};
 use dbt_geometry::Geometry;
-use dbt_phantom::{generate, LabelVolume, Population};
+use dbt_phantom::{LabelVolume, Population, PopulationKind};
 use dbt_pipeline::{process, PipelineOptions};
 use host_sim::{simulate_acquisition, Technique};
 use serde::Serialize;
@@ -251,7 +251,7 @@ pub fn test_phantoms(
     geom: &Geometry,
     n: usize,
 ) -> impl Iterator<Item = anyhow::Result<(String, LabelVolume)>> + '_ {
-    split_phantoms(geom, Split::Test, n)
+    split_phantoms(geom, Split::Test, PopulationKind::Procedural, n)
 }
 
 /// Which phantoms an evaluation draws.
@@ -319,17 +319,22 @@ impl Split {
     }
 }
 
-/// The first `n` phantoms of `split`, generated at the geometry's pixel.
+/// The first `n` phantoms of `split` of `population`, generated at the
+/// geometry's pixel.
 pub fn split_phantoms(
     geom: &Geometry,
     split: Split,
+    population: PopulationKind,
     n: usize,
 ) -> impl Iterator<Item = anyhow::Result<(String, LabelVolume)>> + '_ {
-    let pop = Population::for_geometry(geom);
     (0..n as u64).map(move |k| {
         let (seed, index) = split.draw(k);
-        let vol = generate(&pop.draw(seed, index))?;
-        Ok((split.name(k), vol))
+        let vol = population.draw(geom, seed, index).generate()?;
+        let name = match population {
+            PopulationKind::Procedural => split.name(k),
+            other => format!("{other} {}", split.name(k)),
+        };
+        Ok((name, vol))
     })
 }
 

@@ -15,6 +15,8 @@ pub mod picture;
 use dbt_acquisition::NoiseLevel;
 use dbt_geometry::Geometry;
 use dbt_metrics::{mean_sd, score, ImageScores, Shape};
+use dbt_phantom::PopulationKind;
+#[cfg(test)]
 use dbt_phantom::{generate, Population};
 use dbt_projector::Projector;
 use dbt_recon::{mltr, Fbp, MltrOptions};
@@ -31,6 +33,8 @@ pub struct BaselineOptions {
     pub geometry: Geometry,
     /// Which phantoms (the test set unless choosing settings).
     pub split: Split,
+    /// The population the split's phantoms are drawn from.
+    pub population: PopulationKind,
     /// Phantoms `0..phantoms` of the split.
     pub phantoms: usize,
     /// Coronal slices per phantom, evenly spaced over its tissue slices.
@@ -157,7 +161,15 @@ pub fn test_set(
     per_phantom: usize,
     levels: &[NoiseLevel],
 ) -> anyhow::Result<TestSet> {
-    slice_set(geom, proj, Split::Test, phantoms, per_phantom, levels)
+    slice_set(
+        geom,
+        proj,
+        Split::Test,
+        PopulationKind::Procedural,
+        phantoms,
+        per_phantom,
+        levels,
+    )
 }
 
 /// [`test_set`] on the phantoms of any split (`Split::Validation`: choose
@@ -167,17 +179,17 @@ pub fn slice_set(
     geom: &Geometry,
     proj: &Projector,
     split: Split,
+    population: PopulationKind,
     phantoms: usize,
     per_phantom: usize,
     levels: &[NoiseLevel],
 ) -> anyhow::Result<TestSet> {
-    let pop = Population::for_geometry(geom);
     let mut out = Vec::new();
     let mut glands = Vec::new();
     for i in 0..phantoms as u64 {
         let _span = tracing::info_span!("test_phantom", index = i).entered();
         let (seed, index) = split.draw(i);
-        let vol = generate(&pop.draw(seed, index))?;
+        let vol = population.draw(geom, seed, index).generate()?;
         glands.push(vol.glandularity().unwrap_or(0.0));
         let all = tissue_slices(&vol, 1);
         let depths: Vec<usize> = evenly_spaced(all.len(), per_phantom)
@@ -263,6 +275,7 @@ pub fn evaluate_baselines(
         g,
         &proj,
         opts.split,
+        opts.population,
         opts.phantoms,
         opts.slices_per_phantom,
         &opts.levels,
@@ -402,10 +415,28 @@ mod tests {
         let proj = Projector::new(&g);
         let lv = [NoiseLevel::Poisson(8)];
         let (test, gt) = test_set(&g, &proj, 2, 1, &lv).unwrap();
-        let (same, gs) = slice_set(&g, &proj, Split::Test, 2, 1, &lv).unwrap();
+        let (same, gs) = slice_set(
+            &g,
+            &proj,
+            Split::Test,
+            PopulationKind::Procedural,
+            2,
+            1,
+            &lv,
+        )
+        .unwrap();
         assert_eq!(gt, gs);
         assert_eq!(test[1].1.counts, same[1].1.counts);
-        let (_, gv) = slice_set(&g, &proj, Split::Validation { seed: 2024 }, 2, 1, &lv).unwrap();
+        let (_, gv) = slice_set(
+            &g,
+            &proj,
+            Split::Validation { seed: 2024 },
+            PopulationKind::Procedural,
+            2,
+            1,
+            &lv,
+        )
+        .unwrap();
         assert_ne!(gt, gv);
         let pop = Population::for_geometry(&g);
         let want = generate(&pop.draw(2024, 19))
@@ -420,6 +451,7 @@ mod tests {
         let opts = BaselineOptions {
             geometry: Geometry::paper().binned(4).unwrap(),
             split: Split::Test,
+            population: PopulationKind::Procedural,
             phantoms: 1,
             slices_per_phantom: 2,
             iterations: 20,

@@ -251,3 +251,170 @@ mod tests {
         assert!(e.render().is_err());
     }
 }
+
+/// One plane of a volume as an attenuation image, row 0 at the top.
+pub struct Plane {
+    /// Panel title.
+    pub title: String,
+    /// Attenuation (1/mm), row-major.
+    pub data: Vec<f32>,
+    /// Rows.
+    pub rows: usize,
+    /// Columns.
+    pub cols: usize,
+    /// Pixel side, mm.
+    pub pixel_mm: f64,
+    /// x axis label.
+    pub x_label: &'static str,
+    /// y axis label.
+    pub y_label: &'static str,
+    /// Whether row 0 is the largest y (heights) or the smallest (depth
+    /// from the chest wall, drawn downward).
+    pub y_up: bool,
+}
+
+/// The three orthogonal planes of a breast volume through its tissue: the
+/// axial plane at mid-height of the chest-wall face, the sagittal plane at
+/// mid-width, the coronal plane at a third of the chest-wall-to-nipple
+/// distance. Attenuation from the partial volumes where the volume has
+/// them ([`dbt_phantom::LabelVolume::mu_at`]).
+pub fn mid_planes(vol: &dbt_phantom::LabelVolume) -> Option<[Plane; 3]> {
+    let b = vol.tissue_bounds()?;
+    let h = vol.voxel_mm();
+    let ([l0, l1], [v0, v1], [d0, d1]) = (b[0], b[1], b[2]);
+    let (lm, vm, dm) = ((l0 + l1) / 2, (v0 + v1) / 2, d0 + (d1 - d0) / 3);
+    let axial = Plane {
+        title: format!("axial, {:.0} mm above the support", (vm - v0) as f64 * h),
+        data: (d0..d1)
+            .flat_map(|d| (l0..l1).map(move |l| (l, d)))
+            .map(|(l, d)| vol.mu_at(l, vm, d))
+            .collect(),
+        rows: d1 - d0,
+        cols: l1 - l0,
+        pixel_mm: h,
+        x_label: "lateral (mm)",
+        y_label: "depth from the chest wall (mm)",
+        y_up: false,
+    };
+    let sagittal = Plane {
+        title: "sagittal, mid-width".into(),
+        data: (v0..v1)
+            .rev()
+            .flat_map(|v| (d0..d1).map(move |d| (v, d)))
+            .map(|(v, d)| vol.mu_at(lm, v, d))
+            .collect(),
+        rows: v1 - v0,
+        cols: d1 - d0,
+        pixel_mm: h,
+        x_label: "depth from the chest wall (mm)",
+        y_label: "height (mm)",
+        y_up: true,
+    };
+    let coronal = Plane {
+        title: format!(
+            "coronal, {:.0} mm from the chest wall",
+            (dm - d0) as f64 * h
+        ),
+        data: (v0..v1)
+            .rev()
+            .flat_map(|v| (l0..l1).map(move |l| (l, v)))
+            .map(|(l, v)| vol.mu_at(l, v, dm))
+            .collect(),
+        rows: v1 - v0,
+        cols: l1 - l0,
+        pixel_mm: h,
+        x_label: "lateral (mm)",
+        y_label: "height (mm)",
+        y_up: true,
+    };
+    Some([axial, sagittal, coronal])
+}
+
+/// A grid of planes: one row per volume (its name in each panel's title),
+/// one column per plane, the panels of a column on axes in mm at one scale
+/// (1:1 aspect), grey from the
+/// attenuation window `window` (1/mm). RGB pixels, width, height.
+pub fn render_planes(
+    rows: &[(String, [Plane; 3])],
+    window: (f32, f32),
+) -> Result<(Vec<u8>, usize, usize), PlotError> {
+    use plotters::prelude::*;
+    register_font()?;
+    let err = |e: &dyn std::fmt::Display| PlotError(e.to_string());
+    const PANEL: (u32, u32) = (560, 330);
+    const AXES: (u32, u32) = (64, 46);
+    let (w, h) = (3 * PANEL.0, PANEL.1 * rows.len().max(1) as u32);
+    // One scale per column (the same plane of every volume): the largest
+    // mm per plot pixel any of its panels needs.
+    let plot = (
+        (PANEL.0 - AXES.0 - 20) as f64,
+        (PANEL.1 - AXES.1 - 40) as f64,
+    );
+    let scales: Vec<f64> = (0..3)
+        .map(|c| {
+            rows.iter()
+                .map(|(_, p)| {
+                    let p = &p[c];
+                    (p.cols as f64 * p.pixel_mm / plot.0).max(p.rows as f64 * p.pixel_mm / plot.1)
+                })
+                .fold(0.0f64, f64::max)
+                .max(1e-6)
+        })
+        .collect();
+    let mut buf = vec![255u8; (w * h * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| err(&e))?;
+        let areas = root.split_evenly((rows.len().max(1), 3));
+        for (r, (name, planes)) in rows.iter().enumerate() {
+            for (c, p) in planes.iter().enumerate() {
+                let area = &areas[r * 3 + c];
+                let (xw, yw) = (plot.0 * scales[c], plot.1 * scales[c]);
+                let (ext_x, ext_y) = (p.cols as f64 * p.pixel_mm, p.rows as f64 * p.pixel_mm);
+                let y_range = if p.y_up { 0.0..yw } else { yw..0.0 };
+                let mut chart = ChartBuilder::on(area)
+                    .caption(format!("{name}: {}", p.title), ("sans-serif", 14))
+                    .margin(8)
+                    .x_label_area_size(AXES.1)
+                    .y_label_area_size(AXES.0)
+                    .build_cartesian_2d(0.0..xw, y_range)
+                    .map_err(|e| err(&e))?;
+                chart
+                    .configure_mesh()
+                    .disable_mesh()
+                    .x_desc(p.x_label)
+                    .y_desc(p.y_label)
+                    .label_style(("sans-serif", 12))
+                    .axis_desc_style(("sans-serif", 13))
+                    .draw()
+                    .map_err(|e| err(&e))?;
+                let (lo, hi) = window;
+                chart
+                    .draw_series((0..p.rows).flat_map(|i| {
+                        (0..p.cols).map(move |j| {
+                            let v = ((p.data[i * p.cols + j] - lo) / (hi - lo)).clamp(0.0, 1.0);
+                            let g = (v * 255.0).round() as u8;
+                            // Row 0 is the top of the picture.
+                            let (y_top, y_bot) = if p.y_up {
+                                (
+                                    ext_y - i as f64 * p.pixel_mm,
+                                    ext_y - (i + 1) as f64 * p.pixel_mm,
+                                )
+                            } else {
+                                (i as f64 * p.pixel_mm, (i + 1) as f64 * p.pixel_mm)
+                            };
+                            let x = j as f64 * p.pixel_mm;
+                            Rectangle::new(
+                                [(x, y_top), (x + p.pixel_mm, y_bot)],
+                                RGBColor(g, g, g).filled(),
+                            )
+                        })
+                    }))
+                    .map_err(|e| err(&e))?;
+                let _ = ext_x;
+            }
+        }
+        root.present().map_err(|e| err(&e))?;
+    }
+    Ok((buf, w as usize, h as usize))
+}

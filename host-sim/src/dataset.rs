@@ -12,7 +12,7 @@
 use crate::{mix_seed, simulate_slices, tissue_slices, SimError, SimSlice};
 use dbt_acquisition::{log_transform, NoiseLevel};
 use dbt_geometry::Geometry;
-use dbt_phantom::{generate, PhantomSpec, Population};
+use dbt_phantom::{AnySpec, Population, PopulationKind};
 use dbt_projector::Projector;
 use dbt_store::dataset::{
     le_f32, ArrayEntry, Dataset, DatasetWriter, Manifest, NoiseEntry, PhantomEntry, Record,
@@ -36,6 +36,8 @@ pub struct ExportOptions {
     pub levels: Vec<NoiseLevel>,
     /// Phantoms generated at once (memory: each holds its slices).
     pub batch: usize,
+    /// The phantom population (training, validation and test phantoms).
+    pub population: PopulationKind,
 }
 
 /// Add `fbp-<level>` to every split of the dataset in `dir`: the FBP
@@ -106,13 +108,13 @@ pub fn add_fbp(dir: &Path, level: &str) -> Result<Vec<(String, usize)>, SimError
 }
 
 fn phantom_records(
-    spec: &PhantomSpec,
+    spec: &AnySpec,
     geom: &Geometry,
     proj: &Projector,
     levels: &[NoiseLevel],
     noise_seed: u64,
 ) -> Result<(PhantomEntry, Vec<SimSlice>), SimError> {
-    let vol = generate(spec)?;
+    let vol = spec.generate()?;
     let depths = tissue_slices(&vol, 1);
     let slices = simulate_slices(&vol, geom, proj, &depths, levels, noise_seed)?;
     let entry = PhantomEntry {
@@ -182,7 +184,7 @@ pub fn export(dir: &Path, opts: &ExportOptions) -> Result<Manifest, SimError> {
     }
     let geom = &opts.geometry;
     let proj = Projector::new(geom);
-    let pop = Population::for_geometry(geom);
+    let kind = opts.population;
     let levels: Vec<NoiseEntry> = opts
         .levels
         .iter()
@@ -200,7 +202,19 @@ pub fn export(dir: &Path, opts: &ExportOptions) -> Result<Manifest, SimError> {
     });
     let provenance = serde_json::json!({
         "generator": "host-sim dataset",
-        "population": pop,
+        "population": match kind {
+            PopulationKind::Procedural => serde_json::to_value(Population::for_geometry(geom)),
+            PopulationKind::Anatomical => {
+                serde_json::to_value(dbt_phantom::AnatomicalPopulation::for_geometry(geom))
+            }
+            PopulationKind::Mixed => Ok(serde_json::json!({
+                "procedural": Population::for_geometry(geom),
+                "anatomical": dbt_phantom::AnatomicalPopulation::for_geometry(geom),
+                "rule": "population index % 3 == 2: procedural, else anatomical",
+            })),
+        }
+        .unwrap_or_default(),
+        "population_kind": kind.name(),
         "train_seed": opts.seed,
         "test_seed": Population::TEST_SEED,
         "validation_rule": "population index % 10 == 9",
@@ -223,7 +237,7 @@ pub fn export(dir: &Path, opts: &ExportOptions) -> Result<Manifest, SimError> {
         let done: Vec<_> = idx
             .par_iter()
             .map(|&i| {
-                let spec = pop.draw(opts.seed, i);
+                let spec = kind.draw(geom, opts.seed, i);
                 phantom_records(
                     &spec,
                     geom,
@@ -250,7 +264,7 @@ pub fn export(dir: &Path, opts: &ExportOptions) -> Result<Manifest, SimError> {
         }
     }
     for i in 0..opts.test_phantoms as u64 {
-        let spec = pop.draw(Population::TEST_SEED, i);
+        let spec = kind.draw(geom, Population::TEST_SEED, i);
         let (entry, slices) = phantom_records(
             &spec,
             geom,
@@ -287,6 +301,7 @@ mod tests {
             seed: 5,
             levels: vec![NoiseLevel::Poisson(8)],
             batch: 1,
+            population: PopulationKind::Procedural,
         };
         let d = tempfile::tempdir().unwrap();
         export(d.path(), &opts).unwrap();
@@ -318,6 +333,7 @@ mod tests {
             seed: 5,
             levels: vec![NoiseLevel::NoiseFree, NoiseLevel::Poisson(8)],
             batch: 2,
+            population: PopulationKind::Procedural,
         };
         let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
         let ma = export(a.path(), &opts).unwrap();
@@ -365,5 +381,46 @@ mod tests {
             ..opts
         };
         assert!(export(tempfile::tempdir().unwrap().path(), &bad).is_err());
+    }
+
+    /// An anatomical dataset: its images are the partial volumes'
+    /// attenuation (values between the tissues'), its noise-free sinograms
+    /// their projections, its manifest names the population, and its
+    /// phantoms' truth is the fine samples' glandularity.
+    #[test]
+    fn anatomical_export_carries_partial_volumes() {
+        let opts = ExportOptions {
+            geometry: Geometry::builtin("paper-104").unwrap().binned(4).unwrap(),
+            slices: 60,
+            test_phantoms: 0,
+            seed: 7,
+            levels: vec![NoiseLevel::NoiseFree],
+            batch: 1,
+            population: PopulationKind::Anatomical,
+        };
+        let d = tempfile::tempdir().unwrap();
+        let m = export(d.path(), &opts).unwrap();
+        assert_eq!(m.provenance["population_kind"], "anatomical");
+        let ds = Dataset::open(d.path()).unwrap();
+        let proj = Projector::new(&opts.geometry);
+        let images = ds.array("train", "images").unwrap();
+        let sinos = ds.array("train", "sino-noise-free").unwrap();
+        let n = ds.manifest().splits[0].slices.len();
+        let mid = images.f32s(n / 2).unwrap();
+        let pure: Vec<f32> = dbt_materials::MU_BY_LABEL.to_vec();
+        let mixed = mid
+            .iter()
+            .filter(|v| pure.iter().all(|p| (*v - p).abs() > 1e-6))
+            .count();
+        assert!(mixed > 100, "only {mixed} partial-volume pixels");
+        let mut p = vec![0f32; proj.range_len()];
+        proj.forward(&mid, &mut p).unwrap();
+        for (x, y) in p.iter().zip(&sinos.f32s(n / 2).unwrap()) {
+            assert!((x - y).abs() < 1e-4, "{x} vs {y}");
+        }
+        let first = &ds.manifest().splits[0].phantoms[0];
+        let spec = PopulationKind::Anatomical.draw(&opts.geometry, 7, 0);
+        let vol = spec.generate().unwrap();
+        assert_eq!(first.glandularity, vol.glandularity().unwrap());
     }
 }

@@ -4,7 +4,7 @@
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
 use dbt_acquisition::NoiseLevel;
-use dbt_phantom::{generate, PhantomSpec, Population};
+use dbt_phantom::{Population, PopulationKind};
 use host_sim::dataset::{export, ExportOptions};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -32,12 +32,16 @@ enum Cmd {
         /// Index of the phantom in the population.
         #[arg(long, default_value_t = 0)]
         index: u64,
-        /// Geometry: `paper`, `paper-tall` (the 80 mm image) or a TOML file.
+        /// Geometry: `paper`, `paper-tall` (the 80 mm image), `paper-104` (104 mm) or a TOML file.
         #[arg(long, default_value = "paper")]
         geometry: String,
         /// Binning of the geometry (1, 2, 4).
         #[arg(long, default_value_t = 1)]
         binning: usize,
+        /// Phantom population: `procedural` (the breasts every model up to
+        /// dbtor-x4t3 was trained on) or `anatomical` (issue #26) or `mixed` (both: index % 3 == 2 procedural).
+        #[arg(long, default_value = "procedural")]
+        population: PopulationKind,
     },
     /// Simulate the acquisition of one breast and write it as files
     /// (`dbtor-acquisition/1`: acquisition.json + counts.f32).
@@ -49,7 +53,7 @@ enum Cmd {
         #[arg(long, default_value_t = 0)]
         index: u64,
         /// Geometry: `paper`, `paper-tall` (the 80 mm image: breasts up to
-        /// 75 mm) or a TOML file; the test population is drawn for it.
+        /// 75 mm), `paper-104` (up to 100 mm) or a TOML file; the test population is drawn for it.
         #[arg(long, default_value = "paper")]
         geometry: String,
         /// Binning of the geometry (phantom voxels = pixels).
@@ -58,6 +62,10 @@ enum Cmd {
         /// Noise level (`noise-free`, `N4`, `N8`, `N12`).
         #[arg(long, default_value = "N8")]
         noise: String,
+        /// Phantom population: `procedural` (the breasts every model up to
+        /// dbtor-x4t3 was trained on) or `anatomical` (issue #26) or `mixed` (both: index % 3 == 2 procedural).
+        #[arg(long, default_value = "procedural")]
+        population: PopulationKind,
     },
     /// Serve a recorded acquisition as the gantry's projection stream on TCP
     /// (one connection), with optional fault injection.
@@ -123,7 +131,7 @@ enum Cmd {
         /// Noise levels, comma separated (`noise-free,N4,N8,N12`).
         #[arg(long, default_value = "noise-free,N4,N8,N12")]
         levels: String,
-        /// Geometry: `paper`, `paper-tall` (the 80 mm image) or a TOML file.
+        /// Geometry: `paper`, `paper-tall` (the 80 mm image), `paper-104` (104 mm) or a TOML file.
         #[arg(long, default_value = "paper")]
         geometry: String,
         /// Binning of the geometry (1, 2, 4).
@@ -132,6 +140,10 @@ enum Cmd {
         /// Phantoms generated at once.
         #[arg(long, default_value_t = 4)]
         batch: usize,
+        /// Phantom population: `procedural` (the breasts every model up to
+        /// dbtor-x4t3 was trained on) or `anatomical` (issue #26) or `mixed` (both: index % 3 == 2 procedural).
+        #[arg(long, default_value = "procedural")]
+        population: PopulationKind,
     },
     /// Add the FBP of one noise level's sinograms to every split of a dataset
     /// (`fbp-<level>`, the U-Net baseline's input; DATASET.md).
@@ -159,10 +171,10 @@ fn main() -> Result<()> {
             index,
             geometry,
             binning,
+            population,
         } => {
             let g = dbt_store::load_geometry(&geometry, binning)?;
-            let spec: PhantomSpec = Population::for_geometry(&g).draw(seed, index);
-            let vol = generate(&spec)?;
+            let vol = population.draw(&g, seed, index).generate()?;
             dbt_store::save_phantom(&vol, &out)?;
             println!(
                 "{}: {:?} voxels of {} mm, thickness {:.1} mm, glandularity {:.3}",
@@ -179,10 +191,12 @@ fn main() -> Result<()> {
             geometry,
             binning,
             noise,
+            population,
         } => {
             let g = dbt_store::load_geometry(&geometry, binning)?;
-            let spec = Population::for_geometry(&g).draw(Population::TEST_SEED, index);
-            let vol = generate(&spec)?;
+            let vol = population
+                .draw(&g, Population::TEST_SEED, index)
+                .generate()?;
             let noise = NoiseLevel::parse(&noise)?;
             let kvp = dbt_dose::xray::paper_technique(vol.thickness_mm()).0 as f64;
             let acq = host_sim::simulate_acquisition(
@@ -331,6 +345,7 @@ fn main() -> Result<()> {
             geometry,
             binning,
             batch,
+            population,
         } => {
             let levels = levels
                 .split(',')
@@ -346,6 +361,7 @@ fn main() -> Result<()> {
                 seed,
                 levels,
                 batch,
+                population,
             };
             let t = Instant::now();
             let m = export(&out, &opts)?;

@@ -29,10 +29,18 @@ pub const PAPER_TOML: &str = include_str!("../geometry/paper.toml");
 /// compressed to 58-78 mm, as shipped in `geometry/paper-tall.toml`.
 pub const PAPER_TALL_TOML: &str = include_str!("../geometry/paper-tall.toml");
 
+/// The paper's geometry with a 104 mm image (520 rows), for breasts
+/// compressed up to 100 mm (a screening population's thickness range), as
+/// shipped in `geometry/paper-104.toml`.
+pub const PAPER_104_TOML: &str = include_str!("../geometry/paper-104.toml");
+
 /// The built-in geometries by name, for configuration files and command
 /// lines (`Geometry::builtin`).
-pub const BUILTIN_GEOMETRIES: [(&str, &str); 2] =
-    [("paper", PAPER_TOML), ("paper-tall", PAPER_TALL_TOML)];
+pub const BUILTIN_GEOMETRIES: [(&str, &str); 3] = [
+    ("paper", PAPER_TOML),
+    ("paper-tall", PAPER_TALL_TOML),
+    ("paper-104", PAPER_104_TOML),
+];
 
 /// Errors from parsing or validating a geometry.
 #[derive(Debug, Error, PartialEq)]
@@ -136,7 +144,7 @@ impl Geometry {
         Self::from_toml_str(PAPER_TOML).expect("embedded paper geometry is valid")
     }
 
-    /// A built-in geometry by name (`paper`, `paper-tall`), or `None` for
+    /// A built-in geometry by name (`paper`, `paper-tall`, `paper-104`), or `None` for
     /// any other name.
     pub fn builtin(name: &str) -> Option<Self> {
         BUILTIN_GEOMETRIES
@@ -452,6 +460,25 @@ pub fn chord_in_rect(s: (f64, f64), p: (f64, f64), x0: f64, x1: f64, z0: f64, z1
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The 104 mm variant (issue #26's screening thicknesses up to 100 mm)
+    /// is the paper's geometry with 520 rows: valid (the detector still
+    /// catches the whole image's shadow at every view), binnable, the same
+    /// rays.
+    #[test]
+    fn the_104_mm_variant_is_the_paper_geometry_520_rows_high() {
+        let t = Geometry::builtin("paper-104").unwrap();
+        let p = Geometry::paper();
+        assert_eq!(t.image.rows, 520);
+        assert!((t.height_mm() - 104.0).abs() < 1e-9);
+        let mut same = t.clone();
+        same.image.rows = p.image.rows;
+        assert_eq!(same, p);
+        let b = t.binned(4).unwrap();
+        assert_eq!((b.image.rows, b.image.columns, b.n_det()), (130, 250, 320));
+        // Row centres at (k + 0.5) 0.8 mm <= 100 mm: k = 0..=124.
+        assert_eq!(b.rows_within_thickness(100.0), 125);
+    }
 
     /// The taller variant (issue #7's 58-75 mm breasts) is the paper's
     /// geometry with an 80 mm image: valid, binnable, the same rays.

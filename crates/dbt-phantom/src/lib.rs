@@ -15,16 +15,126 @@
 //! This crate does no I/O: external volumes are decoded from bytes that an
 //! adapter has read.
 
+pub mod anatomical;
 pub mod external;
 pub mod generate;
 mod noise;
 
 use dbt_geometry::Geometry;
-use dbt_materials::{count_labels, glandularity, UnknownLabel, MU_BY_LABEL};
+use dbt_materials::{count_labels, glandularity, Tissue, UnknownLabel, MU_BY_LABEL};
+use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
+pub use anatomical::{generate_anatomical, AnatomicalPopulation, AnatomicalSpec};
 pub use external::{ExternalSidecar, VolumeAxis};
 pub use generate::{generate, PhantomSpec, Population};
+
+/// Which phantom population a dataset or an evaluation draws from.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PopulationKind {
+    /// The procedural breasts of [`generate`] ([`Population`]): the
+    /// population every model up to dbtor-x4t3 was trained and tested on.
+    #[default]
+    Procedural,
+    /// The anatomical breasts of [`anatomical`] ([`AnatomicalPopulation`]).
+    Anatomical,
+    /// Both, for training on a mixture: phantom `index` is procedural when
+    /// `index % 3 == 2`, else anatomical (the same phantom as the anatomical
+    /// population's `index`).
+    Mixed,
+}
+
+impl PopulationKind {
+    /// Every population, in the order of [`PopulationKind::NAMES`].
+    pub const ALL: [PopulationKind; 3] = [
+        PopulationKind::Procedural,
+        PopulationKind::Anatomical,
+        PopulationKind::Mixed,
+    ];
+    /// Names as on command lines and in manifests.
+    pub const NAMES: [&'static str; 3] = ["procedural", "anatomical", "mixed"];
+
+    /// The name as on command lines and in manifests.
+    pub fn name(self) -> &'static str {
+        match self {
+            PopulationKind::Procedural => "procedural",
+            PopulationKind::Anatomical => "anatomical",
+            PopulationKind::Mixed => "mixed",
+        }
+    }
+
+    /// Parse a name of [`PopulationKind::NAMES`].
+    pub fn parse(name: &str) -> Result<Self, PhantomError> {
+        Self::ALL
+            .into_iter()
+            .find(|k| k.name() == name)
+            .ok_or_else(|| {
+                PhantomError::Sidecar(format!(
+                    "unknown phantom population {name:?} (known: {})",
+                    Self::NAMES.join(", ")
+                ))
+            })
+    }
+
+    /// Draw phantom `index` of this population (seeded with `seed`) fitted
+    /// to the image of `geom`.
+    pub fn draw(self, geom: &Geometry, seed: u64, index: u64) -> AnySpec {
+        match self {
+            PopulationKind::Procedural => {
+                AnySpec::Procedural(Population::for_geometry(geom).draw(seed, index))
+            }
+            PopulationKind::Anatomical => {
+                AnySpec::Anatomical(AnatomicalPopulation::for_geometry(geom).draw(seed, index))
+            }
+            PopulationKind::Mixed if index % 3 == 2 => {
+                PopulationKind::Procedural.draw(geom, seed, index)
+            }
+            PopulationKind::Mixed => PopulationKind::Anatomical.draw(geom, seed, index),
+        }
+    }
+}
+
+impl std::fmt::Display for PopulationKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for PopulationKind {
+    type Err = PhantomError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::parse(s)
+    }
+}
+
+/// A phantom of either population.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(untagged)]
+pub enum AnySpec {
+    /// A procedural phantom.
+    Procedural(PhantomSpec),
+    /// An anatomical phantom.
+    Anatomical(AnatomicalSpec),
+}
+
+impl AnySpec {
+    /// Generate its label volume.
+    pub fn generate(&self) -> Result<LabelVolume, PhantomError> {
+        match self {
+            AnySpec::Procedural(s) => generate(s),
+            AnySpec::Anatomical(s) => generate_anatomical(s),
+        }
+    }
+
+    /// The requested glandularity by mass.
+    pub fn glandularity(&self) -> f64 {
+        match self {
+            AnySpec::Procedural(s) => s.glandularity,
+            AnySpec::Anatomical(s) => s.glandularity,
+        }
+    }
+}
 
 /// Errors of this crate; each names what was wrong.
 #[derive(Debug, Error)]
@@ -70,12 +180,40 @@ pub enum PhantomError {
 }
 
 /// An isotropic label volume (see the crate docs for the layout).
+///
+/// A volume drawn on a finer grid than its voxels (the anatomical phantoms)
+/// also carries its **partial volumes**: per voxel, how many of its `sub^3`
+/// fine samples hold each tissue ([`PartialVolumes`]). Then the attenuation
+/// of a voxel is the fine samples' mean ([`coronal_slice`]), the ground-truth
+/// glandularity is counted on the fine samples ([`LabelVolume::glandularity`]),
+/// and the label of a voxel is the tissue of its centre's fine sample
+/// (for the dose engine and the classification truth, which work on labels).
 #[derive(Debug, Clone, PartialEq)]
 pub struct LabelVolume {
     /// Voxel counts `[lateral, vertical, depth]`.
     dims: [usize; 3],
     voxel_mm: f64,
     data: Vec<u8>,
+    pv: Option<PartialVolumes>,
+}
+
+/// Per-voxel tissue counts of a volume drawn `sub` times finer per axis.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PartialVolumes {
+    sub: u8,
+    counts: Vec<[u8; 5]>,
+}
+
+impl PartialVolumes {
+    /// Fine samples per voxel along each axis.
+    pub fn sub(&self) -> u8 {
+        self.sub
+    }
+
+    /// Tissue counts (label order) of every voxel, storage order.
+    pub fn counts(&self) -> &[[u8; 5]] {
+        &self.counts
+    }
 }
 
 impl LabelVolume {
@@ -100,7 +238,49 @@ impl LabelVolume {
             dims,
             voxel_mm,
             data,
+            pv: None,
         })
+    }
+
+    /// Attach partial volumes: `counts[i]` holds how many of voxel `i`'s
+    /// `sub^3` fine samples are of each tissue (label order); each must sum to
+    /// `sub^3` (at most 6 per axis, so that a count fits a byte).
+    pub fn with_partial_volumes(
+        mut self,
+        sub: u8,
+        counts: Vec<[u8; 5]>,
+    ) -> Result<Self, PhantomError> {
+        if !(1..=6).contains(&sub) {
+            return Err(PhantomError::Parameter {
+                field: "sub",
+                value: sub as f64,
+                reason: "fine samples per axis must lie in [1, 6]".into(),
+            });
+        }
+        if counts.len() != self.data.len() {
+            return Err(PhantomError::Raw(format!(
+                "partial volumes for {} voxels, the volume has {}",
+                counts.len(),
+                self.data.len()
+            )));
+        }
+        let n = (sub as u32).pow(3);
+        if let Some(i) = counts
+            .iter()
+            .position(|c| c.iter().map(|&k| k as u32).sum::<u32>() != n)
+        {
+            return Err(PhantomError::Raw(format!(
+                "voxel {i}: tissue counts {:?} do not sum to {n}",
+                counts[i]
+            )));
+        }
+        self.pv = Some(PartialVolumes { sub, counts });
+        Ok(self)
+    }
+
+    /// The partial volumes, if the volume was drawn on a finer grid.
+    pub fn partial_volumes(&self) -> Option<&PartialVolumes> {
+        self.pv.as_ref()
     }
 
     /// Voxel counts `[lateral, vertical, depth]`.
@@ -140,16 +320,52 @@ impl LabelVolume {
         self.data[(d * self.dims[1] + v) * self.dims[0] + l]
     }
 
+    /// Attenuation at 20 keV (1/mm) of voxel `(lateral, vertical, depth)`:
+    /// the mean of its fine samples' where the volume has partial volumes,
+    /// else its label's.
+    pub fn mu_at(&self, l: usize, v: usize, d: usize) -> f32 {
+        let i = (d * self.dims[1] + v) * self.dims[0] + l;
+        match &self.pv {
+            Some(pv) => {
+                pv.counts[i]
+                    .iter()
+                    .zip(MU_BY_LABEL)
+                    .map(|(&k, m)| k as f32 * m)
+                    .sum::<f32>()
+                    / (pv.sub as f32).powi(3)
+            }
+            None => MU_BY_LABEL
+                .get(self.data[i] as usize)
+                .copied()
+                .unwrap_or(0.0),
+        }
+    }
+
     /// Voxel counts per tissue, in label order.
     pub fn counts(&self) -> [u64; 5] {
         // Labels were validated on construction.
         count_labels(&self.data).unwrap_or([0; 5])
     }
 
+    /// Fine-sample counts per tissue (label order): the partial volumes
+    /// summed, or [`LabelVolume::counts`] for a volume without them.
+    pub fn fine_counts(&self) -> [u64; 5] {
+        match &self.pv {
+            Some(pv) => pv.counts.iter().fold([0u64; 5], |mut acc, c| {
+                for (a, &k) in acc.iter_mut().zip(c) {
+                    *a += k as u64;
+                }
+                acc
+            }),
+            None => self.counts(),
+        }
+    }
+
     /// Ground-truth glandularity by mass of the whole volume (ligaments counted
     /// as fibroglandular, skin excluded), or `None` without breast tissue.
+    /// With partial volumes, counted on the fine samples.
     pub fn glandularity(&self) -> Option<f64> {
-        let c = self.counts();
+        let c = self.fine_counts();
         glandularity(c[3] + c[4], c[1])
     }
 
@@ -165,12 +381,22 @@ impl LabelVolume {
     pub fn tissue_bounds(&self) -> Option<[[usize; 2]; 3]> {
         let [nx, nz, ny] = self.dims;
         let mut b = [[usize::MAX, 0]; 3];
+        // A voxel holds tissue if its label does or, with partial volumes,
+        // any of its fine samples does.
+        let air = Tissue::Air.label() as usize;
+        let holds = |i: usize| {
+            self.data[i] != 0
+                || self
+                    .pv
+                    .as_ref()
+                    .is_some_and(|pv| pv.counts[i][air] as u32 != (pv.sub as u32).pow(3))
+        };
         for d in 0..ny {
             for v in 0..nz {
-                let row = &self.data[(d * nz + v) * nx..(d * nz + v + 1) * nx];
-                let first = row.iter().position(|&l| l != 0);
+                let base = (d * nz + v) * nx;
+                let first = (0..nx).position(|l| holds(base + l));
                 if let Some(f) = first {
-                    let last = row.iter().rposition(|&l| l != 0).unwrap_or(f);
+                    let last = (0..nx).rposition(|l| holds(base + l)).unwrap_or(f);
                     b[0] = [b[0][0].min(f), b[0][1].max(last + 1)];
                     b[1] = [b[1][0].min(v), b[1][1].max(v + 1)];
                     b[2] = [b[2][0].min(d), b[2][1].max(d + 1)];
@@ -188,16 +414,25 @@ impl LabelVolume {
             .ok_or_else(|| PhantomError::Raw("the volume contains no tissue".into()))?;
         let dims = [b[0][1] - b[0][0], b[1][1] - b[1][0], b[2][1] - b[2][0]];
         let mut data = Vec::with_capacity(dims.iter().product());
+        let mut pv = self.pv.as_ref().map(|p| PartialVolumes {
+            sub: p.sub,
+            counts: Vec::with_capacity(dims.iter().product()),
+        });
         for d in b[2][0]..b[2][1] {
             for v in b[1][0]..b[1][1] {
                 let base = (d * self.dims[1] + v) * self.dims[0];
-                data.extend_from_slice(&self.data[base + b[0][0]..base + b[0][1]]);
+                let r = base + b[0][0]..base + b[0][1];
+                data.extend_from_slice(&self.data[r.clone()]);
+                if let (Some(out), Some(src)) = (pv.as_mut(), self.pv.as_ref()) {
+                    out.counts.extend_from_slice(&src.counts[r]);
+                }
             }
         }
         Ok(Self {
             dims,
             voxel_mm: self.voxel_mm,
             data,
+            pv,
         })
     }
 
@@ -215,6 +450,16 @@ impl LabelVolume {
         }
         if (voxel_mm - self.voxel_mm).abs() < 1e-9 {
             return Ok(self.clone());
+        }
+        if self.pv.is_some() {
+            return Err(PhantomError::Parameter {
+                field: "voxel_mm",
+                value: voxel_mm,
+                reason: format!(
+                    "a volume with partial volumes is drawn at its voxel ({} mm); draw it again at the new voxel instead of resampling",
+                    self.voxel_mm
+                ),
+            });
         }
         let r = self.voxel_mm / voxel_mm;
         let nd = self.dims.map(|n| ((n as f64 * r).round() as usize).max(1));
@@ -236,6 +481,7 @@ impl LabelVolume {
             dims: nd,
             voxel_mm,
             data,
+            pv: None,
         })
     }
 }
@@ -247,12 +493,19 @@ pub struct Slice {
     pub labels: Vec<u8>,
     /// Compressed breast thickness of the phantom, mm (what the gantry reports).
     pub thickness_mm: f64,
+    /// Attenuation from the partial volumes (the mean of the fine samples'),
+    /// image layout, for a volume that has them.
+    pub partial_mu: Option<Vec<f32>>,
 }
 
 impl Slice {
-    /// Attenuation image at 20 keV (1/mm), image layout.
+    /// Attenuation image at 20 keV (1/mm), image layout: the partial volumes'
+    /// where the volume has them, else the labels'.
     pub fn mu(&self) -> Vec<f32> {
-        labels_to_mu(&self.labels)
+        match &self.partial_mu {
+            Some(mu) => mu.clone(),
+            None => labels_to_mu(&self.labels),
+        }
     }
 
     /// The breast-thickness mask of the paper: 1 on every image row whose
@@ -296,9 +549,15 @@ pub fn coronal_slice(vol: &LabelVolume, d: usize, geom: &Geometry) -> Result<Sli
     let [nx, nz, _] = vol.dims;
     let (rows, cols) = (geom.image.rows, geom.image.columns);
     // Vertical: only rows holding tissue must fit (air above is dropped).
+    let plane = nx * nz;
+    let air_pv = |i: usize| {
+        vol.pv.as_ref().is_none_or(|pv| {
+            pv.counts[d * plane + i][Tissue::Air.label() as usize] as u32 == (pv.sub as u32).pow(3)
+        })
+    };
     let top = (0..nz)
         .rev()
-        .find(|&v| src[v * nx..(v + 1) * nx].iter().any(|&l| l != 0))
+        .find(|&v| (v * nx..(v + 1) * nx).any(|i| src[i] != 0 || !air_pv(i)))
         .map_or(0, |v| v + 1);
     if top > rows {
         return Err(PhantomError::DoesNotFit(format!(
@@ -322,6 +581,11 @@ pub fn coronal_slice(vol: &LabelVolume, d: usize, geom: &Geometry) -> Result<Sli
         }
     }
     let mut labels = vec![0u8; rows * cols];
+    let pv = vol.pv.as_ref().map(|pv| {
+        let n = nx * nz;
+        (&pv.counts[d * n..(d + 1) * n], (pv.sub as f32).powi(3))
+    });
+    let mut partial_mu = pv.map(|_| vec![0f32; rows * cols]);
     // Column c of the image holds lateral index c + shift.
     let shift = nx as isize / 2 - cols as isize / 2;
     for v in 0..top {
@@ -330,12 +594,22 @@ pub fn coronal_slice(vol: &LabelVolume, d: usize, geom: &Geometry) -> Result<Sli
             let l = c as isize + shift;
             if l >= 0 && (l as usize) < nx {
                 labels[row * cols + c] = src[v * nx + l as usize];
+                if let (Some(mu), Some((counts, n))) = (partial_mu.as_mut(), pv) {
+                    let k = counts[v * nx + l as usize];
+                    mu[row * cols + c] = k
+                        .iter()
+                        .zip(MU_BY_LABEL)
+                        .map(|(&k, m)| k as f32 * m)
+                        .sum::<f32>()
+                        / n;
+                }
             }
         }
     }
     Ok(Slice {
         labels,
         thickness_mm: vol.thickness_mm(),
+        partial_mu,
     })
 }
 

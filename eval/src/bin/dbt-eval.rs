@@ -7,6 +7,7 @@ use dbt_dbtor::{Dbtor, Precision};
 use dbt_eval::picture::{auto_window, compose, Panel};
 use dbt_eval::{evaluate_baselines, region_table, table, test_set, BaselineOptions, Learned};
 use dbt_geometry::Geometry;
+use dbt_phantom::PopulationKind;
 use dbt_projector::Projector;
 use dbt_recon::{mltr, Fbp, MltrOptions};
 use std::path::PathBuf;
@@ -33,6 +34,10 @@ struct SplitArgs {
     /// the model manifest's dataset `train_seed`).
     #[arg(long)]
     train_seed: Option<u64>,
+    /// Phantom population: `procedural` (every figure up to dbtor-x4t3) or
+    /// `anatomical` (issue #26).
+    #[arg(long, default_value = "procedural")]
+    population: PopulationKind,
 }
 
 impl SplitArgs {
@@ -267,6 +272,10 @@ enum Cmd {
         /// The training population's seed (default: the model manifest's).
         #[arg(long)]
         train_seed: Option<u64>,
+        /// Population of the validation phantoms (`procedural`,
+        /// `anatomical`).
+        #[arg(long, default_value = "procedural")]
+        population: PopulationKind,
         /// Noise level.
         #[arg(long, default_value = "N8")]
         noise: String,
@@ -275,6 +284,31 @@ enum Cmd {
         out: Option<PathBuf>,
         #[command(flatten)]
         runtime: Runtime,
+    },
+    /// PNG of breast phantoms' three orthogonal mid-planes (attenuation,
+    /// partial volumes where the phantom has them), drawn phantoms beside
+    /// external ones, on axes in mm at one scale.
+    Anatomy {
+        /// Output PNG.
+        #[arg(long, default_value = "docs/figures/anatomy.png")]
+        out: PathBuf,
+        /// Population of the drawn phantoms.
+        #[arg(long, default_value = "anatomical")]
+        population: PopulationKind,
+        /// Population seed (default: the training datasets' 2024; never the
+        /// test seed's phantoms in a picture chosen by eye).
+        #[arg(long, default_value_t = 2024)]
+        seed: u64,
+        /// Indices of the drawn phantoms, comma separated.
+        #[arg(long, default_value = "0,1")]
+        index: String,
+        /// External phantoms (sidecar TOML), comma separated.
+        #[arg(long, default_value = "phantoms/victre-pc1.toml")]
+        external: String,
+        /// Voxel of the pictures, mm (the drawn phantoms are generated at
+        /// it, the external ones resampled to it).
+        #[arg(long, default_value_t = 0.4)]
+        voxel_mm: f64,
     },
     /// PNG of a test slice: phantom, sinogram, MLTR, FBP.
     Picture {
@@ -347,6 +381,62 @@ fn parse_levels(s: &str) -> Result<Vec<NoiseLevel>> {
         .collect::<Result<_, _>>()?)
 }
 
+/// `dbt-eval anatomy`: the mid-planes of drawn and external phantoms.
+fn anatomy_cmd(
+    out: &PathBuf,
+    population: PopulationKind,
+    seed: u64,
+    index: &str,
+    external: &str,
+    voxel_mm: f64,
+) -> Result<()> {
+    anyhow::ensure!(
+        seed != dbt_phantom::Population::TEST_SEED,
+        "pictures are drawn from the training population, not the test seed"
+    );
+    // A geometry whose pixel is the picture's voxel: the paper's, 104 mm
+    // high, at the pixel asked for.
+    let mut g = Geometry::builtin("paper-104").context("built-in geometry")?;
+    g.image.pixel_mm = voxel_mm;
+    g.image.columns = (200.0 / voxel_mm).round() as usize;
+    g.image.rows = (104.0 / voxel_mm).round() as usize;
+    let mut rows = Vec::new();
+    for tok in index.split(',').map(str::trim).filter(|t| !t.is_empty()) {
+        let i: u64 = tok.parse().with_context(|| format!("--index {tok:?}"))?;
+        let spec = population.draw(&g, seed, i);
+        let vol = spec.generate()?;
+        let name = format!(
+            "{population} #{i} (T {:.0} mm, G {:.0} %)",
+            vol.thickness_mm(),
+            100.0 * vol.glandularity().unwrap_or(0.0)
+        );
+        let planes = dbt_eval::picture::mid_planes(&vol).context("the phantom holds no tissue")?;
+        rows.push((name, planes));
+    }
+    for p in external.split(',').map(str::trim).filter(|t| !t.is_empty()) {
+        let vol = dbt_store::load_external_phantom(std::path::Path::new(p))?.resampled(voxel_mm)?;
+        let stem = std::path::Path::new(p)
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| p.to_string());
+        let name = format!(
+            "{stem} (T {:.0} mm, G {:.0} %)",
+            vol.thickness_mm(),
+            100.0 * vol.glandularity().unwrap_or(0.0)
+        );
+        let planes = dbt_eval::picture::mid_planes(&vol).context("the phantom holds no tissue")?;
+        rows.push((name, planes));
+    }
+    let window = (
+        dbt_materials::Tissue::Adipose.mu_per_mm() * 0.9,
+        dbt_materials::Tissue::Fibroglandular.mu_per_mm() * 1.05,
+    );
+    let (px, w, h) = dbt_eval::picture::render_planes(&rows, window)?;
+    write_png_rgb(out, &px, w, h)?;
+    println!("wrote {} ({} phantoms)", out.display(), rows.len());
+    Ok(())
+}
+
 fn write_png(path: &PathBuf, pixels: &[u8], w: usize, h: usize) -> Result<()> {
     write_png_as(path, pixels, w, h, png::ColorType::Grayscale)
 }
@@ -417,6 +507,7 @@ fn phantom_inputs(
     phantom: Option<&std::path::Path>,
     g: &Geometry,
     split: dbt_eval::accuracy::Split,
+    population: PopulationKind,
     n: usize,
 ) -> Vec<Result<(String, dbt_phantom::LabelVolume)>> {
     match phantom {
@@ -424,7 +515,7 @@ fn phantom_inputs(
             .map_err(anyhow::Error::from)
             .and_then(|v| Ok(v.resampled(g.image.pixel_mm)?))
             .map(|v| (p.display().to_string(), v))],
-        None => dbt_eval::accuracy::split_phantoms(g, split, n).collect(),
+        None => dbt_eval::accuracy::split_phantoms(g, split, population, n).collect(),
     }
 }
 
@@ -483,10 +574,12 @@ fn main() -> Result<()> {
                 }
                 (None, b) => Geometry::paper().binned(b.unwrap_or(1))?,
             };
+            let population = split.population;
             let split = split.resolve(loaded.first().map(|(_, m)| m))?;
             let opts = BaselineOptions {
                 geometry,
                 split,
+                population,
                 phantoms,
                 slices_per_phantom: slices,
                 iterations,
@@ -685,9 +778,10 @@ fn main() -> Result<()> {
                 }
                 None => Geometry::paper().binned(binning.unwrap_or(4))?,
             };
+            let population = split.population;
             let split = split.resolve(recs.iter().find_map(|(_, _, o)| o.dbtor.as_deref()))?;
             let opts: Vec<_> = recs.iter().map(|(_, _, o)| o.clone()).collect();
-            let inputs = phantom_inputs(phantom.as_deref(), &g, split, phantoms);
+            let inputs = phantom_inputs(phantom.as_deref(), &g, split, population, phantoms);
             let mut cases: Vec<Vec<Case>> = vec![Vec::new(); recs.len()];
             for (k, item) in inputs.into_iter().enumerate() {
                 let (name, vol) = item?;
@@ -788,6 +882,7 @@ fn main() -> Result<()> {
             let model = load_models(model.as_deref(), &precision, &runtime)?
                 .pop()
                 .map(|(_, m)| std::sync::Arc::new(m));
+            let population = split.population;
             let split = split.resolve(model.as_deref())?;
             let g = match &model {
                 Some(m) => m.geometry().clone(),
@@ -806,7 +901,7 @@ fn main() -> Result<()> {
             let reconstructor = dbt_pipeline::reconstructor_name(&opts);
             let t0 = Instant::now();
             let mut per_variant = vec![Vec::new(); variants.len()];
-            let inputs = phantom_inputs(phantom.as_deref(), &g, split, phantoms);
+            let inputs = phantom_inputs(phantom.as_deref(), &g, split, population, phantoms);
             let phantoms = inputs.len();
             for (k, item) in inputs.into_iter().enumerate() {
                 let (name, vol) = item?;
@@ -880,6 +975,7 @@ fn main() -> Result<()> {
             precision,
             phantoms,
             train_seed,
+            population,
             noise,
             out,
             runtime,
@@ -894,6 +990,7 @@ fn main() -> Result<()> {
             let split = SplitArgs {
                 split: "validation".into(),
                 train_seed,
+                population,
             }
             .resolve(Some(&m))?;
             let g = m.geometry().clone();
@@ -906,7 +1003,9 @@ fn main() -> Result<()> {
             };
             let t0 = Instant::now();
             let mut cases = Vec::new();
-            for (k, item) in dbt_eval::accuracy::split_phantoms(&g, split, phantoms).enumerate() {
+            for (k, item) in
+                dbt_eval::accuracy::split_phantoms(&g, split, population, phantoms).enumerate()
+            {
                 let (name, vol) = item?;
                 let c = dbt_eval::classification::run_phantom(
                     &name,
@@ -972,6 +1071,7 @@ fn main() -> Result<()> {
                 serde_json::json!({
                     "command": std::env::args().collect::<Vec<_>>().join(" "),
                     "split": split.describe(),
+                    "population": population.name(),
                     "phantoms": phantoms,
                     "noise": noise.name(),
                     "estimator": "partial volume",
@@ -986,6 +1086,14 @@ fn main() -> Result<()> {
             write_json(&path, &file)?;
             println!("wrote {}", path.display());
         }
+        Cmd::Anatomy {
+            out,
+            population,
+            seed,
+            index,
+            external,
+            voxel_mm,
+        } => anatomy_cmd(&out, population, seed, &index, &external, voxel_mm)?,
         Cmd::Picture {
             out,
             binning,
