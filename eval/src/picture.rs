@@ -370,7 +370,7 @@ pub fn render_planes(
             for (c, p) in planes.iter().enumerate() {
                 let area = &areas[r * 3 + c];
                 let (xw, yw) = (plot.0 * scales[c], plot.1 * scales[c]);
-                let (ext_x, ext_y) = (p.cols as f64 * p.pixel_mm, p.rows as f64 * p.pixel_mm);
+                let ext_y = p.rows as f64 * p.pixel_mm;
                 let y_range = if p.y_up { 0.0..yw } else { yw..0.0 };
                 let mut chart = ChartBuilder::on(area)
                     .caption(format!("{name}: {}", p.title), ("sans-serif", 14))
@@ -411,7 +411,6 @@ pub fn render_planes(
                         })
                     }))
                     .map_err(|e| err(&e))?;
-                let _ = ext_x;
             }
         }
         root.present().map_err(|e| err(&e))?;

@@ -59,7 +59,8 @@ pub struct FramesConfig {
     #[serde(default = "default_idle")]
     pub idle_timeout_s: f64,
     /// The gantry's geometry: `paper` (the paper's, 60 mm image),
-    /// `paper-tall` (80 mm image, breasts up to 75 mm) or a geometry TOML
+    /// `paper-tall` (80 mm image, breasts up to 75 mm), `paper-104` (104 mm
+    /// image, breasts up to 100 mm) or a geometry TOML
     /// (relative to the configuration file's folder). A DBToR model must
     /// have been trained for it (checked when the configuration is loaded).
     #[serde(default = "default_geometry")]

@@ -22,25 +22,34 @@
 //! 2. **Skin**: the shell between the outline and the same shape shrunk by
 //!    the skin thickness (no skin on the chest-wall face).
 //! 3. **Ductal tree**: `lobes` trees grown from the nipple toward the chest
-//!    wall, each branch splitting in two (the children narrower, turned by
-//!    20-45 degrees, flattened by the compression), ending in TDLUs
-//!    (spheres), stopped at the skin.
+//!    wall (root radius 0.4-0.7 mm, up to 7 generations: VICTRE's
+//!    `[ductTree]` has 0.5 mm and 7), each branch splitting in two (the
+//!    children 0.8 times narrower, turned by 20-45 degrees, flattened by the
+//!    compression), ending in TDLUs (spheres of 0.8-1.8 mm diameter; VICTRE's
+//!    are 1-2 mm long), stopped at the skin.
 //! 4. **Vessels**: `vessels` trees entering at the chest wall and running
 //!    toward the nipple, branching and narrowing.
 //! 5. **Compartments and Cooper's ligaments**: a Voronoi partition of the
 //!    interior (flattened by the compression); sheets of `ligament_mm` on the
-//!    boundaries between compartments are ligament.
-//! 6. **Fibroglandular tissue**: the highest-scoring interior voxels, where
-//!    the score adds an envelope (a Gaussian in the radial distance from the
-//!    breast's axis, denser centrally in height and width, peaking between
-//!    the chest wall and the middle of the breast, as breast CT finds; Huang
-//!    et al. 2011, Med Phys 38:2180), the density of the ductal tree (gland
-//!    grows around the ducts), a power-law texture (Reiser and Nishikawa
-//!    2010, beta = 3), a per-compartment offset, and a subcutaneous fat
-//!    layer free of gland. The threshold is set on the voxel centres so that
-//!    fibroglandular tissue, ligaments, ducts, TDLUs and vessels together
-//!    reach the requested glandularity by mass; the truth is then counted on
-//!    the fine samples, so it lands near the request, not on it.
+//!    boundaries between compartments are ligament. Uniform voxels (wholly in
+//!    air, or wholly interior away from tubes, ligaments and the glandular
+//!    threshold) are filled without sampling: the result is the same.
+//! 6. **Fibroglandular tissue**: the highest-scoring interior samples. The
+//!    score adds an envelope (a Gaussian in the distance from a centre that
+//!    sits, in CC compression, about 15 % of the thickness below mid-height
+//!    and medio-laterally central: Fedon et al. 2021, Med Phys 48:1436; its
+//!    depth is drawn between the chest wall's third and the middle), the
+//!    density of the ductal tree (gland grows around the ducts), a power-law
+//!    texture (Reiser and Nishikawa 2010, beta = 3), fat lobules (a second,
+//!    finer Voronoi partition: low at a lobule's centre, high between
+//!    lobules, so dense tissue encloses fat lobules as in VICTRE's
+//!    breastPhantom), a small per-compartment offset, and a subcutaneous fat
+//!    layer free of gland. The score is computed on the voxel corners and
+//!    interpolated to the fine samples. Its threshold is set on the voxel
+//!    centres so that fibroglandular tissue, ligaments, ducts, TDLUs and
+//!    vessels together reach the requested glandularity by mass; the truth
+//!    is then counted on the fine samples, so it lands near the request,
+//!    not on it.
 //!
 //! **Labels.** The generator's own classes are air, adipose, skin, nipple,
 //! glandular, ligament, duct, TDLU, artery and vein ([`Anatomy`]). The
@@ -365,7 +374,7 @@ impl Shape {
         (q, planar.min(hh - (z - bottom - hh).abs()))
     }
 
-    /// The nipple's axis height and whether `(x, y, z)` is in the nipple.
+    /// Whether `(x, y, z)` is in the nipple.
     fn in_nipple(&self, x: f64, y: f64, z: f64) -> bool {
         if self.nipple_r <= 0.0
             || y < self.len - 3.0 * self.nipple_r
@@ -392,7 +401,7 @@ struct Tube {
 }
 
 impl Tube {
-    /// Whether `p` lies in the tube, and how far along it (0..1) it is.
+    /// Whether `p` lies in the tube (its radius tapers linearly along it).
     fn contains(&self, p: [f64; 3]) -> bool {
         let ab = sub3(self.b, self.a);
         let ap = sub3(p, self.a);

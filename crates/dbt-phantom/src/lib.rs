@@ -650,6 +650,71 @@ mod tests {
         assert!(LabelVolume::new([2, 1, 1], 0.0, vec![0, 0]).is_err());
     }
 
+    /// Population names round-trip and an unknown one names the known; the
+    /// mixed population is the anatomical one except every third phantom,
+    /// which is the procedural one's.
+    #[test]
+    fn population_kinds_parse_and_mix() {
+        for k in PopulationKind::ALL {
+            assert_eq!(PopulationKind::parse(k.name()).unwrap(), k);
+            assert_eq!(k.to_string().parse::<PopulationKind>().unwrap(), k);
+        }
+        let e = PopulationKind::parse("victre").unwrap_err().to_string();
+        assert!(
+            e.contains("victre") && e.contains("procedural, anatomical, mixed"),
+            "{e}"
+        );
+        let g = Geometry::builtin("paper-104").unwrap().binned(4).unwrap();
+        for i in 0..6 {
+            let m = PopulationKind::Mixed.draw(&g, 9, i);
+            let want = if i % 3 == 2 {
+                PopulationKind::Procedural.draw(&g, 9, i)
+            } else {
+                PopulationKind::Anatomical.draw(&g, 9, i)
+            };
+            assert_eq!(m, want);
+        }
+    }
+
+    /// Partial volumes: refused when they do not add up or do not match the
+    /// volume; counted by `glandularity`; kept by cropping; a resampling
+    /// that would drop them is refused.
+    #[test]
+    fn partial_volumes_are_checked_and_counted() {
+        let v = tiny();
+        let n = v.labels().len();
+        let mut counts = vec![[8u8, 0, 0, 0, 0]; n];
+        assert!(v
+            .clone()
+            .with_partial_volumes(2, counts[..n - 1].to_vec())
+            .is_err());
+        counts[0] = [7, 0, 0, 0, 0];
+        let e = v
+            .clone()
+            .with_partial_volumes(2, counts.clone())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("voxel 0") && e.contains("8"), "{e}");
+        assert!(v.clone().with_partial_volumes(7, vec![[0; 5]; n]).is_err());
+        // Voxels (1,0,0) and (1,0,1) all skin, voxel (2,1,0) 3 of 8 fine
+        // samples fibroglandular and 5 adipose (whatever their labels say).
+        let mut counts = vec![[8u8, 0, 0, 0, 0]; n];
+        counts[1] = [0, 0, 8, 0, 0];
+        counts[4 + 2] = [0, 5, 0, 3, 0];
+        counts[12 + 1] = [0, 0, 8, 0, 0];
+        let pv = v.clone().with_partial_volumes(2, counts).unwrap();
+        let want = dbt_materials::glandularity(3, 5).unwrap();
+        assert!((pv.glandularity().unwrap() - want).abs() < 1e-12);
+        assert_eq!(v.glandularity(), dbt_materials::glandularity(1, 1));
+        let mu = pv.mu_at(2, 1, 0);
+        let m = MU_BY_LABEL;
+        assert!((mu - (5.0 * m[1] + 3.0 * m[3]) / 8.0).abs() < 1e-7);
+        let c = pv.cropped_to_tissue().unwrap();
+        assert_eq!(c.fine_counts()[1..], pv.fine_counts()[1..]);
+        assert!(pv.resampled(0.25).is_err());
+        assert_eq!(pv.resampled(0.5).unwrap(), pv);
+    }
+
     #[test]
     fn resample_keeps_extent_and_labels() {
         let v = tiny();

@@ -67,7 +67,7 @@ pub fn read_maybe_gz(path: &Path) -> Result<Vec<u8>, StoreError> {
 }
 
 /// A geometry named on a command line or in a configuration file: a
-/// built-in name (`paper`, `paper-tall`: [`dbt_geometry::BUILTIN_GEOMETRIES`])
+/// built-in name (`paper`, `paper-tall`, `paper-104`: [`dbt_geometry::BUILTIN_GEOMETRIES`])
 /// or the path of a geometry TOML; then binned by `binning`.
 pub fn load_geometry(spec: &str, binning: usize) -> Result<Geometry, StoreError> {
     let path = Path::new(spec);
