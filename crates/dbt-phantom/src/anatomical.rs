@@ -473,6 +473,8 @@ struct TubeIndex {
 }
 
 impl TubeIndex {
+    /// Index `tubes` over the box `origin .. origin + extent` (axes x, y, z
+    /// as the tubes' points) in cells of `cell` mm.
     fn new(tubes: Vec<Tube>, extent: [f64; 3], origin: [f64; 3], cell: f64) -> Self {
         let n = extent.map(|e| ((e / cell).ceil() as usize).max(1));
         let mut cells = vec![Vec::new(); n[0] * n[1] * n[2]];
@@ -679,12 +681,13 @@ pub fn generate_anatomical(spec: &AnatomicalSpec) -> Result<LabelVolume, Phantom
         2.0,
         5.0,
     );
+    // Axes x, y (depth), z (height), as the tubes' points.
     let index = TubeIndex::new(
         trees.tubes,
         [
             spec.width_mm + 2.0,
-            t + 2.0,
             len + spec.nipple_length_mm + 2.0,
+            t + 2.0,
         ],
         [-half_w - 1.0, -1.0, -1.0],
         2.0,
@@ -1394,6 +1397,37 @@ mod tests {
             .sum();
         let sum_mu: f64 = mu.iter().map(|&m| m as f64).sum();
         assert!((sum_counts - sum_mu).abs() < 1e-3 * sum_counts);
+    }
+
+    /// The tube index finds a tube anywhere in its box, along every axis
+    /// (a box much longer in depth than high, as a breast's is), and only
+    /// inside the tube's radius; `empty_over` agrees.
+    #[test]
+    fn tube_index_finds_tubes_anywhere_in_the_box() {
+        let tube = Tube {
+            a: [0.0, 90.0, 10.0],
+            b: [0.0, 95.0, 10.0],
+            ra: 1.0,
+            rb: 0.5,
+            kind: Anatomy::Duct,
+        };
+        let tdlu = Tube {
+            a: [5.0, 3.0, 25.0],
+            b: [5.0, 3.0, 25.0],
+            ra: 0.8,
+            rb: 0.8,
+            kind: Anatomy::Tdlu,
+        };
+        let idx = TubeIndex::new(vec![tube, tdlu], [20.0, 100.0, 30.0], [-10.0, 0.0, 0.0], 2.0);
+        assert_eq!(idx.at([0.0, 90.5, 10.5]), Some(Anatomy::Duct));
+        assert_eq!(idx.at([0.0, 94.9, 10.4]), Some(Anatomy::Duct));
+        assert_eq!(idx.at([0.0, 94.9, 10.7]), None, "the radius tapers to 0.5 mm");
+        assert_eq!(idx.at([0.0, 92.0, 12.0]), None);
+        assert_eq!(idx.at([5.0, 3.5, 25.5]), Some(Anatomy::Tdlu));
+        assert_eq!(idx.at([5.0, 3.0, 26.0]), None);
+        assert!(!idx.empty_over([-1.0, 91.0, 9.0], [1.0, 92.0, 11.0]));
+        assert!(idx.empty_over([-1.0, 50.0, 9.0], [1.0, 51.0, 11.0]));
+        assert!(idx.at([0.0, 101.0, 10.0]).is_none());
     }
 
     #[test]
