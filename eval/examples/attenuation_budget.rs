@@ -25,7 +25,7 @@ use dbt_acquisition::NoiseLevel;
 use dbt_dbtor::{Dbtor, Precision};
 use dbt_eval::accuracy::{split_phantoms, Split};
 use dbt_eval::classification::{confusion, truth_on_grid};
-use dbt_phantom::labels_to_mu;
+use dbt_phantom::{labels_to_mu, PopulationKind};
 use dbt_pipeline::{reconstruct_volume, PipelineOptions};
 use dbt_tissue::{classify, density, ClassifyOptions};
 use host_sim::{simulate_acquisition, Technique};
@@ -52,7 +52,8 @@ fn main() -> Result<()> {
         vec![("VICTRE pc_1".to_string(), v)]
     } else {
         let n: usize = args[1].parse().context("the number of test phantoms")?;
-        split_phantoms(&g, Split::Test, n).collect::<Result<Vec<_>>>()?
+        split_phantoms(&g, Split::Test, PopulationKind::Procedural, n)
+            .collect::<Result<Vec<_>>>()?
     };
     let vox = g.image.pixel_mm;
     for (name, vol) in phantoms {

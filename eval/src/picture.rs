@@ -199,59 +199,6 @@ impl BlandAltman<'_> {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn plot<'a>(means: &'a [f64], diffs: &'a [f64]) -> BlandAltman<'a> {
-        BlandAltman {
-            title: "test".into(),
-            x_label: "mean (%)",
-            y_label: "difference (pp)",
-            means,
-            diffs,
-            bias: 1.0,
-            loa: [-2.0, 4.0],
-        }
-    }
-
-    fn dark(px: &[u8], w: usize, x: std::ops::Range<usize>, y: std::ops::Range<usize>) -> usize {
-        y.flat_map(|r| x.clone().map(move |c| (r, c)))
-            .filter(|&(r, c)| px[3 * (r * w + c)] < 128)
-            .count()
-    }
-
-    #[test]
-    fn the_plot_has_its_points_lines_and_axis_text() {
-        let (means, diffs) = ([10.0, 20.0, 30.0], [0.0, 1.0, 2.0]);
-        let (px, w, h, r) = plot(&means, &diffs).render().unwrap();
-        assert_eq!((w, h), (800, 520));
-        assert_eq!(px.len(), w * h * 3);
-        // Ranges: the data and the lines (-2..4, 10..30) with 10 % margins.
-        assert!(
-            (r[0] - 8.0).abs() < 1e-9 && (r[1] - 32.0).abs() < 1e-9,
-            "{r:?}"
-        );
-        assert!(
-            (r[2] + 2.6).abs() < 1e-9 && (r[3] - 4.6).abs() < 1e-9,
-            "{r:?}"
-        );
-        // Text left of the plot (the y label and tick labels) and below it.
-        assert!(dark(&px, w, 0..60, 100..400) > 100, "no y axis text");
-        assert!(dark(&px, w, 200..600, h - 40..h) > 100, "no x axis text");
-        // The bias line is solid across the plot area: a dark row of pixels.
-        let row_dark = (0..h).any(|y| dark(&px, w, 150..750, y..y + 1) > 550);
-        assert!(row_dark, "no solid bias line");
-    }
-
-    #[test]
-    fn a_plot_without_a_finite_case_is_an_error() {
-        let e = plot(&[f64::NAN], &[f64::NAN]);
-        // The lines are finite, but there is no x range.
-        assert!(e.render().is_err());
-    }
-}
-
 /// One plane of a volume as an attenuation image, row 0 at the top.
 pub struct Plane {
     /// Panel title.
@@ -416,4 +363,98 @@ pub fn render_planes(
         root.present().map_err(|e| err(&e))?;
     }
     Ok((buf, w as usize, h as usize))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn plot<'a>(means: &'a [f64], diffs: &'a [f64]) -> BlandAltman<'a> {
+        BlandAltman {
+            title: "test".into(),
+            x_label: "mean (%)",
+            y_label: "difference (pp)",
+            means,
+            diffs,
+            bias: 1.0,
+            loa: [-2.0, 4.0],
+        }
+    }
+
+    fn dark(px: &[u8], w: usize, x: std::ops::Range<usize>, y: std::ops::Range<usize>) -> usize {
+        y.flat_map(|r| x.clone().map(move |c| (r, c)))
+            .filter(|&(r, c)| px[3 * (r * w + c)] < 128)
+            .count()
+    }
+
+    #[test]
+    fn the_plot_has_its_points_lines_and_axis_text() {
+        let (means, diffs) = ([10.0, 20.0, 30.0], [0.0, 1.0, 2.0]);
+        let (px, w, h, r) = plot(&means, &diffs).render().unwrap();
+        assert_eq!((w, h), (800, 520));
+        assert_eq!(px.len(), w * h * 3);
+        // Ranges: the data and the lines (-2..4, 10..30) with 10 % margins.
+        assert!(
+            (r[0] - 8.0).abs() < 1e-9 && (r[1] - 32.0).abs() < 1e-9,
+            "{r:?}"
+        );
+        assert!(
+            (r[2] + 2.6).abs() < 1e-9 && (r[3] - 4.6).abs() < 1e-9,
+            "{r:?}"
+        );
+        // Text left of the plot (the y label and tick labels) and below it.
+        assert!(dark(&px, w, 0..60, 100..400) > 100, "no y axis text");
+        assert!(dark(&px, w, 200..600, h - 40..h) > 100, "no x axis text");
+        // The bias line is solid across the plot area: a dark row of pixels.
+        let row_dark = (0..h).any(|y| dark(&px, w, 150..750, y..y + 1) > 550);
+        assert!(row_dark, "no solid bias line");
+    }
+
+    #[test]
+    fn a_plot_without_a_finite_case_is_an_error() {
+        let e = plot(&[f64::NAN], &[f64::NAN]);
+        // The lines are finite, but there is no x range.
+        assert!(e.render().is_err());
+    }
+
+    /// The mid-planes of a partial-volume phantom: the three planes through
+    /// its tissue, attenuation between the tissues' (partial volumes), and
+    /// a picture with one row per volume.
+    #[test]
+    fn mid_planes_of_a_partial_volume_phantom() {
+        let spec = dbt_phantom::AnatomicalSpec {
+            thickness_mm: 30.0,
+            chest_to_nipple_mm: 50.0,
+            width_mm: 80.0,
+            edge_mm: 10.0,
+            sub: 2,
+            ..dbt_phantom::AnatomicalSpec::typical(1.0, 3)
+        };
+        let vol = dbt_phantom::generate_anatomical(&spec).unwrap();
+        let planes = mid_planes(&vol).unwrap();
+        let b = vol.tissue_bounds().unwrap();
+        assert_eq!(
+            (planes[0].rows, planes[0].cols),
+            (b[2][1] - b[2][0], b[0][1] - b[0][0])
+        );
+        assert_eq!(
+            (planes[1].rows, planes[1].cols),
+            (b[1][1] - b[1][0], b[2][1] - b[2][0])
+        );
+        assert_eq!(
+            (planes[2].rows, planes[2].cols),
+            (b[1][1] - b[1][0], b[0][1] - b[0][0])
+        );
+        let pure = dbt_materials::MU_BY_LABEL;
+        let mixed = planes[2]
+            .data
+            .iter()
+            .filter(|v| pure.iter().all(|p| (*v - p).abs() > 1e-6))
+            .count();
+        assert!(mixed > 0);
+        let (px, w, h) = render_planes(&[("a".into(), planes)], (0.04, 0.09)).unwrap();
+        assert_eq!((w, h), (1680, 330));
+        assert_eq!(px.len(), w * h * 3);
+        assert!(px.iter().any(|&p| p < 100), "nothing dark drawn");
+    }
 }

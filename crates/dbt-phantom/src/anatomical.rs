@@ -1418,10 +1418,19 @@ mod tests {
             rb: 0.8,
             kind: Anatomy::Tdlu,
         };
-        let idx = TubeIndex::new(vec![tube, tdlu], [20.0, 100.0, 30.0], [-10.0, 0.0, 0.0], 2.0);
+        let idx = TubeIndex::new(
+            vec![tube, tdlu],
+            [20.0, 100.0, 30.0],
+            [-10.0, 0.0, 0.0],
+            2.0,
+        );
         assert_eq!(idx.at([0.0, 90.5, 10.5]), Some(Anatomy::Duct));
         assert_eq!(idx.at([0.0, 94.9, 10.4]), Some(Anatomy::Duct));
-        assert_eq!(idx.at([0.0, 94.9, 10.7]), None, "the radius tapers to 0.5 mm");
+        assert_eq!(
+            idx.at([0.0, 94.9, 10.7]),
+            None,
+            "the radius tapers to 0.5 mm"
+        );
         assert_eq!(idx.at([0.0, 92.0, 12.0]), None);
         assert_eq!(idx.at([5.0, 3.5, 25.5]), Some(Anatomy::Tdlu));
         assert_eq!(idx.at([5.0, 3.0, 26.0]), None);
