@@ -66,7 +66,7 @@
 //!
 //! Everything is drawn from one seed; the same spec gives the same bytes.
 
-use crate::generate::{Candidates, Seeds, FLATTEN};
+use crate::generate::{check, Candidates, Seeds, FLATTEN};
 use crate::noise::power_law;
 use crate::{LabelVolume, PhantomError};
 use dbt_geometry::Geometry;
@@ -167,18 +167,6 @@ pub struct AnatomicalSpec {
     pub vessels: u32,
     /// Random seed.
     pub seed: u64,
-}
-
-fn check(field: &'static str, value: f64, lo: f64, hi: f64) -> Result<(), PhantomError> {
-    if value.is_finite() && (lo..=hi).contains(&value) {
-        Ok(())
-    } else {
-        Err(PhantomError::Parameter {
-            field,
-            value,
-            reason: format!("must lie in [{lo}, {hi}]"),
-        })
-    }
 }
 
 impl AnatomicalSpec {

@@ -61,7 +61,8 @@ pub struct PhantomSpec {
     pub seed: u64,
 }
 
-fn check(field: &'static str, value: f64, lo: f64, hi: f64) -> Result<(), PhantomError> {
+/// `value` within `[lo, hi]`, or an error naming `field`.
+pub(crate) fn check(field: &'static str, value: f64, lo: f64, hi: f64) -> Result<(), PhantomError> {
     if value.is_finite() && (lo..=hi).contains(&value) {
         Ok(())
     } else {
@@ -344,30 +345,16 @@ impl Seeds {
     /// 27 neighbouring cells (seeds are jittered within their cells, so this is
     /// the Voronoi partition up to rare far-corner cases).
     pub(crate) fn nearest(&self, p: [f64; 3]) -> (usize, f32) {
-        let cell =
-            |v: f64, n: usize| ((v / self.cell_mm).floor() as isize + 1).clamp(1, n as isize - 2);
-        let (ci, cj, ck) = (
-            cell(p[0], self.cells[0]),
-            cell(p[1], self.cells[1]),
-            cell(p[2], self.cells[2]),
-        );
         let (mut d1, mut d2, mut best) = (f64::MAX, f64::MAX, 0usize);
-        for k in ck - 1..=ck + 1 {
-            for j in cj - 1..=cj + 1 {
-                for i in ci - 1..=ci + 1 {
-                    let id = (k as usize * self.cells[1] + j as usize) * self.cells[0] + i as usize;
-                    let s = self.pos[id];
-                    let d = (s[0] - p[0]).powi(2) + (s[1] - p[1]).powi(2) + (s[2] - p[2]).powi(2);
-                    if d < d1 {
-                        d2 = d1;
-                        d1 = d;
-                        best = id;
-                    } else if d < d2 {
-                        d2 = d;
-                    }
-                }
+        self.for_neighbours(p, |id, d| {
+            if d < d1 {
+                d2 = d1;
+                d1 = d;
+                best = id;
+            } else if d < d2 {
+                d2 = d;
             }
-        }
+        });
         (best, (d2.sqrt() - d1.sqrt()) as f32)
     }
 }
