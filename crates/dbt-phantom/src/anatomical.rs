@@ -335,31 +335,52 @@ impl Shape {
         (self.top(self.len) + self.bottom(self.len)) / 2.0
     }
 
-    /// Superellipse level of `(x, y, z)` for the surface shrunk by `inset`
-    /// mm (0: outer surface; the skin: inner): `<= 1` inside. Also returns
-    /// the distance (mm, approximate) from the point to that surface.
-    fn level(&self, x: f64, y: f64, z: f64, inset: f64) -> (f64, f64) {
+    /// The planform of the surface shrunk by `inset` mm (0: outer surface;
+    /// the skin: inner) at depth `y` and height `z`: its half-width `a` and
+    /// length `l` there, the half-height `hh` of the cross-section and the
+    /// height `dz` of `z` above its middle; `None` outside its height range
+    /// (or before the chest wall, or where the rolled edge leaves nothing).
+    fn section(&self, y: f64, z: f64, inset: f64) -> Option<[f64; 4]> {
         let top = self.top(y) - inset;
         let bottom = self.bottom(y) + inset;
         let hh = (top - bottom) / 2.0;
         if hh <= 0.0 || y < 0.0 {
-            return (f64::INFINITY, 0.0);
+            return None;
         }
-        let u = (z - bottom - hh) / hh;
+        let dz = z - bottom - hh;
+        let u = dz / hh;
         if u.abs() > 1.0 {
-            return (f64::INFINITY, 0.0);
+            return None;
         }
         let c = 1.0 - (1.0 - u * u).sqrt();
         let a = self.half_w - inset - self.edge * c;
         let l = self.len - inset - self.edge * c;
-        if a <= 0.0 || l <= 0.0 {
+        (a > 0.0 && l > 0.0).then_some([a, l, hh, dz])
+    }
+
+    /// Superellipse level of `(x, y, z)` for the surface shrunk by `inset`
+    /// mm (0: outer surface; the skin: inner): `<= 1` inside. Also returns
+    /// the distance (mm, approximate) from the point to that surface.
+    fn level(&self, x: f64, y: f64, z: f64, inset: f64) -> (f64, f64) {
+        let Some([a, l, hh, dz]) = self.section(y, z, inset) else {
             return (f64::INFINITY, 0.0);
-        }
+        };
         let q = (x.abs() / a).powf(self.p) + (y / l).powf(self.p);
         // Distance: to the flat faces, or along the planform's radius.
         let r = q.powf(1.0 / self.p);
         let planar = (1.0 - r).max(0.0) * a.min(l);
-        (q, planar.min(hh - (z - bottom - hh).abs()))
+        (q, planar.min(hh - dz.abs()))
+    }
+
+    /// Half-extent along x of the surface shrunk by `inset` at depth `y`,
+    /// height `z` (-1 where the row misses it).
+    fn half_width(&self, y: f64, z: f64, inset: f64) -> f64 {
+        match self.section(y, z, inset) {
+            Some([a, l, _, _]) if y < l => {
+                a * (1.0 - (y / l).powf(self.p)).max(0.0).powf(1.0 / self.p)
+            }
+            _ => -1.0,
+        }
     }
 
     /// Whether `(x, y, z)` is in the nipple.
@@ -759,24 +780,6 @@ pub fn generate_anatomical(spec: &AnatomicalSpec) -> Result<LabelVolume, Phantom
     // Half-extents along x of the outer surface, the inner (skin) surface
     // and the nipple on the fine row at depth `y`, height `z` (-1: none).
     let extents = |y: f64, z: f64| -> [f64; 3] {
-        let extent = |inset: f64| -> f64 {
-            let (top, bottom) = (shape.top(y) - inset, shape.bottom(y) + inset);
-            let hh = (top - bottom) / 2.0;
-            if hh <= 0.0 {
-                return -1.0;
-            }
-            let u = (z - bottom - hh) / hh;
-            if u.abs() > 1.0 {
-                return -1.0;
-            }
-            let c = 1.0 - (1.0 - u * u).sqrt();
-            let a = shape.half_w - inset - shape.edge * c;
-            let l = shape.len - inset - shape.edge * c;
-            if a <= 0.0 || l <= 0.0 || y >= l {
-                return -1.0;
-            }
-            a * (1.0 - (y / l).powf(shape.p)).max(0.0).powf(1.0 / shape.p)
-        };
         let x_nip = if shape.in_nipple(0.0, y, z) {
             let zn = shape.nipple_z();
             let fy = ((y - shape.len) / shape.nipple_len.max(1e-9)).max(0.0);
@@ -785,7 +788,11 @@ pub fn generate_anatomical(spec: &AnatomicalSpec) -> Result<LabelVolume, Phantom
         } else {
             -1.0
         };
-        [extent(0.0), extent(shape.skin), x_nip]
+        [
+            shape.half_width(y, z, 0.0),
+            shape.half_width(y, z, shape.skin),
+            x_nip,
+        ]
     };
     // The class and glandular score of fine sample `(sx, sy, sz)` of voxel
     // `(l, v, d)`, given its row's extents and the voxel centre's gap to the
