@@ -66,7 +66,7 @@
 //!
 //! Everything is drawn from one seed; the same spec gives the same bytes.
 
-use crate::generate::{check, Candidates, Seeds, FLATTEN};
+use crate::generate::{check, Seeds, FLATTEN};
 use crate::noise::power_law;
 use crate::{LabelVolume, PhantomError};
 use dbt_geometry::Geometry;
@@ -372,6 +372,23 @@ impl Shape {
         (q, planar.min(hh - dz.abs()))
     }
 
+    /// [`Shape::level`] along the line of depth `y` and height `z`: the
+    /// parts that do not depend on `x`, computed once.
+    fn level_row(&self, y: f64, z: f64, inset: f64) -> impl Fn(f64) -> (f64, f64) + '_ {
+        let row = self
+            .section(y, z, inset)
+            .map(|[a, l, hh, dz]| (a, l, hh, dz, (y / l).powf(self.p)));
+        move |x: f64| {
+            let Some((a, l, hh, dz, qy)) = row else {
+                return (f64::INFINITY, 0.0);
+            };
+            let q = (x.abs() / a).powf(self.p) + qy;
+            let r = q.powf(1.0 / self.p);
+            let planar = (1.0 - r).max(0.0) * a.min(l);
+            (q, planar.min(hh - dz.abs()))
+        }
+    }
+
     /// Half-extent along x of the surface shrunk by `inset` at depth `y`,
     /// height `z` (-1 where the row misses it).
     fn half_width(&self, y: f64, z: f64, inset: f64) -> f64 {
@@ -509,21 +526,62 @@ impl TubeIndex {
         }
     }
 
-    /// Whether no tube's bounding box reaches the box `lo..hi`.
-    fn empty_over(&self, lo: [f64; 3], hi: [f64; 3]) -> bool {
+    /// The tubes (ascending, as pushed) that can hold a point of the box
+    /// `lo..hi`, into `out`: those listed in the cells the box overlaps
+    /// whose axis passes within their largest radius plus `reach` (at least
+    /// half the box's diagonal) of the box's centre. Every tube holding a
+    /// point of the box is among them, so [`TubeIndex::at_among`] over them
+    /// is [`TubeIndex::at`] for every point of the box.
+    fn reaching(&self, lo: [f64; 3], hi: [f64; 3], reach: f64, out: &mut Vec<u32>) {
+        out.clear();
         let idx = |v: f64, a: usize| -> usize {
             (((v - self.origin[a]) / self.cell).floor().max(0.0) as usize).min(self.n[a] - 1)
         };
         for z in idx(lo[2], 2)..=idx(hi[2], 2) {
             for y in idx(lo[1], 1)..=idx(hi[1], 1) {
                 for x in idx(lo[0], 0)..=idx(hi[0], 0) {
-                    if !self.cells[(z * self.n[1] + y) * self.n[0] + x].is_empty() {
-                        return false;
-                    }
+                    out.extend_from_slice(&self.cells[(z * self.n[1] + y) * self.n[0] + x]);
                 }
             }
         }
-        true
+        if out.is_empty() {
+            return;
+        }
+        out.sort_unstable();
+        out.dedup();
+        let c = [0, 1, 2].map(|a| (lo[a] + hi[a]) / 2.0);
+        out.retain(|&k| {
+            let t = &self.tubes[k as usize];
+            let ab = sub3(t.b, t.a);
+            let ac = sub3(c, t.a);
+            let l2 = dot(ab, ab);
+            let s = if l2 > 0.0 {
+                (dot(ac, ab) / l2).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            let q = [ac[0] - s * ab[0], ac[1] - s * ab[1], ac[2] - s * ab[2]];
+            dot(q, q).sqrt() <= t.ra.max(t.rb) + reach + 1e-9
+        });
+    }
+
+    /// [`TubeIndex::at`] among `ids` (from [`TubeIndex::reaching`] for a box
+    /// holding `p`).
+    fn at_among(&self, ids: &[u32], p: [f64; 3]) -> Option<Anatomy> {
+        if ids.is_empty() {
+            return None;
+        }
+        let inside = (0..3).all(|a| {
+            let c = (p[a] - self.origin[a]) / self.cell;
+            c >= 0.0 && c < self.n[a] as f64
+        });
+        if !inside {
+            return None;
+        }
+        ids.iter()
+            .map(|&k| &self.tubes[k as usize])
+            .find(|t| t.contains(p))
+            .map(|t| t.kind)
     }
 
     /// The class of the first tube holding `p` (TDLUs and ducts before
@@ -732,40 +790,40 @@ pub fn generate_anatomical(spec: &AnatomicalSpec) -> Result<LabelVolume, Phantom
     ];
 
     // The glandular score on the lattice of voxel corners (the fine samples
-    // interpolate it trilinearly: the texture is on a 0.8 mm grid already).
-    let score_at = |x: f64, y: f64, z: f64| -> f32 {
-        let (_, depth) = shape.level(x, y, z, shape.skin);
+    // interpolate it trilinearly: the texture is on a 0.8 mm grid already),
+    // a line of constant depth and height at a time.
+    let score_row = |y: f64, z: f64, first: usize, last: usize, out: &mut Vec<f32>| {
+        let level = shape.level_row(y, z, shape.skin);
         let (top, bottom) = (shape.top(y), shape.bottom(y));
-        let ex = (x / half_w - centre[0]) / widths[0];
         let ey = (y / len - centre[1]) / widths[1];
         let ez = ((z - bottom) / (top - bottom).max(1e-9) - centre[2]) / widths[2];
-        let env = -(ex * ex + ey * ey + ez * ez);
-        let sc = if spec.subcutaneous_mm > 0.0 {
-            let s = (1.0 - depth / spec.subcutaneous_mm).clamp(0.0, 1.0);
-            -4.0 * s * s
-        } else {
-            0.0
-        };
-        let tex = texture.sample((x + half_w) / nh, z / nh, y / nh) as f64;
-        let (seed, _) = seeds.nearest([x + half_w, z / FLATTEN, y]);
-        // Fat lobules: low inside a lobule, high along the gland between.
-        let (_, lob) = lobules.nearest([x + half_w, z / FLATTEN, y]);
-        let lobule = (lob as f64 / spec.lobule_mm).min(1.0);
-        (env + sc + 0.5 * tex + 0.15 * seeds.bias[seed] as f64 - 2.0 * lobule
-            + 1.2 * duct_density.sample([x, z, y])) as f32
+        let (seed_row, lobule_row) = (seeds.row(z / FLATTEN, y), lobules.row(z / FLATTEN, y));
+        let xs: Vec<f64> = (first..last)
+            .map(|i| i as f64 * h - half_w + half_w)
+            .collect();
+        let (mut nearest_seed, mut nearest_lobule) = (Vec::new(), Vec::new());
+        seed_row.nearest_each(&xs, &mut nearest_seed);
+        lobule_row.nearest_each(&xs, &mut nearest_lobule);
+        out.extend((first..last).enumerate().map(|(q, i)| {
+            let x = i as f64 * h - half_w;
+            let (_, depth) = level(x);
+            let ex = (x / half_w - centre[0]) / widths[0];
+            let env = -(ex * ex + ey * ey + ez * ez);
+            let sc = if spec.subcutaneous_mm > 0.0 {
+                let s = (1.0 - depth / spec.subcutaneous_mm).clamp(0.0, 1.0);
+                -4.0 * s * s
+            } else {
+                0.0
+            };
+            let tex = texture.sample((x + half_w) / nh, z / nh, y / nh) as f64;
+            let (seed, _) = nearest_seed[q];
+            // Fat lobules: low inside a lobule, high along the gland between.
+            let (_, lob) = nearest_lobule[q];
+            let lobule = (lob as f64 / spec.lobule_mm).min(1.0);
+            (env + sc + 0.5 * tex + 0.15 * seeds.bias[seed] as f64 - 2.0 * lobule
+                + 1.2 * duct_density.sample([x, z, y])) as f32
+        }));
     };
-    let (lx, lz) = (nx + 1, nz + 1);
-    let lattice: Vec<f32> = (0..=ny)
-        .into_par_iter()
-        .flat_map_iter(|k| {
-            let y = k as f64 * h;
-            (0..lz).flat_map(move |j| {
-                let z = j as f64 * h;
-                (0..lx).map(move |i| score_at(i as f64 * h - half_w, y, z))
-            })
-        })
-        .collect();
-    let lat = |i: usize, j: usize, k: usize| lattice[(k * lz + j) * lx + i];
 
     // Fine-sample coordinate of voxel `i`'s sample `s` on an axis, and its
     // fraction across the voxel.
@@ -794,17 +852,82 @@ pub fn generate_anatomical(spec: &AnatomicalSpec) -> Result<LabelVolume, Phantom
             x_nip,
         ]
     };
-    // The class and glandular score of fine sample `(sx, sy, sz)` of voxel
-    // `(l, v, d)`, given its row's extents and the voxel centre's gap to the
-    // nearest compartment boundary.
-    let fine = |l: usize,
-                v: usize,
-                d: usize,
-                [sx, sy, sz]: [usize; 3],
-                [x_out, x_in, x_nip]: [f64; 3],
-                near: &Candidates|
+    // The extents of the fine rows of every voxel row (`sub * sub` per
+    // height `v` and depth `d`), and the half-extent beyond which the
+    // voxel row is air.
+    let row_ext: Vec<[f64; 3]> = (0..ny)
+        .into_par_iter()
+        .flat_map_iter(|d| {
+            (0..nz).flat_map(move |v| {
+                (0..sub * sub).map(move |q| extents(at(d, q / sub), at(v, q % sub)))
+            })
+        })
+        .collect();
+    let ext_of = |v: usize, d: usize| &row_ext[(d * nz + v) * sub * sub..][..sub * sub];
+    let max_out: Vec<f64> = (0..ny * nz)
+        .map(|q| {
+            ext_of(q % nz, q / nz)
+                .iter()
+                .map(|e| e[0].max(e[2]))
+                .fold(-1.0, f64::max)
+        })
+        .collect();
+    // Voxel `l`'s samples' smallest and largest |x|.
+    let x_range = |l: usize| {
+        let (x0, x1) = (at(l, 0) - half_w, at(l, sub - 1) - half_w);
+        let a_min = if x0 <= 0.0 && x1 >= 0.0 {
+            0.0
+        } else {
+            x0.abs().min(x1.abs())
+        };
+        (a_min, x0.abs().max(x1.abs()))
+    };
+    // The glandular score on the lattice of voxel corners, where a voxel
+    // that is not wholly air reads it (pass 1 reads only interior voxels',
+    // pass 2 every voxel's but those wholly in air or skin); NaN elsewhere.
+    let (lx, lz) = (nx + 1, nz + 1);
+    let lattice: Vec<f32> = (0..=ny)
+        .into_par_iter()
+        .map(|k| {
+            let y = k as f64 * h;
+            let mut out = Vec::with_capacity(lz * lx);
+            for j in 0..lz {
+                let reach_x = (k.saturating_sub(1)..(k + 1).min(ny))
+                    .flat_map(|d| (j.saturating_sub(1)..(j + 1).min(nz)).map(move |v| (v, d)))
+                    .map(|(v, d)| max_out[d * nz + v])
+                    .fold(-1.0, f64::max);
+                let needed = |i: usize| {
+                    (i.saturating_sub(1)..(i + 1).min(nx)).any(|l| x_range(l).0 <= reach_x)
+                };
+                let first = (0..lx).find(|&i| needed(i)).unwrap_or(lx);
+                let last = (0..lx).rev().find(|&i| needed(i)).map_or(first, |i| i + 1);
+                out.resize(out.len() + first, f32::NAN);
+                score_row(y, j as f64 * h, first, last, &mut out);
+                out.resize(out.len() + lx - last, f32::NAN);
+            }
+            out
+        })
+        .flatten_iter()
+        .collect();
+    let lat = |i: usize, j: usize, k: usize| {
+        let v = lattice[(k * lz + j) * lx + i];
+        debug_assert!(
+            !v.is_nan(),
+            "lattice point {i}, {j}, {k} read but not computed"
+        );
+        v
+    };
+
+    // The class and glandular score of voxel `(l, v, d)`'s centre sample,
+    // given its row's extents and its gap to the nearest compartment
+    // boundary (the fine samples of pass 2 are classified the same way).
+    let centre_sample = |l: usize,
+                         v: usize,
+                         d: usize,
+                         [x_out, x_in, x_nip]: [f64; 3],
+                         gap: f32|
      -> (Anatomy, f32) {
-        let (x, y, z) = (at(l, sx) - half_w, at(d, sy), at(v, sz));
+        let (x, y, z) = (at(l, mid) - half_w, at(d, mid), at(v, mid));
         let ax = x.abs();
         if ax > x_out || ax > x_in {
             let class = if ax <= x_nip {
@@ -819,42 +942,42 @@ pub fn generate_anatomical(spec: &AnatomicalSpec) -> Result<LabelVolume, Phantom
         if let Some(k) = index.at([x, y, z]) {
             return (k, 0.0);
         }
-        // Ligament: no seed search where the voxel centre is far enough
-        // from every compartment boundary.
-        if (near.gap as f64) < spec.ligament_mm + reach {
-            let gap = seeds.gap_among(near, [x + half_w, z / FLATTEN, y]);
-            if (gap as f64) < spec.ligament_mm {
-                return (Anatomy::Ligament, 0.0);
-            }
+        if (gap as f64) < spec.ligament_mm {
+            return (Anatomy::Ligament, 0.0);
         }
-        let (fx, fy, fz) = (frac(sx), frac(sy), frac(sz));
+        let fm = frac(mid);
         let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
-        let c = |j: usize, k: usize| lerp(lat(l, j, k), lat(l + 1, j, k), fx);
+        let c = |j: usize, k: usize| lerp(lat(l, j, k), lat(l + 1, j, k), fm);
         let sc = lerp(
-            lerp(c(v, d), c(v + 1, d), fz),
-            lerp(c(v, d + 1), c(v + 1, d + 1), fz),
-            fy,
+            lerp(c(v, d), c(v + 1, d), fm),
+            lerp(c(v, d + 1), c(v + 1, d + 1), fm),
+            fm,
         );
         (Anatomy::Adipose, sc)
     };
-    let near_at = |l: usize, v: usize, d: usize| {
-        seeds.candidates([at(l, mid), at(v, mid) / FLATTEN, at(d, mid)], reach / 2.0)
-    };
+    // The compartment seeds around the line of voxel centres at height `v`
+    // and depth `d`; `.candidates(at(l, mid), reach / 2.0)` for voxel `l`.
+    let seeds_along = |v: usize, d: usize| seeds.row(at(v, mid) / FLATTEN, at(d, mid));
 
-    // Pass 1: the voxel centres' samples set the glandular threshold.
-    let centres: Vec<(Vec<f32>, [u64; 2])> = (0..ny)
+    // Pass 1: the voxel centres' samples set the glandular threshold. Each
+    // interior voxel centre's gap is kept for pass 2 (NaN: not computed).
+    let centres: Vec<(Vec<f32>, [u64; 2], Vec<f32>)> = (0..ny)
         .into_par_iter()
         .map(|d| {
             let mut scores = Vec::new();
+            let mut gaps = vec![f32::NAN; nx * nz];
+            let (mut inside, mut xs, mut nearest) = (Vec::new(), Vec::new(), Vec::new());
             let mut n = [0u64; 2]; // interior, glandular structures
             for v in 0..nz {
                 let e = extents(at(d, mid), at(v, mid));
-                for l in 0..nx {
-                    let x = (at(l, mid) - half_w).abs();
-                    if x > e[1] {
-                        continue;
-                    }
-                    match fine(l, v, d, [mid; 3], e, &near_at(l, v, d)) {
+                inside.clear();
+                inside.extend((0..nx).filter(|&l| (at(l, mid) - half_w).abs() <= e[1]));
+                xs.clear();
+                xs.extend(inside.iter().map(|&l| at(l, mid)));
+                seeds_along(v, d).nearest_each(&xs, &mut nearest);
+                for (&l, &(_, gap)) in inside.iter().zip(&nearest) {
+                    gaps[v * nx + l] = gap;
+                    match centre_sample(l, v, d, e, gap) {
                         (Anatomy::Adipose, s) => {
                             n[0] += 1;
                             scores.push(s);
@@ -867,12 +990,12 @@ pub fn generate_anatomical(spec: &AnatomicalSpec) -> Result<LabelVolume, Phantom
                     }
                 }
             }
-            (scores, n)
+            (scores, n, gaps)
         })
         .collect();
     let (n_int, n_struct) = centres
         .iter()
-        .fold((0u64, 0u64), |a, (_, n)| (a.0 + n[0], a.1 + n[1]));
+        .fold((0u64, 0u64), |a, (_, n, _)| (a.0 + n[0], a.1 + n[1]));
     if n_int == 0 {
         return Err(PhantomError::Parameter {
             field: "skin_mm",
@@ -880,7 +1003,12 @@ pub fn generate_anatomical(spec: &AnatomicalSpec) -> Result<LabelVolume, Phantom
             reason: "the breast has no interior under the skin".into(),
         });
     }
-    let mut scores: Vec<f32> = centres.into_iter().flat_map(|(s, _)| s).collect();
+    let mut scores = Vec::new();
+    let mut centre_gaps = Vec::with_capacity(ny);
+    for (s, _, g) in centres {
+        scores.extend(s);
+        centre_gaps.push(g);
+    }
     let (rg, ra) = (
         Tissue::Fibroglandular.density_g_cm3(),
         Tissue::Adipose.density_g_cm3(),
@@ -906,50 +1034,97 @@ pub fn generate_anatomical(spec: &AnatomicalSpec) -> Result<LabelVolume, Phantom
         }
     };
 
-    // Pass 2: every voxel. One that lies wholly in air, or wholly in the
-    // interior away from ducts, vessels and compartment boundaries with its
-    // eight corner scores on one side of the threshold (the samples
-    // interpolate them, so they are too), is uniform; the others are
-    // sampled `sub^3` times.
+    // Pass 2: every voxel. One that lies wholly in air, wholly in the skin,
+    // or wholly in the interior with no sample in a duct, vessel or ligament
+    // and its eight corner scores on one side of the threshold
+    // (the samples interpolate them, so they are too), is uniform; the
+    // others are sampled `sub^3` times, each sample classified as `fine`
+    // classifies it, with three exact shortcuts: only the tubes that can
+    // reach the voxel are tried, the ligament test runs only in the
+    // voxel's octants that can hold a sample near a compartment boundary
+    // (the gap is 2-Lipschitz), and the score's lerps along x are shared
+    // by the samples of a row (the same operations in the same order).
     let plane = nx * nz;
     let n_fine = (sub * sub * sub) as u8;
+    // Octants: samples `0..half` and `half..sub` per axis; the largest move
+    // of a sample from its octant's centre (scaled coordinates), doubled.
+    let half = sub / 2;
+    let oct_span = (sub - half).max(half).saturating_sub(1) as f64 * f / 2.0;
+    let oct_reach = 2.0 * oct_span * (2.0 + 1.0 / (FLATTEN * FLATTEN)).sqrt();
+    let oct_centre = |i: usize, o: usize| {
+        let (a, b) = if o == 0 { (0, half) } else { (half, sub) };
+        (at(i, a) + at(i, b - 1)) / 2.0
+    };
+    let octant = |s: usize| usize::from(s >= half);
+    // Half the diagonal of a voxel's sample box (real coordinates).
+    let box_reach = (3.0f64).sqrt() * (sub - 1) as f64 * f / 2.0;
+    let fxs: Vec<f32> = (0..sub).map(frac).collect();
     let mut labels = vec![0u8; plane * ny];
     let mut counts = vec![[0u8; 5]; plane * ny];
     labels
         .par_chunks_mut(plane)
         .zip(counts.par_chunks_mut(plane))
+        .zip(centre_gaps.par_iter())
         .enumerate()
-        .for_each(|(d, (lab, cnt))| {
-            let mut ext = vec![[0f64; 3]; sub * sub];
+        .for_each(|(d, ((lab, cnt), gaps))| {
+            let mut tubes: Vec<u32> = Vec::new();
+            // Per lateral sample of the voxel: the score's lerps along x,
+            // and x.
+            let mut cx = vec![([0f32; 4], 0f64); sub];
             let (y0, y1) = (at(d, 0), at(d, sub - 1));
             for v in 0..nz {
                 let (z0, z1) = (at(v, 0), at(v, sub - 1));
-                for sy in 0..sub {
-                    for sz in 0..sub {
-                        ext[sy * sub + sz] = extents(at(d, sy), at(v, sz));
-                    }
-                }
-                let max_out = ext.iter().map(|e| e[0].max(e[2])).fold(-1.0, f64::max);
+                let ext = ext_of(v, d);
+                let max_out = max_out[d * nz + v];
+                let min_out = ext.iter().map(|e| e[0]).fold(f64::INFINITY, f64::min);
                 let min_in = ext.iter().map(|e| e[1]).fold(f64::INFINITY, f64::min);
+                let max_in = ext.iter().map(|e| e[1].max(e[2])).fold(-1.0, f64::max);
+                let row = seeds_along(v, d);
                 for l in 0..nx {
                     let i = v * nx + l;
                     let (x0, x1) = (at(l, 0) - half_w, at(l, sub - 1) - half_w);
-                    let a_min = if x0 <= 0.0 && x1 >= 0.0 {
-                        0.0
-                    } else {
-                        x0.abs().min(x1.abs())
-                    };
-                    let a_max = x0.abs().max(x1.abs());
+                    let (a_min, a_max) = x_range(l);
                     if a_min > max_out {
                         cnt[i][Tissue::Air.label() as usize] = n_fine;
                         lab[i] = Tissue::Air.label();
                         continue;
                     }
-                    let near = near_at(l, v, d);
-                    if a_max <= min_in
-                        && (near.gap as f64) >= spec.ligament_mm + reach
-                        && index.empty_over([x0, y0, z0], [x1, y1, z1])
-                    {
+                    if a_min > max_in && a_max <= min_out {
+                        cnt[i][Tissue::Skin.label() as usize] = n_fine;
+                        lab[i] = Tissue::Skin.label();
+                        continue;
+                    }
+                    // The seeds that can be nearest or second nearest to a
+                    // sample: needed only near a compartment boundary.
+                    let gap = match gaps[i] {
+                        g if g.is_nan() => None,
+                        g => Some(g),
+                    };
+                    let near = match gap {
+                        Some(g) if (g as f64) >= spec.ligament_mm + reach => None,
+                        _ => Some(row.candidates(at(l, mid), reach / 2.0)),
+                    }
+                    .filter(|c| (c.gap as f64) < spec.ligament_mm + reach);
+                    let boundary = near.is_some();
+                    // Octants that may hold a ligament sample.
+                    let mut lig = [false; 8];
+                    if boundary && sub < 2 {
+                        lig = [true; 8];
+                    } else if let Some(near) = &near {
+                        for (o, flag) in lig.iter_mut().enumerate() {
+                            let (ox, oy, oz) = (o & 1, (o >> 1) & 1, o >> 2);
+                            let c = [
+                                oct_centre(l, ox),
+                                oct_centre(v, oz) / FLATTEN,
+                                oct_centre(d, oy),
+                            ];
+                            let g = seeds.gap_among(near, c) as f64;
+                            *flag = g < spec.ligament_mm + oct_reach + 1e-6;
+                        }
+                    }
+                    let ligament = lig.iter().any(|&f| f);
+                    index.reaching([x0, y0, z0], [x1, y1, z1], box_reach, &mut tubes);
+                    if a_max <= min_in && !ligament && tubes.is_empty() {
                         let corners = [
                             lat(l, v, d),
                             lat(l + 1, v, d),
@@ -968,12 +1143,55 @@ pub fn generate_anatomical(spec: &AnatomicalSpec) -> Result<LabelVolume, Phantom
                             continue;
                         }
                     }
+                    for (sx, c) in cx.iter_mut().enumerate() {
+                        let fx = fxs[sx];
+                        let lerp = |a: f32, b: f32| a + (b - a) * fx;
+                        *c = (
+                            [
+                                lerp(lat(l, v, d), lat(l + 1, v, d)),
+                                lerp(lat(l, v + 1, d), lat(l + 1, v + 1, d)),
+                                lerp(lat(l, v, d + 1), lat(l + 1, v, d + 1)),
+                                lerp(lat(l, v + 1, d + 1), lat(l + 1, v + 1, d + 1)),
+                            ],
+                            at(l, sx) - half_w,
+                        );
+                    }
                     for sy in 0..sub {
+                        let y = at(d, sy);
+                        let fy = fxs[sy];
                         for sz in 0..sub {
-                            let e = ext[sy * sub + sz];
-                            for sx in 0..sub {
-                                let (class, s) = fine(l, v, d, [sx, sy, sz], e, &near);
-                                let label = tissue_of(class, s);
+                            let z = at(v, sz);
+                            let fz = fxs[sz];
+                            let [x_out, x_in, x_nip] = ext[sy * sub + sz];
+                            for (sx, &(c, x)) in cx.iter().enumerate() {
+                                let ax = x.abs();
+                                let class = if ax > x_out || ax > x_in {
+                                    if ax <= x_nip {
+                                        Anatomy::Nipple
+                                    } else if ax > x_out {
+                                        Anatomy::Air
+                                    } else {
+                                        Anatomy::Skin
+                                    }
+                                } else if let Some(k) = index.at_among(&tubes, [x, y, z]) {
+                                    k
+                                } else if lig[octant(sx) | octant(sy) << 1 | octant(sz) << 2]
+                                    && near.as_ref().is_some_and(|c| {
+                                        (seeds.gap_among(c, [x + half_w, z / FLATTEN, y]) as f64)
+                                            < spec.ligament_mm
+                                    })
+                                {
+                                    Anatomy::Ligament
+                                } else {
+                                    Anatomy::Adipose
+                                };
+                                let label = if class == Anatomy::Adipose {
+                                    let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
+                                    let sc = lerp(lerp(c[0], c[1], fz), lerp(c[2], c[3], fz), fy);
+                                    tissue_of(class, sc)
+                                } else {
+                                    tissue_of(class, 0.0)
+                                };
                                 cnt[i][label as usize] += 1;
                                 if sy == mid && sz == mid && sx == mid {
                                     lab[i] = label;
@@ -1396,7 +1614,9 @@ mod tests {
 
     /// The tube index finds a tube anywhere in its box, along every axis
     /// (a box much longer in depth than high, as a breast's is), and only
-    /// inside the tube's radius; `empty_over` agrees.
+    /// inside the tube's radius; `reaching` keeps the tubes that can hold a
+    /// point of a box, and `at_among` over them agrees with `at` everywhere
+    /// in the box.
     #[test]
     fn tube_index_finds_tubes_anywhere_in_the_box() {
         let tube = Tube {
@@ -1429,9 +1649,39 @@ mod tests {
         assert_eq!(idx.at([0.0, 92.0, 12.0]), None);
         assert_eq!(idx.at([5.0, 3.5, 25.5]), Some(Anatomy::Tdlu));
         assert_eq!(idx.at([5.0, 3.0, 26.0]), None);
-        assert!(!idx.empty_over([-1.0, 91.0, 9.0], [1.0, 92.0, 11.0]));
-        assert!(idx.empty_over([-1.0, 50.0, 9.0], [1.0, 51.0, 11.0]));
+        let mut ids = Vec::new();
+        let diag = |lo: [f64; 3], hi: [f64; 3]| {
+            (0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f64>().sqrt() / 2.0
+        };
+        let (lo, hi) = ([-1.0, 91.0, 9.0], [1.0, 92.0, 11.0]);
+        idx.reaching(lo, hi, diag(lo, hi), &mut ids);
+        assert_eq!(ids, [0]);
+        let (lo, hi) = ([-1.0, 50.0, 9.0], [1.0, 51.0, 11.0]);
+        idx.reaching(lo, hi, diag(lo, hi), &mut ids);
+        assert!(ids.is_empty());
+        // The TDLU's cell lists it, but a box in the cell's far corner is
+        // out of its reach.
+        let (lo, hi) = ([6.5, 1.6, 20.1], [6.9, 1.9, 20.4]);
+        idx.reaching(lo, hi, diag(lo, hi), &mut ids);
+        assert!(ids.is_empty());
         assert!(idx.at([0.0, 101.0, 10.0]).is_none());
+        // Boxes of 0.6 mm everywhere near both tubes, 27 points in each.
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        for _ in 0..3000 {
+            let centre = if rng.random::<bool>() {
+                [0.0, 92.5, 10.0]
+            } else {
+                [5.0, 3.0, 25.0]
+            };
+            let lo = centre.map(|c| c - 3.0 + 6.0 * rng.random::<f64>());
+            let hi = lo.map(|v| v + 0.6);
+            idx.reaching(lo, hi, diag(lo, hi), &mut ids);
+            for k in 0..27 {
+                let p = [k % 3, (k / 3) % 3, k / 9].map(|i| i as f64 * 0.3);
+                let p = [lo[0] + p[0], lo[1] + p[1], lo[2] + p[2]];
+                assert_eq!(idx.at_among(&ids, p), idx.at(p), "{p:?}");
+            }
+        }
     }
 
     #[test]

@@ -269,36 +269,10 @@ impl Seeds {
     /// of `p` (scaled coordinates): those no farther from `p` than its second
     /// nearest plus `2 r` (a seed's distance changes by at most `r` over the
     /// ball, so does the second-nearest distance). Also the gap at `p`.
+    /// (The generators use [`SeedRow::candidates`], the same bit for bit.)
+    #[cfg(test)]
     pub(crate) fn candidates(&self, p: [f64; 3], r: f64) -> Candidates {
-        let mut all = [(0f64, 0u32); 27];
-        let mut n = 0;
-        self.for_neighbours(p, |id, d| {
-            all[n] = (d, id as u32);
-            n += 1;
-        });
-        let (mut d1, mut d2) = (f64::MAX, f64::MAX);
-        for &(d, _) in &all[..n] {
-            if d < d1 {
-                d2 = d1;
-                d1 = d;
-            } else if d < d2 {
-                d2 = d;
-            }
-        }
-        let (d1, d2) = (d1.sqrt(), d2.sqrt());
-        let limit = (d2 + 2.0 * r).powi(2);
-        let mut c = Candidates {
-            ids: [0; 27],
-            n: 0,
-            gap: (d2 - d1) as f32,
-        };
-        for &(d, id) in &all[..n] {
-            if d <= limit {
-                c.ids[c.n] = id;
-                c.n += 1;
-            }
-        }
-        c
+        candidates_of(&self.neighbours(p), r)
     }
 
     /// Gap `d2 - d1` at `p` among the candidates only.
@@ -317,45 +291,211 @@ impl Seeds {
         (d2.sqrt() - d1.sqrt()) as f32
     }
 
-    /// Call `f(seed, squared distance)` for the seeds of the 27 cells
-    /// around `p`.
-    fn for_neighbours(&self, p: [f64; 3], mut f: impl FnMut(usize, f64)) {
-        let cell =
-            |v: f64, n: usize| ((v / self.cell_mm).floor() as isize + 1).clamp(1, n as isize - 2);
+    /// The cell (with a one-cell margin) holding coordinate `v` on an axis
+    /// of `n` cells.
+    fn cell(&self, v: f64, n: usize) -> isize {
+        ((v / self.cell_mm).floor() as isize + 1).clamp(1, n as isize - 2)
+    }
+
+    /// The seeds of the 27 cells around `p` with their squared distances,
+    /// depth outermost, lateral innermost.
+    fn neighbours(&self, p: [f64; 3]) -> [(f64, u32); 27] {
         let (ci, cj, ck) = (
-            cell(p[0], self.cells[0]),
-            cell(p[1], self.cells[1]),
-            cell(p[2], self.cells[2]),
+            self.cell(p[0], self.cells[0]),
+            self.cell(p[1], self.cells[1]),
+            self.cell(p[2], self.cells[2]),
         );
+        let mut all = [(0f64, 0u32); 27];
+        let mut n = 0;
         for k in ck - 1..=ck + 1 {
             for j in cj - 1..=cj + 1 {
                 for i in ci - 1..=ci + 1 {
                     let id = (k as usize * self.cells[1] + j as usize) * self.cells[0] + i as usize;
                     let s = self.pos[id];
-                    f(
-                        id,
+                    all[n] = (
                         (s[0] - p[0]).powi(2) + (s[1] - p[1]).powi(2) + (s[2] - p[2]).powi(2),
+                        id as u32,
                     );
+                    n += 1;
                 }
             }
         }
+        all
     }
 
     /// Nearest seed and the gap `d2 - d1` to the second nearest, searching the
     /// 27 neighbouring cells (seeds are jittered within their cells, so this is
-    /// the Voronoi partition up to rare far-corner cases).
+    /// exact for the jitter used).
     pub(crate) fn nearest(&self, p: [f64; 3]) -> (usize, f32) {
-        let (mut d1, mut d2, mut best) = (f64::MAX, f64::MAX, 0usize);
-        self.for_neighbours(p, |id, d| {
-            if d < d1 {
-                d2 = d1;
-                d1 = d;
-                best = id;
-            } else if d < d2 {
-                d2 = d;
+        nearest_of(&self.neighbours(p))
+    }
+
+    /// The seeds around the line of points `(x, p1, p2)` (any `x`), with
+    /// the parts of their squared distances that do not depend on `x`:
+    /// [`SeedRow::nearest`] and [`SeedRow::candidates`] are
+    /// [`Seeds::nearest`] and [`Seeds::candidates`] at `(x, p1, p2)`, bit
+    /// for bit (the same terms added in the same order), for a fraction of
+    /// the work when many points share the line.
+    pub(crate) fn row(&self, p1: f64, p2: f64) -> SeedRow {
+        let (cj, ck) = (self.cell(p1, self.cells[1]), self.cell(p2, self.cells[2]));
+        let nx = self.cells[0];
+        let mut cols = vec![[(0f64, 0f64, 0f64, 0u32); 9]; nx];
+        for (i, col) in cols.iter_mut().enumerate() {
+            let mut m = 0;
+            for k in ck - 1..=ck + 1 {
+                for j in cj - 1..=cj + 1 {
+                    let id = (k as usize * self.cells[1] + j as usize) * nx + i;
+                    let s = self.pos[id];
+                    col[m] = (s[0], (s[1] - p1).powi(2), (s[2] - p2).powi(2), id as u32);
+                    m += 1;
+                }
             }
-        });
-        (best, (d2.sqrt() - d1.sqrt()) as f32)
+        }
+        SeedRow {
+            cell_mm: self.cell_mm,
+            cols,
+        }
+    }
+}
+
+/// [`Seeds::nearest`]'s choice among the neighbours, in their order.
+/// (Written without branches: `d2` becomes `min(d2, max(d1, d))`, which is
+/// what the branches of [`Seeds::gap_among`] give, ties included.)
+fn nearest_of(all: &[(f64, u32)]) -> (usize, f32) {
+    let (mut d1, mut d2, mut best) = (f64::MAX, f64::MAX, 0u32);
+    for &(d, id) in all {
+        d2 = d2.min(d1.max(d));
+        best = if d < d1 { id } else { best };
+        d1 = d1.min(d);
+    }
+    (best as usize, (d2.sqrt() - d1.sqrt()) as f32)
+}
+
+/// [`Seeds::candidates`] among the neighbours.
+fn candidates_of(all: &[(f64, u32)], r: f64) -> Candidates {
+    let (mut d1, mut d2) = (f64::MAX, f64::MAX);
+    for &(d, _) in all {
+        if d < d1 {
+            d2 = d1;
+            d1 = d;
+        } else if d < d2 {
+            d2 = d;
+        }
+    }
+    let (d1, d2) = (d1.sqrt(), d2.sqrt());
+    let limit = (d2 + 2.0 * r).powi(2);
+    let mut c = Candidates {
+        ids: [0; 27],
+        n: 0,
+        gap: (d2 - d1) as f32,
+    };
+    for &(d, id) in all {
+        if d <= limit {
+            c.ids[c.n] = id;
+            c.n += 1;
+        }
+    }
+    c
+}
+
+/// The seeds around a line of constant height and depth ([`Seeds::row`]).
+pub(crate) struct SeedRow {
+    cell_mm: f64,
+    /// Per lateral cell, its nine neighbours in height and depth (depth
+    /// outer): lateral position, squared height and depth differences, id.
+    cols: Vec<[(f64, f64, f64, u32); 9]>,
+}
+
+impl SeedRow {
+    /// The 27 neighbours of `(x, p1, p2)` in [`Seeds::neighbours`]'s order
+    /// and with its distances.
+    fn neighbours(&self, x: f64) -> [(f64, u32); 27] {
+        let n = self.cols.len();
+        let ci = ((x / self.cell_mm).floor() as isize + 1).clamp(1, n as isize - 2) as usize;
+        let mut all = [(0f64, 0u32); 27];
+        for m in 0..9 {
+            for (o, i) in (ci - 1..=ci + 1).enumerate() {
+                let (sx, b, c, id) = self.cols[i][m];
+                all[m * 3 + o] = ((sx - x).powi(2) + b + c, id);
+            }
+        }
+        all
+    }
+
+    /// [`Seeds::nearest`] at `(x, p1, p2)` (the generators take many at
+    /// once, [`SeedRow::nearest_each`]).
+    #[cfg(test)]
+    pub(crate) fn nearest(&self, x: f64) -> (usize, f32) {
+        nearest_of(&self.neighbours(x))
+    }
+
+    /// The lateral cell of `x` (with the one-cell margin).
+    fn cell_of(&self, x: f64) -> usize {
+        let n = self.cols.len();
+        ((x / self.cell_mm).floor() as isize + 1).clamp(1, n as isize - 2) as usize
+    }
+
+    /// [`SeedRow::nearest`] at each of `xs` (ascending), into `out`. The
+    /// points in one lateral cell share their 27 neighbours; of those, a
+    /// seed whose squared distance is, everywhere between the run's first
+    /// and last point, larger than the second smallest of the neighbours'
+    /// largest squared distances there can be neither nearest nor second
+    /// nearest at any of them, and is left out. The others are tried in
+    /// the same order with the same arithmetic, so the result is the same
+    /// bit for bit.
+    pub(crate) fn nearest_each(&self, xs: &[f64], out: &mut Vec<(usize, f32)>) {
+        out.clear();
+        let mut k = 0;
+        while k < xs.len() {
+            let ci = self.cell_of(xs[k]);
+            let mut e = k + 1;
+            while e < xs.len() && self.cell_of(xs[e]) == ci {
+                e += 1;
+            }
+            let (xa, xb) = (xs[k], xs[e - 1]);
+            let mut all = [(0f64, 0f64, 0f64, 0u32); 27];
+            let mut lo = [0f64; 27];
+            let (mut u1, mut u2) = (f64::MAX, f64::MAX);
+            for m in 0..9 {
+                for (o, i) in (ci - 1..=ci + 1).enumerate() {
+                    let q = self.cols[i][m];
+                    let (da, db) = ((q.0 - xa).powi(2), (q.0 - xb).powi(2));
+                    let near = if (xa..=xb).contains(&q.0) {
+                        0.0
+                    } else {
+                        da.min(db)
+                    };
+                    let up = da.max(db) + q.1 + q.2;
+                    u2 = u2.min(u1.max(up));
+                    u1 = u1.min(up);
+                    all[m * 3 + o] = q;
+                    lo[m * 3 + o] = near + q.1 + q.2;
+                }
+            }
+            // A margin far above the rounding of these few operations.
+            let limit = u2 * (1.0 + 1e-9) + 1e-9;
+            let mut kept = [(0f64, 0f64, 0f64, 0u32); 27];
+            let mut n = 0;
+            for (q, &l) in all.iter().zip(&lo) {
+                if l <= limit {
+                    kept[n] = *q;
+                    n += 1;
+                }
+            }
+            let mut d = [(0f64, 0u32); 27];
+            for &x in &xs[k..e] {
+                for (t, &(sx, b, c, id)) in d.iter_mut().zip(&kept[..n]) {
+                    *t = ((sx - x).powi(2) + b + c, id);
+                }
+                out.push(nearest_of(&d[..n]));
+            }
+            k = e;
+        }
+    }
+
+    /// [`Seeds::candidates`] at `(x, p1, p2)`.
+    pub(crate) fn candidates(&self, x: f64, r: f64) -> Candidates {
+        candidates_of(&self.neighbours(x), r)
     }
 }
 
@@ -593,6 +733,44 @@ mod tests {
         }
         assert_eq!(pop.draw(9, 3), pop.draw(9, 3));
         assert_ne!(pop.draw(9, 3), pop.draw(9, 4));
+    }
+
+    /// A row of seeds gives the same nearest seed, gap and candidates as
+    /// the seeds themselves, bit for bit, anywhere along its line (also
+    /// beyond the seeds' box, where the cells clamp).
+    #[test]
+    fn seed_rows_agree_with_seeds_bit_for_bit() {
+        let mut rng = ChaCha8Rng::seed_from_u64(8);
+        let seeds = Seeds::new([120.0, 50.0, 90.0], 7.0, &mut rng);
+        for _ in 0..200 {
+            let (p1, p2) = (
+                -5.0 + 100.0 * rng.random::<f64>(),
+                -5.0 + 100.0 * rng.random::<f64>(),
+            );
+            let row = seeds.row(p1, p2);
+            for _ in 0..50 {
+                let x = -10.0 + 140.0 * rng.random::<f64>();
+                let (a, b) = (seeds.nearest([x, p1, p2]), row.nearest(x));
+                assert_eq!((a.0, a.1.to_bits()), (b.0, b.1.to_bits()));
+                let (c, d) = (seeds.candidates([x, p1, p2], 0.7), row.candidates(x, 0.7));
+                assert_eq!(c.gap.to_bits(), d.gap.to_bits());
+                assert_eq!(c.ids[..c.n], d.ids[..d.n]);
+            }
+            // Runs of points 0.8 mm apart (as the lattice), and sparse ones.
+            let x0 = -10.0 + 20.0 * rng.random::<f64>();
+            let step = if rng.random::<bool>() {
+                0.8
+            } else {
+                9.0 * rng.random::<f64>() + 0.01
+            };
+            let xs: Vec<f64> = (0..150).map(|i| x0 + i as f64 * step).collect();
+            let mut each = Vec::new();
+            row.nearest_each(&xs, &mut each);
+            for (&x, &(id, gap)) in xs.iter().zip(&each) {
+                let (a, g) = seeds.nearest([x, p1, p2]);
+                assert_eq!((a, g.to_bits()), (id, gap.to_bits()), "x {x}");
+            }
+        }
     }
 
     /// The procedural population stays byte-identical to the one every
