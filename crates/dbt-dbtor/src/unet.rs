@@ -57,11 +57,20 @@ pub struct UnetManifest {
     /// Validation recorded at export.
     #[serde(default)]
     pub validation: serde_json::Value,
+    /// Whether the network takes images of any height (the image's other
+    /// dimensions and the scan as in `geometry`): the network is fully
+    /// convolutional, and its graph reads the height from its input
+    /// (`training/dbtor/unet_any_rows.py`). [`Unet::load_with_rows`] refuses
+    /// other heights without it.
+    #[serde(default)]
+    pub any_rows: bool,
 }
 
 /// A loaded U-Net.
 pub struct Unet {
     manifest: UnetManifest,
+    /// The manifest's geometry with the image height it was loaded for.
+    geometry: Geometry,
     plan: std::sync::Arc<TypedSimplePlan>,
     path: PathBuf,
     nonnegative: bool,
@@ -80,6 +89,13 @@ impl Unet {
     /// Load `dir/manifest.json`, check it, verify every checksum and prepare
     /// the network for the model's image size.
     pub fn load(dir: &Path) -> Result<Self, DbtorError> {
+        Self::load_with_rows(dir, None)
+    }
+
+    /// [`Unet::load`], the network prepared for images of `rows` rows
+    /// (`None`: the manifest's); a height other than the manifest's needs a
+    /// manifest that says `any_rows`.
+    pub fn load_with_rows(dir: &Path, rows: Option<usize>) -> Result<Self, DbtorError> {
         let mpath = dir.join("manifest.json");
         let bad = |reason: String| DbtorError::Manifest {
             path: mpath.clone(),
@@ -114,7 +130,20 @@ impl Unet {
             path: path.clone(),
             reason: format!("{e:#}"),
         };
-        let (rows, cols) = (m.geometry.image.rows, m.geometry.image.columns);
+        let mut geometry = m.geometry.clone();
+        if let Some(r) = rows.filter(|&r| r != geometry.image.rows) {
+            if !m.any_rows {
+                return Err(bad(format!(
+                    "the network takes images of {} rows, not {r} (the manifest does not say any_rows)",
+                    geometry.image.rows
+                )));
+            }
+            geometry.image.rows = r;
+            geometry
+                .validate()
+                .map_err(|e| bad(format!("geometry with {r} image rows: {e}")))?;
+        }
+        let (rows, cols) = (geometry.image.rows, geometry.image.columns);
         let plan = tract_onnx::onnx()
             .model_for_path(&path)
             .map_err(fail)?
@@ -126,6 +155,7 @@ impl Unet {
             .map_err(fail)?;
         Ok(Unet {
             manifest: m,
+            geometry,
             plan,
             path,
             nonnegative: true,
@@ -137,9 +167,10 @@ impl Unet {
         &self.manifest
     }
 
-    /// The model's geometry.
+    /// The geometry the network was loaded for (the manifest's, with the
+    /// image height of [`Unet::load_with_rows`]).
     pub fn geometry(&self) -> &Geometry {
-        &self.manifest.geometry
+        &self.geometry
     }
 
     /// Whether [`Unet::reconstruct`] sets negative values to zero (default:
@@ -164,7 +195,7 @@ impl Unet {
 
     /// The network's output (1/mm) as is: what the fixtures store.
     pub fn network_output(&self, fbp: &[f32]) -> Result<Vec<f32>, DbtorError> {
-        let g = &self.manifest.geometry;
+        let g = &self.geometry;
         let (rows, cols) = (g.image.rows, g.image.columns);
         if fbp.len() != rows * cols {
             return Err(DbtorError::Input(format!(

@@ -44,8 +44,8 @@ fn tract_matches_pytorch() {
     }
 }
 
-#[test]
-fn tampered_or_wrong_input_is_refused() {
+/// The shipped model folder (files and fixtures) copied to a temporary one.
+fn copy_of_model() -> tempfile::TempDir {
     let from = model_dir();
     let t = tempfile::tempdir().unwrap();
     for e in std::fs::read_dir(&from).unwrap() {
@@ -59,6 +59,12 @@ fn tampered_or_wrong_input_is_refused() {
         let e = e.unwrap();
         std::fs::copy(e.path(), t.path().join("fixtures").join(e.file_name())).unwrap();
     }
+    t
+}
+
+#[test]
+fn tampered_or_wrong_input_is_refused() {
+    let t = copy_of_model();
     let u = Unet::load(t.path()).unwrap();
     let n = u.geometry().n_pixels();
     assert!(u.reconstruct(&vec![0.0; n - 1]).is_err());
@@ -78,4 +84,54 @@ fn tampered_or_wrong_input_is_refused() {
         Err(DbtorError::Checksum { path, .. }) => assert!(path.ends_with("unet.onnx")),
         other => panic!("expected a checksum error, got {other:?}"),
     }
+}
+
+/// The shipped U-Net takes images of any height (its manifest says
+/// `any_rows`): at its own height `load_with_rows` is `load`, bit for bit;
+/// at the 104 mm image's 130 rows it runs and returns that image; without
+/// `any_rows` another height is refused, naming both.
+#[test]
+fn other_image_heights_only_where_the_manifest_allows() {
+    let dir = model_dir();
+    let u = Unet::load(&dir).unwrap();
+    assert!(u.manifest().any_rows);
+    let rows = u.geometry().image.rows;
+    let fx = &u.manifest().fixtures[0];
+    let fbp = read_f32(&dir.join(&fx.files["fbp"]));
+    let same = Unet::load_with_rows(&dir, Some(rows)).unwrap();
+    assert_eq!(
+        same.network_output(&fbp).unwrap(),
+        u.network_output(&fbp).unwrap()
+    );
+
+    let tall = Unet::load_with_rows(&dir, Some(130)).unwrap();
+    assert_eq!(tall.geometry().image.rows, 130);
+    let cols = tall.geometry().image.columns;
+    // The fixture's image on the bottom rows (the breast lies on the
+    // support), air above.
+    let mut x = vec![0.0; (130 - rows) * cols];
+    x.extend_from_slice(&fbp);
+    let out = tall.reconstruct(&x).unwrap();
+    assert_eq!(out.len(), 130 * cols);
+    assert!(out.iter().all(|v| v.is_finite() && *v >= 0.0));
+    assert!(
+        tall.reconstruct(&fbp).is_err(),
+        "a 75-row image to the 130-row network"
+    );
+
+    let t = copy_of_model();
+    let mpath = t.path().join("manifest.json");
+    let text = std::fs::read_to_string(&mpath).unwrap();
+    std::fs::write(
+        &mpath,
+        text.replace("\"any_rows\": true", "\"any_rows\": false"),
+    )
+    .unwrap();
+    let e = Unet::load_with_rows(t.path(), Some(130))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("130") && e.contains(&rows.to_string()) && e.contains("any_rows"),
+        "{e}"
+    );
 }

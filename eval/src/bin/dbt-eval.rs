@@ -109,7 +109,9 @@ enum Cmd {
         #[arg(long)]
         lpd: Option<PathBuf>,
         /// A trained U-Net model folder (the paper's baseline: a U-Net on the
-        /// FBP, `training/dbtor/export_unet.py`); same geometry.
+        /// FBP, `training/dbtor/export_unet.py`); same geometry, except that
+        /// one whose manifest says `any_rows` runs on the model's image
+        /// height.
         #[arg(long)]
         unet: Option<PathBuf>,
         #[command(flatten)]
@@ -543,9 +545,12 @@ fn main() -> Result<()> {
         } => {
             let mut loaded = load_models(model.as_deref(), &precisions, &runtime)?;
             loaded.extend(load_models(lpd.as_deref(), "fp32", &runtime)?);
+            // The U-Net is fully convolutional: with a DBToR model, it runs on
+            // that model's image height if its manifest allows (any_rows).
+            let rows = loaded.first().map(|(_, m)| m.geometry().image.rows);
             let unet = unet
                 .map(|d| {
-                    dbt_dbtor::unet::Unet::load(&d)
+                    dbt_dbtor::unet::Unet::load_with_rows(&d, rows)
                         .map(|u| u.with_nonnegativity(!runtime.raw))
                         .with_context(|| format!("loading the U-Net {}", d.display()))
                 })
