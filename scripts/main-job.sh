@@ -4,15 +4,15 @@
 #  1. dbtor-diag selftest: the shipped geometry and projector at the paper's
 #     full geometry (adjointness, analytic slab line integrals, norm bound).
 #  2. host-sim acquire: test-set phantom 0 (never trained on), every coronal
-#     slice simulated at N = 8 (Poisson), the paper geometry with its 80 mm
-#     image (paper-tall, for breasts up to 75 mm) binned x4, written as a
-#     recorded acquisition (acquisition.json + counts.f32).
+#     slice simulated at N = 8 (Poisson), on the gantry geometry that
+#     firmware/config/dbtor.toml names (frames.geometry, frames.binning),
+#     written as a recorded acquisition (acquisition.json + counts.f32).
 #  3. host-sim stream | dbtor-receive: the gantry's projection stream
 #     (GANTRY_INTERFACE.md) over loopback TCP, two processes; the firmware
 #     acknowledges every frame and spools the acquisition atomically.
 #  4. dbtor-process: per-slice DBToR reconstruction with the shipped model
 #     (the repository's copy of the model and precision that the shipped
-#     firmware/config/dbtor.toml names, trained for paper-tall; checksums
+#     firmware/config/dbtor.toml names, trained for that geometry; checksums
 #     verified at load; DBTOR_PRECISION=fp32|int8 overrides the precision),
 #     tissue classification, glandularity, Monte Carlo MGD (25
 #     views, patient-specific and model breast, 1 % uncertainty), dose SR and
@@ -29,17 +29,20 @@ cargo build --release --locked -q -p dbtor-firmware -p host-sim
 ./target/release/dbtor-diag selftest
 rm -rf "$OUT"
 mkdir -p "$OUT"
-./target/release/host-sim acquire --out "$OUT/gantry-acquisition" --index 0 --geometry paper-tall --binning 4 --noise N8 2>/dev/null
+# The shipped configuration is the one place that names the model and the
+# gantry geometry it is paired with.
+read -r MODEL PRECISION DIGEST GEOMETRY BINNING < <(python3 -c '
+import pathlib, sys, tomllib
+c = tomllib.load(open(sys.argv[1], "rb"))
+r, f = c["recon"], c["frames"]
+print("models/" + pathlib.PurePosixPath(r["model"]).name, r["precision"], r["model_digest"],
+      f["geometry"], f.get("binning", 1))' firmware/config/dbtor.toml)
+./target/release/host-sim acquire --out "$OUT/gantry-acquisition" --index 0 --geometry "$GEOMETRY" --binning "$BINNING" --noise N8 2>/dev/null
 PORT=$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
 ./target/release/host-sim stream --acq "$OUT/gantry-acquisition" --listen "127.0.0.1:$PORT" 2>/dev/null &
 SIM=$!
-./target/release/dbtor-receive --connect "127.0.0.1:$PORT" --geometry paper-tall --binning 4 --out "$OUT/spool/acquisition-1"
+./target/release/dbtor-receive --connect "127.0.0.1:$PORT" --geometry "$GEOMETRY" --binning "$BINNING" --out "$OUT/spool/acquisition-1"
 wait "$SIM"
-# The shipped configuration is the one place that names the model.
-read -r MODEL PRECISION DIGEST < <(python3 -c '
-import pathlib, sys, tomllib
-r = tomllib.load(open(sys.argv[1], "rb"))["recon"]
-print("models/" + pathlib.PurePosixPath(r["model"]).name, r["precision"], r["model_digest"])' firmware/config/dbtor.toml)
 ./target/release/dbtor-process "$OUT/spool/acquisition-1" --out "$OUT/reports" \
     --model "$MODEL" --model-digest "$DIGEST" --precision "${DBTOR_PRECISION:-$PRECISION}" "$@" > "$OUT/summary.json"
 python3 - "$OUT/summary.json" "$OUT/gantry-acquisition/acquisition.json" <<'PY' || cat "$OUT/summary.json"

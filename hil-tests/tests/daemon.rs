@@ -77,8 +77,9 @@ fn gantry_with(acq: &Path, thickness_mm: f64, faults: &[&str]) -> Gantry {
 /// The repository's copy of the model the shipped configuration names
 /// (`firmware/config/dbtor.toml`, `recon.model = ".../<name>"` ->
 /// `models/<name>`): switching the shipped model is one edit of that file.
-/// Returns the folder and its signed-off digest (`recon.model_digest`).
-fn shipped_model() -> (PathBuf, String) {
+/// Returns the folder, its signed-off digest (`recon.model_digest`) and the
+/// gantry geometry the configuration pairs it with (`frames.geometry`).
+fn shipped_model() -> (PathBuf, String, String) {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let text = std::fs::read_to_string(root.join("firmware/config/dbtor.toml")).unwrap();
     let shipped: toml::Value = toml::from_str(&text).unwrap();
@@ -90,7 +91,8 @@ fn shipped_model() -> (PathBuf, String) {
         .as_str()
         .unwrap()
         .to_string();
-    (model, digest)
+    let geometry = shipped["frames"]["geometry"].as_str().unwrap().to_string();
+    (model, digest, geometry)
 }
 
 /// A daemon configuration in `dir` from its frames, Modbus and recon
@@ -380,7 +382,10 @@ fn bad_configuration_is_refused_naming_the_key() {
 #[test]
 fn clean_acquisition_over_serial_lines() {
     let dir = tempfile::tempdir().unwrap();
-    let (acq, thickness) = acquire_on(dir.path(), "paper-tall");
+    // The shipped model on the fast engine and its geometry: the gantry PC's
+    // configuration.
+    let (model, digest, geometry) = shipped_model();
+    let (acq, thickness) = acquire_on(dir.path(), &geometry);
     let frames = pty_pair(dir.path(), "frames");
     let regs = pty_pair(dir.path(), "modbus");
     let (frames_gantry, frames_pc) = (&frames.a, &frames.b);
@@ -392,13 +397,10 @@ fn clean_acquisition_over_serial_lines() {
         .stderr(Stdio::null())
         .spawn()
         .unwrap();
-    // The shipped model on the fast engine and its geometry: the gantry PC's
-    // configuration.
-    let (model, digest) = shipped_model();
     let cfg = write_config(
         dir.path(),
         &format!(
-            "transport = \"serial\"\nport = \"{}\"\ngeometry = \"paper-tall\"",
+            "transport = \"serial\"\nport = \"{}\"\ngeometry = \"{geometry}\"",
             frames_pc.display()
         ),
         &format!(
@@ -612,7 +614,7 @@ fn check_config_checks_the_model_the_spool_and_the_devices() {
     };
     let dir = tempfile::tempdir().unwrap();
     // A copy of the shipped model: first as signed off, then tampered.
-    let (model, digest) = shipped_model();
+    let (model, digest, geometry) = shipped_model();
     let copy = dir.path().join("model");
     let cp = Command::new("cp")
         .arg("-r")
@@ -625,8 +627,9 @@ fn check_config_checks_the_model_the_spool_and_the_devices() {
         "reconstructor = \"dbtor\"\nmodel = {:?}\nmodel_digest = {digest:?}",
         copy.display().to_string()
     );
-    let frames = "transport = \"tcp\"\naddress = \"127.0.0.1:5000\"\ngeometry = \"paper-tall\"";
-    let cfg = write_config(dir.path(), frames, "transport = \"off\"", &recon);
+    let frames =
+        format!("transport = \"tcp\"\naddress = \"127.0.0.1:5000\"\ngeometry = \"{geometry}\"");
+    let cfg = write_config(dir.path(), &frames, "transport = \"off\"", &recon);
     let (code, out) = check(&cfg);
     assert_eq!(code, Some(0), "{out}");
     assert!(
@@ -657,7 +660,9 @@ fn check_config_checks_the_model_the_spool_and_the_devices() {
     // A serial frame line that does not exist.
     let cfg = write_config(
         dir.path(),
-        "transport = \"serial\"\nport = \"/dev/ttyDBTOR-NONE\"\ngeometry = \"paper-tall\"",
+        &format!(
+            "transport = \"serial\"\nport = \"/dev/ttyDBTOR-NONE\"\ngeometry = \"{geometry}\""
+        ),
         "transport = \"off\"",
         &recon,
     );
