@@ -1,0 +1,219 @@
+//! The architecture invariants of ARCHITECTURE.md that the dependency graph
+//! can show, read from `cargo metadata` (the real resolve of the workspace,
+//! normal dependencies only: dev- and build-dependencies do not ship):
+//!
+//! - the pure domain crates reach no adapter crate of the workspace (files,
+//!   network, serial, model folders, binaries), however indirectly, and
+//!   neither they nor a workspace crate they reach depends on an external
+//!   crate that does I/O at the edges (async runtime, serial ports, Modbus,
+//!   signals, DICOM networking, memory maps, compression) or that belongs to
+//!   a command line (argument parsing, `anyhow`, log subscribers). What an
+//!   external library uses inside itself (tract's `anyhow`) is its own
+//!   business;
+//! - the one exception is named: `dbt-pipeline` runs a loaded DBToR model,
+//!   so it links `dbt-dbtor`, whose `load` reads a model folder; the
+//!   pipeline itself reads no file (its callers load the model), and
+//!   `dbt-dbtor` is held to the same external rules as the pure crates.
+
+use serde_json::Value;
+use std::collections::{BTreeMap, BTreeSet};
+use std::process::Command;
+
+/// The pure domain crates (ARCHITECTURE.md, "(pure)").
+const PURE: &[&str] = &[
+    "dbt-geometry",
+    "dbt-projector",
+    "dbt-materials",
+    "dbt-phantom",
+    "dbt-acquisition",
+    "dbt-recon",
+    "dbt-metrics",
+    "dbt-dose",
+    "dbt-tissue",
+    "dbt-gantry",
+    "dbt-dicom",
+    "dbt-pipeline",
+    "dbt-conv",
+];
+
+/// Workspace crates at the edges: adapters and binaries.
+const ADAPTERS: &[&str] = &[
+    "dbt-store",
+    "dbt-pacs",
+    "dbt-model",
+    "dbtor-firmware",
+    "host-sim",
+    "dbt-eval",
+    "dbt-bench",
+    "dbt-dose-cli",
+    "hil-tests",
+];
+
+/// External crates that do I/O at the edges or serve a command line.
+const EDGE_CRATES: &[&str] = &[
+    "tokio",
+    "tokio-serial",
+    "tokio-modbus",
+    "serialport",
+    "signal-hook",
+    "dicom-ul",
+    "memmap2",
+    "flate2",
+    "clap",
+    "anyhow",
+    "tracing-subscriber",
+];
+
+/// Package name by package id, and each package's normal dependencies (ids).
+/// (On this machine's platform: the other platforms' dependencies are not
+/// downloaded.)
+fn graph() -> (BTreeMap<String, String>, BTreeMap<String, Vec<String>>) {
+    let rustc = Command::new("rustc")
+        .arg("-vV")
+        .output()
+        .expect("rustc runs");
+    let host = String::from_utf8_lossy(&rustc.stdout)
+        .lines()
+        .find_map(|l| l.strip_prefix("host: ").map(str::to_string))
+        .expect("rustc -vV names the host");
+    let out = Command::new(env!("CARGO"))
+        .args(["metadata", "--format-version", "1", "--locked", "--offline"])
+        .args(["--filter-platform", &host])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .expect("cargo metadata runs");
+    assert!(
+        out.status.success(),
+        "cargo metadata: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let m: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let names = m["packages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| {
+            (
+                p["id"].as_str().unwrap().to_string(),
+                p["name"].as_str().unwrap().to_string(),
+            )
+        })
+        .collect();
+    let deps = m["resolve"]["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|n| {
+            let normal = n["deps"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .filter(|d| {
+                    d["dep_kinds"]
+                        .as_array()
+                        .unwrap()
+                        .iter()
+                        .any(|k| k["kind"].is_null())
+                })
+                .map(|d| d["pkg"].as_str().unwrap().to_string())
+                .collect();
+            (n["id"].as_str().unwrap().to_string(), normal)
+        })
+        .collect();
+    (names, deps)
+}
+
+/// Every package `id` depends on, however indirectly, with the chain that
+/// reaches it (ids, from `id`'s direct dependency on); with `workspace_only`
+/// the search goes on only through workspace crates (a dependency of an
+/// external crate is not followed).
+fn closure(
+    id: &str,
+    deps: &BTreeMap<String, Vec<String>>,
+    workspace_only: bool,
+) -> BTreeMap<String, Vec<String>> {
+    let mut seen: BTreeMap<String, Vec<String>> = BTreeMap::new();
+    let mut stack: Vec<(String, Vec<String>)> = vec![(id.to_string(), vec![])];
+    while let Some((p, path)) = stack.pop() {
+        if workspace_only && !p.starts_with("path+file://") {
+            continue;
+        }
+        for d in deps.get(&p).into_iter().flatten() {
+            if !seen.contains_key(d) {
+                let mut chain = path.clone();
+                chain.push(d.clone());
+                seen.insert(d.clone(), chain.clone());
+                stack.push((d.clone(), chain));
+            }
+        }
+    }
+    seen
+}
+
+#[test]
+fn pure_crates_reach_no_adapter_and_no_edge_crate() {
+    let (names, deps) = graph();
+    let id_of = |name: &str| -> String {
+        names
+            .iter()
+            .find(|(_, n)| n.as_str() == name)
+            .map(|(id, _)| id.clone())
+            .unwrap_or_else(|| panic!("{name} is not in the workspace's metadata"))
+    };
+    // Every workspace crate is classified (a new one must be placed).
+    let members: BTreeSet<String> = names
+        .iter()
+        .filter(|(id, _)| id.starts_with("path+file://"))
+        .map(|(_, n)| n.clone())
+        .collect();
+    let classified: BTreeSet<String> = PURE
+        .iter()
+        .chain(ADAPTERS)
+        .chain(["dbt-dbtor"].iter())
+        .map(|s| s.to_string())
+        .collect();
+    assert_eq!(
+        members, classified,
+        "every workspace crate is pure, an adapter or dbt-dbtor (hil-tests/tests/architecture.rs)"
+    );
+
+    let mut violations = Vec::new();
+    for &krate in PURE.iter().chain(["dbt-dbtor"].iter()) {
+        for (dep, chain) in closure(&id_of(krate), &deps, true) {
+            let name = &names[&dep];
+            let chain: Vec<&str> = chain.iter().map(|c| names[c].as_str()).collect();
+            let forbidden = ADAPTERS.contains(&name.as_str())
+                || EDGE_CRATES.contains(&name.as_str())
+                || (PURE.contains(&krate)
+                    && name == "dbt-dbtor"
+                    && krate != "dbt-pipeline"
+                    && !chain.contains(&"dbt-pipeline"));
+            if forbidden {
+                violations.push(format!("{krate} -> {}", chain.join(" -> ")));
+            }
+        }
+    }
+    assert!(
+        violations.is_empty(),
+        "pure crates reaching adapters or edge crates:\n{}",
+        violations.join("\n")
+    );
+}
+
+/// The test can fail: the binaries do reach the edge crates it looks for.
+#[test]
+fn the_edges_are_where_the_test_looks_for_them() {
+    let (names, deps) = graph();
+    let id = names
+        .iter()
+        .find(|(_, n)| n.as_str() == "dbtor-firmware")
+        .map(|(id, _)| id.clone())
+        .unwrap();
+    let reached: BTreeSet<&str> = closure(&id, &deps, true)
+        .keys()
+        .map(|d| names[d].as_str())
+        .collect();
+    for edge in ["tokio", "serialport", "clap", "dbt-store", "dbt-pacs"] {
+        assert!(reached.contains(edge), "the firmware reaches {edge}");
+    }
+}
