@@ -373,28 +373,31 @@ unsafe fn tile_avx512<const NB: usize, const NP: usize>(
     ocp: usize,
     out: *mut f32,
 ) {
-    use std::arch::x86_64::*;
-    let mut acc = [[_mm512_setzero_ps(); NB]; NP];
-    for t in 0..9 {
-        let ib = inp.add((t / 3) * rs + (t % 3) * cs);
-        let wb = w.add(t * cin * ocp);
-        for ic in 0..cin {
-            let wr = wb.add(ic * ocp);
-            let mut wv = [_mm512_setzero_ps(); NB];
-            for (j, v) in wv.iter_mut().enumerate() {
-                *v = _mm512_loadu_ps(wr.add(j * L));
-            }
-            for (p, a) in acc.iter_mut().enumerate() {
-                let b = _mm512_set1_ps(*ib.add(p * cs + ic));
-                for (j, aj) in a.iter_mut().enumerate() {
-                    *aj = _mm512_fmadd_ps(b, wv[j], *aj);
+    // SAFETY: AVX-512F and the pointer ranges per the contract (`# Safety` above).
+    unsafe {
+        use std::arch::x86_64::*;
+        let mut acc = [[_mm512_setzero_ps(); NB]; NP];
+        for t in 0..9 {
+            let ib = inp.add((t / 3) * rs + (t % 3) * cs);
+            let wb = w.add(t * cin * ocp);
+            for ic in 0..cin {
+                let wr = wb.add(ic * ocp);
+                let mut wv = [_mm512_setzero_ps(); NB];
+                for (j, v) in wv.iter_mut().enumerate() {
+                    *v = _mm512_loadu_ps(wr.add(j * L));
+                }
+                for (p, a) in acc.iter_mut().enumerate() {
+                    let b = _mm512_set1_ps(*ib.add(p * cs + ic));
+                    for (j, aj) in a.iter_mut().enumerate() {
+                        *aj = _mm512_fmadd_ps(b, wv[j], *aj);
+                    }
                 }
             }
         }
-    }
-    for (p, a) in acc.iter().enumerate() {
-        for (j, aj) in a.iter().enumerate() {
-            _mm512_storeu_ps(out.add((p * NB + j) * L), *aj);
+        for (p, a) in acc.iter().enumerate() {
+            for (j, aj) in a.iter().enumerate() {
+                _mm512_storeu_ps(out.add((p * NB + j) * L), *aj);
+            }
         }
     }
 }

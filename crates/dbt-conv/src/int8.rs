@@ -615,31 +615,45 @@ fn residual_chunk(
 }
 
 /// `round_half_even(v / s) + z` clamped to the int8 range, as floats.
+///
+/// # Safety
+/// The caller runs with AVX-512F enabled.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 unsafe fn q16(v: std::arch::x86_64::__m512, q: QuantParams) -> std::arch::x86_64::__m512 {
-    use std::arch::x86_64::*;
-    let r = _mm512_roundscale_ps::<{ _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC }>(
-        _mm512_div_ps(v, _mm512_set1_ps(q.scale)),
-    );
-    let r = _mm512_add_ps(r, _mm512_set1_ps(q.zero_point as f32));
-    _mm512_min_ps(
-        _mm512_max_ps(r, _mm512_set1_ps(-128.0)),
-        _mm512_set1_ps(127.0),
-    )
+    // SAFETY: AVX-512F per the contract; registers only.
+    unsafe {
+        use std::arch::x86_64::*;
+        let r = _mm512_roundscale_ps::<{ _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC }>(
+            _mm512_div_ps(v, _mm512_set1_ps(q.scale)),
+        );
+        let r = _mm512_add_ps(r, _mm512_set1_ps(q.zero_point as f32));
+        _mm512_min_ps(
+            _mm512_max_ps(r, _mm512_set1_ps(-128.0)),
+            _mm512_set1_ps(127.0),
+        )
+    }
 }
 
 /// `DQ(Q(v))`, 16 lanes.
+///
+/// # Safety
+/// The caller runs with AVX-512F enabled.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 unsafe fn fake16(v: std::arch::x86_64::__m512, q: QuantParams) -> std::arch::x86_64::__m512 {
-    use std::arch::x86_64::*;
-    _mm512_mul_ps(
-        _mm512_sub_ps(q16(v, q), _mm512_set1_ps(q.zero_point as f32)),
-        _mm512_set1_ps(q.scale),
-    )
+    // SAFETY: AVX-512F per the contract; registers only.
+    unsafe {
+        use std::arch::x86_64::*;
+        _mm512_mul_ps(
+            _mm512_sub_ps(q16(v, q), _mm512_set1_ps(q.zero_point as f32)),
+            _mm512_set1_ps(q.scale),
+        )
+    }
 }
 
+/// # Safety
+/// AVX-512F and BW.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512bw")]
 unsafe fn quantize_chunk_avx512(
@@ -649,25 +663,31 @@ unsafe fn quantize_chunk_avx512(
     qc: QuantParams,
     dst: &mut [u8],
 ) -> usize {
-    use std::arch::x86_64::*;
-    let n = src.len().min(dst.len()) / L * L;
-    let kv = _mm512_set1_ps(k);
-    for x in (0..n).step_by(L) {
-        let v = _mm512_loadu_ps(src.as_ptr().add(x));
-        let v = match q {
-            Some(q) => fake16(v, q),
-            None => v,
-        };
-        let v = _mm512_mul_ps(v, kv);
-        let b = _mm512_add_epi32(_mm512_cvtps_epi32(q16(v, qc)), _mm512_set1_epi32(128));
-        _mm_storeu_si128(
-            dst.as_mut_ptr().add(x) as *mut __m128i,
-            _mm512_cvtepi32_epi8(b),
-        );
+    // SAFETY: AVX-512F/BW per the contract; whole 16-lane chunks only, inside
+    // `src` and `dst`.
+    unsafe {
+        use std::arch::x86_64::*;
+        let n = src.len().min(dst.len()) / L * L;
+        let kv = _mm512_set1_ps(k);
+        for x in (0..n).step_by(L) {
+            let v = _mm512_loadu_ps(src.as_ptr().add(x));
+            let v = match q {
+                Some(q) => fake16(v, q),
+                None => v,
+            };
+            let v = _mm512_mul_ps(v, kv);
+            let b = _mm512_add_epi32(_mm512_cvtps_epi32(q16(v, qc)), _mm512_set1_epi32(128));
+            _mm_storeu_si128(
+                dst.as_mut_ptr().add(x) as *mut __m128i,
+                _mm512_cvtepi32_epi8(b),
+            );
+        }
+        n
     }
-    n
 }
 
+/// # Safety
+/// AVX-512F and BW.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512bw")]
 unsafe fn residual_chunk_avx512(
@@ -676,14 +696,18 @@ unsafe fn residual_chunk_avx512(
     qs: QuantParams,
     qr: QuantParams,
 ) -> usize {
-    use std::arch::x86_64::*;
-    let n = row.len().min(add.len()) / L * L;
-    for x in (0..n).step_by(L) {
-        let s = fake16(_mm512_loadu_ps(row.as_ptr().add(x)), qs);
-        let v = _mm512_add_ps(s, _mm512_loadu_ps(add.as_ptr().add(x)));
-        _mm512_storeu_ps(row.as_mut_ptr().add(x), fake16(v, qr));
+    // SAFETY: AVX-512F/BW per the contract; whole 16-lane chunks only, inside
+    // `row` and `add`.
+    unsafe {
+        use std::arch::x86_64::*;
+        let n = row.len().min(add.len()) / L * L;
+        for x in (0..n).step_by(L) {
+            let s = fake16(_mm512_loadu_ps(row.as_ptr().add(x)), qs);
+            let v = _mm512_add_ps(s, _mm512_loadu_ps(add.as_ptr().add(x)));
+            _mm512_storeu_ps(row.as_mut_ptr().add(x), fake16(v, qr));
+        }
+        n
     }
-    n
 }
 
 /// Set the one-pixel border of a padded `(h + 2) x (w + 2) x c` buffer.
@@ -779,6 +803,10 @@ fn epilogue_bytes(
 /// (multiply then add, no fusion; multiplication by the scale's reciprocal),
 /// so that it gives the portable epilogue's bits. `QO`: the convolution's
 /// output is quantized (`p.q_out` is `Some`).
+///
+/// # Safety
+/// AVX-512F and BW; `tile` and `out` hold the tile's pixels for the channel
+/// group `g0`.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512bw")]
 unsafe fn epilogue_bytes_avx512<const QO: bool>(
@@ -789,53 +817,59 @@ unsafe fn epilogue_bytes_avx512<const QO: bool>(
     tile: &[i32],
     out: &mut [u8],
 ) {
-    use std::arch::x86_64::*;
-    let gw = group_width(p.ocp, g0);
-    // (unused without QO)
-    let qo = p.q_out.unwrap_or(qa);
-    let (so, zo) = (
-        _mm512_set1_ps(qo.scale),
-        _mm512_set1_ps(qo.zero_point as f32),
-    );
-    let za = _mm512_set1_ps(qa.zero_point as f32);
-    let (io, ia) = (
-        _mm512_set1_ps(1.0 / qo.scale),
-        _mm512_set1_ps(1.0 / qa.scale),
-    );
-    let (lo, hi, zero) = (
-        _mm512_set1_ps(-128.0),
-        _mm512_set1_ps(127.0),
-        _mm512_setzero_ps(),
-    );
-    let off = _mm512_set1_epi32(128);
-    assert!(tile.len().is_multiple_of(gw) && (x + tile.len() / gw) * p.ocp <= out.len());
-    for (px, t) in tile.chunks_exact(gw).enumerate() {
-        let o = out[(x + px) * p.ocp + g0..].as_mut_ptr();
-        for jv in (0..gw).step_by(L) {
-            let c = g0 + jv;
-            let acc = _mm512_loadu_si512(t.as_ptr().add(jv) as *const __m512i);
-            let corr = _mm512_loadu_si512(p.corr.as_ptr().add(c) as *const __m512i);
-            let v = _mm512_cvtepi32_ps(_mm512_sub_epi32(acc, corr));
-            let v = _mm512_mul_ps(v, _mm512_loadu_ps(p.scale.as_ptr().add(c)));
-            let mut v = _mm512_add_ps(v, _mm512_loadu_ps(p.bias.as_ptr().add(c)));
-            if QO {
-                // Q/DQ of the convolution's output
+    // SAFETY: AVX-512F/BW per the contract; the assert below bounds every
+    // tile pixel's group in `tile` and `out`, and the per-channel vectors
+    // (`corr`, `scale`, `bias`) hold all `ocp` channels, 16-lane groups from
+    // `g0`.
+    unsafe {
+        use std::arch::x86_64::*;
+        let gw = group_width(p.ocp, g0);
+        // (unused without QO)
+        let qo = p.q_out.unwrap_or(qa);
+        let (so, zo) = (
+            _mm512_set1_ps(qo.scale),
+            _mm512_set1_ps(qo.zero_point as f32),
+        );
+        let za = _mm512_set1_ps(qa.zero_point as f32);
+        let (io, ia) = (
+            _mm512_set1_ps(1.0 / qo.scale),
+            _mm512_set1_ps(1.0 / qa.scale),
+        );
+        let (lo, hi, zero) = (
+            _mm512_set1_ps(-128.0),
+            _mm512_set1_ps(127.0),
+            _mm512_setzero_ps(),
+        );
+        let off = _mm512_set1_epi32(128);
+        assert!(tile.len().is_multiple_of(gw) && (x + tile.len() / gw) * p.ocp <= out.len());
+        for (px, t) in tile.chunks_exact(gw).enumerate() {
+            let o = out[(x + px) * p.ocp + g0..].as_mut_ptr();
+            for jv in (0..gw).step_by(L) {
+                let c = g0 + jv;
+                let acc = _mm512_loadu_si512(t.as_ptr().add(jv) as *const __m512i);
+                let corr = _mm512_loadu_si512(p.corr.as_ptr().add(c) as *const __m512i);
+                let v = _mm512_cvtepi32_ps(_mm512_sub_epi32(acc, corr));
+                let v = _mm512_mul_ps(v, _mm512_loadu_ps(p.scale.as_ptr().add(c)));
+                let mut v = _mm512_add_ps(v, _mm512_loadu_ps(p.bias.as_ptr().add(c)));
+                if QO {
+                    // Q/DQ of the convolution's output
+                    let q = _mm512_roundscale_ps::<{ _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC }>(
+                        _mm512_mul_ps(v, io),
+                    );
+                    let q = _mm512_min_ps(_mm512_max_ps(_mm512_add_ps(q, zo), lo), hi);
+                    v = _mm512_mul_ps(_mm512_sub_ps(q, zo), so);
+                }
+                // PReLU
+                let neg = _mm512_cmp_ps_mask::<_CMP_LT_OQ>(v, zero);
+                let v = _mm512_mask_mul_ps(v, neg, v, _mm512_loadu_ps(p.slope.as_ptr().add(c)));
+                // Q of the activation, stored as q + 128
                 let q = _mm512_roundscale_ps::<{ _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC }>(
-                    _mm512_mul_ps(v, io),
+                    _mm512_mul_ps(v, ia),
                 );
-                let q = _mm512_min_ps(_mm512_max_ps(_mm512_add_ps(q, zo), lo), hi);
-                v = _mm512_mul_ps(_mm512_sub_ps(q, zo), so);
+                let q = _mm512_min_ps(_mm512_max_ps(_mm512_add_ps(q, za), lo), hi);
+                let b = _mm512_add_epi32(_mm512_cvtps_epi32(q), off);
+                _mm_storeu_si128(o.add(jv) as *mut __m128i, _mm512_cvtepi32_epi8(b));
             }
-            // PReLU
-            let neg = _mm512_cmp_ps_mask::<_CMP_LT_OQ>(v, zero);
-            let v = _mm512_mask_mul_ps(v, neg, v, _mm512_loadu_ps(p.slope.as_ptr().add(c)));
-            // Q of the activation, stored as q + 128
-            let q = _mm512_roundscale_ps::<{ _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC }>(
-                _mm512_mul_ps(v, ia),
-            );
-            let q = _mm512_min_ps(_mm512_max_ps(_mm512_add_ps(q, za), lo), hi);
-            let b = _mm512_add_epi32(_mm512_cvtps_epi32(q), off);
-            _mm_storeu_si128(o.add(jv) as *mut __m128i, _mm512_cvtepi32_epi8(b));
         }
     }
 }
@@ -882,6 +916,8 @@ fn epilogue_floats(
     }
 }
 
+/// # Safety
+/// AVX-512F and BW (the body is safe code, compiled with them enabled).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512bw")]
 unsafe fn epilogue_floats_avx512(p: &PackedI8, x: usize, g0: usize, tile: &[i32], out: &mut [f32]) {
@@ -1031,29 +1067,33 @@ unsafe fn tile_vnni<const NB: usize, const NP: usize>(
     ocp: usize,
     out: *mut i32,
 ) {
-    use std::arch::x86_64::*;
-    let mut acc = [[_mm512_setzero_si512(); NB]; NP];
-    for t in 0..9 {
-        let ib = inp.add((t / 3) * rs + (t % 3) * cs);
-        let wb = w.add(t * g4 * ocp * 4);
-        for g in 0..g4 {
-            let wr = wb.add(g * ocp * 4);
-            let mut wv = [_mm512_setzero_si512(); NB];
-            for (j, v) in wv.iter_mut().enumerate() {
-                *v = _mm512_loadu_si512(wr.add(j * 4 * L) as *const __m512i);
-            }
-            for (p, a) in acc.iter_mut().enumerate() {
-                let four = (ib.add(p * cs + 4 * g) as *const i32).read_unaligned();
-                let b = _mm512_set1_epi32(four);
-                for (j, aj) in a.iter_mut().enumerate() {
-                    *aj = _mm512_dpbusd_epi32(*aj, b, wv[j]);
+    // SAFETY: AVX-512 F/BW/VNNI and the pointer ranges per the contract (`#
+    // Safety` above).
+    unsafe {
+        use std::arch::x86_64::*;
+        let mut acc = [[_mm512_setzero_si512(); NB]; NP];
+        for t in 0..9 {
+            let ib = inp.add((t / 3) * rs + (t % 3) * cs);
+            let wb = w.add(t * g4 * ocp * 4);
+            for g in 0..g4 {
+                let wr = wb.add(g * ocp * 4);
+                let mut wv = [_mm512_setzero_si512(); NB];
+                for (j, v) in wv.iter_mut().enumerate() {
+                    *v = _mm512_loadu_si512(wr.add(j * 4 * L) as *const __m512i);
+                }
+                for (p, a) in acc.iter_mut().enumerate() {
+                    let four = (ib.add(p * cs + 4 * g) as *const i32).read_unaligned();
+                    let b = _mm512_set1_epi32(four);
+                    for (j, aj) in a.iter_mut().enumerate() {
+                        *aj = _mm512_dpbusd_epi32(*aj, b, wv[j]);
+                    }
                 }
             }
         }
-    }
-    for (p, a) in acc.iter().enumerate() {
-        for (j, aj) in a.iter().enumerate() {
-            _mm512_storeu_si512(out.add((p * NB + j) * L) as *mut __m512i, *aj);
+        for (p, a) in acc.iter().enumerate() {
+            for (j, aj) in a.iter().enumerate() {
+                _mm512_storeu_si512(out.add((p * NB + j) * L) as *mut __m512i, *aj);
+            }
         }
     }
 }

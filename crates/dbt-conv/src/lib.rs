@@ -23,6 +23,10 @@
 //! the reference the AVX-512 kernel is tested against, both being tested
 //! against a direct transcription of the convolution's definition.
 
+// Kernel crate (issue #25): every unsafe operation in its own `unsafe` block
+// with a `SAFETY:` comment, every unsafe function with its `# Safety` contract.
+#![deny(unsafe_op_in_unsafe_fn)]
+#![deny(clippy::undocumented_unsafe_blocks, clippy::missing_safety_doc)]
 /// Lanes of an AVX-512 vector of f32 or i32.
 pub(crate) const L: usize = 16;
 /// Output channels per register group: 4 vectors.

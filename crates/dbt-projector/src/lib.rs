@@ -23,6 +23,10 @@
 //! the weights from the same per-ray `f32` parameters with the same operations,
 //! so `P*` is the transpose of `P` up to the order of summation.
 
+// Kernel crate (issue #25): every unsafe operation in its own `unsafe` block
+// with a `SAFETY:` comment, every unsafe function with its `# Safety` contract.
+#![deny(unsafe_op_in_unsafe_fn)]
+#![deny(clippy::undocumented_unsafe_blocks, clippy::missing_safety_doc)]
 #![deny(missing_docs)]
 // The kernels index several parallel per-ray arrays with one index; zipping
 // five iterators would hide the arithmetic.
