@@ -34,6 +34,7 @@ const PURE: &[&str] = &[
     "dbt-dicom",
     "dbt-pipeline",
     "dbt-conv",
+    "dbt-isa",
 ];
 
 /// Workspace crates at the edges: adapters and binaries.

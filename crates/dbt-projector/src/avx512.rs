@@ -677,7 +677,7 @@ mod tests {
     /// itself valid.
     #[test]
     fn cut_fit_ranges_match_the_scalar_adjoint() {
-        if !std::arch::is_x86_feature_detected!("avx512f") {
+        if !dbt_isa::kernel_test_runs("projector avx512 fit ranges", &["avx512f"]) {
             return;
         }
         let odd = Geometry::from_toml_str(

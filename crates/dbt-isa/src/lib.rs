@@ -1,0 +1,111 @@
+//! Which instruction-set extensions this CPU has, for the kernels' tests:
+//! a kernel test runs where the CPU has what the kernel needs and is
+//! skipped (with a line on stderr) where it does not, unless the
+//! environment variable `DBTOR_REQUIRE_ISA` (a comma-separated list, e.g.
+//! `avx512f,avx512bw,avx512vnni`, set by `.ci/run` from `/proc/cpuinfo`)
+//! names a missing one: then the test fails, so a machine that should test
+//! a kernel cannot skip it silently. Used by the kernel crates' tests
+//! (`dbt-conv`, `dbt-projector`).
+
+/// Whether this CPU has the extension `name` (`avx2`, `fma`, `avx512f`,
+/// `avx512bw`, `avx512vnni`, also spelt `avx512_vnni` as in `/proc/cpuinfo`:
+/// the kernels' needs;
+/// AMX detection is not stable in Rust yet); `None` for a name this crate
+/// does not know.
+pub fn detected(name: &str) -> Option<bool> {
+    #[cfg(target_arch = "x86_64")]
+    {
+        Some(match name {
+            "avx2" => std::arch::is_x86_feature_detected!("avx2"),
+            "fma" => std::arch::is_x86_feature_detected!("fma"),
+            "avx512f" => std::arch::is_x86_feature_detected!("avx512f"),
+            "avx512bw" => std::arch::is_x86_feature_detected!("avx512bw"),
+            "avx512vnni" | "avx512_vnni" => std::arch::is_x86_feature_detected!("avx512vnni"),
+            _ => return None,
+        })
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let _ = name;
+        Some(false)
+    }
+}
+
+/// Whether a kernel test that needs `needs` runs here: `true` if the CPU
+/// has every one; `false` (the test is skipped, said on stderr) if not.
+///
+/// # Panics
+/// Where `DBTOR_REQUIRE_ISA` names one of `needs` that the CPU lacks, or
+/// names an extension this crate does not know.
+pub fn kernel_test_runs(test: &str, needs: &[&str]) -> bool {
+    let required = std::env::var("DBTOR_REQUIRE_ISA").unwrap_or_default();
+    match decide(test, needs, &required, detected) {
+        Ok(true) => true,
+        Ok(false) => {
+            eprintln!("{test}: skipped, this CPU lacks one of {needs:?}");
+            false
+        }
+        Err(e) => panic!("{e}"),
+    }
+}
+
+/// [`kernel_test_runs`]'s rule, given the variable's value and the
+/// detection: run, skip, or the reason the test must fail.
+fn decide(
+    test: &str,
+    needs: &[&str],
+    required: &str,
+    has: impl Fn(&str) -> Option<bool>,
+) -> Result<bool, String> {
+    let required: Vec<&str> = required
+        .split(',')
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .collect();
+    if let Some(r) = required.iter().find(|r| has(r).is_none()) {
+        return Err(format!(
+            "DBTOR_REQUIRE_ISA names {r:?}, which this crate does not know"
+        ));
+    }
+    let missing: Vec<&str> = needs
+        .iter()
+        .copied()
+        .filter(|n| has(n) != Some(true))
+        .collect();
+    let demanded: Vec<&str> = missing
+        .iter()
+        .copied()
+        .filter(|m| required.contains(m))
+        .collect();
+    if !demanded.is_empty() {
+        return Err(format!(
+            "{test}: DBTOR_REQUIRE_ISA requires {demanded:?}, which this CPU lacks: the kernel cannot be tested here"
+        ));
+    }
+    Ok(missing.is_empty())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::decide;
+
+    /// A CPU with AVX2 and FMA but no AVX-512 (AMD Zen 3).
+    fn zen3(name: &str) -> Option<bool> {
+        match name {
+            "avx2" | "fma" => Some(true),
+            "avx512f" | "avx512bw" | "avx512vnni" => Some(false),
+            _ => None,
+        }
+    }
+
+    #[test]
+    fn runs_skips_or_fails_as_the_variable_says() {
+        assert_eq!(decide("t", &["avx2", "fma"], "", zen3), Ok(true));
+        assert_eq!(decide("t", &["avx512f"], "", zen3), Ok(false));
+        assert_eq!(decide("t", &["avx512f"], "avx2,fma", zen3), Ok(false));
+        let e = decide("t", &["avx512f", "avx512bw"], "avx2, avx512bw", zen3).unwrap_err();
+        assert!(e.contains("avx512bw") && !e.contains("avx512f\""), "{e}");
+        let e = decide("t", &["avx2"], "avx-512", zen3).unwrap_err();
+        assert!(e.contains("avx-512"), "{e}");
+    }
+}
