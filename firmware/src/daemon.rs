@@ -249,6 +249,26 @@ pub struct Daemon {
     last_flush: Option<Instant>,
 }
 
+/// Why an acquisition did not reach the spool: a fault of `kind` (`link`:
+/// not received, not opened or rejected; `spool`: not written), with its
+/// message and the acquisition's id where it had one.
+#[derive(Debug)]
+struct ReceiveFault {
+    kind: &'static str,
+    message: String,
+    acquisition: Option<String>,
+}
+
+impl ReceiveFault {
+    fn link(message: String) -> Self {
+        Self {
+            kind: "link",
+            message,
+            acquisition: None,
+        }
+    }
+}
+
 impl Daemon {
     /// Prepare: folders, model (checksums verified), status file.
     pub fn new(
@@ -440,7 +460,8 @@ impl Daemon {
                     }
                 }
                 Ok(None) => {}
-                Err(()) => {
+                Err(f) => {
+                    self.fault(f.acquisition.as_deref(), f.kind, f.message);
                     if once {
                         break;
                     }
@@ -452,8 +473,9 @@ impl Daemon {
     }
 
     /// Wait for the gantry, receive one acquisition, spool it. `Ok(None)`:
-    /// nothing arrived (or stop); `Err`: a fault was recorded.
-    fn receive_one(&mut self) -> Result<Option<String>, ()> {
+    /// nothing arrived (or stop); `Err`: the fault that kept it from the
+    /// spool, for the caller to record (nothing was spooled).
+    fn receive_one(&mut self) -> Result<Option<String>, ReceiveFault> {
         let link = LinkOptions {
             stop: Some(Arc::clone(&self.stop)),
             ..LinkOptions::new(self.cfg.idle_timeout())
@@ -509,9 +531,10 @@ impl Daemon {
             let mut s = match opened {
                 Ok(s) => s,
                 Err(e) => {
-                    self.fault(None, "link", format!("opening serial line {port}: {e}"));
                     std::thread::sleep(Duration::from_secs(1));
-                    return Err(());
+                    return Err(ReceiveFault::link(format!(
+                        "opening serial line {port}: {e}"
+                    )));
                 }
             };
             let gantry = self.read_gantry();
@@ -525,17 +548,11 @@ impl Daemon {
                 return Ok(None)
             }
             (Err(e), _) => {
-                self.fault(None, "link", format!("acquisition not received: {e} (nothing spooled; the gantry keeps it for a resend)"));
-                return Err(());
+                return Err(ReceiveFault::link(format!("acquisition not received: {e} (nothing spooled; the gantry keeps it for a resend)")));
             }
         };
-        let acq = match to_acquisition(&rx, &self.geom, self.cfg.report.tube_output_mgy_per_mas) {
-            Ok(a) => a,
-            Err(e) => {
-                self.fault(None, "link", format!("acquisition rejected: {e}"));
-                return Err(());
-            }
-        };
+        let acq = to_acquisition(&rx, &self.geom, self.cfg.report.tube_output_mgy_per_mas)
+            .map_err(|e| ReceiveFault::link(format!("acquisition rejected: {e}")))?;
         let ms = SystemTime::now()
             .duration_since(UNIX_EPOCH)
             .map(|d| d.as_millis())
@@ -561,10 +578,11 @@ impl Daemon {
                 tracing::info!(acquisition = %id, slices = acq.header.slices, "spooled");
                 Ok(Some(id))
             }
-            Err(e) => {
-                self.fault(Some(&id), "spool", format!("cannot spool: {e}"));
-                Err(())
-            }
+            Err(e) => Err(ReceiveFault {
+                message: format!("cannot spool: {e}"),
+                kind: "spool",
+                acquisition: Some(id),
+            }),
         }
     }
 
