@@ -40,12 +40,44 @@ pub enum ConfigError {
     },
 }
 
+/// How the projection frames arrive.
+#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum FrameTransport {
+    /// Connect to the gantry's frame server (`frames.address`).
+    Tcp,
+    /// A serial line (`frames.port`, `frames.baud`).
+    Serial,
+}
+
+/// How the gantry controller's registers are read.
+#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum ModbusTransport {
+    /// Modbus TCP (`modbus.address`).
+    Tcp,
+    /// Modbus RTU on a serial line (`modbus.port`, 8N1).
+    Rtu,
+    /// No register reads: no thickness cross-check.
+    Off,
+}
+
+/// The reconstructor.
+#[derive(Debug, Clone, Copy, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum Reconstructor {
+    /// DBToR with the signed-off model (`recon.model`).
+    Dbtor,
+    /// MLTR, the fallback (`recon.mltr_iterations`).
+    Mltr,
+}
+
 /// Where the projection frames come from.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct FramesConfig {
     /// `tcp` (connect to the gantry's frame server) or `serial`.
-    pub transport: String,
+    pub transport: FrameTransport,
     /// `host:port` for tcp.
     #[serde(default)]
     pub address: Option<String>,
@@ -89,7 +121,7 @@ fn default_binning() -> usize {
 #[serde(deny_unknown_fields)]
 pub struct ModbusConfig {
     /// `tcp`, `rtu` (serial line) or `off` (no thickness cross-check).
-    pub transport: String,
+    pub transport: ModbusTransport,
     /// `host:port` (tcp).
     #[serde(default)]
     pub address: Option<String>,
@@ -138,7 +170,7 @@ fn default_tol() -> f64 {
 #[serde(deny_unknown_fields)]
 pub struct ReconConfig {
     /// `dbtor` or `mltr` (the fallback).
-    pub reconstructor: String,
+    pub reconstructor: Reconstructor,
     /// Model folder (for dbtor).
     #[serde(default)]
     pub model: Option<PathBuf>,
@@ -149,11 +181,11 @@ pub struct ReconConfig {
     pub model_digest: Option<String>,
     /// `fp32` or `int8`.
     #[serde(default = "default_precision")]
-    pub precision: String,
+    pub precision: dbt_dbtor::Precision,
     /// `fast` (the fused kernels of dbt-conv, the default) or `tract` (the
     /// reference executor, any ONNX graph).
     #[serde(default = "default_engine")]
-    pub engine: String,
+    pub engine: dbt_dbtor::Engine,
     /// With `precision = "int8"`: blocks run in fp32 (per-block mixed
     /// precision, e.g. `["primal07", "primal08", "primal09"]`).
     #[serde(default)]
@@ -166,11 +198,11 @@ pub struct ReconConfig {
     pub dose_uncertainty: f64,
 }
 
-fn default_precision() -> String {
-    "fp32".into()
+fn default_precision() -> dbt_dbtor::Precision {
+    dbt_dbtor::Precision::Fp32
 }
-fn default_engine() -> String {
-    "fast".into()
+fn default_engine() -> dbt_dbtor::Engine {
+    dbt_dbtor::Engine::Fast
 }
 fn default_iterations() -> usize {
     100
@@ -227,6 +259,28 @@ pub struct Config {
     pub report: ReportConfig,
 }
 
+/// The dotted key (`recon.engine`) of the value at byte `at` of a TOML
+/// configuration: the key on its line, under the last `[table]` above.
+fn key_at(text: &str, at: usize) -> Option<String> {
+    let before = text.get(..at)?;
+    let line_start = before.rfind('\n').map_or(0, |i| i + 1);
+    let line = text[line_start..].lines().next()?;
+    let key = line.split_once('=')?.0.trim();
+    if key.is_empty() || key.starts_with('#') || key.starts_with('[') {
+        return None;
+    }
+    let table = before[..line_start]
+        .lines()
+        .rev()
+        .map(str::trim)
+        .find(|l| l.starts_with('[') && l.ends_with(']'))
+        .map(|l| l.trim_matches(|c| c == '[' || c == ']').trim());
+    Some(match table {
+        Some(t) => format!("{t}.{key}"),
+        None => key.to_string(),
+    })
+}
+
 impl Config {
     /// Read and validate. Relative paths are taken from the file's folder.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
@@ -242,7 +296,10 @@ impl Config {
     pub fn parse(text: &str, path: &Path) -> Result<Self, ConfigError> {
         let mut c: Config = toml::from_str(text).map_err(|e| ConfigError::Parse {
             path: path.to_path_buf(),
-            reason: e.to_string(),
+            reason: match e.span().and_then(|s| key_at(text, s.start)) {
+                Some(key) => format!("`{key}`: {e}"),
+                None => e.to_string(),
+            },
         })?;
         let base = path.parent().unwrap_or(Path::new("."));
         let abs = |p: &mut PathBuf| {
@@ -271,8 +328,8 @@ impl Config {
             key,
             reason,
         };
-        match self.frames.transport.as_str() {
-            "tcp" => {
+        match self.frames.transport {
+            FrameTransport::Tcp => {
                 let a = self.frames.address.as_deref().ok_or_else(|| {
                     bad("frames.address", "required with transport = \"tcp\"".into())
                 })?;
@@ -286,7 +343,7 @@ impl Config {
                     return Err(bad("frames.address", format!("{a:?}: port 0")));
                 }
             }
-            "serial" => {
+            FrameTransport::Serial => {
                 if self.frames.port.is_none() {
                     return Err(bad(
                         "frames.port",
@@ -299,12 +356,6 @@ impl Config {
                         format!("{} is below 1200", self.frames.baud),
                     ));
                 }
-            }
-            t => {
-                return Err(bad(
-                    "frames.transport",
-                    format!("{t:?}: expected \"tcp\" or \"serial\""),
-                ))
             }
         }
         if !(self.frames.idle_timeout_s > 0.0 && self.frames.idle_timeout_s <= 3600.0) {
@@ -320,17 +371,11 @@ impl Config {
             ));
         }
         let gantry = self.gantry_geometry(path)?;
-        match self.modbus.transport.as_str() {
-            "tcp" | "rtu" => {
+        match self.modbus.transport {
+            ModbusTransport::Tcp | ModbusTransport::Rtu => {
                 self.modbus_endpoint(path)?;
             }
-            "off" => {}
-            t => {
-                return Err(bad(
-                    "modbus.transport",
-                    format!("{t:?}: expected \"tcp\", \"rtu\" or \"off\""),
-                ))
-            }
+            ModbusTransport::Off => {}
         }
         if self.modbus.timeout_ms == 0 || self.modbus.attempts == 0 {
             return Err(bad(
@@ -345,8 +390,8 @@ impl Config {
                 "must be in (0, 20) mm".into(),
             ));
         }
-        match self.recon.reconstructor.as_str() {
-            "dbtor" => {
+        match self.recon.reconstructor {
+            Reconstructor::Dbtor => {
                 let m = self.recon.model.as_ref().ok_or_else(|| {
                     bad(
                         "recon.model",
@@ -391,31 +436,19 @@ impl Config {
                         format!("{digest:?} is not sha256:<64 hex digits>"),
                     ));
                 }
-                self.recon
-                    .precision
-                    .parse::<dbt_dbtor::Precision>()
-                    .map_err(|e| bad("recon.precision", e))?;
-                self.recon
-                    .engine
-                    .parse::<dbt_dbtor::Engine>()
-                    .map_err(|e| bad("recon.engine", e))?;
-                if !self.recon.fp32_blocks.is_empty() && self.recon.precision != "int8" {
+                if !self.recon.fp32_blocks.is_empty()
+                    && self.recon.precision != dbt_dbtor::Precision::Int8
+                {
                     return Err(bad(
                         "recon.fp32_blocks",
                         "only with precision = \"int8\" (the blocks that stay fp32)".into(),
                     ));
                 }
             }
-            "mltr" => {
+            Reconstructor::Mltr => {
                 if self.recon.mltr_iterations == 0 {
                     return Err(bad("recon.mltr_iterations", "must be positive".into()));
                 }
-            }
-            r => {
-                return Err(bad(
-                    "recon.reconstructor",
-                    format!("{r:?}: expected \"dbtor\" or \"mltr\""),
-                ))
             }
         }
         if !(self.recon.dose_uncertainty > 0.0 && self.recon.dose_uncertainty <= 0.5) {
@@ -447,7 +480,7 @@ impl Config {
             key,
             reason,
         };
-        if self.modbus.transport == "rtu" {
+        if self.modbus.transport == ModbusTransport::Rtu {
             let p =
                 self.modbus.port.clone().ok_or_else(|| {
                     bad("modbus.port", "required with transport = \"rtu\"".into())
@@ -530,15 +563,69 @@ mod tests {
     #[test]
     fn engine_is_validated_and_defaults_to_fast() {
         let c = example(|t| t).unwrap();
-        assert_eq!(c.recon.engine, "fast");
+        assert_eq!(c.recon.engine, dbt_dbtor::Engine::Fast);
         let c = example(|t| t.replace("engine = \"fast\"", "engine = \"tract\"")).unwrap();
-        assert_eq!(c.recon.engine, "tract");
+        assert_eq!(c.recon.engine, dbt_dbtor::Engine::Tract);
         let c = example(|t| without(&t, "engine")).unwrap();
-        assert_eq!(c.recon.engine, "fast");
+        assert_eq!(c.recon.engine, dbt_dbtor::Engine::Fast);
         let e = example(|t| t.replace("engine = \"fast\"", "engine = \"warp\""))
             .unwrap_err()
             .to_string();
         assert!(e.contains("recon.engine") && e.contains("warp"), "{e}");
+    }
+
+    /// Transport, reconstructor and precision are typed: a misspelt value is
+    /// refused naming its key (table and key, from the parser's position)
+    /// and the values it could be.
+    #[test]
+    fn misspelt_choices_name_the_key_and_the_choices() {
+        for (from, to, key, choices) in [
+            (
+                "transport = \"tcp\"",
+                "transport = \"tpc\"",
+                "frames.transport",
+                "serial",
+            ),
+            (
+                "reconstructor = \"dbtor\"",
+                "reconstructor = \"dbtr\"",
+                "recon.reconstructor",
+                "mltr",
+            ),
+            (
+                "precision = \"fp32\"",
+                "precision = \"fp16\"",
+                "recon.precision",
+                "int8",
+            ),
+        ] {
+            let e = example(|t| t.replacen(from, to, 1))
+                .unwrap_err()
+                .to_string();
+            let bad = to.split('"').nth(1).unwrap();
+            assert!(
+                e.contains(&format!("`{key}`")) && e.contains(bad) && e.contains(choices),
+                "{to}: {e}"
+            );
+        }
+        // The Modbus section's transport: its own key.
+        let e = example(|t| {
+            let i = t.find("[modbus]").unwrap();
+            let (a, b) = t.split_at(i);
+            format!(
+                "{a}{}",
+                b.replacen("transport = \"tcp\"", "transport = \"udp\"", 1)
+            )
+        })
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("`modbus.transport`") && e.contains("udp") && e.contains("rtu"),
+            "{e}"
+        );
+        let c = example(|t| t).unwrap();
+        assert_eq!(c.frames.transport, FrameTransport::Tcp);
+        assert_eq!(c.recon.reconstructor, Reconstructor::Dbtor);
     }
 
     /// The model's signed-off digest is required with DBToR and must be a

@@ -17,7 +17,7 @@
 //! (between delivery and the move to `done/`) rewrites the same two reports:
 //! every acquisition is reported exactly once.
 
-use crate::config::Config;
+use crate::config::{Config, FrameTransport, ModbusTransport, Reconstructor};
 use crate::link::{data_fault, receive, receive_from, to_acquisition, LinkError, LinkOptions};
 use crate::modbus::{read_registers, ModbusLink};
 use dbt_dicom::{Equipment, UidSource};
@@ -133,12 +133,7 @@ fn load_model(
     classify: &dbt_tissue::ClassifyOptions,
 ) -> Result<dbt_model::SignedModel, DaemonError> {
     let dir = cfg.recon.model.clone().unwrap_or_default();
-    let precision = cfg
-        .recon
-        .precision
-        .parse()
-        .unwrap_or(dbt_dbtor::Precision::Fp32);
-    let engine = cfg.recon.engine.parse().unwrap_or(dbt_dbtor::Engine::Fast);
+    let (precision, engine) = (cfg.recon.precision, cfg.recon.engine);
     Ok(dbt_model::load_signed(
         &dir,
         precision,
@@ -158,7 +153,7 @@ pub fn preflight(cfg: &Config, config_path: &Path) -> Result<Vec<String>, Daemon
     let mut done = Vec::new();
     let geom = cfg.gantry_geometry(config_path)?;
     done.push(format!("geometry: {}", geom.describe()));
-    if cfg.recon.reconstructor == "dbtor" {
+    if cfg.recon.reconstructor == Reconstructor::Dbtor {
         let signed = load_model(cfg, &PipelineOptions::default().classify)?;
         done.push(format!(
             "model: {} ({}), {} files match the sign-off {}, calibration {}",
@@ -196,10 +191,10 @@ pub fn preflight(cfg: &Config, config_path: &Path) -> Result<Vec<String>, Daemon
         done.push(format!("{key}: {} writable", d.display()));
     }
     let mut devices = Vec::new();
-    if cfg.frames.transport == "serial" {
+    if cfg.frames.transport == FrameTransport::Serial {
         devices.push(("frames.port", cfg.frames.port.clone().unwrap_or_default()));
     }
-    if cfg.modbus.transport == "rtu" {
+    if cfg.modbus.transport == ModbusTransport::Rtu {
         devices.push(("modbus.port", cfg.modbus.port.clone().unwrap_or_default()));
     }
     for (key, dev) in devices {
@@ -282,7 +277,7 @@ impl Daemon {
             dose_uncertainty: cfg.recon.dose_uncertainty,
             ..PipelineOptions::default()
         };
-        if cfg.recon.reconstructor == "dbtor" {
+        if cfg.recon.reconstructor == Reconstructor::Dbtor {
             let signed = load_model(&cfg, &opts.classify)?;
             opts.calibration = signed.calibration;
             opts.dbtor = Some(Arc::new(signed.model));
@@ -481,7 +476,7 @@ impl Daemon {
             ..LinkOptions::new(self.cfg.idle_timeout())
                 .for_site(&self.geom, self.cfg.report.tube_output_mgy_per_mas)
         };
-        let received = if self.cfg.frames.transport == "tcp" {
+        let received = if self.cfg.frames.transport == FrameTransport::Tcp {
             let addr = self.cfg.frames.address.clone().unwrap_or_default();
             let mut stream = loop {
                 if self.stop.load(Ordering::SeqCst) {
@@ -588,7 +583,7 @@ impl Daemon {
 
     /// The registers at the start of the sweep, as JSON (`null` when Modbus is off, an error object when unreadable).
     fn read_gantry(&mut self) -> serde_json::Value {
-        if self.cfg.modbus.transport == "off" {
+        if self.cfg.modbus.transport == ModbusTransport::Off {
             return serde_json::Value::Null;
         }
         let endpoint = match self.cfg.modbus_endpoint(&self.config_path) {
@@ -679,7 +674,7 @@ impl Daemon {
             self.reject(id, "data", msg);
             return;
         }
-        if self.cfg.modbus.transport != "off" {
+        if self.cfg.modbus.transport != ModbusTransport::Off {
             let reg = gantry["modbus"]["thickness_mm"].as_f64();
             let end = gantry["modbus_end"]["thickness_mm"].as_f64();
             let header = acq.header.thickness_mm;
