@@ -17,6 +17,7 @@
 //! same projector would serve it), which is stated in the table.
 
 use anyhow::{bail, Context, Result};
+use clap::Parser;
 use dbt_bench::median;
 use dbt_dbtor::{Dbtor, Engine, Precision, Role, SliceProfile};
 use dbt_geometry::Geometry;
@@ -26,55 +27,52 @@ use std::path::PathBuf;
 use std::process::Command;
 use std::time::Instant;
 
+/// DBToR slice benchmark: tract, onnxruntime and the fast path, fp32 and
+/// int8, on one model's block files.
+#[derive(Parser)]
+#[command(name = "dbtor-bench")]
 struct Args {
+    /// The model folder.
+    #[arg(long, default_value = "models/dbtor-x4")]
     model: PathBuf,
+    /// Repetitions per measurement (the median is reported).
+    #[arg(long, default_value_t = 5, value_parser = dbt_bench::at_least_one)]
     reps: usize,
-    geometry: String,
+    /// At the paper's full geometry, the model's own, or both.
+    #[arg(long, value_enum, default_value_t = Where::Both)]
+    geometry: Where,
+    /// JSON output.
+    #[arg(long, default_value = "bench/results/dbtor.json")]
     out: PathBuf,
+    /// Without the onnxruntime peer.
+    #[arg(long = "no-peers", action = clap::ArgAction::SetFalse)]
     peers: bool,
+    /// Without tract.
+    #[arg(long = "no-tract", action = clap::ArgAction::SetFalse)]
     tract: bool,
-    /// Blocks of a mixed-precision variant (int8, these in fp32), if any.
-    mixed: Vec<String>,
+    /// Adds "fast mixed": int8 with these blocks in fp32 (e.g.
+    /// `primal08,primal09`).
+    #[arg(long, value_parser = parse_blocks)]
+    mixed: Option<Blocks>,
 }
 
-fn parse_args() -> Result<Args> {
-    let mut a = Args {
-        model: PathBuf::from("models/dbtor-x4"),
-        reps: 5,
-        geometry: "both".into(),
-        out: PathBuf::from("bench/results/dbtor.json"),
-        peers: true,
-        tract: true,
-        mixed: Vec::new(),
-    };
-    let mut it = std::env::args().skip(1);
-    while let Some(arg) = it.next() {
-        let mut val = |name: &str| it.next().with_context(|| format!("{name} needs a value"));
-        match arg.as_str() {
-            "--model" => a.model = PathBuf::from(val("--model")?),
-            "--reps" => a.reps = val("--reps")?.parse().context("--reps")?,
-            "--geometry" => a.geometry = val("--geometry")?,
-            "--out" => a.out = PathBuf::from(val("--out")?),
-            "--no-peers" => a.peers = false,
-            "--no-tract" => a.tract = false,
-            "--mixed" => a.mixed = dbt_dbtor::parse_block_list(&val("--mixed")?),
-            "-h" | "--help" => {
-                println!("usage: dbtor-bench [--model DIR] [--reps N] [--geometry paper|model|both] [--out FILE.json] [--no-peers] [--no-tract] [--mixed primal08,primal09]");
-                std::process::exit(0);
-            }
-            other => bail!("unknown argument `{other}` (see --help)"),
-        }
-    }
-    if !matches!(a.geometry.as_str(), "paper" | "model" | "both") {
-        bail!(
-            "--geometry must be paper, model or both, not {:?}",
-            a.geometry
-        );
-    }
-    if a.reps == 0 {
-        bail!("--reps must be at least 1");
-    }
-    Ok(a)
+/// Where the slices are timed.
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum Where {
+    /// The paper's full geometry.
+    Paper,
+    /// The model's own geometry.
+    Model,
+    /// Both.
+    Both,
+}
+
+/// A list of block names.
+#[derive(Clone)]
+struct Blocks(Vec<String>);
+
+fn parse_blocks(s: &str) -> Result<Blocks, String> {
+    Ok(Blocks(dbt_dbtor::parse_block_list(s)))
 }
 
 /// Peak rate of this CPU on 2 threads: fp32 FMA (GFLOP/s) and int8 VNNI
@@ -225,8 +223,8 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
     .filter(|(e, _)| a.tract || *e == Engine::Fast)
     .map(|(e, p)| (e, p, &[][..]))
     .collect();
-    if !a.mixed.is_empty() {
-        combos.insert(2, (Engine::Fast, Precision::Int8, &a.mixed[..]));
+    if let Some(Blocks(mixed)) = a.mixed.as_ref().filter(|b| !b.0.is_empty()) {
+        combos.insert(2, (Engine::Fast, Precision::Int8, &mixed[..]));
     }
     for (engine, precision, fp32_blocks) in combos {
         let name = if fp32_blocks.is_empty() {
@@ -411,7 +409,7 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
 }
 
 fn main() -> Result<()> {
-    let a = parse_args()?;
+    let a = Args::parse();
     let model_geometry = dbt_dbtor::ModelManifest::load(&a.model)?.geometry;
     let peaks = measured_peaks();
     println!(
@@ -424,7 +422,7 @@ fn main() -> Result<()> {
     out.insert("threads".into(), json!(rayon::current_num_threads()));
     out.insert("peak_fp32_gflops".into(), json!(peaks.0));
     out.insert("peak_int8_gops".into(), json!(peaks.1));
-    if a.geometry != "model" {
+    if a.geometry != Where::Model {
         let paper = Geometry::paper();
         let v = bench_geometry(&a, "paper geometry", &paper, peaks)?;
         for k in [
@@ -439,7 +437,7 @@ fn main() -> Result<()> {
         }
         out.insert("paper".into(), v);
     }
-    if a.geometry != "paper" {
+    if a.geometry != Where::Paper {
         let v = bench_geometry(&a, "model geometry", &model_geometry, peaks)?;
         out.insert("model_geometry".into(), v);
     }

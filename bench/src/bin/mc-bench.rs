@@ -6,32 +6,46 @@
 //! `cargo run --release -p dbt-bench --bin mc-bench -- [--photons 1e7]
 //!  [--reps 5] [--peer-photons 1e6] [--no-peer]`
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
+use clap::Parser;
 use dbt_bench::median_ms;
 use dbt_dose::{run, tg195, Spectrum};
 use std::process::Command;
 
-fn arg(args: &[String], name: &str) -> Option<String> {
-    args.iter()
-        .position(|a| a == name)
-        .and_then(|i| args.get(i + 1).cloned())
+/// Monte Carlo speed: TG-195 case 3 at 16.8 keV, our engine against the
+/// numpy peer, measured in the same run.
+#[derive(Parser)]
+#[command(name = "mc-bench")]
+struct Args {
+    /// Photons per run of our engine (e.g. 1e7).
+    #[arg(long, default_value = "1e7", value_parser = photons)]
+    photons: u64,
+    /// Runs of our engine (the median is reported).
+    #[arg(long, default_value_t = 5, value_parser = dbt_bench::at_least_one)]
+    reps: usize,
+    /// Photons of the numpy peer's run.
+    #[arg(long, default_value = "1e6", value_parser = photons)]
+    peer_photons: u64,
+    /// Without the numpy peer.
+    #[arg(long = "no-peer", action = clap::ArgAction::SetFalse)]
+    peer: bool,
 }
 
-fn num(args: &[String], name: &str, default: f64) -> Result<f64> {
-    match arg(args, name) {
-        Some(v) => v.parse().with_context(|| format!("{name} {v}")),
-        None => Ok(default),
+/// A positive photon count, also written as `1e7`.
+fn photons(s: &str) -> Result<u64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if (1.0..=1e12).contains(&v) && v.fract() == 0.0 => Ok(v as u64),
+        _ => Err(format!("{s:?}: a whole number of photons from 1 to 1e12")),
     }
 }
 
 fn main() -> Result<()> {
-    let args: Vec<String> = std::env::args().collect();
-    let photons = num(&args, "--photons", 1e7)? as u64;
-    let reps = num(&args, "--reps", 5.0)? as usize;
-    let peer_photons = num(&args, "--peer-photons", 1e6)? as u64;
-    if photons == 0 || reps == 0 {
-        bail!("--photons and --reps must be positive");
-    }
+    let Args {
+        photons,
+        reps,
+        peer_photons,
+        peer: with_peer,
+    } = Args::parse();
     let scene = tg195::scene(0.5)?;
     let src = tg195::source(0.0, Spectrum::mono(16.8)?);
     let mut totals = Vec::new();
@@ -49,7 +63,7 @@ fn main() -> Result<()> {
     let ours_pps_core = photons as f64 / (ms / 1e3) / threads as f64;
     let mean_total = totals.iter().sum::<f64>() / totals.len().max(1) as f64;
     let mut peer = serde_json::Value::Null;
-    if !args.iter().any(|a| a == "--no-peer") {
+    if with_peer {
         let script = concat!(env!("CARGO_MANIFEST_DIR"), "/peers/mc_numpy.py");
         let out = Command::new("python3")
             .arg(script)

@@ -10,6 +10,7 @@
 //! Prints a table and writes one JSON object (default `bench/results/projector.json`).
 
 use anyhow::{bail, Context, Result};
+use clap::Parser;
 use dbt_bench::{f32_bytes, median_ms};
 use dbt_geometry::Geometry;
 use dbt_projector::{dot, Kernel, Projector};
@@ -19,46 +20,33 @@ use serde_json::{json, Value};
 use std::path::PathBuf;
 use std::time::Instant;
 
+/// Projector benchmark: our forward and adjoint (SIMD and scalar) beside
+/// ASTRA's CPU projector and a scipy CSR matvec, measured in the same run.
+#[derive(Parser)]
+#[command(name = "projector-bench")]
 struct Args {
+    /// A geometry TOML (default: the paper's).
+    #[arg(long)]
     geometry: Option<PathBuf>,
+    /// Binning of that geometry.
+    #[arg(long, default_value_t = 1)]
     binning: usize,
+    /// Timed repetitions (the median is reported).
+    #[arg(long, default_value_t = 50, value_parser = dbt_bench::at_least_one)]
     reps: usize,
+    /// Untimed repetitions first.
+    #[arg(long, default_value_t = 5)]
     warmup: usize,
+    /// JSON output.
+    #[arg(long, default_value = "bench/results/projector.json")]
     out: PathBuf,
+    /// Without the ASTRA and scipy peers.
+    #[arg(long = "no-peers", action = clap::ArgAction::SetFalse)]
     peers: bool,
 }
 
-fn parse_args() -> Result<Args> {
-    let mut a = Args {
-        geometry: None,
-        binning: 1,
-        reps: 50,
-        warmup: 5,
-        out: PathBuf::from("bench/results/projector.json"),
-        peers: true,
-    };
-    let mut it = std::env::args().skip(1);
-    while let Some(arg) = it.next() {
-        let mut val = |name: &str| it.next().with_context(|| format!("{name} needs a value"));
-        match arg.as_str() {
-            "--geometry" => a.geometry = Some(PathBuf::from(val("--geometry")?)),
-            "--binning" => a.binning = val("--binning")?.parse().context("--binning")?,
-            "--reps" => a.reps = val("--reps")?.parse().context("--reps")?,
-            "--warmup" => a.warmup = val("--warmup")?.parse().context("--warmup")?,
-            "--out" => a.out = PathBuf::from(val("--out")?),
-            "--no-peers" => a.peers = false,
-            "-h" | "--help" => {
-                println!("usage: projector-bench [--geometry FILE.toml] [--binning N] [--reps N] [--warmup N] [--out FILE.json] [--no-peers]");
-                std::process::exit(0);
-            }
-            other => bail!("unknown argument `{other}` (see --help)"),
-        }
-    }
-    Ok(a)
-}
-
 fn main() -> Result<()> {
-    let args = parse_args()?;
+    let args = Args::parse();
     let base = match &args.geometry {
         Some(p) => {
             let text =
