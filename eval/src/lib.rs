@@ -11,6 +11,7 @@
 pub mod accuracy;
 pub mod classification;
 pub mod picture;
+pub mod unet;
 
 use dbt_acquisition::NoiseLevel;
 use dbt_geometry::Geometry;
@@ -221,7 +222,7 @@ pub enum Learned<'a> {
     /// DBToR or LPD (`dbt_dbtor::Dbtor`).
     PrimalDual(&'a dbt_dbtor::Dbtor),
     /// The U-Net post-processing the (masked) FBP.
-    Unet(&'a dbt_dbtor::unet::Unet),
+    Unet(&'a crate::unet::Unet),
 }
 
 impl Learned<'_> {

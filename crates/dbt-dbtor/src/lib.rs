@@ -14,11 +14,12 @@
 mod fast;
 mod fixtures;
 mod manifest;
-pub mod unet;
 
 pub use fixtures::{check_fixtures, FixtureCheck, FP32_TOL_NETWORK_UNITS};
 
-pub use manifest::{sha256_file, BlockEntry, Fixture, ModelManifest, Normalisation, Role, FORMAT};
+pub use manifest::{
+    sha256_file, verify_checksums, BlockEntry, Fixture, ModelManifest, Normalisation, Role, FORMAT,
+};
 
 use dbt_conv::{Fp32Block, Fp32Workspace, Int8Block, Int8Workspace, Kernel};
 use dbt_geometry::Geometry;
@@ -299,7 +300,7 @@ pub struct Constraints {
 /// Set the negative values of an image to zero: the non-negativity of
 /// DBToR's runtime and of the U-Net baseline. Not `max(0)`, which would turn
 /// a NaN into 0 and hide it.
-pub(crate) fn zero_negatives(img: &mut [f32]) {
+pub fn zero_negatives(img: &mut [f32]) {
     img.iter_mut().filter(|v| **v < 0.0).for_each(|v| *v = 0.0);
 }
 

@@ -233,11 +233,8 @@ impl ModelManifest {
 }
 
 /// Check that every file listed (path relative to `dir` -> SHA-256 hex) exists
-/// and has that checksum.
-pub(crate) fn verify_checksums(
-    dir: &Path,
-    sha256: &BTreeMap<String, String>,
-) -> Result<(), DbtorError> {
+/// and has that checksum (also used by the evaluation's U-Net folders).
+pub fn verify_checksums(dir: &Path, sha256: &BTreeMap<String, String>) -> Result<(), DbtorError> {
     for (rel, expected) in sha256 {
         let path = dir.join(rel);
         if !path.is_file() {

@@ -550,7 +550,7 @@ fn main() -> Result<()> {
             let rows = loaded.first().map(|(_, m)| m.geometry().image.rows);
             let unet = unet
                 .map(|d| {
-                    dbt_dbtor::unet::Unet::load_with_rows(&d, rows)
+                    dbt_eval::unet::Unet::load_with_rows(&d, rows)
                         .map(|u| u.with_nonnegativity(!runtime.raw))
                         .with_context(|| format!("loading the U-Net {}", d.display()))
                 })

@@ -1,11 +1,11 @@
 //! The U-Net baseline of the paper (post-processing of FBP reconstructions),
-//! for the evaluation: a model folder written by `training/dbtor/export_unet.py`
+//! for the evaluation only (it is not part of the gantry's runtime,
+//! `dbt-dbtor`, which the firmware links): a model folder written by `training/dbtor/export_unet.py`
 //! (`manifest.json`, format `dbtor-unet/1`, and one ONNX file), checksums
 //! verified, run with tract-onnx. The network takes the FBP in units of the
 //! manifest's `x_scale_per_mm` and returns the image in the same unit.
 
-use crate::manifest::verify_checksums;
-use crate::DbtorError;
+use dbt_dbtor::{verify_checksums, DbtorError};
 use dbt_geometry::Geometry;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -188,7 +188,7 @@ impl Unet {
     pub fn reconstruct(&self, fbp: &[f32]) -> Result<Vec<f32>, DbtorError> {
         let mut out = self.network_output(fbp)?;
         if self.nonnegative {
-            crate::zero_negatives(&mut out);
+            dbt_dbtor::zero_negatives(&mut out);
         }
         Ok(out)
     }

@@ -2,12 +2,12 @@
 //! stored with the shipped model (`models/unet-x4/fixtures`, written by
 //! `training/dbtor/export_unet.py`), and refusals.
 
-use dbt_dbtor::unet::Unet;
 use dbt_dbtor::DbtorError;
+use dbt_eval::unet::Unet;
 use std::path::{Path, PathBuf};
 
 fn model_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/unet-x4")
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/unet-x4")
 }
 
 fn read_f32(p: &Path) -> Vec<f32> {
