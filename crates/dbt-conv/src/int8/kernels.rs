@@ -1,0 +1,413 @@
+//! The integer convolution: padded buffers, tiles (portable and VNNI
+//! `vpdpbusd`) and the epilogues that dequantize, apply PReLU and
+//! requantize.
+
+use super::*;
+
+/// Set the one-pixel border of a padded `(h + 2) x (w + 2) x c` buffer.
+pub(super) fn fill_border(buf: &mut [u8], h: usize, w: usize, c: usize, v: u8) {
+    let rl = (w + 2) * c;
+    buf[..rl].fill(v);
+    buf[(h + 1) * rl..(h + 2) * rl].fill(v);
+    for r in 1..=h {
+        buf[r * rl..r * rl + c].fill(v);
+        buf[(r + 1) * rl - c..(r + 1) * rl].fill(v);
+    }
+}
+
+pub(super) enum Out<'a> {
+    /// Padded channels-last bytes for the next layer, quantized as it reads them.
+    Bytes(&'a mut [u8], QuantParams),
+    /// Dense `h x w x ocp` dequantized output of the last layer.
+    Floats(&'a mut [f32]),
+}
+
+pub(super) fn conv(
+    kernel: Kernel,
+    p: &PackedI8,
+    inp: &[u8],
+    cs: usize,
+    h: usize,
+    w: usize,
+    out: Out<'_>,
+) {
+    let rs = (w + 2) * cs;
+    debug_assert!(inp.len() >= (h + 2) * rs);
+    let ocp = p.ocp;
+    let row = |r: usize, dst: &mut dyn FnMut(usize, usize, &[i32])| {
+        let mut tile = [0i32; NP_NARROW * GROUP];
+        for_each_tile(ocp, w, |g0, gw, x, np| {
+            run_tile(
+                kernel,
+                gw,
+                np,
+                inp,
+                r * rs + x * cs,
+                rs,
+                cs,
+                p,
+                g0,
+                &mut tile,
+            );
+            dst(x, g0, &tile[..np * gw]);
+        });
+    };
+    match out {
+        Out::Bytes(o, qa) => {
+            let rl = (w + 2) * ocp;
+            o[rl..(h + 1) * rl]
+                .par_chunks_mut(rl)
+                .enumerate()
+                .for_each(|(r, orow)| {
+                    row(r, &mut |x, g0, tile| {
+                        epilogue_bytes(kernel, p, qa, x, g0, tile, &mut orow[ocp..])
+                    })
+                });
+        }
+        Out::Floats(o) => {
+            o[..h * w * ocp]
+                .par_chunks_mut(w * ocp)
+                .enumerate()
+                .for_each(|(r, orow)| {
+                    row(r, &mut |x, g0, tile| {
+                        epilogue_floats(kernel, p, x, g0, tile, orow)
+                    })
+                });
+        }
+    }
+}
+
+/// Conv output -> (Q/DQ) -> PReLU -> Q (`qa`, the next layer's input) ->
+/// byte, at `out[(x + px) * ocp + g0 + j]`.
+pub(super) fn epilogue_bytes(
+    kernel: Kernel,
+    p: &PackedI8,
+    qa: QuantParams,
+    x: usize,
+    g0: usize,
+    tile: &[i32],
+    out: &mut [u8],
+) {
+    match (kernel, p.q_out.is_some()) {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: AVX-512F was detected when the block was made.
+        (Kernel::Avx512, true) => unsafe { epilogue_bytes_avx512::<true>(p, qa, x, g0, tile, out) },
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: as above.
+        (Kernel::Avx512, false) => unsafe {
+            epilogue_bytes_avx512::<false>(p, qa, x, g0, tile, out)
+        },
+        _ => epilogue_bytes_impl(p, qa, x, g0, tile, out),
+    }
+}
+
+/// The same arithmetic, 16 channels at a time, operation for operation
+/// (multiply then add, no fusion; multiplication by the scale's reciprocal),
+/// so that it gives the portable epilogue's bits. `QO`: the convolution's
+/// output is quantized (`p.q_out` is `Some`).
+///
+/// # Safety
+/// AVX-512F and BW; `tile` and `out` hold the tile's pixels for the channel
+/// group `g0`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512bw")]
+pub(super) unsafe fn epilogue_bytes_avx512<const QO: bool>(
+    p: &PackedI8,
+    qa: QuantParams,
+    x: usize,
+    g0: usize,
+    tile: &[i32],
+    out: &mut [u8],
+) {
+    // SAFETY: AVX-512F/BW per the contract; the assert below bounds every
+    // tile pixel's group in `tile` and `out`, and the per-channel vectors
+    // (`corr`, `scale`, `bias`) hold all `ocp` channels, 16-lane groups from
+    // `g0`.
+    unsafe {
+        use std::arch::x86_64::*;
+        let gw = group_width(p.ocp, g0);
+        // (unused without QO)
+        let qo = p.q_out.unwrap_or(qa);
+        let (so, zo) = (
+            _mm512_set1_ps(qo.scale),
+            _mm512_set1_ps(qo.zero_point as f32),
+        );
+        let za = _mm512_set1_ps(qa.zero_point as f32);
+        let (io, ia) = (
+            _mm512_set1_ps(1.0 / qo.scale),
+            _mm512_set1_ps(1.0 / qa.scale),
+        );
+        let (lo, hi, zero) = (
+            _mm512_set1_ps(-128.0),
+            _mm512_set1_ps(127.0),
+            _mm512_setzero_ps(),
+        );
+        let off = _mm512_set1_epi32(128);
+        assert!(tile.len().is_multiple_of(gw) && (x + tile.len() / gw) * p.ocp <= out.len());
+        for (px, t) in tile.chunks_exact(gw).enumerate() {
+            let o = out[(x + px) * p.ocp + g0..].as_mut_ptr();
+            for jv in (0..gw).step_by(L) {
+                let c = g0 + jv;
+                let acc = _mm512_loadu_si512(t.as_ptr().add(jv) as *const __m512i);
+                let corr = _mm512_loadu_si512(p.corr.as_ptr().add(c) as *const __m512i);
+                let v = _mm512_cvtepi32_ps(_mm512_sub_epi32(acc, corr));
+                let v = _mm512_mul_ps(v, _mm512_loadu_ps(p.scale.as_ptr().add(c)));
+                let mut v = _mm512_add_ps(v, _mm512_loadu_ps(p.bias.as_ptr().add(c)));
+                if QO {
+                    // Q/DQ of the convolution's output
+                    let q = _mm512_roundscale_ps::<{ _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC }>(
+                        _mm512_mul_ps(v, io),
+                    );
+                    let q = _mm512_min_ps(_mm512_max_ps(_mm512_add_ps(q, zo), lo), hi);
+                    v = _mm512_mul_ps(_mm512_sub_ps(q, zo), so);
+                }
+                // PReLU
+                let neg = _mm512_cmp_ps_mask::<_CMP_LT_OQ>(v, zero);
+                let v = _mm512_mask_mul_ps(v, neg, v, _mm512_loadu_ps(p.slope.as_ptr().add(c)));
+                // Q of the activation, stored as q + 128
+                let q = _mm512_roundscale_ps::<{ _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC }>(
+                    _mm512_mul_ps(v, ia),
+                );
+                let q = _mm512_min_ps(_mm512_max_ps(_mm512_add_ps(q, za), lo), hi);
+                let b = _mm512_add_epi32(_mm512_cvtps_epi32(q), off);
+                _mm_storeu_si128(o.add(jv) as *mut __m128i, _mm512_cvtepi32_epi8(b));
+            }
+        }
+    }
+}
+
+#[inline(always)]
+pub(super) fn epilogue_bytes_impl(
+    p: &PackedI8,
+    qa: QuantParams,
+    x: usize,
+    g0: usize,
+    tile: &[i32],
+    out: &mut [u8],
+) {
+    let gw = group_width(p.ocp, g0);
+    let qo = p.q_out.map(|q| (q, 1.0 / q.scale));
+    let ia = 1.0 / qa.scale;
+    let (corr, scale) = (&p.corr[g0..g0 + gw], &p.scale[g0..g0 + gw]);
+    let (bias, slope) = (&p.bias[g0..g0 + gw], &p.slope[g0..g0 + gw]);
+    for (px, t) in tile.chunks_exact(gw).enumerate() {
+        let o = &mut out[(x + px) * p.ocp + g0..(x + px) * p.ocp + g0 + gw];
+        for j in 0..gw {
+            let v = (t[j] - corr[j]) as f32 * scale[j] + bias[j];
+            let v = qo.map_or(v, |(q, io)| q.fake_rcp(v, io));
+            let v = if v < 0.0 { v * slope[j] } else { v };
+            o[j] = to_byte(qa.quantize_rcp(v, ia));
+        }
+    }
+}
+
+/// Conv output -> (Q/DQ), at `out[(x + px) * ocp + g0 + j]`.
+pub(super) fn epilogue_floats(
+    kernel: Kernel,
+    p: &PackedI8,
+    x: usize,
+    g0: usize,
+    tile: &[i32],
+    out: &mut [f32],
+) {
+    match kernel {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: AVX-512F was detected when the block was made.
+        Kernel::Avx512 => unsafe { epilogue_floats_avx512(p, x, g0, tile, out) },
+        _ => epilogue_floats_impl(p, x, g0, tile, out),
+    }
+}
+
+/// # Safety
+/// AVX-512F and BW (the body is safe code, compiled with them enabled).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512bw")]
+pub(super) unsafe fn epilogue_floats_avx512(
+    p: &PackedI8,
+    x: usize,
+    g0: usize,
+    tile: &[i32],
+    out: &mut [f32],
+) {
+    epilogue_floats_impl(p, x, g0, tile, out)
+}
+
+#[inline(always)]
+pub(super) fn epilogue_floats_impl(
+    p: &PackedI8,
+    x: usize,
+    g0: usize,
+    tile: &[i32],
+    out: &mut [f32],
+) {
+    let gw = group_width(p.ocp, g0);
+    let qo = p.q_out.map(|q| (q, 1.0 / q.scale));
+    let (corr, scale, bias) = (
+        &p.corr[g0..g0 + gw],
+        &p.scale[g0..g0 + gw],
+        &p.bias[g0..g0 + gw],
+    );
+    for (px, t) in tile.chunks_exact(gw).enumerate() {
+        let o = &mut out[(x + px) * p.ocp + g0..(x + px) * p.ocp + g0 + gw];
+        for j in 0..gw {
+            let v = (t[j] - corr[j]) as f32 * scale[j] + bias[j];
+            o[j] = qo.map_or(v, |(q, io)| q.fake_rcp(v, io));
+        }
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+#[inline]
+pub(super) fn run_tile(
+    kernel: Kernel,
+    gw: usize,
+    np: usize,
+    inp: &[u8],
+    base: usize,
+    rs: usize,
+    cs: usize,
+    p: &PackedI8,
+    g0: usize,
+    tile: &mut [i32],
+) {
+    assert!(base + 2 * rs + (np + 1) * cs + p.cin4 <= inp.len());
+    assert!(g0 + gw <= p.ocp && p.w.len() == 9 * p.cin4 * p.ocp);
+    assert!(np * gw <= tile.len() && (1..=NP_NARROW).contains(&np) && p.cin4 <= cs);
+    let g4 = p.cin4 / 4;
+    match kernel {
+        #[cfg(target_arch = "x86_64")]
+        Kernel::Avx512 => {
+            let (i, wp, t) = (
+                inp[base..].as_ptr(),
+                p.w[g0 * 4..].as_ptr(),
+                tile.as_mut_ptr(),
+            );
+            // SAFETY: AVX-512 F/BW/VNNI were detected when the block was made
+            // (Int8Block::new refuses otherwise); the asserts above bound
+            // every address the kernel touches.
+            unsafe {
+                if gw == GROUP {
+                    dispatch_np!(tile_vnni, 4, np, i, rs, cs, g4, wp, p.ocp, t)
+                } else {
+                    dispatch_np!(tile_vnni, 1, np, i, rs, cs, g4, wp, p.ocp, t)
+                }
+            }
+        }
+        _ => {
+            if gw == GROUP {
+                dispatch_np!(
+                    tile_portable,
+                    4,
+                    np,
+                    inp,
+                    base,
+                    rs,
+                    cs,
+                    g4,
+                    &p.w,
+                    g0,
+                    p.ocp,
+                    tile
+                )
+            } else {
+                dispatch_np!(
+                    tile_portable,
+                    1,
+                    np,
+                    inp,
+                    base,
+                    rs,
+                    cs,
+                    g4,
+                    &p.w,
+                    g0,
+                    p.ocp,
+                    tile
+                )
+            }
+        }
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+pub(super) fn tile_portable<const NB: usize, const NP: usize>(
+    inp: &[u8],
+    base: usize,
+    rs: usize,
+    cs: usize,
+    g4: usize,
+    w: &[i8],
+    g0: usize,
+    ocp: usize,
+    tile: &mut [i32],
+) {
+    let mut acc = [[[0i32; L]; NB]; NP];
+    for t in 0..9 {
+        let ib = base + (t / 3) * rs + (t % 3) * cs;
+        for g in 0..g4 {
+            let wr = &w[((t * g4 + g) * ocp + g0) * 4..];
+            for (p, a) in acc.iter_mut().enumerate() {
+                let u = &inp[ib + p * cs + 4 * g..ib + p * cs + 4 * g + 4];
+                for (j, aj) in a.iter_mut().enumerate() {
+                    for (k, ak) in aj.iter_mut().enumerate() {
+                        let wv = &wr[(j * L + k) * 4..(j * L + k) * 4 + 4];
+                        *ak += (0..4).map(|e| u[e] as i32 * wv[e] as i32).sum::<i32>();
+                    }
+                }
+            }
+        }
+    }
+    for (p, a) in acc.iter().enumerate() {
+        for (j, aj) in a.iter().enumerate() {
+            tile[(p * NB + j) * L..(p * NB + j + 1) * L].copy_from_slice(aj);
+        }
+    }
+}
+
+/// # Safety
+/// AVX-512 F, BW and VNNI; `inp` valid for every tap of the tile, `w` for
+/// `9 * g4 * ocp * 4` bytes from the group's first lane, `out` for
+/// `NP * NB * 16` i32.
+#[cfg(target_arch = "x86_64")]
+#[allow(clippy::too_many_arguments)]
+#[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
+pub(super) unsafe fn tile_vnni<const NB: usize, const NP: usize>(
+    inp: *const u8,
+    rs: usize,
+    cs: usize,
+    g4: usize,
+    w: *const i8,
+    ocp: usize,
+    out: *mut i32,
+) {
+    // SAFETY: AVX-512 F/BW/VNNI and the pointer ranges per the contract (`#
+    // Safety` above).
+    unsafe {
+        use std::arch::x86_64::*;
+        let mut acc = [[_mm512_setzero_si512(); NB]; NP];
+        for t in 0..9 {
+            let ib = inp.add((t / 3) * rs + (t % 3) * cs);
+            let wb = w.add(t * g4 * ocp * 4);
+            for g in 0..g4 {
+                let wr = wb.add(g * ocp * 4);
+                let mut wv = [_mm512_setzero_si512(); NB];
+                for (j, v) in wv.iter_mut().enumerate() {
+                    *v = _mm512_loadu_si512(wr.add(j * 4 * L) as *const __m512i);
+                }
+                for (p, a) in acc.iter_mut().enumerate() {
+                    let four = (ib.add(p * cs + 4 * g) as *const i32).read_unaligned();
+                    let b = _mm512_set1_epi32(four);
+                    for (j, aj) in a.iter_mut().enumerate() {
+                        *aj = _mm512_dpbusd_epi32(*aj, b, wv[j]);
+                    }
+                }
+            }
+        }
+        for (p, a) in acc.iter().enumerate() {
+            for (j, aj) in a.iter().enumerate() {
+                _mm512_storeu_si512(out.add((p * NB + j) * L) as *mut __m512i, *aj);
+            }
+        }
+    }
+}
