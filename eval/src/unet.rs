@@ -103,7 +103,7 @@ impl Unet {
         };
         let text = std::fs::read_to_string(&mpath).map_err(|source| DbtorError::Io {
             path: mpath.clone(),
-            source,
+            cause: source,
         })?;
         let m: UnetManifest = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
         if m.format != UNET_FORMAT || m.kind != "unet" {

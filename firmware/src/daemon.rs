@@ -86,12 +86,12 @@ pub struct Status {
 #[derive(Debug, thiserror::Error)]
 pub enum DaemonError {
     /// The spool or status folder is unusable.
-    #[error("{path}: {source}")]
+    #[error("{path}: {cause}")]
     Io {
         /// Where.
         path: PathBuf,
         /// Why.
-        source: std::io::Error,
+        cause: std::io::Error,
     },
     /// The model folder fails its sign-off, its network does not load, or
     /// its calibration is unusable.
@@ -113,7 +113,7 @@ pub enum DaemonError {
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> DaemonError + '_ {
     move |source| DaemonError::Io {
         path: path.to_path_buf(),
-        source,
+        cause: source,
     }
 }
 

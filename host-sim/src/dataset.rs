@@ -67,7 +67,7 @@ pub fn add_fbp(dir: &Path, level: &str) -> Result<Vec<(String, usize)>, SimError
         let path = dir.join(&split).join(&file);
         let io = |source| dbt_store::StoreError::Io {
             path: path.clone(),
-            source,
+            cause: source,
         };
         let mut out = std::io::BufWriter::new(std::fs::File::create(&path).map_err(io)?);
         const CHUNK: usize = 256;

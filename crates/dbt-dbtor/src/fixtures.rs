@@ -48,7 +48,7 @@ pub struct FixtureCheck {
 fn read_f32(path: &Path, n: usize) -> Result<Vec<f32>, DbtorError> {
     let b = std::fs::read(path).map_err(|source| DbtorError::Io {
         path: path.to_path_buf(),
-        source,
+        cause: source,
     })?;
     if b.len() != 4 * n {
         return Err(DbtorError::Manifest {

@@ -31,12 +31,12 @@ use tract_onnx::prelude::*;
 #[derive(Debug, thiserror::Error)]
 pub enum DbtorError {
     /// A file could not be read.
-    #[error("{path}: {source}")]
+    #[error("{path}: {cause}")]
     Io {
         /// The file.
         path: PathBuf,
         /// The OS error.
-        source: std::io::Error,
+        cause: std::io::Error,
     },
     /// The manifest is malformed or inconsistent.
     #[error("{path}: {reason}")]

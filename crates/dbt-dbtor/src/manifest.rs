@@ -108,7 +108,7 @@ pub struct ModelManifest {
 pub fn sha256_file(path: &Path) -> Result<String, DbtorError> {
     let io = |source| DbtorError::Io {
         path: path.to_path_buf(),
-        source,
+        cause: source,
     };
     let mut f = std::fs::File::open(path).map_err(io)?;
     let mut h = Sha256::new();
@@ -144,7 +144,7 @@ impl ModelManifest {
         let path = dir.join("manifest.json");
         let text = std::fs::read_to_string(&path).map_err(|source| DbtorError::Io {
             path: path.clone(),
-            source,
+            cause: source,
         })?;
         Self::parse(&text, &path)
     }

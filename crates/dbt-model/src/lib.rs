@@ -25,12 +25,12 @@ use thiserror::Error;
 #[derive(Debug, Error)]
 pub enum ModelError {
     /// A file cannot be read.
-    #[error("{path}: {source}")]
+    #[error("{path}: {cause}")]
     Io {
         /// The file.
         path: PathBuf,
         /// The OS error.
-        source: std::io::Error,
+        cause: std::io::Error,
     },
     /// The folder does not match its sign-off or the configured digest.
     #[error("model folder {dir}: {reason}")]
@@ -41,12 +41,12 @@ pub enum ModelError {
         reason: String,
     },
     /// The network cannot be loaded.
-    #[error("model {dir}: {source}")]
+    #[error("model {dir}: {cause}")]
     Network {
         /// The folder.
         dir: PathBuf,
         /// Why.
-        source: dbt_dbtor::DbtorError,
+        cause: dbt_dbtor::DbtorError,
     },
     /// The calibration file is unusable.
     #[error(transparent)]
@@ -57,7 +57,7 @@ impl ModelError {
     pub(crate) fn io(path: &Path, source: std::io::Error) -> Self {
         Self::Io {
             path: path.to_path_buf(),
-            source,
+            cause: source,
         }
     }
 }
@@ -91,7 +91,7 @@ pub fn load_signed(
     let model = Dbtor::load_mixed(dir, precision, fp32_blocks, engine).map_err(|source| {
         ModelError::Network {
             dir: dir.to_path_buf(),
-            source,
+            cause: source,
         }
     })?;
     let calibration = if signoff.files.contains_key(CALIBRATION_FILE) {

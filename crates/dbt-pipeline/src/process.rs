@@ -38,20 +38,20 @@ pub enum PipelineError {
     #[error("implausible acquisition: {0}")]
     Implausible(#[from] Implausible),
     /// DBToR failed.
-    #[error("DBToR reconstruction of slice {slice}: {source}")]
+    #[error("DBToR reconstruction of slice {slice}: {cause}")]
     Dbtor {
         /// Coronal slice.
         slice: usize,
         /// Cause.
-        source: dbt_dbtor::DbtorError,
+        cause: dbt_dbtor::DbtorError,
     },
     /// Reconstruction failed.
-    #[error("reconstruction of slice {slice}: {source}")]
+    #[error("reconstruction of slice {slice}: {cause}")]
     Recon {
         /// Coronal slice.
         slice: usize,
         /// Cause.
-        source: dbt_recon::ReconError,
+        cause: dbt_recon::ReconError,
     },
     /// Classification failed.
     #[error("classification: {0}")]
@@ -287,10 +287,16 @@ pub fn reconstruct_volume(
         let img = match &opts.dbtor {
             Some(m) => m
                 .reconstruct(&log_transform(counts, h.flux), h.thickness_mm)
-                .map_err(|source| PipelineError::Dbtor { slice: d, source })?,
+                .map_err(|source| PipelineError::Dbtor {
+                    slice: d,
+                    cause: source,
+                })?,
             None => {
                 mltr(&proj, counts, h.flux, &mask, &mopts)
-                    .map_err(|source| PipelineError::Recon { slice: d, source })?
+                    .map_err(|source| PipelineError::Recon {
+                        slice: d,
+                        cause: source,
+                    })?
                     .0
             }
         };

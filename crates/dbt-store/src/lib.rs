@@ -17,12 +17,12 @@ use thiserror::Error;
 #[derive(Debug, Error)]
 pub enum StoreError {
     /// Reading or writing a file failed.
-    #[error("{path}: {source}")]
+    #[error("{path}: {cause}")]
     Io {
         /// The file.
         path: PathBuf,
         /// The OS error.
-        source: std::io::Error,
+        cause: std::io::Error,
     },
     /// The content is not what the format says.
     #[error("{path}: {reason}")]
@@ -33,19 +33,19 @@ pub enum StoreError {
         reason: String,
     },
     /// A phantom decoding error.
-    #[error("{path}: {source}")]
+    #[error("{path}: {cause}")]
     Phantom {
         /// The sidecar.
         path: PathBuf,
         /// The decoding error.
-        source: PhantomError,
+        cause: PhantomError,
     },
 }
 
 pub(crate) fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> StoreError + '_ {
     move |source| StoreError::Io {
         path: path.to_path_buf(),
-        source,
+        cause: source,
     }
 }
 
@@ -88,7 +88,7 @@ pub fn load_geometry(spec: &str, binning: usize) -> Result<Geometry, StoreError>
                 } else {
                     StoreError::Io {
                         path: path.to_path_buf(),
-                        source,
+                        cause: source,
                     }
                 }
             })?;
@@ -105,14 +105,14 @@ pub fn load_external_phantom(sidecar: &Path) -> Result<LabelVolume, StoreError> 
     let text = std::fs::read_to_string(sidecar).map_err(io_err(sidecar))?;
     let phantom_err = |source| StoreError::Phantom {
         path: sidecar.to_path_buf(),
-        source,
+        cause: source,
     };
     let sc = ExternalSidecar::from_toml_str(&text).map_err(phantom_err)?;
     let raw_path = sidecar.parent().unwrap_or(Path::new(".")).join(&sc.raw);
     let raw = read_maybe_gz(&raw_path)?;
     sc.decode(&raw).map_err(|source| StoreError::Phantom {
         path: raw_path.clone(),
-        source,
+        cause: source,
     })
 }
 
