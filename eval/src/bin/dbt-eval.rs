@@ -92,246 +92,274 @@ impl Default for Runtime {
 #[derive(Subcommand)]
 enum Cmd {
     /// MLTR and FBP table (paper Tables 1-2), printed and written as JSON.
-    Baselines {
-        /// Binning of the paper geometry (1 = the paper's; with --model, the
-        /// model's geometry is used and this must agree if given).
-        #[arg(long)]
-        binning: Option<usize>,
-        /// A trained DBToR model folder (models/NAME) to evaluate beside the baselines.
-        #[arg(long)]
-        model: Option<PathBuf>,
-        /// Precisions of the model to run (comma separated: fp32, int8,
-        /// mixed: int8 but `--mixed-fp32-blocks` in fp32).
-        #[arg(long, default_value = "fp32,int8")]
-        precisions: String,
-        /// A trained LPD model folder (the paper's baseline: DBToR without the
-        /// mask), run in fp32 beside the model; same geometry.
-        #[arg(long)]
-        lpd: Option<PathBuf>,
-        /// A trained U-Net model folder (the paper's baseline: a U-Net on the
-        /// FBP, `training/dbtor/export_unet.py`); same geometry, except that
-        /// one whose manifest says `any_rows` runs on the model's image
-        /// height.
-        #[arg(long)]
-        unet: Option<PathBuf>,
-        #[command(flatten)]
-        runtime: Runtime,
-        /// Phantoms: the first N of the split.
-        #[arg(long, default_value_t = 5)]
-        phantoms: usize,
-        #[command(flatten)]
-        split: SplitArgs,
-        /// Slices per phantom.
-        #[arg(long, default_value_t = 4)]
-        slices: usize,
-        /// MLTR iterations.
-        #[arg(long, default_value_t = 100)]
-        iterations: usize,
-        /// Noise levels.
-        #[arg(long, default_value = "noise-free,N4,N8,N12")]
-        levels: String,
-        /// JSON output.
-        #[arg(long, default_value = "eval/results/baselines.json")]
-        json: PathBuf,
-    },
+    Baselines(BaselinesArgs),
     /// Mean glandular dose of a phantom: patient-specific and model breast
     /// (Monte Carlo, paper Table 3 spectrum), as JSON.
-    Mgd {
-        /// External phantom sidecar (default: a test-set phantom).
-        #[arg(long)]
-        phantom: Option<PathBuf>,
-        /// Test-set phantom index (when no --phantom).
-        #[arg(long, default_value_t = 0)]
-        index: u64,
-        /// Dose voxel side, mm (phantoms are generated or resampled to it).
-        #[arg(long, default_value_t = 0.8)]
-        voxel: f64,
-        /// `dbt` (25 views, -24..24 deg) or `mammo` (0 deg).
-        #[arg(long, default_value = "dbt")]
-        views: String,
-        /// Target relative statistical uncertainty of each MGD.
-        #[arg(long, default_value_t = 0.01)]
-        target: f64,
-        /// Spectrum file (energy keV, weight) instead of the paper's Table 3 choice.
-        #[arg(long)]
-        spectrum: Option<PathBuf>,
-        /// Tube output: incident air kerma at the reference point per mAs
-        /// (mGy/mAs, measured on the system), to report MGD in mGy.
-        #[arg(long)]
-        kerma_mgy_per_mas: Option<f64>,
-        /// Tube loading of the whole acquisition, mAs (with --kerma-mgy-per-mas).
-        #[arg(long)]
-        mas: Option<f64>,
-        /// Seed.
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-    },
+    Mgd(MgdArgs),
     /// End-to-end accuracy of glandularity and MGD on held-out phantoms
     /// (simulated acquisition -> firmware processing), Bland-Altman
     /// statistics, JSON and PNG plots.
-    Accuracy {
-        /// Phantoms: the first N of the split.
-        #[arg(long, default_value_t = 30)]
-        phantoms: usize,
-        #[command(flatten)]
-        split: SplitArgs,
-        /// Evaluate this external phantom (sidecar) instead.
-        #[arg(long)]
-        phantom: Option<PathBuf>,
-        /// Binning of the paper geometry (voxels = pixels; default 4). With
-        /// a model, its geometry is used, and this must agree if given.
-        #[arg(long)]
-        binning: Option<usize>,
-        /// Noise level.
-        #[arg(long, default_value = "N8")]
-        noise: String,
-        /// MLTR iterations.
-        #[arg(long, default_value_t = 100)]
-        iterations: usize,
-        /// Target MGD uncertainty per Monte Carlo run.
-        #[arg(long, default_value_t = 0.01)]
-        dose_uncertainty: f64,
-        /// Output folder (accuracy.json, bland-altman-*.png).
-        #[arg(long, default_value = "eval/results/accuracy")]
-        out: PathBuf,
-        /// The DBToR model (needed for the fp32 and int8 reconstructors).
-        #[arg(long)]
-        model: Option<PathBuf>,
-        /// The skin rule of the classification (as `classification
-        /// --skin`); default: the firmware's.
-        #[arg(long)]
-        skin: Option<String>,
-        /// Report the glandularity uncalibrated even where the model folder
-        /// has a calibration (`dbt-eval calibrate`).
-        #[arg(long)]
-        no_calibration: bool,
-        /// Reconstructors to compare on the same acquisitions (comma
-        /// separated: mltr, fp32, int8, mixed; default: fp32 with --model, else mltr).
-        #[arg(long)]
-        reconstructors: Option<String>,
-        #[command(flatten)]
-        runtime: Runtime,
-    },
+    Accuracy(AccuracyArgs),
     /// The classifier against the phantom truth, voxel by voxel: each
     /// phantom reconstructed once and classified with each skin-depth bound,
     /// glandularity errors and confusion matrices (no dose). Tune here on the
     /// validation split; report with `accuracy` on the test split.
-    Classification {
-        /// Phantoms: the first N of the split.
-        #[arg(long, default_value_t = 20)]
-        phantoms: usize,
-        #[command(flatten)]
-        split: SplitArgs,
-        /// Classify this external phantom (sidecar) instead.
-        #[arg(long)]
-        phantom: Option<PathBuf>,
-        /// Binning of the paper geometry, without a model.
-        #[arg(long, default_value_t = 4)]
-        binning: usize,
-        /// Noise level.
-        #[arg(long, default_value = "N8")]
-        noise: String,
-        /// The DBToR model; without it, MLTR reconstructs.
-        #[arg(long)]
-        model: Option<PathBuf>,
-        /// Model precision (fp32, int8).
-        #[arg(long, default_value = "fp32")]
-        precision: String,
-        /// MLTR iterations (without a model).
-        #[arg(long, default_value_t = 100)]
-        iterations: usize,
-        /// Skin variants to compare, comma separated: `none` (the paper's
-        /// unbounded growth), a depth bound in mm (`2.4`: growth through
-        /// voxels >= the seed mean, at most that deep), or `shell:MM` (every
-        /// voxel within the bound).
-        #[arg(long, default_value = "none,1.6,2.4,3.2,shell:1.6,shell:2.4")]
-        skin: String,
-        /// Also the patient-specific MGD of each variant against the
-        /// phantom's labels, to this relative Monte Carlo uncertainty.
-        #[arg(long)]
-        dose_uncertainty: Option<f64>,
-        /// JSON output.
-        #[arg(long, default_value = "eval/results/classification.json")]
-        json: PathBuf,
-        #[command(flatten)]
-        runtime: Runtime,
-    },
+    Classification(ClassificationArgs),
     /// Fit the glandularity calibration of a model at one precision on the
     /// validation split (never the test split): the firmware's partial-volume
     /// estimate against the phantoms' truth, `G = offset + slope * estimate`,
     /// written into the model folder (glandularity-calibration.json, bound
     /// to the manifest by its SHA-256), where the firmware finds it.
-    Calibrate {
-        /// The DBToR model folder.
-        #[arg(long)]
-        model: PathBuf,
-        /// Precision the calibration is for (fp32, int8, mixed).
-        #[arg(long, default_value = "fp32")]
-        precision: String,
-        /// Validation phantoms.
-        #[arg(long, default_value_t = 16)]
-        phantoms: usize,
-        /// The training population's seed (default: the model manifest's).
-        #[arg(long)]
-        train_seed: Option<u64>,
-        /// Population of the validation phantoms (`procedural`,
-        /// `anatomical`).
-        #[arg(long, default_value = "procedural")]
-        population: PopulationKind,
-        /// Noise level.
-        #[arg(long, default_value = "N8")]
-        noise: String,
-        /// Write here instead of the model folder.
-        #[arg(long)]
-        out: Option<PathBuf>,
-        #[command(flatten)]
-        runtime: Runtime,
-    },
+    Calibrate(CalibrateArgs),
     /// PNG of breast phantoms' three orthogonal mid-planes (attenuation,
     /// partial volumes where the phantom has them), drawn phantoms beside
     /// external ones, on axes in mm at one scale.
-    Anatomy {
-        /// Output PNG.
-        #[arg(long, default_value = "docs/figures/anatomy.png")]
-        out: PathBuf,
-        /// Population of the drawn phantoms.
-        #[arg(long, default_value = "anatomical")]
-        population: PopulationKind,
-        /// Population seed (default: the training datasets' 2024; never the
-        /// test seed's phantoms in a picture chosen by eye).
-        #[arg(long, default_value_t = 2024)]
-        seed: u64,
-        /// Indices of the drawn phantoms, comma separated.
-        #[arg(long, default_value = "0,1")]
-        index: String,
-        /// External phantoms (sidecar TOML), comma separated.
-        #[arg(long, default_value = "phantoms/victre-pc1.toml")]
-        external: String,
-        /// Voxel of the pictures, mm (the drawn phantoms are generated at
-        /// it, the external ones resampled to it).
-        #[arg(long, default_value_t = 0.4)]
-        voxel_mm: f64,
-    },
+    Anatomy(AnatomyArgs),
     /// PNG of a test slice: phantom, sinogram, MLTR, FBP.
-    Picture {
-        /// Output PNG.
-        #[arg(long, default_value = "eval/results/slice.png")]
-        out: PathBuf,
-        /// Binning of the paper geometry.
-        #[arg(long, default_value_t = 1)]
-        binning: usize,
-        /// Test-set phantom.
-        #[arg(long, default_value_t = 0)]
-        phantom: usize,
-        /// Noise level.
-        #[arg(long, default_value = "N8")]
-        noise: String,
-        /// A trained DBToR model: adds its reconstruction (fp32) and the
-        /// difference to the phantom (the paper's Figures 7-9); the geometry
-        /// is the model's.
-        #[arg(long)]
-        model: Option<PathBuf>,
-    },
+    Picture(PictureArgs),
+}
+
+/// The options of `dbt-eval baselines`.
+#[derive(Args)]
+struct BaselinesArgs {
+    /// Binning of the paper geometry (1 = the paper's; with --model, the
+    /// model's geometry is used and this must agree if given).
+    #[arg(long)]
+    binning: Option<usize>,
+    /// A trained DBToR model folder (models/NAME) to evaluate beside the baselines.
+    #[arg(long)]
+    model: Option<PathBuf>,
+    /// Precisions of the model to run (comma separated: fp32, int8,
+    /// mixed: int8 but `--mixed-fp32-blocks` in fp32).
+    #[arg(long, default_value = "fp32,int8")]
+    precisions: String,
+    /// A trained LPD model folder (the paper's baseline: DBToR without the
+    /// mask), run in fp32 beside the model; same geometry.
+    #[arg(long)]
+    lpd: Option<PathBuf>,
+    /// A trained U-Net model folder (the paper's baseline: a U-Net on the
+    /// FBP, `training/dbtor/export_unet.py`); same geometry, except that
+    /// one whose manifest says `any_rows` runs on the model's image
+    /// height.
+    #[arg(long)]
+    unet: Option<PathBuf>,
+    #[command(flatten)]
+    runtime: Runtime,
+    /// Phantoms: the first N of the split.
+    #[arg(long, default_value_t = 5)]
+    phantoms: usize,
+    #[command(flatten)]
+    split: SplitArgs,
+    /// Slices per phantom.
+    #[arg(long, default_value_t = 4)]
+    slices: usize,
+    /// MLTR iterations.
+    #[arg(long, default_value_t = 100)]
+    iterations: usize,
+    /// Noise levels.
+    #[arg(long, default_value = "noise-free,N4,N8,N12")]
+    levels: String,
+    /// JSON output.
+    #[arg(long, default_value = "eval/results/baselines.json")]
+    json: PathBuf,
+}
+
+/// The options of `dbt-eval mgd`.
+#[derive(Args)]
+struct MgdArgs {
+    /// External phantom sidecar (default: a test-set phantom).
+    #[arg(long)]
+    phantom: Option<PathBuf>,
+    /// Test-set phantom index (when no --phantom).
+    #[arg(long, default_value_t = 0)]
+    index: u64,
+    /// Dose voxel side, mm (phantoms are generated or resampled to it).
+    #[arg(long, default_value_t = 0.8)]
+    voxel: f64,
+    /// `dbt` (25 views, -24..24 deg) or `mammo` (0 deg).
+    #[arg(long, default_value = "dbt")]
+    views: String,
+    /// Target relative statistical uncertainty of each MGD.
+    #[arg(long, default_value_t = 0.01)]
+    target: f64,
+    /// Spectrum file (energy keV, weight) instead of the paper's Table 3 choice.
+    #[arg(long)]
+    spectrum: Option<PathBuf>,
+    /// Tube output: incident air kerma at the reference point per mAs
+    /// (mGy/mAs, measured on the system), to report MGD in mGy.
+    #[arg(long)]
+    kerma_mgy_per_mas: Option<f64>,
+    /// Tube loading of the whole acquisition, mAs (with --kerma-mgy-per-mas).
+    #[arg(long)]
+    mas: Option<f64>,
+    /// Seed.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+}
+
+/// The options of `dbt-eval accuracy`.
+#[derive(Args)]
+struct AccuracyArgs {
+    /// Phantoms: the first N of the split.
+    #[arg(long, default_value_t = 30)]
+    phantoms: usize,
+    #[command(flatten)]
+    split: SplitArgs,
+    /// Evaluate this external phantom (sidecar) instead.
+    #[arg(long)]
+    phantom: Option<PathBuf>,
+    /// Binning of the paper geometry (voxels = pixels; default 4). With
+    /// a model, its geometry is used, and this must agree if given.
+    #[arg(long)]
+    binning: Option<usize>,
+    /// Noise level.
+    #[arg(long, default_value = "N8")]
+    noise: String,
+    /// MLTR iterations.
+    #[arg(long, default_value_t = 100)]
+    iterations: usize,
+    /// Target MGD uncertainty per Monte Carlo run.
+    #[arg(long, default_value_t = 0.01)]
+    dose_uncertainty: f64,
+    /// Output folder (accuracy.json, bland-altman-*.png).
+    #[arg(long, default_value = "eval/results/accuracy")]
+    out: PathBuf,
+    /// The DBToR model (needed for the fp32 and int8 reconstructors).
+    #[arg(long)]
+    model: Option<PathBuf>,
+    /// The skin rule of the classification (as `classification
+    /// --skin`); default: the firmware's.
+    #[arg(long)]
+    skin: Option<String>,
+    /// Report the glandularity uncalibrated even where the model folder
+    /// has a calibration (`dbt-eval calibrate`).
+    #[arg(long)]
+    no_calibration: bool,
+    /// Reconstructors to compare on the same acquisitions (comma
+    /// separated: mltr, fp32, int8, mixed; default: fp32 with --model, else mltr).
+    #[arg(long)]
+    reconstructors: Option<String>,
+    #[command(flatten)]
+    runtime: Runtime,
+}
+
+/// The options of `dbt-eval classification`.
+#[derive(Args)]
+struct ClassificationArgs {
+    /// Phantoms: the first N of the split.
+    #[arg(long, default_value_t = 20)]
+    phantoms: usize,
+    #[command(flatten)]
+    split: SplitArgs,
+    /// Classify this external phantom (sidecar) instead.
+    #[arg(long)]
+    phantom: Option<PathBuf>,
+    /// Binning of the paper geometry, without a model.
+    #[arg(long, default_value_t = 4)]
+    binning: usize,
+    /// Noise level.
+    #[arg(long, default_value = "N8")]
+    noise: String,
+    /// The DBToR model; without it, MLTR reconstructs.
+    #[arg(long)]
+    model: Option<PathBuf>,
+    /// Model precision (fp32, int8).
+    #[arg(long, default_value = "fp32")]
+    precision: String,
+    /// MLTR iterations (without a model).
+    #[arg(long, default_value_t = 100)]
+    iterations: usize,
+    /// Skin variants to compare, comma separated: `none` (the paper's
+    /// unbounded growth), a depth bound in mm (`2.4`: growth through
+    /// voxels >= the seed mean, at most that deep), or `shell:MM` (every
+    /// voxel within the bound).
+    #[arg(long, default_value = "none,1.6,2.4,3.2,shell:1.6,shell:2.4")]
+    skin: String,
+    /// Also the patient-specific MGD of each variant against the
+    /// phantom's labels, to this relative Monte Carlo uncertainty.
+    #[arg(long)]
+    dose_uncertainty: Option<f64>,
+    /// JSON output.
+    #[arg(long, default_value = "eval/results/classification.json")]
+    json: PathBuf,
+    #[command(flatten)]
+    runtime: Runtime,
+}
+
+/// The options of `dbt-eval calibrate`.
+#[derive(Args)]
+struct CalibrateArgs {
+    /// The DBToR model folder.
+    #[arg(long)]
+    model: PathBuf,
+    /// Precision the calibration is for (fp32, int8, mixed).
+    #[arg(long, default_value = "fp32")]
+    precision: String,
+    /// Validation phantoms.
+    #[arg(long, default_value_t = 16)]
+    phantoms: usize,
+    /// The training population's seed (default: the model manifest's).
+    #[arg(long)]
+    train_seed: Option<u64>,
+    /// Population of the validation phantoms (`procedural`,
+    /// `anatomical`).
+    #[arg(long, default_value = "procedural")]
+    population: PopulationKind,
+    /// Noise level.
+    #[arg(long, default_value = "N8")]
+    noise: String,
+    /// Write here instead of the model folder.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    #[command(flatten)]
+    runtime: Runtime,
+}
+
+/// The options of `dbt-eval anatomy`.
+#[derive(Args)]
+struct AnatomyArgs {
+    /// Output PNG.
+    #[arg(long, default_value = "docs/figures/anatomy.png")]
+    out: PathBuf,
+    /// Population of the drawn phantoms.
+    #[arg(long, default_value = "anatomical")]
+    population: PopulationKind,
+    /// Population seed (default: the training datasets' 2024; never the
+    /// test seed's phantoms in a picture chosen by eye).
+    #[arg(long, default_value_t = 2024)]
+    seed: u64,
+    /// Indices of the drawn phantoms, comma separated.
+    #[arg(long, default_value = "0,1")]
+    index: String,
+    /// External phantoms (sidecar TOML), comma separated.
+    #[arg(long, default_value = "phantoms/victre-pc1.toml")]
+    external: String,
+    /// Voxel of the pictures, mm (the drawn phantoms are generated at
+    /// it, the external ones resampled to it).
+    #[arg(long, default_value_t = 0.4)]
+    voxel_mm: f64,
+}
+
+/// The options of `dbt-eval picture`.
+#[derive(Args)]
+struct PictureArgs {
+    /// Output PNG.
+    #[arg(long, default_value = "eval/results/slice.png")]
+    out: PathBuf,
+    /// Binning of the paper geometry.
+    #[arg(long, default_value_t = 1)]
+    binning: usize,
+    /// Test-set phantom.
+    #[arg(long, default_value_t = 0)]
+    phantom: usize,
+    /// Noise level.
+    #[arg(long, default_value = "N8")]
+    noise: String,
+    /// A trained DBToR model: adds its reconstruction (fp32) and the
+    /// difference to the phantom (the paper's Figures 7-9); the geometry
+    /// is the model's.
+    #[arg(long)]
+    model: Option<PathBuf>,
 }
 
 /// A skin variant of `dbt-eval classification`: `none`, `MM` or `shell:MM`.
@@ -529,669 +557,699 @@ fn main() -> Result<()> {
         .with_writer(std::io::stderr)
         .init();
     match Cli::parse().cmd {
-        Cmd::Baselines {
-            binning,
-            model,
-            precisions,
-            lpd,
-            unet,
-            runtime,
-            phantoms,
-            split,
-            slices,
-            iterations,
-            levels,
-            json,
-        } => {
-            let mut loaded = load_models(model.as_deref(), &precisions, &runtime)?;
-            loaded.extend(load_models(lpd.as_deref(), "fp32", &runtime)?);
-            // The U-Net is fully convolutional: with a DBToR model, it runs on
-            // that model's image height if its manifest allows (any_rows).
-            let rows = loaded.first().map(|(_, m)| m.geometry().image.rows);
-            let unet = unet
-                .map(|d| {
-                    dbt_eval::unet::Unet::load_with_rows(&d, rows)
-                        .map(|u| u.with_nonnegativity(!runtime.raw))
-                        .with_context(|| format!("loading the U-Net {}", d.display()))
-                })
-                .transpose()?;
-            let mut refs: Vec<(String, Learned)> = loaded
-                .iter()
-                .map(|(n, m)| (n.clone(), Learned::PrimalDual(m)))
-                .collect();
-            if let Some(u) = &unet {
-                let name = if runtime.raw { "U-Net raw" } else { "U-Net" };
-                refs.push((name.into(), Learned::Unet(u)));
+        Cmd::Baselines(args) => run_baselines(args),
+        Cmd::Mgd(args) => run_mgd(args),
+        Cmd::Accuracy(args) => run_accuracy(args),
+        Cmd::Classification(args) => run_classification(args),
+        Cmd::Calibrate(args) => run_calibrate(args),
+        Cmd::Anatomy(args) => run_anatomy(args),
+        Cmd::Picture(args) => run_picture(args),
+    }
+}
+
+/// `dbt-eval baselines`.
+fn run_baselines(args: BaselinesArgs) -> Result<()> {
+    let BaselinesArgs {
+        binning,
+        model,
+        precisions,
+        lpd,
+        unet,
+        runtime,
+        phantoms,
+        split,
+        slices,
+        iterations,
+        levels,
+        json,
+    } = args;
+    let mut loaded = load_models(model.as_deref(), &precisions, &runtime)?;
+    loaded.extend(load_models(lpd.as_deref(), "fp32", &runtime)?);
+    // The U-Net is fully convolutional: with a DBToR model, it runs on
+    // that model's image height if its manifest allows (any_rows).
+    let rows = loaded.first().map(|(_, m)| m.geometry().image.rows);
+    let unet = unet
+        .map(|d| {
+            dbt_eval::unet::Unet::load_with_rows(&d, rows)
+                .map(|u| u.with_nonnegativity(!runtime.raw))
+                .with_context(|| format!("loading the U-Net {}", d.display()))
+        })
+        .transpose()?;
+    let mut refs: Vec<(String, Learned)> = loaded
+        .iter()
+        .map(|(n, m)| (n.clone(), Learned::PrimalDual(m)))
+        .collect();
+    if let Some(u) = &unet {
+        let name = if runtime.raw { "U-Net raw" } else { "U-Net" };
+        refs.push((name.into(), Learned::Unet(u)));
+    }
+    // The learned models' own geometry (evaluate_baselines checks they
+    // all agree); --binning must give the same.
+    let geometry = match (refs.first(), binning) {
+        (Some((_, m)), None) => m.geometry().clone(),
+        (Some((name, m)), Some(b)) => {
+            let g = Geometry::paper().binned(b)?;
+            anyhow::ensure!(
+                &g == m.geometry(),
+                "--binning {b} gives {}, but {name} was trained for {}",
+                g.describe(),
+                m.geometry().describe()
+            );
+            g
+        }
+        (None, b) => Geometry::paper().binned(b.unwrap_or(1))?,
+    };
+    let population = split.population;
+    let split = split.resolve(loaded.first().map(|(_, m)| m))?;
+    let opts = BaselineOptions {
+        geometry,
+        split,
+        population,
+        phantoms,
+        slices_per_phantom: slices,
+        iterations,
+        levels: parse_levels(&levels)?,
+    };
+    let t = Instant::now();
+    let report = evaluate_baselines(&opts, &refs)?;
+    println!(
+        "Baselines on the {} split ({} phantoms, {} slices, {}; MLTR {} iterations; {:.0} s)\n",
+        split.describe(),
+        phantoms,
+        report.slices.len(),
+        opts.geometry.describe(),
+        iterations,
+        t.elapsed().as_secs_f64()
+    );
+    print!("{}", table(&report));
+    println!(
+        "\nSSIM by region (windows wholly inside the breast, across its outline, wholly in air; \
+         share of the windows in brackets)\n"
+    );
+    print!("{}", region_table(&report));
+    write_json(&json, &report)?;
+    println!("\nJSON: {}", json.display());
+    Ok(())
+}
+
+/// `dbt-eval mgd`.
+fn run_mgd(args: MgdArgs) -> Result<()> {
+    let MgdArgs {
+        phantom,
+        index,
+        voxel,
+        views,
+        target,
+        spectrum,
+        kerma_mgy_per_mas,
+        mas,
+        seed,
+    } = args;
+    use dbt_dose::patient::{dbt_views, mgd_to_uncertainty, Breast, Model};
+    let vol = match &phantom {
+        Some(p) => dbt_store::load_external_phantom(p)?.resampled(voxel)?,
+        None => {
+            let g = Geometry::paper();
+            let mut spec = dbt_phantom::Population::for_geometry(&g)
+                .draw(dbt_phantom::Population::TEST_SEED, index);
+            spec.voxel_mm = voxel;
+            dbt_phantom::generate(&spec)?
+        }
+    };
+    let views_deg = match views.as_str() {
+        "dbt" => dbt_views(),
+        "mammo" => vec![0.0],
+        other => anyhow::bail!("--views must be dbt or mammo, got `{other}`"),
+    };
+    let tube = dbt_dose::xray::paper_spectrum(vol.thickness_mm())?;
+    let (spectrum, spectrum_json) = match &spectrum {
+        Some(p) => (
+            dbt_dose::Spectrum::parse(
+                &std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
+            )
+            .with_context(|| format!("spectrum {}", p.display()))?,
+            serde_json::json!({ "file": p.display().to_string() }),
+        ),
+        None => (
+            tube.spectrum.clone().context("spectrum")?,
+            serde_json::to_value(&tube)?,
+        ),
+    };
+    let b = Breast {
+        dims: vol.dims(),
+        voxel_mm: vol.voxel_mm(),
+        labels: vol.labels(),
+    };
+    let max = 200_000_000;
+    let p = mgd_to_uncertainty(
+        &b,
+        Model::PatientSpecific,
+        &spectrum,
+        &views_deg,
+        target,
+        200_000,
+        max,
+        seed,
+    )?;
+    let m = mgd_to_uncertainty(
+        &b,
+        Model::Homogeneous,
+        &spectrum,
+        &views_deg,
+        target,
+        200_000,
+        max,
+        seed + 1,
+    )?;
+    let out = serde_json::json!({
+        "phantom": phantom.as_ref().map(|p| p.display().to_string()).unwrap_or(format!("test-set phantom {index}")),
+        "dims": vol.dims(),
+        "voxel_mm": vol.voxel_mm(),
+        "thickness_mm": vol.thickness_mm(),
+        "glandularity": vol.glandularity(),
+        "spectrum": spectrum_json,
+        "mgd_mgy": match (kerma_mgy_per_mas, mas) {
+            // MGD = (MGD / K) x K, K = output x mAs spread over the views
+            // (mgd_per_kerma already refers to the summed kerma).
+            (Some(k), Some(q)) => serde_json::json!({
+                "patient_specific": p.mgd_per_kerma * k * q,
+                "model_breast": m.mgd_per_kerma * k * q,
+                "kerma_mgy": k * q,
+            }),
+            _ => serde_json::Value::Null,
+        },
+        "views": views,
+        "patient_specific": p,
+        "model_breast": m,
+        "model_over_patient": m.mgd_per_kerma / p.mgd_per_kerma,
+    });
+    println!("{}", serde_json::to_string_pretty(&out)?);
+    Ok(())
+}
+
+/// `dbt-eval accuracy`.
+fn run_accuracy(args: AccuracyArgs) -> Result<()> {
+    let AccuracyArgs {
+        phantoms,
+        split,
+        phantom,
+        binning,
+        noise,
+        iterations,
+        dose_uncertainty,
+        out,
+        model,
+        skin,
+        no_calibration,
+        reconstructors,
+        runtime,
+    } = args;
+    let skin = match skin {
+        Some(v) => parse_skin_variant(&v)?,
+        None => dbt_tissue::ClassifyOptions::default(),
+    };
+    use dbt_eval::accuracy::{run_cases, summarise, Case, QUANTITIES};
+    let noise = NoiseLevel::parse(&noise)?;
+    let list =
+        reconstructors.unwrap_or_else(|| if model.is_some() { "fp32" } else { "mltr" }.to_string());
+    let mut recs: Vec<(String, String, dbt_pipeline::PipelineOptions)> = Vec::new();
+    for r in list.split(',').map(str::trim).filter(|r| !r.is_empty()) {
+        let dbtor = match r {
+            "mltr" => None,
+            "fp32" | "int8" | "mixed" => {
+                anyhow::ensure!(model.is_some(), "--reconstructors {r} needs --model");
+                let m = load_models(model.as_deref(), r, &runtime)?
+                    .pop()
+                    .map(|(_, m)| m)
+                    .context("no model loaded")?;
+                Some(std::sync::Arc::new(m))
             }
-            // The learned models' own geometry (evaluate_baselines checks they
-            // all agree); --binning must give the same.
-            let geometry = match (refs.first(), binning) {
-                (Some((_, m)), None) => m.geometry().clone(),
-                (Some((name, m)), Some(b)) => {
-                    let g = Geometry::paper().binned(b)?;
-                    anyhow::ensure!(
-                        &g == m.geometry(),
-                        "--binning {b} gives {}, but {name} was trained for {}",
-                        g.describe(),
-                        m.geometry().describe()
-                    );
-                    g
-                }
-                (None, b) => Geometry::paper().binned(b.unwrap_or(1))?,
-            };
-            let population = split.population;
-            let split = split.resolve(loaded.first().map(|(_, m)| m))?;
-            let opts = BaselineOptions {
-                geometry,
-                split,
-                population,
-                phantoms,
-                slices_per_phantom: slices,
-                iterations,
-                levels: parse_levels(&levels)?,
-            };
-            let t = Instant::now();
-            let report = evaluate_baselines(&opts, &refs)?;
-            println!(
-                "Baselines on the {} split ({} phantoms, {} slices, {}; MLTR {} iterations; {:.0} s)\n",
-                split.describe(),
-                phantoms,
-                report.slices.len(),
-                opts.geometry.describe(),
-                iterations,
-                t.elapsed().as_secs_f64()
-            );
-            print!("{}", table(&report));
-            println!(
-                "\nSSIM by region (windows wholly inside the breast, across its outline, wholly in air; \
-                 share of the windows in brackets)\n"
-            );
-            print!("{}", region_table(&report));
-            write_json(&json, &report)?;
-            println!("\nJSON: {}", json.display());
-        }
-        Cmd::Mgd {
-            phantom,
-            index,
-            voxel,
-            views,
-            target,
-            spectrum,
-            kerma_mgy_per_mas,
-            mas,
-            seed,
-        } => {
-            use dbt_dose::patient::{dbt_views, mgd_to_uncertainty, Breast, Model};
-            let vol = match &phantom {
-                Some(p) => dbt_store::load_external_phantom(p)?.resampled(voxel)?,
-                None => {
-                    let g = Geometry::paper();
-                    let mut spec = dbt_phantom::Population::for_geometry(&g)
-                        .draw(dbt_phantom::Population::TEST_SEED, index);
-                    spec.voxel_mm = voxel;
-                    dbt_phantom::generate(&spec)?
-                }
-            };
-            let views_deg = match views.as_str() {
-                "dbt" => dbt_views(),
-                "mammo" => vec![0.0],
-                other => anyhow::bail!("--views must be dbt or mammo, got `{other}`"),
-            };
-            let tube = dbt_dose::xray::paper_spectrum(vol.thickness_mm())?;
-            let (spectrum, spectrum_json) = match &spectrum {
-                Some(p) => (
-                    dbt_dose::Spectrum::parse(
-                        &std::fs::read_to_string(p)
-                            .with_context(|| format!("reading {}", p.display()))?,
-                    )
-                    .with_context(|| format!("spectrum {}", p.display()))?,
-                    serde_json::json!({ "file": p.display().to_string() }),
-                ),
-                None => (
-                    tube.spectrum.clone().context("spectrum")?,
-                    serde_json::to_value(&tube)?,
-                ),
-            };
-            let b = Breast {
-                dims: vol.dims(),
-                voxel_mm: vol.voxel_mm(),
-                labels: vol.labels(),
-            };
-            let max = 200_000_000;
-            let p = mgd_to_uncertainty(
-                &b,
-                Model::PatientSpecific,
-                &spectrum,
-                &views_deg,
-                target,
-                200_000,
-                max,
-                seed,
-            )?;
-            let m = mgd_to_uncertainty(
-                &b,
-                Model::Homogeneous,
-                &spectrum,
-                &views_deg,
-                target,
-                200_000,
-                max,
-                seed + 1,
-            )?;
-            let out = serde_json::json!({
-                "phantom": phantom.as_ref().map(|p| p.display().to_string()).unwrap_or(format!("test-set phantom {index}")),
-                "dims": vol.dims(),
-                "voxel_mm": vol.voxel_mm(),
-                "thickness_mm": vol.thickness_mm(),
-                "glandularity": vol.glandularity(),
-                "spectrum": spectrum_json,
-                "mgd_mgy": match (kerma_mgy_per_mas, mas) {
-                    // MGD = (MGD / K) x K, K = output x mAs spread over the views
-                    // (mgd_per_kerma already refers to the summed kerma).
-                    (Some(k), Some(q)) => serde_json::json!({
-                        "patient_specific": p.mgd_per_kerma * k * q,
-                        "model_breast": m.mgd_per_kerma * k * q,
-                        "kerma_mgy": k * q,
-                    }),
-                    _ => serde_json::Value::Null,
-                },
-                "views": views,
-                "patient_specific": p,
-                "model_breast": m,
-                "model_over_patient": m.mgd_per_kerma / p.mgd_per_kerma,
-            });
-            println!("{}", serde_json::to_string_pretty(&out)?);
-        }
-        Cmd::Accuracy {
-            phantoms,
-            split,
-            phantom,
-            binning,
-            noise,
-            iterations,
+            other => {
+                anyhow::bail!("unknown reconstructor {other:?} (mltr, fp32, int8, mixed)")
+            }
+        };
+        let tag = match r {
+            "mltr" => "mltr".to_string(),
+            other => format!("dbtor-{other}"),
+        };
+        // The model's calibration, as the firmware loads it.
+        let calibration = match (&dbtor, no_calibration) {
+            (Some(m), false) => dbt_model::load_calibration(m, &skin)?,
+            _ => None,
+        };
+        let opts = dbt_pipeline::PipelineOptions {
+            dbtor,
+            mltr_iterations: iterations,
             dose_uncertainty,
-            out,
-            model,
-            skin,
-            no_calibration,
-            reconstructors,
-            runtime,
-        } => {
-            let skin = match skin {
-                Some(v) => parse_skin_variant(&v)?,
-                None => dbt_tissue::ClassifyOptions::default(),
-            };
-            use dbt_eval::accuracy::{run_cases, summarise, Case, QUANTITIES};
-            let noise = NoiseLevel::parse(&noise)?;
-            let list = reconstructors
-                .unwrap_or_else(|| if model.is_some() { "fp32" } else { "mltr" }.to_string());
-            let mut recs: Vec<(String, String, dbt_pipeline::PipelineOptions)> = Vec::new();
-            for r in list.split(',').map(str::trim).filter(|r| !r.is_empty()) {
-                let dbtor = match r {
-                    "mltr" => None,
-                    "fp32" | "int8" | "mixed" => {
-                        anyhow::ensure!(model.is_some(), "--reconstructors {r} needs --model");
-                        let m = load_models(model.as_deref(), r, &runtime)?
-                            .pop()
-                            .map(|(_, m)| m)
-                            .context("no model loaded")?;
-                        Some(std::sync::Arc::new(m))
-                    }
-                    other => {
-                        anyhow::bail!("unknown reconstructor {other:?} (mltr, fp32, int8, mixed)")
-                    }
-                };
-                let tag = match r {
-                    "mltr" => "mltr".to_string(),
-                    other => format!("dbtor-{other}"),
-                };
-                // The model's calibration, as the firmware loads it.
-                let calibration = match (&dbtor, no_calibration) {
-                    (Some(m), false) => dbt_model::load_calibration(m, &skin)?,
-                    _ => None,
-                };
-                let opts = dbt_pipeline::PipelineOptions {
-                    dbtor,
-                    mltr_iterations: iterations,
-                    dose_uncertainty,
-                    seed: 1,
-                    classify: skin,
-                    calibration,
-                };
-                let label = dbt_pipeline::reconstructor_name(&opts);
-                let label = match calibration {
-                    Some(c) => format!("{label} [G = {:+.4} + {:.4} x PV]", c.offset, c.slope),
-                    None => label,
-                };
-                recs.push((label, tag, opts));
-            }
-            anyhow::ensure!(!recs.is_empty(), "no reconstructor given");
-            // The model's geometry (a taller variant holds thicker breasts);
-            // without one, the paper's binned.
-            let g = match recs.iter().find_map(|(_, _, o)| o.dbtor.as_deref()) {
-                Some(m) => {
-                    if let Some(b) = binning {
-                        let want = Geometry::paper().binned(b)?;
-                        anyhow::ensure!(
-                            &want == m.geometry(),
-                            "--binning {b} gives {}, but the model was trained for {}",
-                            want.describe(),
-                            m.geometry().describe()
-                        );
-                    }
-                    m.geometry().clone()
-                }
-                None => Geometry::paper().binned(binning.unwrap_or(4))?,
-            };
-            let population = split.population;
-            let split = split.resolve(recs.iter().find_map(|(_, _, o)| o.dbtor.as_deref()))?;
-            let opts: Vec<_> = recs.iter().map(|(_, _, o)| o.clone()).collect();
-            let inputs = phantom_inputs(phantom.as_deref(), &g, split, population, phantoms);
-            let mut cases: Vec<Vec<Case>> = vec![Vec::new(); recs.len()];
-            for (k, item) in inputs.into_iter().enumerate() {
-                let (name, vol) = item?;
-                let cs = run_cases(name, &vol, &g, noise, &opts, 1000 + k as u64)?;
-                for ((label, _, _), (c, all)) in
-                    recs.iter().zip(cs.into_iter().zip(cases.iter_mut()))
-                {
-                    eprintln!(
-                        "{} [{label}]: T {:.1} mm, G true {:.3} labels {:.3} pv {:.3}; MGD true {:.3} est {:.3} model {:.3} mGy ({:.0} s)",
-                        c.phantom, c.thickness_mm, c.g_true, c.g_labels, c.g_partial_volume, c.mgd_true, c.mgd_est, c.mgd_model, c.seconds
-                    );
-                    all.push(c);
-                }
-            }
-            std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-            println!("| reconstructor | quantity | bias | sd | 95 % limits | max abs | p (bias) | n |\n|---|---|---|---|---|---|---|---|");
-            let mut results = Vec::new();
-            for ((label, tag, _), cases) in recs.iter().zip(&cases) {
-                let summary = summarise(cases);
-                let mut plots = serde_json::Map::new();
-                for (q, a) in QUANTITIES.iter().zip(summary.in_order()) {
-                    println!(
-                        "| {label} | {} | {:+.2} | {:.2} | [{:+.2}, {:+.2}] | {:.2} | {:.3} | {} |",
-                        q.name, a.bias, a.sd, a.loa[0], a.loa[1], a.max_abs, a.p_value, a.n
-                    );
-                    let (diffs, means): (Vec<f64>, Vec<f64>) = cases.iter().map(q.pick).unzip();
-                    let file = format!("bland-altman-{tag}-{}.png", q.short);
-                    let plot = dbt_eval::picture::BlandAltman {
-                        title: format!("{label}: {}", q.name),
-                        x_label: q.mean_axis,
-                        y_label: q.difference_axis,
-                        means: &means,
-                        diffs: &diffs,
-                        bias: a.bias,
-                        loa: a.loa,
-                    };
-                    let (px, w, h, ranges) = plot.render()?;
-                    write_png_rgb(&out.join(&file), &px, w, h)?;
-                    plots.insert(file, serde_json::json!({"quantity": q.name, "x_range_mean": [ranges[0], ranges[1]], "y_range_difference": [ranges[2], ranges[3]]}));
-                }
-                results.push(serde_json::json!({
-                    "reconstructor": label,
-                    "cases": cases,
-                    "summary": summary,
-                    "plots": plots,
-                }));
-            }
-            let json = serde_json::json!({
-                "noise": noise.name(),
-                "geometry": g.describe(),
-                "phantoms": match &phantom {
-                    Some(p) => p.display().to_string(),
-                    None => split.describe(),
-                },
-                "classification": skin,
-                "skin": skin_variant_name(&skin),
-                "reconstructors": results,
-            });
-            write_json(&out.join("accuracy.json"), &json)?;
-            // What the firmware's plausibility checks measured (none refused,
-            // or the run would have stopped naming the case).
-            for ((label, _, _), cases) in recs.iter().zip(&cases) {
-                let range = |f: &dyn Fn(&Case) -> f64| {
-                    cases
-                        .iter()
-                        .map(f)
-                        .fold([f64::INFINITY, f64::NEG_INFINITY], |r, v| {
-                            [r[0].min(v), r[1].max(v)]
-                        })
-                };
-                let fill = range(&|c| c.plausibility.volume.fill);
-                let mu = range(&|c| c.plausibility.volume.breast_mean_mu);
-                let corrected: usize = cases.iter().map(|c| c.plausibility.counts.corrected).sum();
-                println!(
-                    "plausibility [{label}]: {} cases passed; breast volume / (thickness x footprint) {:.3}-{:.3} (limits {}-{}); breast mean attenuation {:.4}-{:.4} /mm; {corrected} counts corrected",
-                    cases.len(), fill[0], fill[1],
-                    dbt_pipeline::plausibility::VOLUME_FILL_MIN, dbt_pipeline::plausibility::VOLUME_FILL_MAX,
-                    mu[0], mu[1]
+            seed: 1,
+            classify: skin,
+            calibration,
+        };
+        let label = dbt_pipeline::reconstructor_name(&opts);
+        let label = match calibration {
+            Some(c) => format!("{label} [G = {:+.4} + {:.4} x PV]", c.offset, c.slope),
+            None => label,
+        };
+        recs.push((label, tag, opts));
+    }
+    anyhow::ensure!(!recs.is_empty(), "no reconstructor given");
+    // The model's geometry (a taller variant holds thicker breasts);
+    // without one, the paper's binned.
+    let g = match recs.iter().find_map(|(_, _, o)| o.dbtor.as_deref()) {
+        Some(m) => {
+            if let Some(b) = binning {
+                let want = Geometry::paper().binned(b)?;
+                anyhow::ensure!(
+                    &want == m.geometry(),
+                    "--binning {b} gives {}, but the model was trained for {}",
+                    want.describe(),
+                    m.geometry().describe()
                 );
             }
-            println!("\nJSON and Bland-Altman PNGs (x: mean of truth and estimate; y: difference; solid: bias; dashed: 95 % limits): {}", out.display());
+            m.geometry().clone()
         }
-        Cmd::Classification {
-            phantoms,
-            split,
-            phantom,
-            binning,
-            noise,
-            model,
-            precision,
-            iterations,
-            skin,
-            dose_uncertainty,
-            json,
-            runtime,
-        } => {
-            use dbt_eval::classification::{run_phantom, summarise, CLASSES};
-            let model = load_models(model.as_deref(), &precision, &runtime)?
-                .pop()
-                .map(|(_, m)| std::sync::Arc::new(m));
-            let population = split.population;
-            let split = split.resolve(model.as_deref())?;
-            let g = match &model {
-                Some(m) => m.geometry().clone(),
-                None => Geometry::paper().binned(binning)?,
-            };
-            let noise = NoiseLevel::parse(&noise)?;
-            let variants = skin
-                .split(',')
-                .map(|v| parse_skin_variant(v.trim()))
-                .collect::<Result<Vec<_>>>()?;
-            let opts = dbt_pipeline::PipelineOptions {
-                dbtor: model,
-                mltr_iterations: iterations,
-                ..Default::default()
-            };
-            let reconstructor = dbt_pipeline::reconstructor_name(&opts);
-            let t0 = Instant::now();
-            let mut per_variant = vec![Vec::new(); variants.len()];
-            let inputs = phantom_inputs(phantom.as_deref(), &g, split, population, phantoms);
-            let phantoms = inputs.len();
-            for (k, item) in inputs.into_iter().enumerate() {
-                let (name, vol) = item?;
-                let cs = run_phantom(
-                    &name,
-                    &vol,
-                    &g,
-                    noise,
-                    &opts,
-                    &variants,
-                    dose_uncertainty,
-                    1000 + k as u64,
-                )?;
-                eprint!(
-                    "{name}: T {:.1} mm, G true {:.3}",
-                    vol.thickness_mm(),
-                    cs[0].g_true
-                );
-                for c in &cs {
-                    eprint!(" | {:.3} / {:.3}", c.g_labels, c.g_partial_volume);
-                    if let Some(e) = c.mgd_error_percent {
-                        eprint!(" / MGD {e:+.1} %");
-                    }
-                }
-                eprintln!();
-                for (all, c) in per_variant.iter_mut().zip(cs) {
-                    all.push(c);
-                }
-            }
-            let source = match &phantom {
-                Some(p) => p.display().to_string(),
-                None => format!("{phantoms} phantoms of the {} split", split.describe()),
-            };
-            println!(
-                "Classification on {source}, {reconstructor}, {} ({:.0} s)\n",
-                noise.name(),
-                t0.elapsed().as_secs_f64()
+        None => Geometry::paper().binned(binning.unwrap_or(4))?,
+    };
+    let population = split.population;
+    let split = split.resolve(recs.iter().find_map(|(_, _, o)| o.dbtor.as_deref()))?;
+    let opts: Vec<_> = recs.iter().map(|(_, _, o)| o.clone()).collect();
+    let inputs = phantom_inputs(phantom.as_deref(), &g, split, population, phantoms);
+    let mut cases: Vec<Vec<Case>> = vec![Vec::new(); recs.len()];
+    for (k, item) in inputs.into_iter().enumerate() {
+        let (name, vol) = item?;
+        let cs = run_cases(name, &vol, &g, noise, &opts, 1000 + k as u64)?;
+        for ((label, _, _), (c, all)) in recs.iter().zip(cs.into_iter().zip(cases.iter_mut())) {
+            eprintln!(
+                "{} [{label}]: T {:.1} mm, G true {:.3} labels {:.3} pv {:.3}; MGD true {:.3} est {:.3} model {:.3} mGy ({:.0} s)",
+                c.phantom, c.thickness_mm, c.g_true, c.g_labels, c.g_partial_volume, c.mgd_true, c.mgd_est, c.mgd_model, c.seconds
             );
-            println!("| skin | G labels bias / sd / max (pp) | G partial volume bias / sd / max (pp) | MGD bias / sd / max (%) | fibroglandular read as adipose / skin | adipose read as fibroglandular | skin read as fibroglandular |\n|---|---|---|---|---|---|---|");
-            let mut out = Vec::new();
-            for (o, cases) in variants.into_iter().zip(per_variant) {
-                let s = summarise(o, cases);
-                let (a, b) = (s.glandularity_labels_pp, s.glandularity_partial_volume_pp);
-                let f = &s.confusion_fractions;
-                let mgd = s.mgd_percent.map_or("-".to_string(), |m| {
-                    format!("{:+.1} / {:.1} / {:.1}", m.bias, m.sd, m.max_abs)
-                });
-                println!(
-                    "| {} | {:+.2} / {:.2} / {:.2} | {:+.2} / {:.2} / {:.2} | {mgd} | {:.3} / {:.3} | {:.3} | {:.3} |",
-                    skin_variant_name(&o),
-                    a.bias, a.sd, a.max_abs, b.bias, b.sd, b.max_abs,
-                    f[3][1], f[3][2], f[1][3], f[2][3]
-                );
-                out.push(serde_json::json!({"name": skin_variant_name(&o), "result": s}));
-            }
-            write_json(
-                &json,
-                &serde_json::json!({
-                    "split": source,
-                    "reconstructor": reconstructor,
-                    "noise": noise.name(),
-                    "geometry": g.describe(),
-                    "classes": CLASSES,
-                    "variants": out,
-                }),
-            )?;
-            println!("\nJSON: {}", json.display());
-        }
-        Cmd::Calibrate {
-            model,
-            precision,
-            phantoms,
-            train_seed,
-            population,
-            noise,
-            out,
-            runtime,
-        } => {
-            use dbt_model::{
-                manifest_sha256, CalibrationFile, CALIBRATION_FILE, CALIBRATION_FORMAT,
-            };
-            let m = load_models(Some(&model), &precision, &runtime)?
-                .pop()
-                .map(|(_, m)| std::sync::Arc::new(m))
-                .context("no model loaded")?;
-            let split = SplitArgs {
-                split: "validation".into(),
-                train_seed,
-                population,
-            }
-            .resolve(Some(&m))?;
-            let g = m.geometry().clone();
-            let noise = NoiseLevel::parse(&noise)?;
-            let classify = dbt_tissue::ClassifyOptions::default();
-            let opts = dbt_pipeline::PipelineOptions {
-                dbtor: Some(m.clone()),
-                classify,
-                ..Default::default()
-            };
-            let t0 = Instant::now();
-            let mut cases = Vec::new();
-            for (k, item) in
-                dbt_eval::accuracy::split_phantoms(&g, split, population, phantoms).enumerate()
-            {
-                let (name, vol) = item?;
-                let c = dbt_eval::classification::run_phantom(
-                    &name,
-                    &vol,
-                    &g,
-                    noise,
-                    &opts,
-                    &[classify],
-                    None,
-                    1000 + k as u64,
-                )?
-                .pop()
-                .context("no case")?;
-                eprintln!(
-                    "{name}: T {:.1} mm, G true {:.4}, partial volume {:.4}",
-                    c.thickness_mm, c.g_true, c.g_partial_volume
-                );
-                cases.push(c);
-            }
-            let (est, truth): (Vec<f64>, Vec<f64>) =
-                cases.iter().map(|c| (c.g_partial_volume, c.g_true)).unzip();
-            let cal = dbt_tissue::GlandularityCalibration::fit(&est, &truth)?;
-            let pp = |f: &dyn Fn(f64) -> f64| {
-                dbt_eval::accuracy::agreement(
-                    &est.iter()
-                        .zip(&truth)
-                        .map(|(e, t)| 100.0 * (f(*e) - t))
-                        .collect::<Vec<_>>(),
-                )
-            };
-            let (before, after) = (pp(&|e| e), pp(&|e| cal.apply(e)));
-            let label = m.precision_label();
-            println!(
-                "Calibration of {} ({label}) on {phantoms} phantoms of the {} split, {} ({:.0} s): G = {:+.5} + {:.5} x partial volume",
-                m.manifest().name,
-                split.describe(),
-                noise.name(),
-                t0.elapsed().as_secs_f64(),
-                cal.offset,
-                cal.slope
-            );
-            println!(
-                "  on these phantoms: error before bias {:+.2} sd {:.2} max {:.2} pp; after bias {:+.2} sd {:.2} max {:.2} pp",
-                before.bias, before.sd, before.max_abs, after.bias, after.sd, after.max_abs
-            );
-            let path = out.unwrap_or_else(|| model.join(CALIBRATION_FILE));
-            // Keep the other precisions' entries of a file fit for this model
-            // and classification; start afresh otherwise.
-            let mut file = match CalibrationFile::read(&path, &m) {
-                Ok(f) if f.classification == classify => f,
-                _ => CalibrationFile {
-                    format: CALIBRATION_FORMAT.into(),
-                    model: m.manifest().name.clone(),
-                    manifest_sha256: manifest_sha256(&m)?,
-                    classification: classify,
-                    calibrations: Default::default(),
-                    fits: Default::default(),
-                },
-            };
-            file.calibrations.insert(label.clone(), cal);
-            file.fits.insert(
-                label,
-                serde_json::json!({
-                    "command": std::env::args().collect::<Vec<_>>().join(" "),
-                    "split": split.describe(),
-                    "population": population.name(),
-                    "phantoms": phantoms,
-                    "noise": noise.name(),
-                    "estimator": "partial volume",
-                    "error_before_pp": before,
-                    "error_after_pp": after,
-                    "cases": cases.iter().map(|c| serde_json::json!({
-                        "phantom": c.phantom, "thickness_mm": c.thickness_mm,
-                        "g_true": c.g_true, "g_partial_volume": c.g_partial_volume,
-                    })).collect::<Vec<_>>(),
-                }),
-            );
-            write_json(&path, &file)?;
-            println!("wrote {}", path.display());
-        }
-        Cmd::Anatomy {
-            out,
-            population,
-            seed,
-            index,
-            external,
-            voxel_mm,
-        } => anatomy_cmd(&out, population, seed, &index, &external, voxel_mm)?,
-        Cmd::Picture {
-            out,
-            binning,
-            phantom,
-            noise,
-            model,
-        } => {
-            let model = load_models(model.as_deref(), "fp32", &Runtime::default())?
-                .pop()
-                .map(|(_, m)| m);
-            let g = match &model {
-                Some(m) => m.geometry().clone(),
-                None => Geometry::paper().binned(binning)?,
-            };
-            let proj = Projector::new(&g);
-            let level = NoiseLevel::parse(&noise)?;
-            let (set, _) = test_set(&g, &proj, phantom + 1, 1, &[level])?;
-            let (_, s) = set.last().context("the test phantom has no slices")?;
-            let (m, _) = mltr(
-                &proj,
-                &s.counts[0],
-                s.flux[0],
-                &s.mask,
-                &MltrOptions::default(),
-            )?;
-            let line = dbt_acquisition::log_transform(&s.counts[0], s.flux[0]);
-            let f = Fbp::new(&g).reconstruct(&line, Some(&s.mask))?;
-            let (rows, cols) = (g.image.rows, g.image.columns);
-            let mu_window = (0.0, 0.0854 * 1.05);
-            let mut panels = vec![
-                Panel {
-                    data: s.mu.clone(),
-                    rows,
-                    cols,
-                    window: mu_window,
-                    stretch: 1,
-                },
-                Panel {
-                    window: auto_window(&line),
-                    data: line,
-                    rows: g.n_views(),
-                    cols: g.n_det(),
-                    stretch: (rows / g.n_views()).max(1),
-                },
-                Panel {
-                    data: m,
-                    rows,
-                    cols,
-                    window: mu_window,
-                    stretch: 1,
-                },
-                Panel {
-                    window: auto_window(&f),
-                    data: f,
-                    rows,
-                    cols,
-                    stretch: 1,
-                },
-            ];
-            let mut legend = String::from(
-                "phantom (0..0.09 /mm), sinogram, MLTR 100 it. (same window), FBP (own window)",
-            );
-            if let Some(m) = &model {
-                let x = m.reconstruct(
-                    &dbt_acquisition::log_transform(&s.counts[0], s.flux[0]),
-                    s.thickness_mm,
-                )?;
-                let diff: Vec<f32> = x.iter().zip(&s.mu).map(|(a, b)| a - b).collect();
-                panels.push(Panel {
-                    data: x,
-                    rows,
-                    cols,
-                    window: mu_window,
-                    stretch: 1,
-                });
-                panels.push(Panel {
-                    data: diff,
-                    rows,
-                    cols,
-                    window: (-0.02, 0.02),
-                    stretch: 1,
-                });
-                legend.push_str(", DBToR fp32 (same window), DBToR - phantom (-0.02..0.02 /mm)");
-            }
-            let (px, w, h) = compose(&panels);
-            write_png(&out, &px, w, h)?;
-            println!(
-                "{}: test phantom {phantom}, slice {}, {}; panels top to bottom: {legend}",
-                out.display(),
-                s.depth,
-                level.name()
-            );
+            all.push(c);
         }
     }
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    println!("| reconstructor | quantity | bias | sd | 95 % limits | max abs | p (bias) | n |\n|---|---|---|---|---|---|---|---|");
+    let mut results = Vec::new();
+    for ((label, tag, _), cases) in recs.iter().zip(&cases) {
+        let summary = summarise(cases);
+        let mut plots = serde_json::Map::new();
+        for (q, a) in QUANTITIES.iter().zip(summary.in_order()) {
+            println!(
+                "| {label} | {} | {:+.2} | {:.2} | [{:+.2}, {:+.2}] | {:.2} | {:.3} | {} |",
+                q.name, a.bias, a.sd, a.loa[0], a.loa[1], a.max_abs, a.p_value, a.n
+            );
+            let (diffs, means): (Vec<f64>, Vec<f64>) = cases.iter().map(q.pick).unzip();
+            let file = format!("bland-altman-{tag}-{}.png", q.short);
+            let plot = dbt_eval::picture::BlandAltman {
+                title: format!("{label}: {}", q.name),
+                x_label: q.mean_axis,
+                y_label: q.difference_axis,
+                means: &means,
+                diffs: &diffs,
+                bias: a.bias,
+                loa: a.loa,
+            };
+            let (px, w, h, ranges) = plot.render()?;
+            write_png_rgb(&out.join(&file), &px, w, h)?;
+            plots.insert(file, serde_json::json!({"quantity": q.name, "x_range_mean": [ranges[0], ranges[1]], "y_range_difference": [ranges[2], ranges[3]]}));
+        }
+        results.push(serde_json::json!({
+            "reconstructor": label,
+            "cases": cases,
+            "summary": summary,
+            "plots": plots,
+        }));
+    }
+    let json = serde_json::json!({
+        "noise": noise.name(),
+        "geometry": g.describe(),
+        "phantoms": match &phantom {
+            Some(p) => p.display().to_string(),
+            None => split.describe(),
+        },
+        "classification": skin,
+        "skin": skin_variant_name(&skin),
+        "reconstructors": results,
+    });
+    write_json(&out.join("accuracy.json"), &json)?;
+    // What the firmware's plausibility checks measured (none refused,
+    // or the run would have stopped naming the case).
+    for ((label, _, _), cases) in recs.iter().zip(&cases) {
+        let range = |f: &dyn Fn(&Case) -> f64| {
+            cases
+                .iter()
+                .map(f)
+                .fold([f64::INFINITY, f64::NEG_INFINITY], |r, v| {
+                    [r[0].min(v), r[1].max(v)]
+                })
+        };
+        let fill = range(&|c| c.plausibility.volume.fill);
+        let mu = range(&|c| c.plausibility.volume.breast_mean_mu);
+        let corrected: usize = cases.iter().map(|c| c.plausibility.counts.corrected).sum();
+        println!(
+            "plausibility [{label}]: {} cases passed; breast volume / (thickness x footprint) {:.3}-{:.3} (limits {}-{}); breast mean attenuation {:.4}-{:.4} /mm; {corrected} counts corrected",
+            cases.len(), fill[0], fill[1],
+            dbt_pipeline::plausibility::VOLUME_FILL_MIN, dbt_pipeline::plausibility::VOLUME_FILL_MAX,
+            mu[0], mu[1]
+        );
+    }
+    println!("\nJSON and Bland-Altman PNGs (x: mean of truth and estimate; y: difference; solid: bias; dashed: 95 % limits): {}", out.display());
+    Ok(())
+}
+
+/// `dbt-eval classification`.
+fn run_classification(args: ClassificationArgs) -> Result<()> {
+    let ClassificationArgs {
+        phantoms,
+        split,
+        phantom,
+        binning,
+        noise,
+        model,
+        precision,
+        iterations,
+        skin,
+        dose_uncertainty,
+        json,
+        runtime,
+    } = args;
+    use dbt_eval::classification::{run_phantom, summarise, CLASSES};
+    let model = load_models(model.as_deref(), &precision, &runtime)?
+        .pop()
+        .map(|(_, m)| std::sync::Arc::new(m));
+    let population = split.population;
+    let split = split.resolve(model.as_deref())?;
+    let g = match &model {
+        Some(m) => m.geometry().clone(),
+        None => Geometry::paper().binned(binning)?,
+    };
+    let noise = NoiseLevel::parse(&noise)?;
+    let variants = skin
+        .split(',')
+        .map(|v| parse_skin_variant(v.trim()))
+        .collect::<Result<Vec<_>>>()?;
+    let opts = dbt_pipeline::PipelineOptions {
+        dbtor: model,
+        mltr_iterations: iterations,
+        ..Default::default()
+    };
+    let reconstructor = dbt_pipeline::reconstructor_name(&opts);
+    let t0 = Instant::now();
+    let mut per_variant = vec![Vec::new(); variants.len()];
+    let inputs = phantom_inputs(phantom.as_deref(), &g, split, population, phantoms);
+    let phantoms = inputs.len();
+    for (k, item) in inputs.into_iter().enumerate() {
+        let (name, vol) = item?;
+        let cs = run_phantom(
+            &name,
+            &vol,
+            &g,
+            noise,
+            &opts,
+            &variants,
+            dose_uncertainty,
+            1000 + k as u64,
+        )?;
+        eprint!(
+            "{name}: T {:.1} mm, G true {:.3}",
+            vol.thickness_mm(),
+            cs[0].g_true
+        );
+        for c in &cs {
+            eprint!(" | {:.3} / {:.3}", c.g_labels, c.g_partial_volume);
+            if let Some(e) = c.mgd_error_percent {
+                eprint!(" / MGD {e:+.1} %");
+            }
+        }
+        eprintln!();
+        for (all, c) in per_variant.iter_mut().zip(cs) {
+            all.push(c);
+        }
+    }
+    let source = match &phantom {
+        Some(p) => p.display().to_string(),
+        None => format!("{phantoms} phantoms of the {} split", split.describe()),
+    };
+    println!(
+        "Classification on {source}, {reconstructor}, {} ({:.0} s)\n",
+        noise.name(),
+        t0.elapsed().as_secs_f64()
+    );
+    println!("| skin | G labels bias / sd / max (pp) | G partial volume bias / sd / max (pp) | MGD bias / sd / max (%) | fibroglandular read as adipose / skin | adipose read as fibroglandular | skin read as fibroglandular |\n|---|---|---|---|---|---|---|");
+    let mut out = Vec::new();
+    for (o, cases) in variants.into_iter().zip(per_variant) {
+        let s = summarise(o, cases);
+        let (a, b) = (s.glandularity_labels_pp, s.glandularity_partial_volume_pp);
+        let f = &s.confusion_fractions;
+        let mgd = s.mgd_percent.map_or("-".to_string(), |m| {
+            format!("{:+.1} / {:.1} / {:.1}", m.bias, m.sd, m.max_abs)
+        });
+        println!(
+            "| {} | {:+.2} / {:.2} / {:.2} | {:+.2} / {:.2} / {:.2} | {mgd} | {:.3} / {:.3} | {:.3} | {:.3} |",
+            skin_variant_name(&o),
+            a.bias, a.sd, a.max_abs, b.bias, b.sd, b.max_abs,
+            f[3][1], f[3][2], f[1][3], f[2][3]
+        );
+        out.push(serde_json::json!({"name": skin_variant_name(&o), "result": s}));
+    }
+    write_json(
+        &json,
+        &serde_json::json!({
+            "split": source,
+            "reconstructor": reconstructor,
+            "noise": noise.name(),
+            "geometry": g.describe(),
+            "classes": CLASSES,
+            "variants": out,
+        }),
+    )?;
+    println!("\nJSON: {}", json.display());
+    Ok(())
+}
+
+/// `dbt-eval calibrate`.
+fn run_calibrate(args: CalibrateArgs) -> Result<()> {
+    let CalibrateArgs {
+        model,
+        precision,
+        phantoms,
+        train_seed,
+        population,
+        noise,
+        out,
+        runtime,
+    } = args;
+    use dbt_model::{manifest_sha256, CalibrationFile, CALIBRATION_FILE, CALIBRATION_FORMAT};
+    let m = load_models(Some(&model), &precision, &runtime)?
+        .pop()
+        .map(|(_, m)| std::sync::Arc::new(m))
+        .context("no model loaded")?;
+    let split = SplitArgs {
+        split: "validation".into(),
+        train_seed,
+        population,
+    }
+    .resolve(Some(&m))?;
+    let g = m.geometry().clone();
+    let noise = NoiseLevel::parse(&noise)?;
+    let classify = dbt_tissue::ClassifyOptions::default();
+    let opts = dbt_pipeline::PipelineOptions {
+        dbtor: Some(m.clone()),
+        classify,
+        ..Default::default()
+    };
+    let t0 = Instant::now();
+    let mut cases = Vec::new();
+    for (k, item) in dbt_eval::accuracy::split_phantoms(&g, split, population, phantoms).enumerate()
+    {
+        let (name, vol) = item?;
+        let c = dbt_eval::classification::run_phantom(
+            &name,
+            &vol,
+            &g,
+            noise,
+            &opts,
+            &[classify],
+            None,
+            1000 + k as u64,
+        )?
+        .pop()
+        .context("no case")?;
+        eprintln!(
+            "{name}: T {:.1} mm, G true {:.4}, partial volume {:.4}",
+            c.thickness_mm, c.g_true, c.g_partial_volume
+        );
+        cases.push(c);
+    }
+    let (est, truth): (Vec<f64>, Vec<f64>) =
+        cases.iter().map(|c| (c.g_partial_volume, c.g_true)).unzip();
+    let cal = dbt_tissue::GlandularityCalibration::fit(&est, &truth)?;
+    let pp = |f: &dyn Fn(f64) -> f64| {
+        dbt_eval::accuracy::agreement(
+            &est.iter()
+                .zip(&truth)
+                .map(|(e, t)| 100.0 * (f(*e) - t))
+                .collect::<Vec<_>>(),
+        )
+    };
+    let (before, after) = (pp(&|e| e), pp(&|e| cal.apply(e)));
+    let label = m.precision_label();
+    println!(
+        "Calibration of {} ({label}) on {phantoms} phantoms of the {} split, {} ({:.0} s): G = {:+.5} + {:.5} x partial volume",
+        m.manifest().name,
+        split.describe(),
+        noise.name(),
+        t0.elapsed().as_secs_f64(),
+        cal.offset,
+        cal.slope
+    );
+    println!(
+        "  on these phantoms: error before bias {:+.2} sd {:.2} max {:.2} pp; after bias {:+.2} sd {:.2} max {:.2} pp",
+        before.bias, before.sd, before.max_abs, after.bias, after.sd, after.max_abs
+    );
+    let path = out.unwrap_or_else(|| model.join(CALIBRATION_FILE));
+    // Keep the other precisions' entries of a file fit for this model
+    // and classification; start afresh otherwise.
+    let mut file = match CalibrationFile::read(&path, &m) {
+        Ok(f) if f.classification == classify => f,
+        _ => CalibrationFile {
+            format: CALIBRATION_FORMAT.into(),
+            model: m.manifest().name.clone(),
+            manifest_sha256: manifest_sha256(&m)?,
+            classification: classify,
+            calibrations: Default::default(),
+            fits: Default::default(),
+        },
+    };
+    file.calibrations.insert(label.clone(), cal);
+    file.fits.insert(
+        label,
+        serde_json::json!({
+            "command": std::env::args().collect::<Vec<_>>().join(" "),
+            "split": split.describe(),
+            "population": population.name(),
+            "phantoms": phantoms,
+            "noise": noise.name(),
+            "estimator": "partial volume",
+            "error_before_pp": before,
+            "error_after_pp": after,
+            "cases": cases.iter().map(|c| serde_json::json!({
+                "phantom": c.phantom, "thickness_mm": c.thickness_mm,
+                "g_true": c.g_true, "g_partial_volume": c.g_partial_volume,
+            })).collect::<Vec<_>>(),
+        }),
+    );
+    write_json(&path, &file)?;
+    println!("wrote {}", path.display());
+    Ok(())
+}
+
+/// `dbt-eval anatomy`.
+fn run_anatomy(args: AnatomyArgs) -> Result<()> {
+    let AnatomyArgs {
+        out,
+        population,
+        seed,
+        index,
+        external,
+        voxel_mm,
+    } = args;
+    anatomy_cmd(&out, population, seed, &index, &external, voxel_mm)?;
+    Ok(())
+}
+
+/// `dbt-eval picture`.
+fn run_picture(args: PictureArgs) -> Result<()> {
+    let PictureArgs {
+        out,
+        binning,
+        phantom,
+        noise,
+        model,
+    } = args;
+    let model = load_models(model.as_deref(), "fp32", &Runtime::default())?
+        .pop()
+        .map(|(_, m)| m);
+    let g = match &model {
+        Some(m) => m.geometry().clone(),
+        None => Geometry::paper().binned(binning)?,
+    };
+    let proj = Projector::new(&g);
+    let level = NoiseLevel::parse(&noise)?;
+    let (set, _) = test_set(&g, &proj, phantom + 1, 1, &[level])?;
+    let (_, s) = set.last().context("the test phantom has no slices")?;
+    let (m, _) = mltr(
+        &proj,
+        &s.counts[0],
+        s.flux[0],
+        &s.mask,
+        &MltrOptions::default(),
+    )?;
+    let line = dbt_acquisition::log_transform(&s.counts[0], s.flux[0]);
+    let f = Fbp::new(&g).reconstruct(&line, Some(&s.mask))?;
+    let (rows, cols) = (g.image.rows, g.image.columns);
+    let mu_window = (0.0, 0.0854 * 1.05);
+    let mut panels = vec![
+        Panel {
+            data: s.mu.clone(),
+            rows,
+            cols,
+            window: mu_window,
+            stretch: 1,
+        },
+        Panel {
+            window: auto_window(&line),
+            data: line,
+            rows: g.n_views(),
+            cols: g.n_det(),
+            stretch: (rows / g.n_views()).max(1),
+        },
+        Panel {
+            data: m,
+            rows,
+            cols,
+            window: mu_window,
+            stretch: 1,
+        },
+        Panel {
+            window: auto_window(&f),
+            data: f,
+            rows,
+            cols,
+            stretch: 1,
+        },
+    ];
+    let mut legend = String::from(
+        "phantom (0..0.09 /mm), sinogram, MLTR 100 it. (same window), FBP (own window)",
+    );
+    if let Some(m) = &model {
+        let x = m.reconstruct(
+            &dbt_acquisition::log_transform(&s.counts[0], s.flux[0]),
+            s.thickness_mm,
+        )?;
+        let diff: Vec<f32> = x.iter().zip(&s.mu).map(|(a, b)| a - b).collect();
+        panels.push(Panel {
+            data: x,
+            rows,
+            cols,
+            window: mu_window,
+            stretch: 1,
+        });
+        panels.push(Panel {
+            data: diff,
+            rows,
+            cols,
+            window: (-0.02, 0.02),
+            stretch: 1,
+        });
+        legend.push_str(", DBToR fp32 (same window), DBToR - phantom (-0.02..0.02 /mm)");
+    }
+    let (px, w, h) = compose(&panels);
+    write_png(&out, &px, w, h)?;
+    println!(
+        "{}: test phantom {phantom}, slice {}, {}; panels top to bottom: {legend}",
+        out.display(),
+        s.depth,
+        level.name()
+    );
     Ok(())
 }
