@@ -48,105 +48,147 @@ struct GeometryArgs {
 #[derive(Subcommand)]
 enum Cmd {
     /// Projector self-test: adjointness, analytic line integrals, norm bound.
-    Selftest {
-        #[command(flatten)]
-        geometry: GeometryArgs,
-        #[arg(long)]
-        json: bool,
-    },
+    Selftest(SelftestArgs),
     /// Print the geometry as TOML.
-    Geometry {
-        #[command(flatten)]
-        geometry: GeometryArgs,
-    },
+    Geometry(PrintGeometryArgs),
     /// The values of a dose or density structured report.
-    Report {
-        file: PathBuf,
-        #[arg(long)]
-        json: bool,
-    },
+    Report(ReportArgs),
     /// DICOM C-ECHO to the PACS.
-    Echo {
-        /// AET@host:port
-        peer: String,
-    },
+    Echo(EchoArgs),
     /// Read and decode the gantry registers (Modbus TCP, or RTU with --rtu).
-    Modbus {
-        /// HOST:PORT of a Modbus TCP gantry.
-        #[arg(required_unless_present = "rtu", conflicts_with = "rtu")]
-        address: Option<String>,
-        /// Serial line of a Modbus RTU gantry.
-        #[arg(long)]
-        rtu: Option<String>,
-        #[arg(long, default_value_t = 19_200)]
-        baud: u32,
-        #[arg(long, default_value_t = 1)]
-        unit: u8,
-        /// Register base address.
-        #[arg(long, default_value_t = 0)]
-        base: u16,
-        #[arg(long)]
-        json: bool,
-    },
+    Modbus(ModbusArgs),
     /// Verify a DBToR model folder: its sign-off (one digest over the
     /// manifest, the calibration and every ONNX file), the network's
     /// checksums and its stored fixtures.
-    Model {
-        dir: PathBuf,
-        /// Check one precision only (default: both).
-        #[arg(long)]
-        precision: Option<Precision>,
-        /// The digest the site's configuration pins (`recon.model_digest`).
-        #[arg(long)]
-        digest: Option<String>,
-        /// Sign the folder off as it is now (writes signoff.json and prints
-        /// the digest for `recon.model_digest`), after its checks pass.
-        #[arg(long)]
-        sign_off: bool,
-        #[arg(long)]
-        json: bool,
-    },
+    Model(ModelArgs),
     /// The daemon's state, results and faults.
-    Status {
-        /// The daemon's configuration (names the status file).
-        #[arg(long, required_unless_present = "status", conflicts_with = "status")]
-        config: Option<PathBuf>,
-        /// The status file itself.
-        #[arg(long)]
-        status: Option<PathBuf>,
-        #[arg(long)]
-        json: bool,
-    },
+    Status(StatusArgs),
     /// Validate a daemon configuration and print it.
-    Config { file: PathBuf },
+    Config(ConfigArgs),
     /// Reprocess a spooled acquisition offline (nothing is sent).
-    Replay {
-        entry: PathBuf,
-        /// DBToR model directory (default: MLTR).
-        #[arg(long)]
-        model: Option<PathBuf>,
-        #[arg(long, default_value = "fp32", requires = "model")]
-        precision: Precision,
-        #[arg(long, default_value = "fast", requires = "model")]
-        engine: Engine,
-        /// MLTR iterations.
-        #[arg(long)]
-        iterations: Option<usize>,
-        /// Relative statistical uncertainty the Monte Carlo dose runs to.
-        #[arg(long)]
-        dose_uncertainty: Option<f64>,
-        #[arg(long)]
-        json: bool,
-    },
+    Replay(ReplayArgs),
     /// Projector and DBToR slice timings on this PC.
-    Bench {
-        #[arg(long)]
-        model: Option<PathBuf>,
-        #[arg(long, default_value_t = 5)]
-        reps: usize,
-        #[arg(long)]
-        json: bool,
-    },
+    Bench(BenchArgs),
+}
+
+/// The options of `dbtor-diag selftest`.
+#[derive(Args)]
+struct SelftestArgs {
+    #[command(flatten)]
+    geometry: GeometryArgs,
+    #[arg(long)]
+    json: bool,
+}
+
+/// The options of `dbtor-diag geometry`.
+#[derive(Args)]
+struct PrintGeometryArgs {
+    #[command(flatten)]
+    geometry: GeometryArgs,
+}
+
+/// The options of `dbtor-diag report`.
+#[derive(Args)]
+struct ReportArgs {
+    file: PathBuf,
+    #[arg(long)]
+    json: bool,
+}
+
+/// The options of `dbtor-diag echo`.
+#[derive(Args)]
+struct EchoArgs {
+    /// AET@host:port
+    peer: String,
+}
+
+/// The options of `dbtor-diag modbus`.
+#[derive(Args)]
+struct ModbusArgs {
+    /// HOST:PORT of a Modbus TCP gantry.
+    #[arg(required_unless_present = "rtu", conflicts_with = "rtu")]
+    address: Option<String>,
+    /// Serial line of a Modbus RTU gantry.
+    #[arg(long)]
+    rtu: Option<String>,
+    #[arg(long, default_value_t = 19_200)]
+    baud: u32,
+    #[arg(long, default_value_t = 1)]
+    unit: u8,
+    /// Register base address.
+    #[arg(long, default_value_t = 0)]
+    base: u16,
+    #[arg(long)]
+    json: bool,
+}
+
+/// The options of `dbtor-diag model`.
+#[derive(Args)]
+struct ModelArgs {
+    dir: PathBuf,
+    /// Check one precision only (default: both).
+    #[arg(long)]
+    precision: Option<Precision>,
+    /// The digest the site's configuration pins (`recon.model_digest`).
+    #[arg(long)]
+    digest: Option<String>,
+    /// Sign the folder off as it is now (writes signoff.json and prints
+    /// the digest for `recon.model_digest`), after its checks pass.
+    #[arg(long)]
+    sign_off: bool,
+    #[arg(long)]
+    json: bool,
+}
+
+/// The options of `dbtor-diag status`.
+#[derive(Args)]
+struct StatusArgs {
+    /// The daemon's configuration (names the status file).
+    #[arg(long, required_unless_present = "status", conflicts_with = "status")]
+    config: Option<PathBuf>,
+    /// The status file itself.
+    #[arg(long)]
+    status: Option<PathBuf>,
+    #[arg(long)]
+    json: bool,
+}
+
+/// The options of `dbtor-diag config`.
+#[derive(Args)]
+struct ConfigArgs {
+    file: PathBuf,
+}
+
+/// The options of `dbtor-diag replay`.
+#[derive(Args)]
+struct ReplayArgs {
+    entry: PathBuf,
+    /// DBToR model directory (default: MLTR).
+    #[arg(long)]
+    model: Option<PathBuf>,
+    #[arg(long, default_value = "fp32", requires = "model")]
+    precision: Precision,
+    #[arg(long, default_value = "fast", requires = "model")]
+    engine: Engine,
+    /// MLTR iterations.
+    #[arg(long)]
+    iterations: Option<usize>,
+    /// Relative statistical uncertainty the Monte Carlo dose runs to.
+    #[arg(long)]
+    dose_uncertainty: Option<f64>,
+    #[arg(long)]
+    json: bool,
+}
+
+/// The options of `dbtor-diag bench`.
+#[derive(Args)]
+struct BenchArgs {
+    #[arg(long)]
+    model: Option<PathBuf>,
+    #[arg(long, default_value_t = 5)]
+    reps: usize,
+    #[arg(long)]
+    json: bool,
 }
 
 fn load_geometry(a: &GeometryArgs) -> Result<Geometry> {
@@ -164,467 +206,506 @@ fn run() -> Result<bool> {
 
 fn run_cmd(cmd: Cmd) -> Result<bool> {
     match cmd {
-        Cmd::Selftest { geometry, json } => {
-            let g = load_geometry(&geometry)?;
-            let checks = selftest::projector(&g);
-            let ok = checks.iter().all(|c| c.passed());
-            if json {
-                let v: Vec<_> = checks
-                    .iter()
-                    .map(|c| serde_json::json!({"check": c.name, "value": c.value, "limit": c.limit, "passed": c.passed(), "detail": c.detail}))
-                    .collect();
-                println!(
-                    "{}",
-                    serde_json::json!({"geometry": g.describe(), "passed": ok, "checks": v})
-                );
-            } else {
-                println!("geometry: {}", g.describe());
-                println!(
-                    "{:<24} {:>6} {:>11} {:>9}  detail",
-                    "check", "result", "value", "limit"
-                );
-                for c in &checks {
-                    let r = if c.passed() { "PASS" } else { "FAIL" };
-                    println!(
-                        "{:<24} {:>6} {:>11.3e} {:>9.1e}  {}",
-                        c.name, r, c.value, c.limit, c.detail
-                    );
-                }
-                println!(
-                    "{}",
-                    if ok {
-                        "all checks passed"
-                    } else {
-                        "SOME CHECKS FAILED"
-                    }
-                );
-            }
-            Ok(ok)
-        }
-        Cmd::Config { file } => {
-            let cfg = dbtor_firmware::config::Config::load(&file)?;
-            println!("{}: valid\n{cfg:#?}", file.display());
-            Ok(true)
-        }
-        Cmd::Status {
-            config,
-            status,
-            json,
-        } => {
-            let path = match (status, config) {
-                (Some(s), _) => s,
-                (None, Some(c)) => dbtor_firmware::config::Config::load(&c)?.paths.status,
-                _ => bail!("status needs --config FILE or --status FILE"),
-            };
-            let bytes = std::fs::read(&path).with_context(|| {
-                format!(
-                    "reading the status file {} (is the daemon running?)",
-                    path.display()
-                )
-            })?;
-            let st: serde_json::Value = serde_json::from_slice(&bytes)
-                .with_context(|| format!("{} is not a status file", path.display()))?;
-            let pid = st["pid"].as_u64().unwrap_or(0);
-            let state = st["state"].as_str().unwrap_or("?");
-            let alive = pid > 0 && std::path::Path::new(&format!("/proc/{pid}")).exists();
-            let running = if state == "stopped" {
-                "stopped".to_string()
-            } else if alive {
-                format!("running (pid {pid})")
-            } else {
-                format!("NOT RUNNING (pid {pid} gone; last state {state})")
-            };
-            let faults = st["faults"].as_array().cloned().unwrap_or_default();
-            // Healthy: no fault newer than the last reported acquisition.
-            let last_ok_at = st["recent"]
-                .as_array()
-                .and_then(|r| r.last())
-                .and_then(|r| r["finished_unix"].as_u64());
-            let last_fault_at = faults.last().and_then(|f| f["at_unix"].as_u64());
-            let healthy = match (last_fault_at, last_ok_at) {
-                (None, _) => true,
-                (Some(f), Some(ok)) => ok > f,
-                (Some(_), None) => false,
-            };
-            if json {
-                println!(
-                    "{}",
-                    serde_json::json!({"status_file": path.display().to_string(), "running": alive && state != "stopped", "healthy": healthy, "status": st})
-                );
-            } else {
-                println!("daemon        {running}");
-                println!(
-                    "state         {state}{}",
-                    st["current"]
-                        .as_str()
-                        .map(|c| format!(" ({c})"))
-                        .unwrap_or_default()
-                );
-                println!(
-                    "reconstructor {}",
-                    st["reconstructor"].as_str().unwrap_or("?")
-                );
-                println!(
-                    "processed     {} (recovered from spool at start: {}; waiting in spool: {})",
-                    st["processed"], st["recovered"], st["incoming"]
-                );
-                if let Some(r) = st["recent"].as_array() {
-                    println!("recent acquisitions:");
-                    for a in r.iter().rev().take(10) {
-                        println!(
-                            "  {:<40} G {:.3} (labels) MGD {:.3} mGy  {:.1} s",
-                            a["acquisition"].as_str().unwrap_or("?"),
-                            a["glandularity_labels"].as_f64().unwrap_or(f64::NAN),
-                            a["mgd_mgy"].as_f64().unwrap_or(f64::NAN),
-                            a["seconds"].as_f64().unwrap_or(f64::NAN)
-                        );
-                    }
-                }
-                println!("faults ({}):", faults.len());
-                for f in faults.iter().rev().take(10) {
-                    println!(
-                        "  [{}] {:<10} {} {}",
-                        f["at_unix"],
-                        f["kind"].as_str().unwrap_or("?"),
-                        f["acquisition"].as_str().unwrap_or("-"),
-                        f["message"].as_str().unwrap_or("")
-                    );
-                }
-            }
-            Ok(healthy)
-        }
-        Cmd::Replay {
-            entry,
-            model,
-            precision,
-            engine,
-            iterations,
-            dose_uncertainty,
-            json,
-        } => {
-            let entry = entry.as_path();
-            let acq = dbt_store::acquisition::read_acquisition(entry)?;
-            let mut opts = dbt_pipeline::PipelineOptions::default();
-            if let Some(n) = iterations {
-                opts.mltr_iterations = n;
-            }
-            if let Some(u) = dose_uncertainty {
-                opts.dose_uncertainty = u;
-            }
-            if let Some(dir) = model {
-                opts.dbtor = Some(std::sync::Arc::new(dbt_dbtor::Dbtor::load_with(
-                    &dir, precision, engine,
-                )?));
-            }
-            let t = std::time::Instant::now();
-            eprintln!(
-                "replaying {} ({} slices) ...",
-                entry.display(),
-                acq.header.slices
+        Cmd::Selftest(args) => run_selftest(args),
+        Cmd::Config(args) => run_config(args),
+        Cmd::Status(args) => run_status(args),
+        Cmd::Replay(args) => run_replay(args),
+        Cmd::Bench(args) => run_bench(args),
+        Cmd::Model(args) => run_model(args),
+        Cmd::Geometry(args) => run_geometry(args),
+        Cmd::Report(args) => run_report(args),
+        Cmd::Echo(args) => run_echo(args),
+        Cmd::Modbus(args) => run_modbus(args),
+    }
+}
+
+/// `dbtor-diag selftest`: `Ok(false)` when a check failed.
+fn run_selftest(args: SelftestArgs) -> Result<bool> {
+    let SelftestArgs { geometry, json } = args;
+    let g = load_geometry(&geometry)?;
+    let checks = selftest::projector(&g);
+    let ok = checks.iter().all(|c| c.passed());
+    if json {
+        let v: Vec<_> = checks
+            .iter()
+            .map(|c| serde_json::json!({"check": c.name, "value": c.value, "limit": c.limit, "passed": c.passed(), "detail": c.detail}))
+            .collect();
+        println!(
+            "{}",
+            serde_json::json!({"geometry": g.describe(), "passed": ok, "checks": v})
+        );
+    } else {
+        println!("geometry: {}", g.describe());
+        println!(
+            "{:<24} {:>6} {:>11} {:>9}  detail",
+            "check", "result", "value", "limit"
+        );
+        for c in &checks {
+            let r = if c.passed() { "PASS" } else { "FAIL" };
+            println!(
+                "{:<24} {:>6} {:>11.3e} {:>9.1e}  {}",
+                c.name, r, c.value, c.limit, c.detail
             );
-            let mut last = std::time::Instant::now();
-            let r = dbt_pipeline::process_with_progress(&acq, &opts, &mut |st| {
-                use dbt_pipeline::Stage;
-                match st {
-                    // At most a few updates a second on the terminal.
-                    Stage::Slice { done, total } => {
-                        if done == total || last.elapsed().as_millis() >= 200 {
-                            last = std::time::Instant::now();
-                            eprint!(
-                                "\r  slice {done}/{total} ({:.0} %)   ",
-                                100.0 * done as f64 / total.max(1) as f64
-                            );
-                        }
-                    }
-                    Stage::Classification => eprint!("\n  classification and density ... "),
-                    Stage::Dose => eprintln!("done\n  Monte Carlo dose ..."),
-                }
-            })?;
-            let stored: Option<serde_json::Value> = std::fs::read(entry.join("result.json"))
-                .ok()
-                .and_then(|b| serde_json::from_slice(&b).ok());
-            let out = serde_json::json!({
-                "entry": entry.display().to_string(),
-                "reconstructor": r.reconstructor,
-                "seconds": t.elapsed().as_secs_f64(),
-                "glandularity_labels": r.density.glandularity_labels,
-                "glandularity_partial_volume": r.density.glandularity_partial_volume,
-                "mgd_mgy": r.mgd_mgy,
-                "model_mgd_mgy": r.model_mgd_mgy,
-                "stored_result": stored,
-            });
-            if json {
-                println!("{out}");
-            } else {
-                println!(
-                    "replay of {} ({}, {:.1} s)",
-                    entry.display(),
-                    r.reconstructor,
-                    t.elapsed().as_secs_f64()
-                );
-                let st = |k: &str| {
-                    stored
-                        .as_ref()
-                        .and_then(|v| v[k].as_f64())
-                        .map(|x| format!("{x:.3}"))
-                        .unwrap_or("-".into())
-                };
-                println!("{:<28} {:>10} {:>10}", "", "replay", "stored");
-                println!(
-                    "{:<28} {:>10.3} {:>10}",
-                    "glandularity (labels)",
-                    r.density.glandularity_labels,
-                    st("glandularity_labels")
-                );
-                println!(
-                    "{:<28} {:>10.3} {:>10}",
-                    "glandularity (partial vol.)",
-                    r.density.glandularity_partial_volume,
-                    st("glandularity_partial_volume")
-                );
-                println!(
-                    "{:<28} {:>10.3} {:>10}",
-                    "MGD, mGy",
-                    r.mgd_mgy,
-                    st("mgd_mgy")
-                );
-                println!(
-                    "{:<28} {:>10.3} {:>10}",
-                    "model-breast MGD, mGy",
-                    r.model_mgd_mgy,
-                    st("model_mgd_mgy")
-                );
-            }
-            Ok(true)
         }
-        Cmd::Bench { model, reps, json } => {
-            let g = Geometry::paper();
-            let p = dbt_projector::Projector::new(&g);
-            let x = vec![0.05f32; g.n_pixels()];
-            let mut y = vec![0f32; g.n_rays()];
-            let mut back = vec![0f32; g.n_pixels()];
-            let (mut fw, mut ad) = (Vec::new(), Vec::new());
-            for _ in 0..reps.max(1) {
-                let t = std::time::Instant::now();
-                p.forward(&x, &mut y)?;
-                fw.push(t.elapsed().as_secs_f64() * 1e3);
-                let t = std::time::Instant::now();
-                p.adjoint(&y, &mut back)?;
-                ad.push(t.elapsed().as_secs_f64() * 1e3);
-            }
-            let mut rows = vec![
-                (
-                    "projector forward, paper geometry".to_string(),
-                    median_ms(fw),
-                ),
-                (
-                    "projector adjoint, paper geometry".to_string(),
-                    median_ms(ad),
-                ),
-            ];
-            if let Some(dir) = model {
-                for (prec, engine) in [
-                    (Precision::Fp32, Engine::Fast),
-                    (Precision::Int8, Engine::Fast),
-                    (Precision::Fp32, Engine::Tract),
-                    (Precision::Int8, Engine::Tract),
-                ] {
-                    let m = dbt_dbtor::Dbtor::load_with(&dir, prec, engine)?;
-                    let mg = m.geometry().clone();
-                    let g0 = vec![1.0f32; mg.n_rays()];
-                    let mut v = Vec::new();
-                    for k in 0..reps.max(1) {
-                        eprint!("\rDBToR {prec} {engine}: slice {}/{}", k + 1, reps.max(1));
-                        let t = std::time::Instant::now();
-                        m.reconstruct(&g0, 45.0)?;
-                        v.push(t.elapsed().as_secs_f64() * 1e3);
-                    }
-                    eprintln!();
-                    rows.push((
-                        format!(
-                            "DBToR slice {prec} {engine}, {}x{} px",
-                            mg.image.columns, mg.image.rows
-                        ),
-                        median_ms(v),
-                    ));
-                }
-            }
-            if json {
-                let o: serde_json::Map<String, serde_json::Value> = rows
-                    .iter()
-                    .map(|(k, v)| (k.clone(), serde_json::json!(v)))
-                    .collect();
-                println!("{}", serde_json::json!({"reps": reps, "median_ms": o}));
+        println!(
+            "{}",
+            if ok {
+                "all checks passed"
             } else {
-                println!("{:<44} {:>12}", "operation (median of reps)", "ms");
-                for (k, v) in &rows {
-                    println!("{k:<44} {v:>12.2}");
-                }
+                "SOME CHECKS FAILED"
             }
-            Ok(true)
+        );
+    }
+    Ok(ok)
+}
+
+/// `dbtor-diag config`: `Ok(false)` when a check failed.
+fn run_config(args: ConfigArgs) -> Result<bool> {
+    let ConfigArgs { file } = args;
+    let cfg = dbtor_firmware::config::Config::load(&file)?;
+    println!("{}: valid\n{cfg:#?}", file.display());
+    Ok(true)
+}
+
+/// `dbtor-diag status`: `Ok(false)` when a check failed.
+fn run_status(args: StatusArgs) -> Result<bool> {
+    let StatusArgs {
+        config,
+        status,
+        json,
+    } = args;
+    let path = match (status, config) {
+        (Some(s), _) => s,
+        (None, Some(c)) => dbtor_firmware::config::Config::load(&c)?.paths.status,
+        _ => bail!("status needs --config FILE or --status FILE"),
+    };
+    let bytes = std::fs::read(&path).with_context(|| {
+        format!(
+            "reading the status file {} (is the daemon running?)",
+            path.display()
+        )
+    })?;
+    let st: serde_json::Value = serde_json::from_slice(&bytes)
+        .with_context(|| format!("{} is not a status file", path.display()))?;
+    let pid = st["pid"].as_u64().unwrap_or(0);
+    let state = st["state"].as_str().unwrap_or("?");
+    let alive = pid > 0 && std::path::Path::new(&format!("/proc/{pid}")).exists();
+    let running = if state == "stopped" {
+        "stopped".to_string()
+    } else if alive {
+        format!("running (pid {pid})")
+    } else {
+        format!("NOT RUNNING (pid {pid} gone; last state {state})")
+    };
+    let faults = st["faults"].as_array().cloned().unwrap_or_default();
+    // Healthy: no fault newer than the last reported acquisition.
+    let last_ok_at = st["recent"]
+        .as_array()
+        .and_then(|r| r.last())
+        .and_then(|r| r["finished_unix"].as_u64());
+    let last_fault_at = faults.last().and_then(|f| f["at_unix"].as_u64());
+    let healthy = match (last_fault_at, last_ok_at) {
+        (None, _) => true,
+        (Some(f), Some(ok)) => ok > f,
+        (Some(_), None) => false,
+    };
+    if json {
+        println!(
+            "{}",
+            serde_json::json!({"status_file": path.display().to_string(), "running": alive && state != "stopped", "healthy": healthy, "status": st})
+        );
+    } else {
+        println!("daemon        {running}");
+        println!(
+            "state         {state}{}",
+            st["current"]
+                .as_str()
+                .map(|c| format!(" ({c})"))
+                .unwrap_or_default()
+        );
+        println!(
+            "reconstructor {}",
+            st["reconstructor"].as_str().unwrap_or("?")
+        );
+        println!(
+            "processed     {} (recovered from spool at start: {}; waiting in spool: {})",
+            st["processed"], st["recovered"], st["incoming"]
+        );
+        if let Some(r) = st["recent"].as_array() {
+            println!("recent acquisitions:");
+            for a in r.iter().rev().take(10) {
+                println!(
+                    "  {:<40} G {:.3} (labels) MGD {:.3} mGy  {:.1} s",
+                    a["acquisition"].as_str().unwrap_or("?"),
+                    a["glandularity_labels"].as_f64().unwrap_or(f64::NAN),
+                    a["mgd_mgy"].as_f64().unwrap_or(f64::NAN),
+                    a["seconds"].as_f64().unwrap_or(f64::NAN)
+                );
+            }
         }
-        Cmd::Model {
-            dir,
-            precision,
-            digest,
-            sign_off,
-            json,
-        } => {
-            let precisions = match precision {
-                Some(p) => vec![p],
-                None => vec![Precision::Fp32, Precision::Int8],
-            };
-            let dir = dir.as_path();
-            let mut all = Vec::new();
-            let runs = precisions
-                .iter()
-                .flat_map(|p| [Engine::Fast, Engine::Tract].map(|e| (*p, e)));
-            for (p, e) in runs {
-                let t = std::time::Instant::now();
-                // Loading verifies every SHA-256 of the manifest first.
-                let m = dbt_dbtor::Dbtor::load_with(dir, p, e)
-                    .with_context(|| format!("loading {} ({p}, {e})", dir.display()))?;
-                let checks = dbt_dbtor::check_fixtures(&m, dir)?;
-                if !json {
-                    println!(
-                        "{} ({p}, {e}): {} files verified, {} fixtures, {:.1} s",
-                        m.manifest().name,
-                        m.manifest().sha256.len(),
-                        checks.len(),
-                        t.elapsed().as_secs_f64()
+        println!("faults ({}):", faults.len());
+        for f in faults.iter().rev().take(10) {
+            println!(
+                "  [{}] {:<10} {} {}",
+                f["at_unix"],
+                f["kind"].as_str().unwrap_or("?"),
+                f["acquisition"].as_str().unwrap_or("-"),
+                f["message"].as_str().unwrap_or("")
+            );
+        }
+    }
+    Ok(healthy)
+}
+
+/// `dbtor-diag replay`: `Ok(false)` when a check failed.
+fn run_replay(args: ReplayArgs) -> Result<bool> {
+    let ReplayArgs {
+        entry,
+        model,
+        precision,
+        engine,
+        iterations,
+        dose_uncertainty,
+        json,
+    } = args;
+    let entry = entry.as_path();
+    let acq = dbt_store::acquisition::read_acquisition(entry)?;
+    let mut opts = dbt_pipeline::PipelineOptions::default();
+    if let Some(n) = iterations {
+        opts.mltr_iterations = n;
+    }
+    if let Some(u) = dose_uncertainty {
+        opts.dose_uncertainty = u;
+    }
+    if let Some(dir) = model {
+        opts.dbtor = Some(std::sync::Arc::new(dbt_dbtor::Dbtor::load_with(
+            &dir, precision, engine,
+        )?));
+    }
+    let t = std::time::Instant::now();
+    eprintln!(
+        "replaying {} ({} slices) ...",
+        entry.display(),
+        acq.header.slices
+    );
+    let mut last = std::time::Instant::now();
+    let r = dbt_pipeline::process_with_progress(&acq, &opts, &mut |st| {
+        use dbt_pipeline::Stage;
+        match st {
+            // At most a few updates a second on the terminal.
+            Stage::Slice { done, total } => {
+                if done == total || last.elapsed().as_millis() >= 200 {
+                    last = std::time::Instant::now();
+                    eprint!(
+                        "\r  slice {done}/{total} ({:.0} %)   ",
+                        100.0 * done as f64 / total.max(1) as f64
                     );
-                    for c in &checks {
-                        let r = if c.pass { "PASS" } else { "FAIL" };
-                        println!("  {:<8} {r}  {}", c.name, c.rule);
-                    }
                 }
-                all.extend(checks);
             }
-            let mut ok = !all.is_empty() && all.iter().all(|c| c.pass);
-            if sign_off && ok {
-                dbt_model::sign_off(dir)?;
-            }
-            let signoff = match dbt_model::verify(dir, digest.as_deref()) {
-                Ok(s) => {
-                    serde_json::json!({"passed": true, "digest": s.digest, "files": s.files.len()})
-                }
-                Err(e) => {
-                    ok = false;
-                    serde_json::json!({"passed": false, "error": e.to_string()})
-                }
-            };
-            if json {
-                println!(
-                    "{}",
-                    serde_json::json!({"model": dir.display().to_string(), "passed": ok, "signoff": signoff, "fixtures": all})
-                );
-            } else if signoff["passed"] == true {
-                println!(
-                    "sign-off: PASS  {} files, digest {}",
-                    signoff["files"],
-                    signoff["digest"].as_str().unwrap_or_default()
-                );
-            } else {
-                println!(
-                    "sign-off: FAIL  {}",
-                    signoff["error"].as_str().unwrap_or_default()
-                );
-            }
-            Ok(ok)
+            Stage::Classification => eprint!("\n  classification and density ... "),
+            Stage::Dose => eprintln!("done\n  Monte Carlo dose ..."),
         }
-        Cmd::Geometry { geometry } => {
-            let g = load_geometry(&geometry)?;
-            print!("{}", g.to_toml_string());
-            Ok(true)
-        }
-        Cmd::Report { file, json } => {
-            let bytes =
-                std::fs::read(&file).with_context(|| format!("reading {}", file.display()))?;
-            let (class, values) = dbt_dicom::read_values(&bytes)
-                .with_context(|| format!("decoding {}", file.display()))?;
-            let file = file.display().to_string();
-            if json {
-                let v: Vec<_> = values
-                    .iter()
-                    .map(|(k, v)| serde_json::json!({"concept": k, "value": v}))
-                    .collect();
-                println!(
-                    "{}",
-                    serde_json::json!({"file": file, "sop_class_uid": class, "values": v})
-                );
-            } else {
-                println!("{file}: SOP class {class}");
-                for (k, v) in &values {
-                    println!("  {k}: {v}");
-                }
+    })?;
+    let stored: Option<serde_json::Value> = std::fs::read(entry.join("result.json"))
+        .ok()
+        .and_then(|b| serde_json::from_slice(&b).ok());
+    let out = serde_json::json!({
+        "entry": entry.display().to_string(),
+        "reconstructor": r.reconstructor,
+        "seconds": t.elapsed().as_secs_f64(),
+        "glandularity_labels": r.density.glandularity_labels,
+        "glandularity_partial_volume": r.density.glandularity_partial_volume,
+        "mgd_mgy": r.mgd_mgy,
+        "model_mgd_mgy": r.model_mgd_mgy,
+        "stored_result": stored,
+    });
+    if json {
+        println!("{out}");
+    } else {
+        println!(
+            "replay of {} ({}, {:.1} s)",
+            entry.display(),
+            r.reconstructor,
+            t.elapsed().as_secs_f64()
+        );
+        let st = |k: &str| {
+            stored
+                .as_ref()
+                .and_then(|v| v[k].as_f64())
+                .map(|x| format!("{x:.3}"))
+                .unwrap_or("-".into())
+        };
+        println!("{:<28} {:>10} {:>10}", "", "replay", "stored");
+        println!(
+            "{:<28} {:>10.3} {:>10}",
+            "glandularity (labels)",
+            r.density.glandularity_labels,
+            st("glandularity_labels")
+        );
+        println!(
+            "{:<28} {:>10.3} {:>10}",
+            "glandularity (partial vol.)",
+            r.density.glandularity_partial_volume,
+            st("glandularity_partial_volume")
+        );
+        println!(
+            "{:<28} {:>10.3} {:>10}",
+            "MGD, mGy",
+            r.mgd_mgy,
+            st("mgd_mgy")
+        );
+        println!(
+            "{:<28} {:>10.3} {:>10}",
+            "model-breast MGD, mGy",
+            r.model_mgd_mgy,
+            st("model_mgd_mgy")
+        );
+    }
+    Ok(true)
+}
+
+/// `dbtor-diag bench`: `Ok(false)` when a check failed.
+fn run_bench(args: BenchArgs) -> Result<bool> {
+    let BenchArgs { model, reps, json } = args;
+    let g = Geometry::paper();
+    let p = dbt_projector::Projector::new(&g);
+    let x = vec![0.05f32; g.n_pixels()];
+    let mut y = vec![0f32; g.n_rays()];
+    let mut back = vec![0f32; g.n_pixels()];
+    let (mut fw, mut ad) = (Vec::new(), Vec::new());
+    for _ in 0..reps.max(1) {
+        let t = std::time::Instant::now();
+        p.forward(&x, &mut y)?;
+        fw.push(t.elapsed().as_secs_f64() * 1e3);
+        let t = std::time::Instant::now();
+        p.adjoint(&y, &mut back)?;
+        ad.push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    let mut rows = vec![
+        (
+            "projector forward, paper geometry".to_string(),
+            median_ms(fw),
+        ),
+        (
+            "projector adjoint, paper geometry".to_string(),
+            median_ms(ad),
+        ),
+    ];
+    if let Some(dir) = model {
+        for (prec, engine) in [
+            (Precision::Fp32, Engine::Fast),
+            (Precision::Int8, Engine::Fast),
+            (Precision::Fp32, Engine::Tract),
+            (Precision::Int8, Engine::Tract),
+        ] {
+            let m = dbt_dbtor::Dbtor::load_with(&dir, prec, engine)?;
+            let mg = m.geometry().clone();
+            let g0 = vec![1.0f32; mg.n_rays()];
+            let mut v = Vec::new();
+            for k in 0..reps.max(1) {
+                eprint!("\rDBToR {prec} {engine}: slice {}/{}", k + 1, reps.max(1));
+                let t = std::time::Instant::now();
+                m.reconstruct(&g0, 45.0)?;
+                v.push(t.elapsed().as_secs_f64() * 1e3);
             }
-            Ok(true)
-        }
-        Cmd::Echo { peer } => {
-            let cfg = dbt_pacs::PacsConfig::parse(&peer)?;
-            let t = std::time::Instant::now();
-            match dbt_pacs::echo(&cfg) {
-                Ok(()) => {
-                    println!(
-                        "C-ECHO {peer}: success in {:.0} ms",
-                        t.elapsed().as_secs_f64() * 1e3
-                    );
-                    Ok(true)
-                }
-                Err(e) => {
-                    println!("C-ECHO {peer}: FAILED: {e}");
-                    Ok(false)
-                }
-            }
-        }
-        Cmd::Modbus {
-            address,
-            rtu,
-            baud,
-            unit,
-            base,
-            json,
-        } => {
-            let endpoint = match (rtu, address) {
-                (Some(path), None) => dbtor_firmware::modbus::Endpoint::Rtu { path, baud },
-                (None, Some(addr)) => dbtor_firmware::modbus::Endpoint::Tcp(
-                    addr.parse()
-                        .with_context(|| format!("`{addr}` is not HOST:PORT"))?,
+            eprintln!();
+            rows.push((
+                format!(
+                    "DBToR slice {prec} {engine}, {}x{} px",
+                    mg.image.columns, mg.image.rows
                 ),
-                _ => bail!("modbus needs HOST:PORT (TCP) or --rtu PATH [--baud N] (RTU)"),
-            };
-            let addr = endpoint.to_string();
-            let mut link = dbtor_firmware::modbus::ModbusLink::with_endpoint(endpoint);
-            link.unit = unit;
-            link.base = base;
-            match dbtor_firmware::modbus::read_registers(&link) {
-                Ok(r) => {
-                    if json {
-                        println!("{}", serde_json::json!({"address": addr, "registers": r}));
-                    } else {
-                        println!("gantry registers at {addr} (unit {unit}, base {base}):");
-                        println!("  interface version   {}", r.version);
-                        println!("  state               {:?}", r.state);
-                        println!("  thickness           {:.1} mm", r.thickness_mm);
-                        println!("  force               {:.1} N", r.force_n);
-                        println!("  tube voltage        {:.1} kV", r.kvp);
-                        println!("  mAs per projection  {:.2}", r.mas_per_projection);
-                        println!("  anode/filter        {}", r.anode_filter);
-                        println!(
-                            "  projections         {} over [{:.1}, {:.1}] deg",
-                            r.projections, r.angles_deg[0], r.angles_deg[1]
-                        );
-                        println!("  current projection  {}", r.current);
-                        println!("  laterality / view   {} {}", r.laterality, r.view);
-                        println!("  fault code          {}", r.fault);
-                    }
-                    Ok(true)
-                }
-                Err(e) => {
-                    println!("Modbus {addr}: FAILED: {e}");
-                    Ok(false)
-                }
+                median_ms(v),
+            ));
+        }
+    }
+    if json {
+        let o: serde_json::Map<String, serde_json::Value> = rows
+            .iter()
+            .map(|(k, v)| (k.clone(), serde_json::json!(v)))
+            .collect();
+        println!("{}", serde_json::json!({"reps": reps, "median_ms": o}));
+    } else {
+        println!("{:<44} {:>12}", "operation (median of reps)", "ms");
+        for (k, v) in &rows {
+            println!("{k:<44} {v:>12.2}");
+        }
+    }
+    Ok(true)
+}
+
+/// `dbtor-diag model`: `Ok(false)` when a check failed.
+fn run_model(args: ModelArgs) -> Result<bool> {
+    let ModelArgs {
+        dir,
+        precision,
+        digest,
+        sign_off,
+        json,
+    } = args;
+    let precisions = match precision {
+        Some(p) => vec![p],
+        None => vec![Precision::Fp32, Precision::Int8],
+    };
+    let dir = dir.as_path();
+    let mut all = Vec::new();
+    let runs = precisions
+        .iter()
+        .flat_map(|p| [Engine::Fast, Engine::Tract].map(|e| (*p, e)));
+    for (p, e) in runs {
+        let t = std::time::Instant::now();
+        // Loading verifies every SHA-256 of the manifest first.
+        let m = dbt_dbtor::Dbtor::load_with(dir, p, e)
+            .with_context(|| format!("loading {} ({p}, {e})", dir.display()))?;
+        let checks = dbt_dbtor::check_fixtures(&m, dir)?;
+        if !json {
+            println!(
+                "{} ({p}, {e}): {} files verified, {} fixtures, {:.1} s",
+                m.manifest().name,
+                m.manifest().sha256.len(),
+                checks.len(),
+                t.elapsed().as_secs_f64()
+            );
+            for c in &checks {
+                let r = if c.pass { "PASS" } else { "FAIL" };
+                println!("  {:<8} {r}  {}", c.name, c.rule);
             }
+        }
+        all.extend(checks);
+    }
+    let mut ok = !all.is_empty() && all.iter().all(|c| c.pass);
+    if sign_off && ok {
+        dbt_model::sign_off(dir)?;
+    }
+    let signoff = match dbt_model::verify(dir, digest.as_deref()) {
+        Ok(s) => {
+            serde_json::json!({"passed": true, "digest": s.digest, "files": s.files.len()})
+        }
+        Err(e) => {
+            ok = false;
+            serde_json::json!({"passed": false, "error": e.to_string()})
+        }
+    };
+    if json {
+        println!(
+            "{}",
+            serde_json::json!({"model": dir.display().to_string(), "passed": ok, "signoff": signoff, "fixtures": all})
+        );
+    } else if signoff["passed"] == true {
+        println!(
+            "sign-off: PASS  {} files, digest {}",
+            signoff["files"],
+            signoff["digest"].as_str().unwrap_or_default()
+        );
+    } else {
+        println!(
+            "sign-off: FAIL  {}",
+            signoff["error"].as_str().unwrap_or_default()
+        );
+    }
+    Ok(ok)
+}
+
+/// `dbtor-diag geometry`: `Ok(false)` when a check failed.
+fn run_geometry(args: PrintGeometryArgs) -> Result<bool> {
+    let PrintGeometryArgs { geometry } = args;
+    let g = load_geometry(&geometry)?;
+    print!("{}", g.to_toml_string());
+    Ok(true)
+}
+
+/// `dbtor-diag report`: `Ok(false)` when a check failed.
+fn run_report(args: ReportArgs) -> Result<bool> {
+    let ReportArgs { file, json } = args;
+    let bytes = std::fs::read(&file).with_context(|| format!("reading {}", file.display()))?;
+    let (class, values) =
+        dbt_dicom::read_values(&bytes).with_context(|| format!("decoding {}", file.display()))?;
+    let file = file.display().to_string();
+    if json {
+        let v: Vec<_> = values
+            .iter()
+            .map(|(k, v)| serde_json::json!({"concept": k, "value": v}))
+            .collect();
+        println!(
+            "{}",
+            serde_json::json!({"file": file, "sop_class_uid": class, "values": v})
+        );
+    } else {
+        println!("{file}: SOP class {class}");
+        for (k, v) in &values {
+            println!("  {k}: {v}");
+        }
+    }
+    Ok(true)
+}
+
+/// `dbtor-diag echo`: `Ok(false)` when a check failed.
+fn run_echo(args: EchoArgs) -> Result<bool> {
+    let EchoArgs { peer } = args;
+    let cfg = dbt_pacs::PacsConfig::parse(&peer)?;
+    let t = std::time::Instant::now();
+    match dbt_pacs::echo(&cfg) {
+        Ok(()) => {
+            println!(
+                "C-ECHO {peer}: success in {:.0} ms",
+                t.elapsed().as_secs_f64() * 1e3
+            );
+            Ok(true)
+        }
+        Err(e) => {
+            println!("C-ECHO {peer}: FAILED: {e}");
+            Ok(false)
+        }
+    }
+}
+
+/// `dbtor-diag modbus`: `Ok(false)` when a check failed.
+fn run_modbus(args: ModbusArgs) -> Result<bool> {
+    let ModbusArgs {
+        address,
+        rtu,
+        baud,
+        unit,
+        base,
+        json,
+    } = args;
+    let endpoint = match (rtu, address) {
+        (Some(path), None) => dbtor_firmware::modbus::Endpoint::Rtu { path, baud },
+        (None, Some(addr)) => dbtor_firmware::modbus::Endpoint::Tcp(
+            addr.parse()
+                .with_context(|| format!("`{addr}` is not HOST:PORT"))?,
+        ),
+        _ => bail!("modbus needs HOST:PORT (TCP) or --rtu PATH [--baud N] (RTU)"),
+    };
+    let addr = endpoint.to_string();
+    let mut link = dbtor_firmware::modbus::ModbusLink::with_endpoint(endpoint);
+    link.unit = unit;
+    link.base = base;
+    match dbtor_firmware::modbus::read_registers(&link) {
+        Ok(r) => {
+            if json {
+                println!("{}", serde_json::json!({"address": addr, "registers": r}));
+            } else {
+                println!("gantry registers at {addr} (unit {unit}, base {base}):");
+                println!("  interface version   {}", r.version);
+                println!("  state               {:?}", r.state);
+                println!("  thickness           {:.1} mm", r.thickness_mm);
+                println!("  force               {:.1} N", r.force_n);
+                println!("  tube voltage        {:.1} kV", r.kvp);
+                println!("  mAs per projection  {:.2}", r.mas_per_projection);
+                println!("  anode/filter        {}", r.anode_filter);
+                println!(
+                    "  projections         {} over [{:.1}, {:.1}] deg",
+                    r.projections, r.angles_deg[0], r.angles_deg[1]
+                );
+                println!("  current projection  {}", r.current);
+                println!("  laterality / view   {} {}", r.laterality, r.view);
+                println!("  fault code          {}", r.fault);
+            }
+            Ok(true)
+        }
+        Err(e) => {
+            println!("Modbus {addr}: FAILED: {e}");
+            Ok(false)
         }
     }
 }
