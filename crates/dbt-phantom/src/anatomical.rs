@@ -427,8 +427,9 @@ struct Tube {
 }
 
 impl Tube {
-    /// Whether `p` lies in the tube (its radius tapers linearly along it).
-    fn contains(&self, p: [f64; 3]) -> bool {
+    /// The fraction `t` along the axis of the point of the axis nearest
+    /// `p`, and the squared distance to it.
+    fn nearest_on_axis(&self, p: [f64; 3]) -> (f64, f64) {
         let ab = sub3(self.b, self.a);
         let ap = sub3(p, self.a);
         let l2 = dot(ab, ab);
@@ -438,8 +439,14 @@ impl Tube {
             0.0
         };
         let q = [ap[0] - t * ab[0], ap[1] - t * ab[1], ap[2] - t * ab[2]];
+        (t, dot(q, q))
+    }
+
+    /// Whether `p` lies in the tube (its radius tapers linearly along it).
+    fn contains(&self, p: [f64; 3]) -> bool {
+        let (t, d2) = self.nearest_on_axis(p);
         let r = self.ra + (self.rb - self.ra) * t;
-        dot(q, q) <= r * r
+        d2 <= r * r
     }
 
     fn bounds(&self) -> ([f64; 3], [f64; 3]) {
@@ -552,16 +559,7 @@ impl TubeIndex {
         let c = [0, 1, 2].map(|a| (lo[a] + hi[a]) / 2.0);
         out.retain(|&k| {
             let t = &self.tubes[k as usize];
-            let ab = sub3(t.b, t.a);
-            let ac = sub3(c, t.a);
-            let l2 = dot(ab, ab);
-            let s = if l2 > 0.0 {
-                (dot(ac, ab) / l2).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            let q = [ac[0] - s * ab[0], ac[1] - s * ab[1], ac[2] - s * ab[2]];
-            dot(q, q).sqrt() <= t.ra.max(t.rb) + reach + 1e-9
+            t.nearest_on_axis(c).1.sqrt() <= t.ra.max(t.rb) + reach + 1e-9
         });
     }
 
