@@ -14,6 +14,8 @@ pub struct Panel {
     pub window: (f32, f32),
     /// Vertical stretch (sinograms have few views).
     pub stretch: usize,
+    /// What the panel shows, written above it.
+    pub label: String,
 }
 
 /// Window covering an image's range.
@@ -27,26 +29,53 @@ pub fn auto_window(v: &[f32]) -> (f32, f32) {
     }
 }
 
-/// Stack panels vertically with a 4-pixel gap; returns 8-bit grey pixels,
-/// width and height.
-pub fn compose(panels: &[Panel]) -> (Vec<u8>, usize, usize) {
-    const GAP: usize = 4;
-    let width = panels.iter().map(|p| p.cols).max().unwrap_or(1);
-    let height: usize = panels.iter().map(|p| p.rows * p.stretch.max(1) + GAP).sum();
-    let mut out = vec![255u8; width * height];
+/// Height of the strip above each panel that holds its label, pixels.
+const LABEL_STRIP: usize = 18;
+
+/// Stack panels vertically, each under a strip with its label; returns
+/// 8-bit grey pixels, width and height.
+pub fn compose(panels: &[Panel]) -> Result<(Vec<u8>, usize, usize), PlotError> {
+    use plotters::prelude::*;
+    register_font()?;
+    let width = panels.iter().map(|p| p.cols).max().unwrap_or(1).max(320);
+    let height: usize = panels
+        .iter()
+        .map(|p| p.rows * p.stretch.max(1) + LABEL_STRIP)
+        .sum();
+    let mut rgb = vec![255u8; width * height * 3];
+    {
+        let root =
+            BitMapBackend::with_buffer(&mut rgb, (width as u32, height as u32)).into_drawing_area();
+        let mut y0 = 0;
+        for p in panels {
+            root.draw(&Text::new(
+                p.label.clone(),
+                (2, y0 as i32 + 3),
+                ("sans-serif", 13).into_font(),
+            ))
+            .map_err(|e| PlotError(e.to_string()))?;
+            y0 += LABEL_STRIP + p.rows * p.stretch.max(1);
+        }
+        root.present().map_err(|e| PlotError(e.to_string()))?;
+    }
+    let mut out: Vec<u8> = rgb
+        .chunks_exact(3)
+        .map(|c| c[0].min(c[1]).min(c[2]))
+        .collect();
     let mut y0 = 0;
     for p in panels {
         let (lo, hi) = p.window;
         let s = p.stretch.max(1);
+        y0 += LABEL_STRIP;
         for r in 0..p.rows * s {
             for c in 0..p.cols {
                 let v = (p.data[(r / s) * p.cols + c] - lo) / (hi - lo);
                 out[(y0 + r) * width + c] = (v.clamp(0.0, 1.0) * 255.0).round() as u8;
             }
         }
-        y0 += p.rows * s + GAP;
+        y0 += p.rows * s;
     }
-    (out, width, height)
+    Ok((out, width, height))
 }
 
 /// The font of the plots' text: DejaVu Sans Mono (Bitstream Vera licence,

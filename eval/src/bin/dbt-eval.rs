@@ -1195,6 +1195,7 @@ fn run_picture(args: PictureArgs) -> Result<()> {
             cols,
             window: mu_window,
             stretch: 1,
+            label: format!("phantom, slice {} (0 to 0.09 /mm)", s.depth),
         },
         Panel {
             window: auto_window(&line),
@@ -1202,6 +1203,10 @@ fn run_picture(args: PictureArgs) -> Result<()> {
             rows: g.n_views(),
             cols: g.n_det(),
             stretch: (rows / g.n_views()).max(1),
+            label: format!(
+                "sinogram, {}: views top to bottom, detector left to right",
+                level.name()
+            ),
         },
         Panel {
             data: m,
@@ -1209,6 +1214,7 @@ fn run_picture(args: PictureArgs) -> Result<()> {
             cols,
             window: mu_window,
             stretch: 1,
+            label: "MLTR, 100 iterations (the phantom's window)".into(),
         },
         Panel {
             window: auto_window(&f),
@@ -1216,6 +1222,7 @@ fn run_picture(args: PictureArgs) -> Result<()> {
             rows,
             cols,
             stretch: 1,
+            label: "FBP (its own window)".into(),
         },
     ];
     let mut legend = String::from(
@@ -1233,6 +1240,7 @@ fn run_picture(args: PictureArgs) -> Result<()> {
             cols,
             window: mu_window,
             stretch: 1,
+            label: "DBToR fp32 (the phantom's window)".into(),
         });
         panels.push(Panel {
             data: diff,
@@ -1240,10 +1248,11 @@ fn run_picture(args: PictureArgs) -> Result<()> {
             cols,
             window: (-0.02, 0.02),
             stretch: 1,
+            label: "DBToR - phantom (-0.02 to 0.02 /mm)".into(),
         });
         legend.push_str(", DBToR fp32 (same window), DBToR - phantom (-0.02..0.02 /mm)");
     }
-    let (px, w, h) = compose(&panels);
+    let (px, w, h) = compose(&panels)?;
     write_png(&out, &px, w, h)?;
     println!(
         "{}: test phantom {phantom}, slice {}, {}; panels top to bottom: {legend}",
