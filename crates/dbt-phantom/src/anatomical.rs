@@ -362,14 +362,7 @@ impl Shape {
     /// mm (0: outer surface; the skin: inner): `<= 1` inside. Also returns
     /// the distance (mm, approximate) from the point to that surface.
     fn level(&self, x: f64, y: f64, z: f64, inset: f64) -> (f64, f64) {
-        let Some([a, l, hh, dz]) = self.section(y, z, inset) else {
-            return (f64::INFINITY, 0.0);
-        };
-        let q = (x.abs() / a).powf(self.p) + (y / l).powf(self.p);
-        // Distance: to the flat faces, or along the planform's radius.
-        let r = q.powf(1.0 / self.p);
-        let planar = (1.0 - r).max(0.0) * a.min(l);
-        (q, planar.min(hh - dz.abs()))
+        self.level_row(y, z, inset)(x)
     }
 
     /// [`Shape::level`] along the line of depth `y` and height `z`: the
@@ -383,6 +376,7 @@ impl Shape {
                 return (f64::INFINITY, 0.0);
             };
             let q = (x.abs() / a).powf(self.p) + qy;
+            // Distance: to the flat faces, or along the planform's radius.
             let r = q.powf(1.0 / self.p);
             let planar = (1.0 - r).max(0.0) * a.min(l);
             (q, planar.min(hh - dz.abs()))
@@ -510,27 +504,41 @@ impl TubeIndex {
     /// as the tubes' points) in cells of `cell` mm.
     fn new(tubes: Vec<Tube>, extent: [f64; 3], origin: [f64; 3], cell: f64) -> Self {
         let n = extent.map(|e| ((e / cell).ceil() as usize).max(1));
-        let mut cells = vec![Vec::new(); n[0] * n[1] * n[2]];
-        for (k, t) in tubes.iter().enumerate() {
-            let (lo, hi) = t.bounds();
-            let idx = |v: f64, i: usize| -> usize {
-                (((v - origin[i]) / cell).floor().max(0.0) as usize).min(n[i] - 1)
-            };
-            for z in idx(lo[2], 2)..=idx(hi[2], 2) {
-                for y in idx(lo[1], 1)..=idx(hi[1], 1) {
-                    for x in idx(lo[0], 0)..=idx(hi[0], 0) {
-                        cells[(z * n[1] + y) * n[0] + x].push(k as u32);
-                    }
-                }
-            }
-        }
-        Self {
-            tubes,
+        let mut index = Self {
+            tubes: Vec::new(),
             origin,
             cell,
             n,
-            cells,
+            cells: vec![Vec::new(); n[0] * n[1] * n[2]],
+        };
+        for (k, t) in tubes.iter().enumerate() {
+            let (lo, hi) = t.bounds();
+            let over: Vec<usize> = index.cells_over(lo, hi).collect();
+            for c in over {
+                index.cells[c].push(k as u32);
+            }
         }
+        index.tubes = tubes;
+        index
+    }
+
+    /// The cells (flat indices) the box `lo..hi` overlaps, clamped to the
+    /// index's box (no allocation: pass 2 asks for every voxel).
+    fn cells_over(&self, lo: [f64; 3], hi: [f64; 3]) -> impl Iterator<Item = usize> {
+        let idx = |v: f64, a: usize| -> usize {
+            (((v - self.origin[a]) / self.cell).floor().max(0.0) as usize).min(self.n[a] - 1)
+        };
+        let (xs, ys, zs) = (
+            idx(lo[0], 0)..=idx(hi[0], 0),
+            idx(lo[1], 1)..=idx(hi[1], 1),
+            idx(lo[2], 2)..=idx(hi[2], 2),
+        );
+        let [n0, n1, _] = self.n;
+        zs.flat_map(move |z| {
+            let xs = xs.clone();
+            ys.clone()
+                .flat_map(move |y| xs.clone().map(move |x| (z * n1 + y) * n0 + x))
+        })
     }
 
     /// The tubes (ascending, as pushed) that can hold a point of the box
@@ -541,15 +549,8 @@ impl TubeIndex {
     /// is [`TubeIndex::at`] for every point of the box.
     fn reaching(&self, lo: [f64; 3], hi: [f64; 3], reach: f64, out: &mut Vec<u32>) {
         out.clear();
-        let idx = |v: f64, a: usize| -> usize {
-            (((v - self.origin[a]) / self.cell).floor().max(0.0) as usize).min(self.n[a] - 1)
-        };
-        for z in idx(lo[2], 2)..=idx(hi[2], 2) {
-            for y in idx(lo[1], 1)..=idx(hi[1], 1) {
-                for x in idx(lo[0], 0)..=idx(hi[0], 0) {
-                    out.extend_from_slice(&self.cells[(z * self.n[1] + y) * self.n[0] + x]);
-                }
-            }
+        for c in self.cells_over(lo, hi) {
+            out.extend_from_slice(&self.cells[c]);
         }
         if out.is_empty() {
             return;
@@ -569,13 +570,25 @@ impl TubeIndex {
         if ids.is_empty() {
             return None;
         }
-        let inside = (0..3).all(|a| {
+        self.cell_of(p)?;
+        self.first_holding(ids, p)
+    }
+
+    /// The cell holding `p`, `None` outside the index's box.
+    fn cell_of(&self, p: [f64; 3]) -> Option<[usize; 3]> {
+        let mut i = [0usize; 3];
+        for a in 0..3 {
             let c = (p[a] - self.origin[a]) / self.cell;
-            c >= 0.0 && c < self.n[a] as f64
-        });
-        if !inside {
-            return None;
+            if c < 0.0 || c >= self.n[a] as f64 {
+                return None;
+            }
+            i[a] = c as usize;
         }
+        Some(i)
+    }
+
+    /// The class of the first of the tubes `ids` that holds `p`.
+    fn first_holding(&self, ids: &[u32], p: [f64; 3]) -> Option<Anatomy> {
         ids.iter()
             .map(|&k| &self.tubes[k as usize])
             .find(|t| t.contains(p))
@@ -585,19 +598,8 @@ impl TubeIndex {
     /// The class of the first tube holding `p` (TDLUs and ducts before
     /// vessels, as they were pushed), if any.
     fn at(&self, p: [f64; 3]) -> Option<Anatomy> {
-        let mut i = [0usize; 3];
-        for a in 0..3 {
-            let c = (p[a] - self.origin[a]) / self.cell;
-            if c < 0.0 || c >= self.n[a] as f64 {
-                return None;
-            }
-            i[a] = c as usize;
-        }
-        let list = &self.cells[(i[2] * self.n[1] + i[1]) * self.n[0] + i[0]];
-        list.iter()
-            .map(|&k| &self.tubes[k as usize])
-            .find(|t| t.contains(p))
-            .map(|t| t.kind)
+        let i = self.cell_of(p)?;
+        self.first_holding(&self.cells[(i[2] * self.n[1] + i[1]) * self.n[0] + i[0]], p)
     }
 }
 
@@ -919,22 +921,34 @@ pub fn generate_anatomical(spec: &AnatomicalSpec) -> Result<LabelVolume, Phantom
     // The class and glandular score of voxel `(l, v, d)`'s centre sample,
     // given its row's extents and its gap to the nearest compartment
     // boundary (the fine samples of pass 2 are classified the same way).
-    let centre_sample = |l: usize,
-                         v: usize,
-                         d: usize,
-                         [x_out, x_in, x_nip]: [f64; 3],
-                         gap: f32|
-     -> (Anatomy, f32) {
+    // The class of a fine sample at |x| = `ax` on a row with these extents
+    // if it lies outside the interior: nipple, air or skin.
+    let outside = |ax: f64, [x_out, x_in, x_nip]: [f64; 3]| {
+        let class = if ax <= x_nip {
+            Anatomy::Nipple
+        } else if ax > x_out {
+            Anatomy::Air
+        } else {
+            Anatomy::Skin
+        };
+        (ax > x_out || ax > x_in).then_some(class)
+    };
+    // The score's lerps along x at fraction `fx` of voxel `(l, v, d)` (the
+    // four edges along x of its corner lattice), then across z and y.
+    let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
+    let along_x = |l: usize, v: usize, d: usize, fx: f32| {
+        [
+            lerp(lat(l, v, d), lat(l + 1, v, d), fx),
+            lerp(lat(l, v + 1, d), lat(l + 1, v + 1, d), fx),
+            lerp(lat(l, v, d + 1), lat(l + 1, v, d + 1), fx),
+            lerp(lat(l, v + 1, d + 1), lat(l + 1, v + 1, d + 1), fx),
+        ]
+    };
+    let across =
+        |c: [f32; 4], fz: f32, fy: f32| lerp(lerp(c[0], c[1], fz), lerp(c[2], c[3], fz), fy);
+    let centre_sample = |l: usize, v: usize, d: usize, ext: [f64; 3], gap: f32| -> (Anatomy, f32) {
         let (x, y, z) = (at(l, mid) - half_w, at(d, mid), at(v, mid));
-        let ax = x.abs();
-        if ax > x_out || ax > x_in {
-            let class = if ax <= x_nip {
-                Anatomy::Nipple
-            } else if ax > x_out {
-                Anatomy::Air
-            } else {
-                Anatomy::Skin
-            };
+        if let Some(class) = outside(x.abs(), ext) {
             return (class, 0.0);
         }
         if let Some(k) = index.at([x, y, z]) {
@@ -944,14 +958,7 @@ pub fn generate_anatomical(spec: &AnatomicalSpec) -> Result<LabelVolume, Phantom
             return (Anatomy::Ligament, 0.0);
         }
         let fm = frac(mid);
-        let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
-        let c = |j: usize, k: usize| lerp(lat(l, j, k), lat(l + 1, j, k), fm);
-        let sc = lerp(
-            lerp(c(v, d), c(v + 1, d), fm),
-            lerp(c(v, d + 1), c(v + 1, d + 1), fm),
-            fm,
-        );
-        (Anatomy::Adipose, sc)
+        (Anatomy::Adipose, across(along_x(l, v, d, fm), fm, fm))
     };
     // The compartment seeds around the line of voxel centres at height `v`
     // and depth `d`; `.candidates(at(l, mid), reach / 2.0)` for voxel `l`.
@@ -1142,17 +1149,7 @@ pub fn generate_anatomical(spec: &AnatomicalSpec) -> Result<LabelVolume, Phantom
                         }
                     }
                     for (sx, c) in cx.iter_mut().enumerate() {
-                        let fx = fxs[sx];
-                        let lerp = |a: f32, b: f32| a + (b - a) * fx;
-                        *c = (
-                            [
-                                lerp(lat(l, v, d), lat(l + 1, v, d)),
-                                lerp(lat(l, v + 1, d), lat(l + 1, v + 1, d)),
-                                lerp(lat(l, v, d + 1), lat(l + 1, v, d + 1)),
-                                lerp(lat(l, v + 1, d + 1), lat(l + 1, v + 1, d + 1)),
-                            ],
-                            at(l, sx) - half_w,
-                        );
+                        *c = (along_x(l, v, d, fxs[sx]), at(l, sx) - half_w);
                     }
                     for sy in 0..sub {
                         let y = at(d, sy);
@@ -1160,17 +1157,10 @@ pub fn generate_anatomical(spec: &AnatomicalSpec) -> Result<LabelVolume, Phantom
                         for sz in 0..sub {
                             let z = at(v, sz);
                             let fz = fxs[sz];
-                            let [x_out, x_in, x_nip] = ext[sy * sub + sz];
+                            let e = ext[sy * sub + sz];
                             for (sx, &(c, x)) in cx.iter().enumerate() {
-                                let ax = x.abs();
-                                let class = if ax > x_out || ax > x_in {
-                                    if ax <= x_nip {
-                                        Anatomy::Nipple
-                                    } else if ax > x_out {
-                                        Anatomy::Air
-                                    } else {
-                                        Anatomy::Skin
-                                    }
+                                let class = if let Some(k) = outside(x.abs(), e) {
+                                    k
                                 } else if let Some(k) = index.at_among(&tubes, [x, y, z]) {
                                     k
                                 } else if lig[octant(sx) | octant(sy) << 1 | octant(sz) << 2]
@@ -1184,9 +1174,7 @@ pub fn generate_anatomical(spec: &AnatomicalSpec) -> Result<LabelVolume, Phantom
                                     Anatomy::Adipose
                                 };
                                 let label = if class == Anatomy::Adipose {
-                                    let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
-                                    let sc = lerp(lerp(c[0], c[1], fz), lerp(c[2], c[3], fz), fy);
-                                    tissue_of(class, sc)
+                                    tissue_of(class, across(c, fz, fy))
                                 } else {
                                     tissue_of(class, 0.0)
                                 };

@@ -277,24 +277,17 @@ impl Seeds {
 
     /// Gap `d2 - d1` at `p` among the candidates only.
     pub(crate) fn gap_among(&self, c: &Candidates, p: [f64; 3]) -> f32 {
-        let (mut d1, mut d2) = (f64::MAX, f64::MAX);
-        for &id in &c.ids[..c.n] {
+        let (d1, d2) = smallest_two(c.ids[..c.n].iter().map(|&id| {
             let s = self.pos[id as usize];
-            let d = (s[0] - p[0]).powi(2) + (s[1] - p[1]).powi(2) + (s[2] - p[2]).powi(2);
-            if d < d1 {
-                d2 = d1;
-                d1 = d;
-            } else if d < d2 {
-                d2 = d;
-            }
-        }
+            (s[0] - p[0]).powi(2) + (s[1] - p[1]).powi(2) + (s[2] - p[2]).powi(2)
+        }));
         (d2.sqrt() - d1.sqrt()) as f32
     }
 
     /// The cell (with a one-cell margin) holding coordinate `v` on an axis
     /// of `n` cells.
     fn cell(&self, v: f64, n: usize) -> isize {
-        ((v / self.cell_mm).floor() as isize + 1).clamp(1, n as isize - 2)
+        cell_index(v, self.cell_mm, n)
     }
 
     /// The seeds of the 27 cells around `p` with their squared distances,
@@ -358,9 +351,30 @@ impl Seeds {
     }
 }
 
+/// The cell (with a one-cell margin) of coordinate `v` on an axis of `n`
+/// cells of `cell_mm`: [`Seeds`]' and [`SeedRow`]'s one rule.
+fn cell_index(v: f64, cell_mm: f64, n: usize) -> isize {
+    ((v / cell_mm).floor() as isize + 1).clamp(1, n as isize - 2)
+}
+
+/// The smallest and second smallest of `ds` (`f64::MAX` where there are
+/// fewer), ties kept in order.
+fn smallest_two(ds: impl Iterator<Item = f64>) -> (f64, f64) {
+    let (mut d1, mut d2) = (f64::MAX, f64::MAX);
+    for d in ds {
+        if d < d1 {
+            d2 = d1;
+            d1 = d;
+        } else if d < d2 {
+            d2 = d;
+        }
+    }
+    (d1, d2)
+}
+
 /// [`Seeds::nearest`]'s choice among the neighbours, in their order.
 /// (Written without branches: `d2` becomes `min(d2, max(d1, d))`, which is
-/// what the branches of [`Seeds::gap_among`] give, ties included.)
+/// what the branches of [`smallest_two`] give, ties included.)
 fn nearest_of(all: &[(f64, u32)]) -> (usize, f32) {
     let (mut d1, mut d2, mut best) = (f64::MAX, f64::MAX, 0u32);
     for &(d, id) in all {
@@ -373,15 +387,7 @@ fn nearest_of(all: &[(f64, u32)]) -> (usize, f32) {
 
 /// [`Seeds::candidates`] among the neighbours.
 fn candidates_of(all: &[(f64, u32)], r: f64) -> Candidates {
-    let (mut d1, mut d2) = (f64::MAX, f64::MAX);
-    for &(d, _) in all {
-        if d < d1 {
-            d2 = d1;
-            d1 = d;
-        } else if d < d2 {
-            d2 = d;
-        }
-    }
+    let (d1, d2) = smallest_two(all.iter().map(|&(d, _)| d));
     let (d1, d2) = (d1.sqrt(), d2.sqrt());
     let limit = (d2 + 2.0 * r).powi(2);
     let mut c = Candidates {
@@ -410,8 +416,7 @@ impl SeedRow {
     /// The 27 neighbours of `(x, p1, p2)` in [`Seeds::neighbours`]'s order
     /// and with its distances.
     fn neighbours(&self, x: f64) -> [(f64, u32); 27] {
-        let n = self.cols.len();
-        let ci = ((x / self.cell_mm).floor() as isize + 1).clamp(1, n as isize - 2) as usize;
+        let ci = self.cell_of(x);
         let mut all = [(0f64, 0u32); 27];
         for m in 0..9 {
             for (o, i) in (ci - 1..=ci + 1).enumerate() {
@@ -431,8 +436,7 @@ impl SeedRow {
 
     /// The lateral cell of `x` (with the one-cell margin).
     fn cell_of(&self, x: f64) -> usize {
-        let n = self.cols.len();
-        ((x / self.cell_mm).floor() as isize + 1).clamp(1, n as isize - 2) as usize
+        cell_index(x, self.cell_mm, self.cols.len()) as usize
     }
 
     /// [`SeedRow::nearest`] at each of `xs` (ascending), into `out`. The
