@@ -243,6 +243,40 @@ fn default_serial() -> String {
     "UNSET".into()
 }
 
+/// The status page (`firmware/src/status_page.rs`).
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct StatusPageConfig {
+    /// `host:port` to serve the read-only page on, or `"off"`. Default
+    /// [`StatusPageConfig::DEFAULT_ADDRESS`] (loopback).
+    #[serde(default = "default_status_address")]
+    pub address: String,
+    /// Serve on an address other than loopback. The page has no
+    /// authentication (it shows no patient identifier and has no write
+    /// action), so this is a decision for the site's network, taken in the
+    /// configuration.
+    #[serde(default)]
+    pub allow_non_loopback: bool,
+}
+
+impl StatusPageConfig {
+    /// The default address: loopback, port 8090.
+    pub const DEFAULT_ADDRESS: &'static str = "127.0.0.1:8090";
+}
+
+impl Default for StatusPageConfig {
+    fn default() -> Self {
+        Self {
+            address: Self::DEFAULT_ADDRESS.into(),
+            allow_non_loopback: false,
+        }
+    }
+}
+
+fn default_status_address() -> String {
+    StatusPageConfig::DEFAULT_ADDRESS.into()
+}
+
 /// The whole file.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -257,6 +291,9 @@ pub struct Config {
     pub paths: PathsConfig,
     /// Reports.
     pub report: ReportConfig,
+    /// The status page (default: served on loopback).
+    #[serde(default)]
+    pub status_page: StatusPageConfig,
 }
 
 /// The dotted key (`recon.engine`) of the value at byte `at` of a TOML
@@ -322,12 +359,43 @@ impl Config {
         Ok(c)
     }
 
+    /// The status page's address, `None` when `status_page.address = "off"`.
+    /// Refuses an unparsable address, and one that is not loopback unless
+    /// `status_page.allow_non_loopback` is set.
+    pub fn status_page_address(&self, path: &Path) -> Result<Option<SocketAddr>, ConfigError> {
+        let sp = &self.status_page;
+        if sp.address == "off" {
+            return Ok(None);
+        }
+        let bad = |reason: String| ConfigError::Invalid {
+            path: path.to_path_buf(),
+            key: "status_page.address",
+            reason,
+        };
+        let addr: SocketAddr = sp.address.parse().map_err(|e| {
+            bad(format!(
+                "{:?}: {e} (an IP address and a port, e.g. {}, or \"off\")",
+                sp.address,
+                StatusPageConfig::DEFAULT_ADDRESS
+            ))
+        })?;
+        if !addr.ip().is_loopback() && !sp.allow_non_loopback {
+            return Err(bad(format!(
+                "{:?} is not a loopback address, and the page has no authentication: \
+                 set status_page.allow_non_loopback = true to serve it there",
+                sp.address
+            )));
+        }
+        Ok(Some(addr))
+    }
+
     fn validate(&self, path: &Path) -> Result<(), ConfigError> {
         let bad = |key: &'static str, reason: String| ConfigError::Invalid {
             path: path.to_path_buf(),
             key,
             reason,
         };
+        self.status_page_address(path)?;
         match self.frames.transport {
             FrameTransport::Tcp => {
                 let a = self.frames.address.as_deref().ok_or_else(|| {
@@ -572,6 +640,56 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("recon.engine") && e.contains("warp"), "{e}");
+    }
+
+    /// The status page: loopback by default, `off` turns it off, and an
+    /// address other than loopback is refused unless the configuration
+    /// allows it explicitly.
+    #[test]
+    fn status_page_is_loopback_unless_allowed() {
+        let path = Path::new("x.toml");
+        let c = example(|t| t).unwrap();
+        assert_eq!(
+            c.status_page_address(path).unwrap(),
+            Some("127.0.0.1:8090".parse().unwrap())
+        );
+        let c = example(|t| {
+            let i = t.find("[status_page]").unwrap();
+            t[..i].to_string()
+        })
+        .unwrap();
+        assert_eq!(
+            c.status_page,
+            StatusPageConfig::default(),
+            "section optional"
+        );
+        let c =
+            example(|t| t.replace("address = \"127.0.0.1:8090\"", "address = \"off\"")).unwrap();
+        assert_eq!(c.status_page_address(path).unwrap(), None);
+        for public in ["0.0.0.0:8090", "192.168.10.5:8090", "[::]:8090"] {
+            let e = example(|t| t.replace("127.0.0.1:8090", public))
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("`status_page.address`")
+                    && e.contains(public)
+                    && e.contains("allow_non_loopback"),
+                "{public}: {e}"
+            );
+            let c = example(|t| {
+                t.replace("127.0.0.1:8090", public)
+                    .replace("allow_non_loopback = false", "allow_non_loopback = true")
+            })
+            .unwrap();
+            assert!(c.status_page_address(path).unwrap().is_some());
+        }
+        let e = example(|t| t.replace("127.0.0.1:8090", "localhost"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("`status_page.address`") && e.contains("localhost"),
+            "{e}"
+        );
     }
 
     /// Transport, reconstructor and precision are typed: a misspelt value is

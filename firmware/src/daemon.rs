@@ -20,67 +20,18 @@
 use crate::config::{Config, FrameTransport, ModbusTransport, Reconstructor};
 use crate::link::{data_fault, receive, receive_from, to_acquisition, LinkError, LinkOptions};
 use crate::modbus::{read_registers, ModbusLink};
+use crate::status_page::{StateReader, StatusServer, PICTURE_FILE};
 use dbt_dicom::{Equipment, UidSource};
 use dbt_geometry::Geometry;
 use dbt_pipeline::acquisition::Acquisition;
 use dbt_pipeline::{process, reports, PipelineOptions};
+use dbt_status::{AcquisitionRecord, FaultRecord, Status};
 use dbt_store::acquisition::{read_acquisition, write_acquisition};
-use serde::Serialize;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
-
-/// Faults kept in the status file.
-const MAX_FAULTS: usize = 50;
-
-/// One reported fault.
-#[derive(Debug, Clone, Serialize)]
-pub struct FaultRecord {
-    /// Unix time, s.
-    pub at_unix: u64,
-    /// Spool entry, if one exists.
-    pub acquisition: Option<String>,
-    /// `link`, `modbus`, `thickness`, `input`, `implausible`, `data`,
-    /// `processing`, `delivery`, `spool`.
-    pub kind: String,
-    /// What happened.
-    pub message: String,
-}
-
-/// The status file's content.
-#[derive(Debug, Clone, Serialize)]
-pub struct Status {
-    /// Format tag.
-    pub format: &'static str,
-    /// Daemon version.
-    pub version: &'static str,
-    /// Process id.
-    pub pid: u32,
-    /// Start time, unix s.
-    pub started_unix: u64,
-    /// Last update, unix s.
-    pub updated_unix: u64,
-    /// `starting`, `recovering`, `waiting`, `receiving`, `processing`, `stopping`, `stopped`.
-    pub state: String,
-    /// Entry being worked on.
-    pub current: Option<String>,
-    /// Reconstructor in use.
-    pub reconstructor: String,
-    /// Acquisitions reported since start.
-    pub processed: u64,
-    /// Entries recovered from the spool at start.
-    pub recovered: u64,
-    /// Spool entries waiting.
-    pub incoming: usize,
-    /// The last acquisitions' results (most recent last, up to 10).
-    pub recent: Vec<serde_json::Value>,
-    /// The last faults (most recent last).
-    pub faults: Vec<FaultRecord>,
-    /// Faults since start, by kind (the list above keeps the last 50).
-    pub fault_counts: std::collections::BTreeMap<String, u64>,
-}
 
 /// Errors that stop the daemon (everything else is a fault record).
 #[derive(Debug, thiserror::Error)]
@@ -242,6 +193,8 @@ pub struct Daemon {
     unreachable_logged: Option<Instant>,
     /// When the outbox was last flushed while waiting.
     last_flush: Option<Instant>,
+    /// The status page's server, if it serves (stops with the daemon).
+    _status_page: Option<StatusServer>,
 }
 
 /// Why an acquisition did not reach the spool: a fault of `kind` (`link`:
@@ -297,21 +250,34 @@ impl Daemon {
         if let Some(d) = cfg.paths.status.parent() {
             std::fs::create_dir_all(d).map_err(io(d))?;
         }
-        let status = Status {
-            format: "dbtor-status/1",
-            version: env!("CARGO_PKG_VERSION"),
-            pid: std::process::id(),
-            started_unix: now_unix(),
-            updated_unix: now_unix(),
-            state: "starting".into(),
-            current: None,
+        let mut status = Status::starting(
+            env!("CARGO_PKG_VERSION"),
+            std::process::id(),
+            now_unix(),
             reconstructor,
-            processed: 0,
-            recovered: 0,
-            incoming: 0,
-            recent: vec![],
-            fault_counts: Default::default(),
-            faults: vec![],
+        );
+        // The status page: a bind failure is a fault, not a reason to stop
+        // reporting.
+        let mut page_fault = None;
+        let status_page = match cfg.status_page_address(&config_path)? {
+            None => None,
+            Some(addr) => {
+                let reader =
+                    StateReader::new(cfg.paths.status.clone(), Some(cfg.paths.spool.clone()));
+                match StatusServer::start(addr, reader, Arc::clone(&stop)) {
+                    Ok(srv) => {
+                        tracing::info!(address = %srv.addr(), "status page served");
+                        status.status_page = Some(format!("http://{}/", srv.addr()));
+                        Some(srv)
+                    }
+                    Err(e) => {
+                        page_fault = Some(format!(
+                            "status_page.address {addr}: cannot serve the status page: {e}"
+                        ));
+                        None
+                    }
+                }
+            }
         };
         let mut d = Self {
             cfg,
@@ -323,8 +289,12 @@ impl Daemon {
             unreachable_since: None,
             unreachable_logged: None,
             last_flush: None,
+            _status_page: status_page,
         };
         d.publish("starting", None);
+        if let Some(msg) = page_fault {
+            d.fault(None, "status_page", msg);
+        }
         Ok(d)
     }
 
@@ -346,20 +316,12 @@ impl Daemon {
 
     fn fault(&mut self, acquisition: Option<&str>, kind: &str, message: String) {
         tracing::error!(acquisition, kind, %message, "fault");
-        *self
-            .status
-            .fault_counts
-            .entry(kind.to_string())
-            .or_default() += 1;
-        self.status.faults.push(FaultRecord {
+        self.status.push_fault(FaultRecord {
             at_unix: now_unix(),
             acquisition: acquisition.map(String::from),
             kind: kind.into(),
             message,
         });
-        if self.status.faults.len() > MAX_FAULTS {
-            self.status.faults.remove(0);
-        }
         let state = self.status.state.clone();
         let current = self.status.current.clone();
         self.publish(&state, current.as_deref());
@@ -426,7 +388,7 @@ impl Daemon {
 
     /// Faults recorded since start.
     pub fn fault_count(&self) -> u64 {
-        self.status.fault_counts.values().sum()
+        self.status.fault_total()
     }
 
     /// Run until SIGTERM (the stop flag): recover the spool, then receive and
@@ -720,7 +682,28 @@ impl Daemon {
             .next()
             .and_then(|s| s.parse().ok())
             .unwrap_or(1);
-        let delivered = (|| -> Result<serde_json::Value, String> {
+        // The quick-look picture for the status page, kept with the entry.
+        let caption = format!(
+            "acquisition {}: {} mm, {}",
+            dbt_status::public_id(id),
+            acq.header.thickness_mm,
+            res.reconstructor
+        );
+        match dbt_status::picture::quicklook(
+            &res.mu,
+            &res.classification.labels,
+            res.dims,
+            res.voxel_mm,
+            &caption,
+        ) {
+            Ok(svg) => {
+                if let Err(e) = write_durable(&dir.join(PICTURE_FILE), svg.as_bytes()) {
+                    tracing::warn!(%e, "cannot keep the quick-look picture");
+                }
+            }
+            Err(e) => tracing::warn!(%e, "no quick-look picture"),
+        }
+        let delivered = (|| -> Result<AcquisitionRecord, String> {
             let mut uids =
                 UidSource::new(&self.cfg.report.uid_root, seed).map_err(|e| e.to_string())?;
             let equipment = Equipment {
@@ -746,27 +729,34 @@ impl Daemon {
                         .map(|(p, e)| format!("{}: {e}", p.display())),
                 );
             }
-            Ok(serde_json::json!({
-                "acquisition": id,
-                "patient_id": acq.header.patient.id,
-                "reconstructor": res.reconstructor,
-                "glandularity_labels": res.density.glandularity_labels,
-                "glandularity_partial_volume": res.density.glandularity_partial_volume,
-                "glandularity_reported": res.glandularity,
-                "calibrated": res.calibrated,
-                "mgd_mgy": res.mgd_mgy,
-                "model_mgd_mgy": res.model_mgd_mgy,
-                "seconds": t0.elapsed().as_secs_f64(),
-                "finished_unix": now_unix(),
-                "reports": [format!("{id}-dose-sr.dcm"), format!("{id}-density-sr.dcm")],
-                "pacs_waiting": waiting,
+            // The density SR's volumetric fraction and composition category
+            // (dbt_pipeline::reports builds the SR from the same values).
+            let vf =
+                res.density.fibroglandular_partial_volume_cm3 / res.density.breast_cm3.max(1.0);
+            Ok(AcquisitionRecord {
+                acquisition: id.to_string(),
+                patient_id: acq.header.patient.id.clone(),
+                reconstructor: res.reconstructor.clone(),
+                thickness_mm: Some(acq.header.thickness_mm),
+                glandularity_labels: res.density.glandularity_labels,
+                glandularity_partial_volume: res.density.glandularity_partial_volume,
+                glandularity_reported: res.glandularity,
+                calibrated: res.calibrated,
+                volumetric_fraction: Some(vf),
+                composition: Some(dbt_dicom::composition_category(vf).0.to_string()),
+                mgd_mgy: res.mgd_mgy,
+                model_mgd_mgy: res.model_mgd_mgy,
+                seconds: t0.elapsed().as_secs_f64(),
+                finished_unix: now_unix(),
+                reports: vec![format!("{id}-dose-sr.dcm"), format!("{id}-density-sr.dcm")],
+                pacs_waiting: waiting,
                 // Defective counts corrected before the reconstruction.
-                "flags": res.flags,
-            }))
+                flags: res.flags.clone(),
+            })
         })();
         match delivered {
             Ok(summary) => {
-                if let Some(w) = summary["pacs_waiting"].as_array().filter(|w| !w.is_empty()) {
+                if let Some(w) = Some(&summary.pacs_waiting).filter(|w| !w.is_empty()) {
                     self.fault(
                         Some(id),
                         "delivery",
@@ -779,12 +769,13 @@ impl Daemon {
                     g = res.glandularity,
                     "reported"
                 );
-                self.move_entry(id, "done", "result.json", &summary);
-                self.status.processed += 1;
-                self.status.recent.push(summary);
-                if self.status.recent.len() > 10 {
-                    self.status.recent.remove(0);
+                match serde_json::to_value(&summary) {
+                    Ok(note) => self.move_entry(id, "done", "result.json", &note),
+                    Err(e) => {
+                        self.fault(Some(id), "spool", format!("cannot encode the result: {e}"))
+                    }
                 }
+                self.status.push_reported(summary);
             }
             Err(msg) => {
                 // Left in incoming/: retried at the next start.

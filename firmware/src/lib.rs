@@ -1,5 +1,6 @@
 //! Firmware library: the adapters and services of the gantry PC (the frame
-//! link, Modbus, the daemon with its spool and status, the configuration,
+//! link, Modbus, the daemon with its spool and status, the status page's
+//! HTTP server, the configuration,
 //! the projector self-test). The processing itself is `dbt_pipeline` (pure);
 //! the model folder's sign-off and calibration are `dbt_model`.
 
@@ -9,3 +10,4 @@ pub mod daemon;
 pub mod link;
 pub mod modbus;
 pub mod selftest;
+pub mod status_page;

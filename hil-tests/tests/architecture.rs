@@ -35,6 +35,7 @@ const PURE: &[&str] = &[
     "dbt-pipeline",
     "dbt-conv",
     "dbt-isa",
+    "dbt-status",
 ];
 
 /// Workspace crates at the edges: adapters and binaries.
@@ -63,6 +64,7 @@ const EDGE_CRATES: &[&str] = &[
     "clap",
     "anyhow",
     "tracing-subscriber",
+    "tiny_http",
 ];
 
 /// Package name by package id, and each package's normal dependencies (ids).

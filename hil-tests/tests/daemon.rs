@@ -117,6 +117,9 @@ spool = "spool"
 output = "output"
 status = "run/status.json"
 
+[status_page]
+address = "127.0.0.1:0"
+
 [report]
 uid_root = "1.2.826.0.1.3680043.10.543.1"
 tube_output_mgy_per_mas = 0.11

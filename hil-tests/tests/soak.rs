@@ -236,6 +236,9 @@ spool = "spool"
 output = "output"
 status = "run/status.json"
 
+[status_page]
+address = "127.0.0.1:0"
+
 [report]
 uid_root = "1.2.826.0.1.3680043.10.543.1"
 pacs = "ORTHANC@127.0.0.1:{dicom}"

@@ -267,92 +267,113 @@ fn run_config(args: ConfigArgs) -> Result<bool> {
     Ok(true)
 }
 
-/// `dbtor-diag status`: `Ok(false)` when a check failed.
+/// `dbtor-diag status`: the state the status page shows, read the same way
+/// (`dbtor_firmware::status_page::StateReader`): the status file and, with
+/// `--config`, the spool's history. `Ok(false)` when a check failed.
 fn run_status(args: StatusArgs) -> Result<bool> {
     let StatusArgs {
         config,
         status,
         json,
     } = args;
-    let path = match (status, config) {
-        (Some(s), _) => s,
-        (None, Some(c)) => dbtor_firmware::config::Config::load(&c)?.paths.status,
+    let (path, spool, page) = match (status, config) {
+        (Some(s), _) => (s, None, None),
+        (None, Some(c)) => {
+            let cfg = dbtor_firmware::config::Config::load(&c)?;
+            let page = cfg.status_page_address(&c)?;
+            (cfg.paths.status, Some(cfg.paths.spool), page)
+        }
         _ => bail!("status needs --config FILE or --status FILE"),
     };
-    let bytes = std::fs::read(&path).with_context(|| {
-        format!(
-            "reading the status file {} (is the daemon running?)",
-            path.display()
-        )
-    })?;
-    let st: serde_json::Value = serde_json::from_slice(&bytes)
-        .with_context(|| format!("{} is not a status file", path.display()))?;
-    let pid = st["pid"].as_u64().unwrap_or(0);
-    let state = st["state"].as_str().unwrap_or("?");
-    let alive = pid > 0 && std::path::Path::new(&format!("/proc/{pid}")).exists();
-    let running = if state == "stopped" {
+    let mut reader = dbtor_firmware::status_page::StateReader::new(path.clone(), spool);
+    let snap = reader.read()?;
+    let st = &snap.status;
+    let alive = st.pid > 0 && std::path::Path::new(&format!("/proc/{}", st.pid)).exists();
+    let healthy = st.healthy();
+    if json {
+        let mut v = dbtor_firmware::status_page::snapshot_json(&snap);
+        v["status_file"] = path.display().to_string().into();
+        v["running"] = (alive && st.state != "stopped").into();
+        println!("{v}");
+        return Ok(healthy);
+    }
+    let running = if st.state == "stopped" {
         "stopped".to_string()
     } else if alive {
-        format!("running (pid {pid})")
+        format!("running (pid {})", st.pid)
     } else {
-        format!("NOT RUNNING (pid {pid} gone; last state {state})")
+        format!("NOT RUNNING (pid {} gone; last state {})", st.pid, st.state)
     };
-    let faults = st["faults"].as_array().cloned().unwrap_or_default();
-    // Healthy: no fault newer than the last reported acquisition.
-    let last_ok_at = st["recent"]
-        .as_array()
-        .and_then(|r| r.last())
-        .and_then(|r| r["finished_unix"].as_u64());
-    let last_fault_at = faults.last().and_then(|f| f["at_unix"].as_u64());
-    let healthy = match (last_fault_at, last_ok_at) {
-        (None, _) => true,
-        (Some(f), Some(ok)) => ok > f,
-        (Some(_), None) => false,
-    };
-    if json {
-        println!(
-            "{}",
-            serde_json::json!({"status_file": path.display().to_string(), "running": alive && state != "stopped", "healthy": healthy, "status": st})
-        );
+    println!("daemon        {running}");
+    println!(
+        "health        {}",
+        if healthy {
+            "healthy"
+        } else {
+            "fault since the last report"
+        }
+    );
+    println!(
+        "state         {}{}",
+        st.state,
+        st.current
+            .as_deref()
+            .map(|c| format!(" ({c})"))
+            .unwrap_or_default()
+    );
+    println!("reconstructor {}", st.reconstructor);
+    println!(
+        "processed     {} (recovered from spool at start: {}; waiting in spool: {})",
+        st.processed, st.recovered, st.incoming
+    );
+    match (&st.status_page, page) {
+        (Some(url), _) => println!("status page   {url}"),
+        (None, Some(a)) => println!("status page   configured on {a}, not served (see the faults)"),
+        (None, None) => println!("status page   off"),
+    }
+    let recent = if reader.spool().is_some() {
+        &snap.history
     } else {
-        println!("daemon        {running}");
+        &st.recent
+    };
+    if reader.spool().is_some() {
         println!(
-            "state         {state}{}",
-            st["current"]
-                .as_str()
-                .map(|c| format!(" ({c})"))
-                .unwrap_or_default()
-        );
-        println!(
-            "reconstructor {}",
-            st["reconstructor"].as_str().unwrap_or("?")
-        );
-        println!(
-            "processed     {} (recovered from spool at start: {}; waiting in spool: {})",
-            st["processed"], st["recovered"], st["incoming"]
-        );
-        if let Some(r) = st["recent"].as_array() {
-            println!("recent acquisitions:");
-            for a in r.iter().rev().take(10) {
-                println!(
-                    "  {:<40} G {:.3} (labels) MGD {:.3} mGy  {:.1} s",
-                    a["acquisition"].as_str().unwrap_or("?"),
-                    a["glandularity_labels"].as_f64().unwrap_or(f64::NAN),
-                    a["mgd_mgy"].as_f64().unwrap_or(f64::NAN),
-                    a["seconds"].as_f64().unwrap_or(f64::NAN)
-                );
+            "history       {} reported acquisitions in the spool{}",
+            snap.history.len(),
+            if snap.unreadable.is_empty() {
+                String::new()
+            } else {
+                format!(" ({} unreadable)", snap.unreadable.len())
             }
-        }
-        println!("faults ({}):", faults.len());
-        for f in faults.iter().rev().take(10) {
-            println!(
-                "  [{}] {:<10} {} {}",
-                f["at_unix"],
-                f["kind"].as_str().unwrap_or("?"),
-                f["acquisition"].as_str().unwrap_or("-"),
-                f["message"].as_str().unwrap_or("")
-            );
-        }
+        );
+    }
+    println!("recent acquisitions:");
+    for a in recent.iter().rev().take(10) {
+        println!(
+            "  {:<40} {:>5} mm  G {:>5} %  {}  MGD {} mGy (model breast {})  {:.1} s",
+            a.acquisition,
+            a.thickness_mm
+                .map(|t| format!("{t:.1}"))
+                .unwrap_or_else(|| "-".into()),
+            dbt_status::page::fmt_glandularity(a.glandularity_reported),
+            a.composition.as_deref().unwrap_or("-"),
+            dbt_status::page::fmt_mgd(a.mgd_mgy),
+            dbt_status::page::fmt_mgd(a.model_mgd_mgy),
+            a.seconds
+        );
+    }
+    for u in &snap.unreadable {
+        println!("  unreadable {}: {}", u.acquisition, u.reason);
+    }
+    println!("faults ({}):", st.faults.len());
+    for f in st.faults.iter().rev().take(10) {
+        println!(
+            "  [{}] {:<10} {} {}",
+            dbt_status::page::utc(f.at_unix),
+            f.kind,
+            f.acquisition.as_deref().unwrap_or("-"),
+            f.message
+        );
     }
     Ok(healthy)
 }
