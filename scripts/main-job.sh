@@ -26,7 +26,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=out/main-job
 cargo build --release --locked -q -p dbtor-firmware -p host-sim
-./target/release/dbtor-diag selftest
+./target/release/dbtor-diag selftest --binning 1
 rm -rf "$OUT"
 mkdir -p "$OUT"
 # The shipped configuration is the one place that names the model and the

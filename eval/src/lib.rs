@@ -255,6 +255,16 @@ pub fn evaluate_baselines(
     opts: &BaselineOptions,
     models: &[(String, Learned)],
 ) -> anyhow::Result<BaselineReport> {
+    evaluate_baselines_observed(opts, models, &mut |_, _| {})
+}
+
+/// As [`evaluate_baselines`], calling `on_slice(done, total)` after each
+/// test slice (every noise level and method).
+pub fn evaluate_baselines_observed(
+    opts: &BaselineOptions,
+    models: &[(String, Learned)],
+    on_slice: &mut dyn FnMut(usize, usize),
+) -> anyhow::Result<BaselineReport> {
     let g = &opts.geometry;
     for (name, m) in models {
         anyhow::ensure!(
@@ -287,7 +297,7 @@ pub fn evaluate_baselines(
     };
     // scores[level][method] = per-slice scores
     let mut scores = vec![vec![Vec::<ImageScores>::new(); methods.len()]; opts.levels.len()];
-    for (ts, s) in &set {
+    for (done, (ts, s)) in set.iter().enumerate() {
         let _span = tracing::info_span!("slice", phantom = ts.phantom, depth = ts.depth).entered();
         let truth = to_per_cm(&s.mu);
         let per_level: Vec<anyhow::Result<Vec<ImageScores>>> = (0..opts.levels.len())
@@ -312,6 +322,7 @@ pub fn evaluate_baselines(
                 scores[k][mi].push(sc);
             }
         }
+        on_slice(done + 1, set.len());
     }
     let mut rows = Vec::new();
     for (mi, method) in methods.iter().enumerate() {

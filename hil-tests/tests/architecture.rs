@@ -48,6 +48,7 @@ const ADAPTERS: &[&str] = &[
     "dbt-eval",
     "dbt-bench",
     "dbt-dose-cli",
+    "dbt-cli",
     "hil-tests",
 ];
 
@@ -65,6 +66,7 @@ const EDGE_CRATES: &[&str] = &[
     "anyhow",
     "tracing-subscriber",
     "tiny_http",
+    "indicatif",
 ];
 
 /// Package name by package id, and each package's normal dependencies (ids).

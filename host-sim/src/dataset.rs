@@ -172,6 +172,37 @@ fn write_phantom(
 
 /// Export a dataset to `dir`; returns its manifest.
 pub fn export(dir: &Path, opts: &ExportOptions) -> Result<Manifest, SimError> {
+    export_observed(dir, opts, &mut |_| {})
+}
+
+/// Where an export stands (for a progress display).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ExportStage {
+    /// Train and validation slices written so far, of those wanted.
+    Slices {
+        /// Written.
+        done: usize,
+        /// Wanted (whole phantoms: the last may overshoot).
+        wanted: usize,
+    },
+    /// Test phantoms written so far.
+    TestPhantoms {
+        /// Written.
+        done: usize,
+        /// Wanted.
+        wanted: usize,
+    },
+    /// The projector's CSR operator for the trainer.
+    Operator,
+}
+
+/// As [`export`], calling `on` after each phantom written and before the
+/// operator.
+pub fn export_observed(
+    dir: &Path,
+    opts: &ExportOptions,
+    on: &mut dyn FnMut(ExportStage),
+) -> Result<Manifest, SimError> {
     if opts.seed == Population::TEST_SEED {
         return Err(SimError::Options(
             "the training seed equals the evaluation test-set seed; choose another".into(),
@@ -261,6 +292,10 @@ pub fn export(dir: &Path, opts: &ExportOptions) -> Result<Manifest, SimError> {
                 "phantom exported"
             );
             write_phantom(&mut w, split, entry, i, &slices)?;
+            on(ExportStage::Slices {
+                done: produced,
+                wanted: opts.slices,
+            });
         }
     }
     for i in 0..opts.test_phantoms as u64 {
@@ -273,8 +308,13 @@ pub fn export(dir: &Path, opts: &ExportOptions) -> Result<Manifest, SimError> {
             mix_seed(Population::TEST_SEED, &[i, 1]),
         )?;
         write_phantom(&mut w, "test", entry, i, &slices)?;
+        on(ExportStage::TestPhantoms {
+            done: i as usize + 1,
+            wanted: opts.test_phantoms,
+        });
     }
     let manifest = w.finish()?;
+    on(ExportStage::Operator);
     // The operator the trainer uses: the same projector, as CSR.
     let (norm, _) = proj.operator_norm(200, 1e-6);
     dbt_store::operator::write_operator(&dir.join("operator"), geom, &proj.to_csr(), norm)?;

@@ -1,11 +1,14 @@
-//! `host-sim`: the hardware stand-in. Today: phantoms and training data; the
-//! gantry servers (Modbus, serial frames) come with issue #8.
+//! `host-sim`: the hardware stand-in: phantoms, recorded acquisitions,
+//! training data, and the gantry's servers (projection stream, Modbus
+//! registers) with fault injection. `main` hands each subcommand to its
+//! `run_<name>` function.
 
 use anyhow::{bail, Context, Result};
-use clap::{Parser, Subcommand};
+use clap::{Args, Parser, Subcommand};
 use dbt_acquisition::NoiseLevel;
+use dbt_cli::{GeometryArgs, Progress};
 use dbt_phantom::{Population, PopulationKind};
-use host_sim::dataset::{export, ExportOptions};
+use host_sim::dataset::{export_observed, ExportOptions, ExportStage};
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -22,139 +25,150 @@ struct Cli {
 #[derive(Subcommand)]
 enum Cmd {
     /// Generate one phantom and write it as raw labels plus a TOML sidecar.
-    Phantom {
-        /// Output sidecar path (`NAME.toml`; the raw goes beside it).
-        #[arg(long)]
-        out: PathBuf,
-        /// Population seed.
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-        /// Index of the phantom in the population.
-        #[arg(long, default_value_t = 0)]
-        index: u64,
-        /// Geometry: `paper`, `paper-tall` (the 80 mm image), `paper-104` (104 mm) or a TOML file.
-        #[arg(long, default_value = "paper")]
-        geometry: String,
-        /// Binning of the geometry (1, 2, 4).
-        #[arg(long, default_value_t = 1)]
-        binning: usize,
-        /// Phantom population: `procedural` (the breasts every model up to
-        /// dbtor-x4t3 was trained on) or `anatomical` (issue #26) or `mixed` (both: index % 3 == 2 procedural).
-        #[arg(long, default_value = "procedural")]
-        population: PopulationKind,
-    },
+    Phantom(PhantomArgs),
     /// Simulate the acquisition of one breast and write it as files
     /// (`dbtor-acquisition/1`: acquisition.json + counts.f32).
-    Acquire {
-        /// Output folder.
-        #[arg(long)]
-        out: PathBuf,
-        /// Phantom of the fixed test set (never trained on).
-        #[arg(long, default_value_t = 0)]
-        index: u64,
-        /// Geometry: `paper`, `paper-tall` (the 80 mm image: breasts up to
-        /// 75 mm), `paper-104` (up to 100 mm) or a TOML file; the test population is drawn for it.
-        #[arg(long, default_value = "paper")]
-        geometry: String,
-        /// Binning of the geometry (phantom voxels = pixels).
-        #[arg(long, default_value_t = 4)]
-        binning: usize,
-        /// Noise level (`noise-free`, `N4`, `N8`, `N12`).
-        #[arg(long, default_value = "N8")]
-        noise: String,
-        /// Phantom population: `procedural` (the breasts every model up to
-        /// dbtor-x4t3 was trained on) or `anatomical` (issue #26) or `mixed` (both: index % 3 == 2 procedural).
-        #[arg(long, default_value = "procedural")]
-        population: PopulationKind,
-    },
+    Acquire(AcquireArgs),
     /// Serve a recorded acquisition as the gantry's projection stream on TCP
     /// (one connection), with optional fault injection.
-    Stream {
-        /// Recorded acquisition folder (from `acquire`).
-        #[arg(long)]
-        acq: PathBuf,
-        /// Address to listen on, e.g. 127.0.0.1:7001.
-        #[arg(long, conflicts_with = "serial")]
-        listen: Option<String>,
-        /// Serial line instead of TCP, e.g. /dev/ttyUSB0 or a pty.
-        #[arg(long)]
-        serial: Option<String>,
-        /// Baud rate of the serial line.
-        #[arg(long, default_value_t = 921_600)]
-        baud: u32,
-        /// Faults: corrupt:SEQ, drop:SEQ, dup:SEQ, reorder:A,B, cut:SEQ, saturate:SEQ, nanflat:SEQ (repeatable).
-        #[arg(long)]
-        fault: Vec<String>,
-    },
+    Stream(StreamArgs),
     /// Serve the gantry controller's Modbus registers on TCP until killed.
-    Modbus {
-        /// Modbus TCP: address to listen on, e.g. 127.0.0.1:1502.
-        #[arg(long)]
-        listen: Option<String>,
-        /// Modbus RTU instead: the serial line, e.g. /dev/ttyS1 or a pty.
-        #[arg(long)]
-        serial: Option<String>,
-        /// Baud rate of the serial line (8N1).
-        #[arg(long, default_value_t = 19200)]
-        baud: u32,
-        /// Compressed thickness, mm.
-        #[arg(long, default_value_t = 45.3)]
-        thickness_mm: f64,
-        /// Acquisition state (idle, compressing, ready, exposing, complete, fault).
-        #[arg(long, default_value = "exposing")]
-        state: String,
-        /// Address of register 0.
-        #[arg(long, default_value_t = 0)]
-        base: u16,
-        /// Fault: `exception` or `silent`.
-        #[arg(long)]
-        fault: Option<String>,
-        /// Fault: after the first read the thickness becomes this (mm), as if
-        /// the compression changed during the sweep.
-        #[arg(long)]
-        thickness_then_mm: Option<f64>,
-    },
+    Modbus(ModbusArgs),
     /// Export a training dataset (see DATASET.md).
-    Dataset {
-        /// Output folder (must not hold a dataset yet).
-        #[arg(long)]
-        out: PathBuf,
-        /// Train + validation slices wanted.
-        #[arg(long, default_value_t = 10_000)]
-        slices: usize,
-        /// Phantoms of the fixed test set to include.
-        #[arg(long, default_value_t = 5)]
-        test_phantoms: usize,
-        /// Population seed of the training phantoms.
-        #[arg(long, default_value_t = 2024)]
-        seed: u64,
-        /// Noise levels, comma separated (`noise-free,N4,N8,N12`).
-        #[arg(long, default_value = "noise-free,N4,N8,N12")]
-        levels: String,
-        /// Geometry: `paper`, `paper-tall` (the 80 mm image), `paper-104` (104 mm) or a TOML file.
-        #[arg(long, default_value = "paper")]
-        geometry: String,
-        /// Binning of the geometry (1, 2, 4).
-        #[arg(long, default_value_t = 4)]
-        binning: usize,
-        /// Phantoms generated at once.
-        #[arg(long, default_value_t = 4)]
-        batch: usize,
-        /// Phantom population: `procedural` (the breasts every model up to
-        /// dbtor-x4t3 was trained on) or `anatomical` (issue #26) or `mixed` (both: index % 3 == 2 procedural).
-        #[arg(long, default_value = "procedural")]
-        population: PopulationKind,
-    },
+    Dataset(DatasetArgs),
     /// Add the FBP of one noise level's sinograms to every split of a dataset
     /// (`fbp-<level>`, the U-Net baseline's input; DATASET.md).
-    Fbp {
-        /// The dataset folder.
-        #[arg(long)]
-        data: PathBuf,
-        /// Noise level whose sinograms are reconstructed.
-        #[arg(long, default_value = "N8")]
-        level: String,
-    },
+    Fbp(FbpArgs),
+}
+
+/// The options of `host-sim phantom`.
+#[derive(Args)]
+struct PhantomArgs {
+    /// Output sidecar path (`NAME.toml`; the raw goes beside it).
+    #[arg(long)]
+    out: PathBuf,
+    /// Population seed.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Index of the phantom in the population.
+    #[arg(long, default_value_t = 0)]
+    index: u64,
+    #[command(flatten)]
+    geometry: GeometryArgs,
+    /// Phantom population: `procedural` (the breasts every model up to
+    /// dbtor-x4t3 was trained on) or `anatomical` (issue #26) or `mixed` (both: index % 3 == 2 procedural).
+    #[arg(long, default_value = "procedural")]
+    population: PopulationKind,
+}
+
+/// The options of `host-sim acquire`.
+#[derive(Args)]
+struct AcquireArgs {
+    /// Output folder.
+    #[arg(long)]
+    out: PathBuf,
+    /// Phantom of the fixed test set (never trained on).
+    #[arg(long, default_value_t = 0)]
+    index: u64,
+    #[command(flatten)]
+    geometry: GeometryArgs,
+    /// Noise level (`noise-free`, `N4`, `N8`, `N12`).
+    #[arg(long, default_value = "N8")]
+    noise: String,
+    /// Phantom population: `procedural` (the breasts every model up to
+    /// dbtor-x4t3 was trained on) or `anatomical` (issue #26) or `mixed` (both: index % 3 == 2 procedural).
+    #[arg(long, default_value = "procedural")]
+    population: PopulationKind,
+}
+
+/// The options of `host-sim stream`.
+#[derive(Args)]
+struct StreamArgs {
+    /// Recorded acquisition folder (from `acquire`).
+    #[arg(long)]
+    acq: PathBuf,
+    /// Address to listen on, e.g. 127.0.0.1:7001.
+    #[arg(long, conflicts_with = "serial")]
+    listen: Option<String>,
+    /// Serial line instead of TCP, e.g. /dev/ttyUSB0 or a pty.
+    #[arg(long)]
+    serial: Option<String>,
+    /// Baud rate of the serial line.
+    #[arg(long, default_value_t = 921_600)]
+    baud: u32,
+    /// Faults: corrupt:SEQ, drop:SEQ, dup:SEQ, reorder:A,B, cut:SEQ, saturate:SEQ, nanflat:SEQ (repeatable).
+    #[arg(long)]
+    fault: Vec<String>,
+}
+
+/// The options of `host-sim modbus`.
+#[derive(Args)]
+struct ModbusArgs {
+    /// Modbus TCP: address to listen on, e.g. 127.0.0.1:1502.
+    #[arg(long)]
+    listen: Option<String>,
+    /// Modbus RTU instead: the serial line, e.g. /dev/ttyS1 or a pty.
+    #[arg(long)]
+    serial: Option<String>,
+    /// Baud rate of the serial line (8N1).
+    #[arg(long, default_value_t = 19200)]
+    baud: u32,
+    /// Compressed thickness, mm.
+    #[arg(long, default_value_t = 45.3)]
+    thickness_mm: f64,
+    /// Acquisition state (idle, compressing, ready, exposing, complete, fault).
+    #[arg(long, default_value = "exposing")]
+    state: String,
+    /// Address of register 0.
+    #[arg(long, default_value_t = 0)]
+    base: u16,
+    /// Fault: `exception` or `silent`.
+    #[arg(long)]
+    fault: Option<String>,
+    /// Fault: after the first read the thickness becomes this (mm), as if
+    /// the compression changed during the sweep.
+    #[arg(long)]
+    thickness_then_mm: Option<f64>,
+}
+
+/// The options of `host-sim dataset`.
+#[derive(Args)]
+struct DatasetArgs {
+    /// Output folder (must not hold a dataset yet).
+    #[arg(long)]
+    out: PathBuf,
+    /// Train + validation slices wanted.
+    #[arg(long, default_value_t = 10_000)]
+    slices: usize,
+    /// Phantoms of the fixed test set to include.
+    #[arg(long, default_value_t = 5)]
+    test_phantoms: usize,
+    /// Population seed of the training phantoms.
+    #[arg(long, default_value_t = 2024)]
+    seed: u64,
+    /// Noise levels, comma separated (`noise-free,N4,N8,N12`).
+    #[arg(long, default_value = "noise-free,N4,N8,N12")]
+    levels: String,
+    #[command(flatten)]
+    geometry: GeometryArgs,
+    /// Phantoms generated at once.
+    #[arg(long, default_value_t = 4)]
+    batch: usize,
+    /// Phantom population: `procedural` (the breasts every model up to
+    /// dbtor-x4t3 was trained on) or `anatomical` (issue #26) or `mixed` (both: index % 3 == 2 procedural).
+    #[arg(long, default_value = "procedural")]
+    population: PopulationKind,
+}
+
+/// The options of `host-sim fbp`.
+#[derive(Args)]
+struct FbpArgs {
+    /// The dataset folder.
+    #[arg(long)]
+    data: PathBuf,
+    /// Noise level whose sinograms are reconstructed.
+    #[arg(long, default_value = "N8")]
+    level: String,
 }
 
 fn main() -> Result<()> {
@@ -162,232 +176,267 @@ fn main() -> Result<()> {
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
         )
-        .with_writer(std::io::stderr)
+        .with_writer(dbt_cli::log_writer)
         .init();
     match Cli::parse().cmd {
-        Cmd::Phantom {
-            out,
-            seed,
-            index,
-            geometry,
-            binning,
-            population,
-        } => {
-            let g = dbt_store::load_geometry(&geometry, binning)?;
-            let vol = population.draw(&g, seed, index).generate()?;
-            dbt_store::save_phantom(&vol, &out)?;
-            println!(
-                "{}: {:?} voxels of {} mm, thickness {:.1} mm, glandularity {:.3}",
-                out.display(),
-                vol.dims(),
-                vol.voxel_mm(),
-                vol.thickness_mm(),
-                vol.glandularity().unwrap_or(0.0)
-            );
-        }
-        Cmd::Acquire {
-            out,
-            index,
-            geometry,
-            binning,
-            noise,
-            population,
-        } => {
-            let g = dbt_store::load_geometry(&geometry, binning)?;
-            let vol = population
-                .draw(&g, Population::TEST_SEED, index)
-                .generate()?;
-            let noise = NoiseLevel::parse(&noise)?;
-            let kvp = dbt_dose::xray::paper_technique(vol.thickness_mm()).0 as f64;
-            let acq = host_sim::simulate_acquisition(
-                &vol,
-                &g,
-                noise,
-                host_sim::mix_seed(Population::TEST_SEED, &[index, 1]),
-                host_sim::Technique::default(),
-                kvp,
-                &format!("TEST{index:03}"),
-                "1.2.826.0.1.3680043.10.543.2",
-            )?;
-            dbt_store::acquisition::write_acquisition(&out, &acq)?;
-            println!(
-                "{}: test phantom {index}, {} slices, thickness {:.1} mm, glandularity {:.3}, {}",
-                out.display(),
-                acq.header.slices,
-                acq.header.thickness_mm,
-                vol.glandularity().unwrap_or(0.0),
-                noise.name()
-            );
-        }
-        Cmd::Stream {
-            acq,
-            listen,
-            serial,
-            baud,
-            fault,
-        } => {
-            let faults = fault
-                .iter()
-                .map(|f| host_sim::stream::Fault::parse(f))
-                .collect::<Result<Vec<_>, _>>()
-                .map_err(anyhow::Error::msg)?;
-            let a = dbt_store::acquisition::read_acquisition(&acq)?;
-            let frames = host_sim::stream::frames_of(&a).map_err(anyhow::Error::msg)?;
-            let resent = match (listen, serial) {
-                (Some(listen), None) => {
-                    let l = std::net::TcpListener::bind(&listen)
-                        .with_context(|| format!("listening on {listen}"))?;
-                    eprintln!("host-sim: streaming {} frames on {listen}", frames.len());
-                    host_sim::stream::serve_one(&l, &frames, &faults)?
-                }
-                (None, Some(path)) => {
-                    let mut port = serialport::new(&path, baud)
-                        .timeout(std::time::Duration::from_millis(200))
-                        .open()
-                        .with_context(|| format!("opening serial line {path}"))?;
-                    eprintln!(
-                        "host-sim: streaming {} frames on {path} at {baud} Bd",
-                        frames.len()
-                    );
-                    host_sim::stream::serve_stream(
-                        &mut port,
-                        &frames,
-                        &faults,
-                        std::time::Duration::from_secs(30),
-                    )?
-                }
-                _ => bail!("give --listen HOST:PORT or --serial PATH"),
-            };
-            println!("streamed {} frames, {resent} retransmitted", frames.len());
-        }
-        Cmd::Modbus {
-            listen,
-            serial,
-            baud,
-            thickness_mm,
-            state,
-            base,
-            fault,
-            thickness_then_mm,
-        } => {
-            use dbt_gantry::registers::{encode, Registers, State};
-            use host_sim::modbus::{serve, GantryService, ModbusFault};
-            let state = match state.as_str() {
-                "idle" => State::Idle,
-                "compressing" => State::Compressing,
-                "ready" => State::Ready,
-                "exposing" => State::Exposing,
-                "complete" => State::Complete,
-                "fault" => State::Fault,
-                other => bail!(
-                    "--state `{other}`: idle, compressing, ready, exposing, complete or fault"
-                ),
-            };
-            let fault = match fault.as_deref() {
-                None => None,
-                Some("exception") => Some(ModbusFault::Exception),
-                Some("silent") => Some(ModbusFault::Silent),
-                Some(other) => bail!("--fault `{other}`: exception or silent"),
-            };
-            let kvp = dbt_dose::xray::paper_technique(thickness_mm).0 as f64;
-            let regs = Registers {
-                version: 1,
-                state,
-                thickness_mm,
-                force_n: 110.0,
-                kvp,
-                mas_per_projection: 2.4,
-                anode_filter: "W/Rh",
-                projections: 25,
-                angles_deg: [-24.0, 24.0],
-                current: 12,
-                laterality: 'L',
-                view: "CC",
-                fault: 0,
-            };
-            let service = GantryService {
-                registers: std::sync::Arc::new(std::sync::Mutex::new(encode(&regs))),
-                base,
-                fault,
-                thickness_then: thickness_then_mm
-                    .map(|t| (t * 10.0).round().clamp(0.0, 65535.0) as u16),
-            };
-            let rt = tokio::runtime::Runtime::new()?;
-            match (listen, serial) {
-                (Some(listen), None) => {
-                    let addr: std::net::SocketAddr = listen
-                        .parse()
-                        .with_context(|| format!("--listen {listen}"))?;
-                    eprintln!("host-sim: Modbus TCP on {addr}");
-                    rt.block_on(serve(addr, service))?;
-                }
-                (None, Some(path)) => {
-                    eprintln!("host-sim: Modbus RTU on {path} at {baud} baud, 8N1");
-                    rt.block_on(host_sim::modbus::serve_rtu(&path, baud, service))
-                        .with_context(|| format!("Modbus RTU on {path}"))?;
-                }
-                _ => bail!("give --listen HOST:PORT (Modbus TCP) or --serial PATH (Modbus RTU)"),
-            }
-        }
-        Cmd::Fbp { data, level } => {
-            let t = Instant::now();
-            for (split, n) in host_sim::dataset::add_fbp(&data, &level)? {
-                println!("{split}: fbp-{level} of {n} slices");
-            }
-            println!("{:.0} s", t.elapsed().as_secs_f64());
-        }
-        Cmd::Dataset {
-            out,
-            slices,
-            test_phantoms,
-            seed,
-            levels,
-            geometry,
-            binning,
-            batch,
-            population,
-        } => {
-            let levels = levels
-                .split(',')
-                .map(NoiseLevel::parse)
-                .collect::<Result<Vec<_>, _>>()?;
-            if slices == 0 {
-                bail!("--slices must be positive");
-            }
-            let opts = ExportOptions {
-                geometry: dbt_store::load_geometry(&geometry, binning)?,
-                slices,
-                test_phantoms,
-                seed,
-                levels,
-                batch,
-                population,
-            };
-            let t = Instant::now();
-            let m = export(&out, &opts)?;
-            let secs = t.elapsed().as_secs_f64();
-            let n: Vec<String> = m
-                .splits
-                .iter()
-                .map(|s| {
-                    format!(
-                        "{} {} slices / {} phantoms",
-                        s.name,
-                        s.slices.len(),
-                        s.phantoms.len()
-                    )
-                })
-                .collect();
-            let total: usize = m.splits.iter().map(|s| s.slices.len()).sum();
-            println!(
-                "{}: {} ({} slices in {:.1} s, {:.1} slices/s)",
-                out.display(),
-                n.join(", "),
-                total,
-                secs,
-                total as f64 / secs
-            );
-        }
+        Cmd::Phantom(a) => run_phantom(a),
+        Cmd::Acquire(a) => run_acquire(a),
+        Cmd::Stream(a) => run_stream(a),
+        Cmd::Modbus(a) => run_modbus(a),
+        Cmd::Dataset(a) => run_dataset(a),
+        Cmd::Fbp(a) => run_fbp(a),
     }
+}
+
+/// `host-sim phantom`.
+fn run_phantom(args: PhantomArgs) -> Result<()> {
+    let PhantomArgs {
+        out,
+        seed,
+        index,
+        geometry,
+        population,
+    } = args;
+    let g = geometry.load()?;
+    let vol = population.draw(&g, seed, index).generate()?;
+    dbt_store::save_phantom(&vol, &out)?;
+    println!(
+        "{}: {:?} voxels of {} mm, thickness {:.1} mm, glandularity {:.3}",
+        out.display(),
+        vol.dims(),
+        vol.voxel_mm(),
+        vol.thickness_mm(),
+        vol.glandularity().unwrap_or(0.0)
+    );
+    Ok(())
+}
+
+/// `host-sim acquire`.
+fn run_acquire(args: AcquireArgs) -> Result<()> {
+    let AcquireArgs {
+        out,
+        index,
+        geometry,
+        noise,
+        population,
+    } = args;
+    let g = geometry.load()?;
+    let vol = population
+        .draw(&g, Population::TEST_SEED, index)
+        .generate()?;
+    let noise = NoiseLevel::parse(&noise)?;
+    let kvp = dbt_dose::xray::paper_technique(vol.thickness_mm()).0 as f64;
+    let acq = host_sim::simulate_acquisition(
+        &vol,
+        &g,
+        noise,
+        host_sim::mix_seed(Population::TEST_SEED, &[index, 1]),
+        host_sim::Technique::default(),
+        kvp,
+        &format!("TEST{index:03}"),
+        "1.2.826.0.1.3680043.10.543.2",
+    )?;
+    dbt_store::acquisition::write_acquisition(&out, &acq)?;
+    println!(
+        "{}: test phantom {index}, {} slices, thickness {:.1} mm, glandularity {:.3}, {}",
+        out.display(),
+        acq.header.slices,
+        acq.header.thickness_mm,
+        vol.glandularity().unwrap_or(0.0),
+        noise.name()
+    );
+    Ok(())
+}
+
+/// `host-sim stream`.
+fn run_stream(args: StreamArgs) -> Result<()> {
+    let StreamArgs {
+        acq,
+        listen,
+        serial,
+        baud,
+        fault,
+    } = args;
+    let faults = fault
+        .iter()
+        .map(|f| host_sim::stream::Fault::parse(f))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(anyhow::Error::msg)?;
+    let a = dbt_store::acquisition::read_acquisition(&acq)?;
+    let frames = host_sim::stream::frames_of(&a).map_err(anyhow::Error::msg)?;
+    let resent = match (listen, serial) {
+        (Some(listen), None) => {
+            let l = std::net::TcpListener::bind(&listen)
+                .with_context(|| format!("listening on {listen}"))?;
+            eprintln!("host-sim: streaming {} frames on {listen}", frames.len());
+            host_sim::stream::serve_one(&l, &frames, &faults)?
+        }
+        (None, Some(path)) => {
+            let mut port = serialport::new(&path, baud)
+                .timeout(std::time::Duration::from_millis(200))
+                .open()
+                .with_context(|| format!("opening serial line {path}"))?;
+            eprintln!(
+                "host-sim: streaming {} frames on {path} at {baud} Bd",
+                frames.len()
+            );
+            host_sim::stream::serve_stream(
+                &mut port,
+                &frames,
+                &faults,
+                std::time::Duration::from_secs(30),
+            )?
+        }
+        _ => bail!("give --listen HOST:PORT or --serial PATH"),
+    };
+    println!("streamed {} frames, {resent} retransmitted", frames.len());
+    Ok(())
+}
+
+/// `host-sim modbus`.
+fn run_modbus(args: ModbusArgs) -> Result<()> {
+    let ModbusArgs {
+        listen,
+        serial,
+        baud,
+        thickness_mm,
+        state,
+        base,
+        fault,
+        thickness_then_mm,
+    } = args;
+    use dbt_gantry::registers::{encode, Registers, State};
+    use host_sim::modbus::{serve, GantryService, ModbusFault};
+    let state = match state.as_str() {
+        "idle" => State::Idle,
+        "compressing" => State::Compressing,
+        "ready" => State::Ready,
+        "exposing" => State::Exposing,
+        "complete" => State::Complete,
+        "fault" => State::Fault,
+        other => bail!("--state `{other}`: idle, compressing, ready, exposing, complete or fault"),
+    };
+    let fault = match fault.as_deref() {
+        None => None,
+        Some("exception") => Some(ModbusFault::Exception),
+        Some("silent") => Some(ModbusFault::Silent),
+        Some(other) => bail!("--fault `{other}`: exception or silent"),
+    };
+    let kvp = dbt_dose::xray::paper_technique(thickness_mm).0 as f64;
+    let regs = Registers {
+        version: 1,
+        state,
+        thickness_mm,
+        force_n: 110.0,
+        kvp,
+        mas_per_projection: 2.4,
+        anode_filter: "W/Rh",
+        projections: 25,
+        angles_deg: [-24.0, 24.0],
+        current: 12,
+        laterality: 'L',
+        view: "CC",
+        fault: 0,
+    };
+    let service = GantryService {
+        registers: std::sync::Arc::new(std::sync::Mutex::new(encode(&regs))),
+        base,
+        fault,
+        thickness_then: thickness_then_mm.map(|t| (t * 10.0).round().clamp(0.0, 65535.0) as u16),
+    };
+    let rt = tokio::runtime::Runtime::new()?;
+    match (listen, serial) {
+        (Some(listen), None) => {
+            let addr: std::net::SocketAddr = listen
+                .parse()
+                .with_context(|| format!("--listen {listen}"))?;
+            eprintln!("host-sim: Modbus TCP on {addr}");
+            rt.block_on(serve(addr, service))?;
+        }
+        (None, Some(path)) => {
+            eprintln!("host-sim: Modbus RTU on {path} at {baud} baud, 8N1");
+            rt.block_on(host_sim::modbus::serve_rtu(&path, baud, service))
+                .with_context(|| format!("Modbus RTU on {path}"))?;
+        }
+        _ => bail!("give --listen HOST:PORT (Modbus TCP) or --serial PATH (Modbus RTU)"),
+    }
+    Ok(())
+}
+
+/// `host-sim dataset`.
+fn run_dataset(args: DatasetArgs) -> Result<()> {
+    let DatasetArgs {
+        out,
+        slices,
+        test_phantoms,
+        seed,
+        levels,
+        geometry,
+        batch,
+        population,
+    } = args;
+    let levels = levels
+        .split(',')
+        .map(NoiseLevel::parse)
+        .collect::<Result<Vec<_>, _>>()?;
+    if slices == 0 {
+        bail!("--slices must be positive");
+    }
+    let opts = ExportOptions {
+        geometry: geometry.load()?,
+        slices,
+        test_phantoms,
+        seed,
+        levels,
+        batch,
+        population,
+    };
+    let t = Instant::now();
+    let bar = Progress::new(slices as u64, "dataset", "slices", false);
+    let m = export_observed(&out, &opts, &mut |stage| match stage {
+        ExportStage::Slices { done, wanted } => {
+            // Whole phantoms: the last one may overshoot what was wanted.
+            bar.set_length(done.max(wanted) as u64);
+            bar.set_position(done as u64)
+        }
+        ExportStage::TestPhantoms { done, wanted } => {
+            bar.message(format!("test phantoms {done}/{wanted}"))
+        }
+        ExportStage::Operator => bar.message("the projector's operator"),
+    })?;
+    bar.finish();
+    let secs = t.elapsed().as_secs_f64();
+    let n: Vec<String> = m
+        .splits
+        .iter()
+        .map(|s| {
+            format!(
+                "{} {} slices / {} phantoms",
+                s.name,
+                s.slices.len(),
+                s.phantoms.len()
+            )
+        })
+        .collect();
+    let total: usize = m.splits.iter().map(|s| s.slices.len()).sum();
+    println!(
+        "{}: {} ({} slices in {:.1} s, {:.1} slices/s)",
+        out.display(),
+        n.join(", "),
+        total,
+        secs,
+        total as f64 / secs
+    );
+    Ok(())
+}
+
+/// `host-sim fbp`.
+fn run_fbp(args: FbpArgs) -> Result<()> {
+    let FbpArgs { data, level } = args;
+    let t = Instant::now();
+    for (split, n) in host_sim::dataset::add_fbp(&data, &level)? {
+        println!("{split}: fbp-{level} of {n} slices");
+    }
+    println!("{:.0} s", t.elapsed().as_secs_f64());
     Ok(())
 }

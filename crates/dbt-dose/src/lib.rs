@@ -28,7 +28,7 @@ use thiserror::Error;
 pub use material::Material;
 pub use scene::{HomogeneousBox, Scene, VoxelGrid};
 pub use spectrum::Spectrum;
-pub use transport::{run, PointSource, RunResult, Tallies};
+pub use transport::{run, run_observed, PointSource, RunResult, Tallies};
 
 /// Errors of the dose engine; each says what was wrong.
 #[derive(Debug, Error)]

@@ -393,6 +393,20 @@ pub fn run(
     batches: usize,
     seed: u64,
 ) -> Result<RunResult, DoseError> {
+    run_observed(scene, source, photons, batches, seed, &|| {})
+}
+
+/// As [`run`], calling `on_batch` as each batch finishes (from the worker
+/// threads, in no particular order): for a progress display. The result
+/// does not depend on it.
+pub fn run_observed(
+    scene: &Scene,
+    source: &PointSource,
+    photons: u64,
+    batches: usize,
+    seed: u64,
+    on_batch: &(dyn Fn() + Sync),
+) -> Result<RunResult, DoseError> {
     scene.validate()?;
     if photons == 0 || batches == 0 {
         return Err(DoseError::Scene(
@@ -438,6 +452,7 @@ pub fn run(
                     &mut t,
                 );
             }
+            on_batch();
             t
         })
         .collect();

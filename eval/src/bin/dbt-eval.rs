@@ -3,9 +3,10 @@
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
 use dbt_acquisition::NoiseLevel;
+use dbt_cli::Progress;
 use dbt_dbtor::{Dbtor, Precision};
 use dbt_eval::picture::{auto_window, compose, Panel};
-use dbt_eval::{evaluate_baselines, region_table, table, test_set, BaselineOptions, Learned};
+use dbt_eval::{region_table, table, test_set, BaselineOptions, Learned};
 use dbt_geometry::Geometry;
 use dbt_phantom::PopulationKind;
 use dbt_projector::Projector;
@@ -255,7 +256,7 @@ struct ClassificationArgs {
     #[arg(long)]
     phantom: Option<PathBuf>,
     /// Binning of the paper geometry, without a model.
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = dbt_cli::DEFAULT_BINNING)]
     binning: usize,
     /// Noise level.
     #[arg(long, default_value = "N8")]
@@ -554,7 +555,7 @@ fn main() -> Result<()> {
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn".into()),
         )
-        .with_writer(std::io::stderr)
+        .with_writer(dbt_cli::log_writer)
         .init();
     match Cli::parse().cmd {
         Cmd::Baselines(args) => run_baselines(args),
@@ -631,7 +632,12 @@ fn run_baselines(args: BaselinesArgs) -> Result<()> {
         levels: parse_levels(&levels)?,
     };
     let t = Instant::now();
-    let report = evaluate_baselines(&opts, &refs)?;
+    let bar = Progress::new((phantoms * slices) as u64, "baselines", "slices", false);
+    let report = dbt_eval::evaluate_baselines_observed(&opts, &refs, &mut |done, total| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    })?;
+    bar.finish();
     println!(
         "Baselines on the {} split ({} phantoms, {} slices, {}; MLTR {} iterations; {:.0} s)\n",
         split.describe(),
@@ -701,6 +707,8 @@ fn run_mgd(args: MgdArgs) -> Result<()> {
         labels: vol.labels(),
     };
     let max = 200_000_000;
+    let bar = Progress::new(2, "Monte Carlo MGD", "runs", false);
+    bar.message("patient-specific");
     let p = mgd_to_uncertainty(
         &b,
         Model::PatientSpecific,
@@ -711,6 +719,8 @@ fn run_mgd(args: MgdArgs) -> Result<()> {
         max,
         seed,
     )?;
+    bar.inc(1);
+    bar.message("model breast");
     let m = mgd_to_uncertainty(
         &b,
         Model::Homogeneous,
@@ -721,6 +731,7 @@ fn run_mgd(args: MgdArgs) -> Result<()> {
         max,
         seed + 1,
     )?;
+    bar.finish();
     let out = serde_json::json!({
         "phantom": phantom.as_ref().map(|p| p.display().to_string()).unwrap_or(format!("test-set phantom {index}")),
         "dims": vol.dims(),
@@ -828,24 +839,28 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
             }
             m.geometry().clone()
         }
-        None => Geometry::paper().binned(binning.unwrap_or(4))?,
+        None => Geometry::paper().binned(binning.unwrap_or(dbt_cli::DEFAULT_BINNING))?,
     };
     let population = split.population;
     let split = split.resolve(recs.iter().find_map(|(_, _, o)| o.dbtor.as_deref()))?;
     let opts: Vec<_> = recs.iter().map(|(_, _, o)| o.clone()).collect();
     let inputs = phantom_inputs(phantom.as_deref(), &g, split, population, phantoms);
     let mut cases: Vec<Vec<Case>> = vec![Vec::new(); recs.len()];
+    let bar = Progress::new(inputs.len() as u64, "accuracy", "phantoms", false);
     for (k, item) in inputs.into_iter().enumerate() {
         let (name, vol) = item?;
+        bar.message(name.clone());
         let cs = run_cases(name, &vol, &g, noise, &opts, 1000 + k as u64)?;
+        bar.inc(1);
         for ((label, _, _), (c, all)) in recs.iter().zip(cs.into_iter().zip(cases.iter_mut())) {
-            eprintln!(
+            bar.line(format!(
                 "{} [{label}]: T {:.1} mm, G true {:.3} labels {:.3} pv {:.3}; MGD true {:.3} est {:.3} model {:.3} mGy ({:.0} s)",
                 c.phantom, c.thickness_mm, c.g_true, c.g_labels, c.g_partial_volume, c.mgd_true, c.mgd_est, c.mgd_model, c.seconds
-            );
+            ));
             all.push(c);
         }
     }
+    bar.finish();
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     println!("| reconstructor | quantity | bias | sd | 95 % limits | max abs | p (bias) | n |\n|---|---|---|---|---|---|---|---|");
     let mut results = Vec::new();
@@ -957,8 +972,10 @@ fn run_classification(args: ClassificationArgs) -> Result<()> {
     let mut per_variant = vec![Vec::new(); variants.len()];
     let inputs = phantom_inputs(phantom.as_deref(), &g, split, population, phantoms);
     let phantoms = inputs.len();
+    let bar = Progress::new(phantoms as u64, "classification", "phantoms", false);
     for (k, item) in inputs.into_iter().enumerate() {
         let (name, vol) = item?;
+        bar.message(name.clone());
         let cs = run_phantom(
             &name,
             &vol,
@@ -969,22 +986,24 @@ fn run_classification(args: ClassificationArgs) -> Result<()> {
             dose_uncertainty,
             1000 + k as u64,
         )?;
-        eprint!(
+        let mut line = format!(
             "{name}: T {:.1} mm, G true {:.3}",
             vol.thickness_mm(),
             cs[0].g_true
         );
         for c in &cs {
-            eprint!(" | {:.3} / {:.3}", c.g_labels, c.g_partial_volume);
+            line += &format!(" | {:.3} / {:.3}", c.g_labels, c.g_partial_volume);
             if let Some(e) = c.mgd_error_percent {
-                eprint!(" / MGD {e:+.1} %");
+                line += &format!(" / MGD {e:+.1} %");
             }
         }
-        eprintln!();
+        bar.inc(1);
+        bar.line(line);
         for (all, c) in per_variant.iter_mut().zip(cs) {
             all.push(c);
         }
     }
+    bar.finish();
     let source = match &phantom {
         Some(p) => p.display().to_string(),
         None => format!("{phantoms} phantoms of the {} split", split.describe()),
@@ -1059,9 +1078,11 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
     };
     let t0 = Instant::now();
     let mut cases = Vec::new();
+    let bar = Progress::new(phantoms as u64, "calibrate", "phantoms", false);
     for (k, item) in dbt_eval::accuracy::split_phantoms(&g, split, population, phantoms).enumerate()
     {
         let (name, vol) = item?;
+        bar.message(name.clone());
         let c = dbt_eval::classification::run_phantom(
             &name,
             &vol,
@@ -1074,12 +1095,14 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
         )?
         .pop()
         .context("no case")?;
-        eprintln!(
+        bar.inc(1);
+        bar.line(format!(
             "{name}: T {:.1} mm, G true {:.4}, partial volume {:.4}",
             c.thickness_mm, c.g_true, c.g_partial_volume
-        );
+        ));
         cases.push(c);
     }
+    bar.finish();
     let (est, truth): (Vec<f64>, Vec<f64>) =
         cases.iter().map(|c| (c.g_partial_volume, c.g_true)).unzip();
     let cal = dbt_tissue::GlandularityCalibration::fit(&est, &truth)?;

@@ -17,6 +17,7 @@
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
+use dbt_cli::GeometryArgs;
 use dbt_dbtor::{Engine, Precision};
 use dbt_geometry::Geometry;
 use dbtor_firmware::selftest;
@@ -32,17 +33,6 @@ use std::process::ExitCode;
 struct Cli {
     #[command(subcommand)]
     cmd: Cmd,
-}
-
-#[derive(Args)]
-struct GeometryArgs {
-    /// Geometry: `paper`, `paper-tall` (the 80 mm image) or a TOML file (as
-    /// `dbtor-diag geometry` prints).
-    #[arg(long, default_value = "paper")]
-    geometry: String,
-    /// Detector and image binning factor.
-    #[arg(long, default_value_t = 1)]
-    binning: usize,
 }
 
 #[derive(Subcommand)]
@@ -163,13 +153,8 @@ struct ConfigArgs {
 #[derive(Args)]
 struct ReplayArgs {
     entry: PathBuf,
-    /// DBToR model directory (default: MLTR).
-    #[arg(long)]
-    model: Option<PathBuf>,
-    #[arg(long, default_value = "fp32", requires = "model")]
-    precision: Precision,
-    #[arg(long, default_value = "fast", requires = "model")]
-    engine: Engine,
+    #[command(flatten)]
+    model: dbt_cli::ModelArgs,
     /// MLTR iterations.
     #[arg(long)]
     iterations: Option<usize>,
@@ -192,7 +177,7 @@ struct BenchArgs {
 }
 
 fn load_geometry(a: &GeometryArgs) -> Result<Geometry> {
-    Ok(dbt_store::load_geometry(&a.geometry, a.binning)?)
+    Ok(a.load()?)
 }
 
 fn median_ms(mut v: Vec<f64>) -> f64 {
@@ -382,9 +367,12 @@ fn run_status(args: StatusArgs) -> Result<bool> {
 fn run_replay(args: ReplayArgs) -> Result<bool> {
     let ReplayArgs {
         entry,
-        model,
-        precision,
-        engine,
+        model:
+            dbt_cli::ModelArgs {
+                model,
+                precision,
+                engine,
+            },
         iterations,
         dose_uncertainty,
         json,
@@ -409,24 +397,7 @@ fn run_replay(args: ReplayArgs) -> Result<bool> {
         entry.display(),
         acq.header.slices
     );
-    let mut last = std::time::Instant::now();
-    let r = dbt_pipeline::process_with_progress(&acq, &opts, &mut |st| {
-        use dbt_pipeline::Stage;
-        match st {
-            // At most a few updates a second on the terminal.
-            Stage::Slice { done, total } => {
-                if done == total || last.elapsed().as_millis() >= 200 {
-                    last = std::time::Instant::now();
-                    eprint!(
-                        "\r  slice {done}/{total} ({:.0} %)   ",
-                        100.0 * done as f64 / total.max(1) as f64
-                    );
-                }
-            }
-            Stage::Classification => eprint!("\n  classification and density ... "),
-            Stage::Dose => eprintln!("done\n  Monte Carlo dose ..."),
-        }
-    })?;
+    let r = dbt_cli::process_with_bar(&acq, &opts, json)?;
     let stored: Option<serde_json::Value> = std::fs::read(entry.join("result.json"))
         .ok()
         .and_then(|b| serde_json::from_slice(&b).ok());
@@ -523,13 +494,19 @@ fn run_bench(args: BenchArgs) -> Result<bool> {
             let mg = m.geometry().clone();
             let g0 = vec![1.0f32; mg.n_rays()];
             let mut v = Vec::new();
-            for k in 0..reps.max(1) {
-                eprint!("\rDBToR {prec} {engine}: slice {}/{}", k + 1, reps.max(1));
+            let bar = dbt_cli::Progress::new(
+                reps.max(1) as u64,
+                &format!("DBToR {prec} {engine}"),
+                "slices",
+                json,
+            );
+            for _ in 0..reps.max(1) {
                 let t = std::time::Instant::now();
                 m.reconstruct(&g0, 45.0)?;
                 v.push(t.elapsed().as_secs_f64() * 1e3);
+                bar.inc(1);
             }
-            eprintln!();
+            bar.finish();
             rows.push((
                 format!(
                     "DBToR slice {prec} {engine}, {}x{} px",

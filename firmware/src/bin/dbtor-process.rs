@@ -17,7 +17,7 @@
 use anyhow::{Context, Result};
 use clap::Parser;
 use dbt_dicom::{Equipment, UidSource};
-use dbt_pipeline::{process, reports, PipelineOptions};
+use dbt_pipeline::{reports, PipelineOptions};
 use dbtor_firmware::cli::error_chain;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -39,16 +39,11 @@ struct Cli {
     pacs: Option<String>,
     #[arg(long, default_value = "1.2.826.0.1.3680043.10.543.1")]
     uid_root: String,
-    /// DBToR model folder (default: MLTR).
-    #[arg(long)]
-    model: Option<PathBuf>,
+    #[command(flatten)]
+    model: dbt_cli::ModelArgs,
     /// The model folder's configured digest (`recon.model_digest`).
     #[arg(long, requires = "model")]
     model_digest: Option<String>,
-    #[arg(long, default_value = "fp32", requires = "model")]
-    precision: dbt_dbtor::Precision,
-    #[arg(long, default_value = "fast", requires = "model")]
-    engine: dbt_dbtor::Engine,
     /// With int8: blocks kept in fp32, e.g. `primal08,primal09`.
     #[arg(long, requires = "model")]
     fp32_blocks: Option<String>,
@@ -66,7 +61,7 @@ fn main() -> ExitCode {
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn".into()),
         )
-        .with_writer(std::io::stderr)
+        .with_writer(dbt_cli::log_writer)
         .init();
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
@@ -89,20 +84,25 @@ fn run(cli: Cli) -> Result<()> {
         dose_uncertainty: cli.dose_uncertainty,
         ..PipelineOptions::default()
     };
-    if let Some(dir) = &cli.model {
+    let dbt_cli::ModelArgs {
+        model,
+        precision,
+        engine,
+    } = cli.model;
+    if let Some(dir) = &model {
         let fp32_blocks = cli
             .fp32_blocks
             .as_deref()
             .map(dbt_dbtor::parse_block_list)
             .unwrap_or_default();
-        if !fp32_blocks.is_empty() && cli.precision != dbt_dbtor::Precision::Int8 {
+        if !fp32_blocks.is_empty() && precision != dbt_dbtor::Precision::Int8 {
             anyhow::bail!("--fp32-blocks needs --precision int8");
         }
         let signed = dbt_model::load_signed(
             dir,
-            cli.precision,
+            precision,
             &fp32_blocks,
-            cli.engine,
+            engine,
             &opts.classify,
             cli.model_digest.as_deref(),
         )
@@ -112,7 +112,7 @@ fn run(cli: Cli) -> Result<()> {
     }
     let acq = dbt_store::acquisition::read_acquisition(&acq_dir)?;
     let t = std::time::Instant::now();
-    let res = process(&acq, &opts)?;
+    let res = dbt_cli::process_with_bar(&acq, &opts, false)?;
     let secs = t.elapsed().as_secs_f64();
     let now = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)

@@ -37,12 +37,9 @@ struct Cli {
     /// The spool folder to create.
     #[arg(long)]
     out: PathBuf,
-    /// The gantry's geometry: `paper`, `paper-tall` or a TOML file.
-    #[arg(long, default_value = "paper")]
-    geometry: String,
-    /// Detector and image binning of that geometry.
-    #[arg(long, default_value_t = 4)]
-    binning: usize,
+    /// The gantry's geometry (as the daemon's `[frames] geometry` and `binning`).
+    #[command(flatten)]
+    geometry: dbt_cli::GeometryArgs,
     /// Idle and write timeout, s.
     #[arg(long, default_value_t = 30)]
     timeout_s: u64,
@@ -67,7 +64,7 @@ fn connect(addr: &str, timeout: Duration) -> Result<TcpStream> {
 }
 
 fn run(cli: Cli) -> Result<bool> {
-    let geom = dbt_store::load_geometry(&cli.geometry, cli.binning)?;
+    let geom = cli.geometry.load()?;
     let timeout = Duration::from_secs(cli.timeout_s);
     let link = LinkOptions::new(timeout).for_site(&geom, cli.tube_output);
     let result = match (&cli.connect, &cli.serial) {
