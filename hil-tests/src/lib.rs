@@ -202,3 +202,34 @@ pub fn http_get(port: u16, path: &str) -> Option<Vec<u8>> {
     }
     Some(buf[split + 4..].to_vec())
 }
+
+/// The status file of a daemon run in `dir` (its configuration's
+/// `paths.status = "run/status.json"`), or null while there is none.
+pub fn daemon_status(dir: &std::path::Path) -> serde_json::Value {
+    std::fs::read(dir.join("run/status.json"))
+        .ok()
+        .and_then(|b| serde_json::from_slice(&b).ok())
+        .unwrap_or(serde_json::Value::Null)
+}
+
+/// Poll [`daemon_status`] until `f` holds (the status it held for), failing
+/// after `limit` with `what` and the last status.
+pub fn wait_for_status(
+    dir: &std::path::Path,
+    what: &str,
+    limit: Duration,
+    f: impl Fn(&serde_json::Value) -> bool,
+) -> serde_json::Value {
+    let t0 = std::time::Instant::now();
+    loop {
+        let s = daemon_status(dir);
+        if f(&s) {
+            return s;
+        }
+        assert!(
+            t0.elapsed() < limit,
+            "timed out waiting for {what}; status: {s}"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}

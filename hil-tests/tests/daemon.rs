@@ -153,10 +153,7 @@ fn daemon(cfg: &Path, extra: &[&str]) -> Child {
 }
 
 fn status(dir: &Path) -> serde_json::Value {
-    std::fs::read(dir.join("run/status.json"))
-        .ok()
-        .and_then(|b| serde_json::from_slice(&b).ok())
-        .unwrap_or(serde_json::Value::Null)
+    hil_tests::daemon_status(dir)
 }
 
 fn wait_for(
@@ -165,18 +162,7 @@ fn wait_for(
     limit: Duration,
     f: impl Fn(&serde_json::Value) -> bool,
 ) -> serde_json::Value {
-    let t0 = Instant::now();
-    loop {
-        let s = status(dir);
-        if f(&s) {
-            return s;
-        }
-        assert!(
-            t0.elapsed() < limit,
-            "timed out waiting for {what}; status: {s}"
-        );
-        std::thread::sleep(Duration::from_millis(10));
-    }
+    hil_tests::wait_for_status(dir, what, limit, f)
 }
 
 fn entries(dir: &Path) -> Vec<String> {

@@ -130,10 +130,7 @@ fn daemon(cfg: &Path) -> Proc {
 }
 
 fn status(dir: &Path) -> serde_json::Value {
-    std::fs::read(dir.join("run/status.json"))
-        .ok()
-        .and_then(|b| serde_json::from_slice(&b).ok())
-        .unwrap_or(serde_json::Value::Null)
+    hil_tests::daemon_status(dir)
 }
 
 fn count(dir: &Path) -> usize {

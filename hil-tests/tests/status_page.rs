@@ -38,26 +38,8 @@ fn shipped() -> (PathBuf, String, String) {
     )
 }
 
-fn status(dir: &Path) -> serde_json::Value {
-    std::fs::read(dir.join("run/status.json"))
-        .ok()
-        .and_then(|b| serde_json::from_slice(&b).ok())
-        .unwrap_or(serde_json::Value::Null)
-}
-
 fn wait_for(dir: &Path, what: &str, f: impl Fn(&serde_json::Value) -> bool) -> serde_json::Value {
-    let t0 = Instant::now();
-    loop {
-        let s = status(dir);
-        if f(&s) {
-            return s;
-        }
-        assert!(
-            t0.elapsed() < Duration::from_secs(300),
-            "timed out waiting for {what}; status: {s}"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    hil_tests::wait_for_status(dir, what, Duration::from_secs(300), f)
 }
 
 /// host-sim serving one acquisition on `addr` (one connection, then exit).

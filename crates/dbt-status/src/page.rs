@@ -28,25 +28,20 @@ window.addEventListener('load', function () {
 pub const CONTENT_SECURITY_POLICY: &str =
     "default-src 'none'; img-src 'self' data:; script-src 'self'; style-src 'unsafe-inline'; base-uri 'none'; form-action 'none'; frame-ancestors 'none'";
 
-/// A unix time as `YYYY-MM-DD HH:MM:SS` UTC (proleptic Gregorian; Howard
-/// Hinnant's days-to-civil algorithm).
+/// A unix time as `YYYY-MM-DD HH:MM:SS` UTC (the reports' calendar:
+/// `dbt_dicom::dicom_datetime_utc`).
 pub fn utc(unix: u64) -> String {
-    let days = (unix / 86_400) as i64;
-    let secs = unix % 86_400;
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = doy - (153 * mp + 2) / 5 + 1;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 };
-    let y = yoe + era * 400 + i64::from(m <= 2);
+    let (d, t) = dbt_dicom::dicom_datetime_utc(unix);
+    let (d, t) = (d.as_bytes(), t.as_bytes());
+    let s = |b: &[u8]| String::from_utf8_lossy(b).into_owned();
     format!(
-        "{y:04}-{m:02}-{d:02} {:02}:{:02}:{:02}",
-        secs / 3600,
-        secs / 60 % 60,
-        secs % 60
+        "{}-{}-{} {}:{}:{}",
+        s(&d[..4]),
+        s(&d[4..6]),
+        s(&d[6..8]),
+        s(&t[..2]),
+        s(&t[2..4]),
+        s(&t[4..6])
     )
 }
 
