@@ -61,6 +61,8 @@ fn dose(agd: f64) -> DoseInput {
         model_agd_mgy: agd * 1.3,
         content_date: "20261122".into(),
         content_time: "102000".into(),
+        intent: ProcedureIntent::Diagnostic,
+        algorithm_version: "model test (manifest sha256:0123abcd), fp32 on the fast engine".into(),
     }
 }
 

@@ -102,6 +102,11 @@ pub struct ModelManifest {
     /// Validation metrics recorded at export.
     #[serde(default)]
     pub validation: serde_json::Value,
+    /// SHA-256 (hex) of the manifest file itself, as read by
+    /// [`ModelManifest::load`] (empty for a manifest parsed from text): what
+    /// the reports name the model by.
+    #[serde(skip)]
+    pub file_sha256: String,
 }
 
 /// SHA-256 of a file, hex.
@@ -146,7 +151,12 @@ impl ModelManifest {
             path: path.clone(),
             cause: source,
         })?;
-        Self::parse(&text, &path)
+        let mut m = Self::parse(&text, &path)?;
+        m.file_sha256 = Sha256::digest(text.as_bytes())
+            .iter()
+            .map(|b| format!("{b:02x}"))
+            .collect();
+        Ok(m)
     }
 
     /// Parse and check a manifest's text (`path` names it in errors).

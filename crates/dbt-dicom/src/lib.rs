@@ -15,11 +15,12 @@
 pub mod bounds;
 mod content;
 pub mod reports;
+pub mod templates;
 
 pub use content::{format_ds, Code, Item, Rel};
 pub use reports::{
     composition_category, density_report, dose_report, read_values, DensityInput, DoseEvent,
-    DoseInput, Equipment, Header, Laterality, Report, UidSource,
+    DoseInput, Equipment, Header, Laterality, ProcedureIntent, Report, UidSource,
 };
 
 use thiserror::Error;

@@ -28,10 +28,45 @@ pub enum Laterality {
 }
 
 impl Laterality {
+    /// CID 244 "Laterality": the image's side (the density report, the
+    /// irradiation event's target region).
     fn code(self) -> Code {
         match self {
             Laterality::Left => Code::new("7771000", "SCT", "Left"),
             Laterality::Right => Code::new("24028007", "SCT", "Right"),
+        }
+    }
+
+    /// CID 6022 "Side" (which includes CID 6023, BI-RADS side): the value set
+    /// TID 10005 names for the laterality of the Accumulated Average
+    /// Glandular Dose.
+    fn breast(self) -> Code {
+        match self {
+            Laterality::Left => Code::new("80248007", "SCT", "Left breast"),
+            Laterality::Right => Code::new("73056007", "SCT", "Right breast"),
+        }
+    }
+}
+
+/// The dose SR's Reference Point Definition: where the Entrance Exposure
+/// at RP (incident air kerma) is (`dbt_dose::patient`'s normalisation).
+pub const REFERENCE_POINT: &str = "Incident air kerma free in air (no backscatter) on the upper surface of the compressed breast, 60 mm from the chest wall, for the 0 degree view";
+
+/// The intent of the reported procedure (TID 10001 row 3 "Has Intent",
+/// CID 3629 "Procedure Intent").
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ProcedureIntent {
+    /// Diagnostic Intent (261004008, SCT).
+    Diagnostic,
+    /// Screening Intent (360156006, SCT).
+    Screening,
+}
+
+impl ProcedureIntent {
+    fn code(self) -> Code {
+        match self {
+            ProcedureIntent::Diagnostic => Code::new("261004008", "SCT", "Diagnostic Intent"),
+            ProcedureIntent::Screening => Code::new("360156006", "SCT", "Screening Intent"),
         }
     }
 }
@@ -169,6 +204,11 @@ pub struct DoseInput {
     pub content_date: String,
     /// See `content_date`.
     pub content_time: String,
+    /// The procedure's intent (TID 10001 "Has Intent").
+    pub intent: ProcedureIntent,
+    /// What exactly computed the dose (model, manifest SHA-256, precision,
+    /// engine, calibration, software): in the report's Comment.
+    pub algorithm_version: String,
 }
 
 /// Everything the density report says.
@@ -493,17 +533,26 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
     }
     let h = &input.header;
     let breast = || Code::new("76752008", "SCT", "Breast");
+    // TID 10001 rows 2-3: the procedure and its intent.
     let mut children = vec![(
         Rel::HasConceptMod,
         Item::Code(
             dcm("121058", "Procedure reported"),
             Code::new("71651007", "SCT", "Mammography"),
-            vec![],
+            vec![(
+                Rel::HasConceptMod,
+                Item::Code(
+                    Code::new("363703001", "SCT", "Has Intent"),
+                    input.intent.code(),
+                    vec![],
+                ),
+            )],
         ),
     )];
     children.extend(observer_context(&input.equipment));
+    // Row 6: the scope is observation context, not content.
     children.push((
-        Rel::Contains,
+        Rel::HasObsContext,
         Item::Code(
             dcm("113705", "Scope of Accumulation"),
             dcm("113014", "Study"),
@@ -518,9 +567,10 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
          (photoelectric, Rayleigh, Compton; validated against AAPM TG-195 case 3) on the \
          tissue-classified DBToR reconstruction of this breast; relative statistical \
          uncertainty {:.2} % (1 s.d., batch method). Model-breast (homogeneous, same \
-         thickness and glandularity) estimate with the same engine: {} mGy.",
+         thickness and glandularity) estimate with the same engine: {} mGy. Computed by: {}.",
         100.0 * input.relative_uncertainty,
-        crate::format_ds(input.model_agd_mgy)
+        crate::format_ds(input.model_agd_mgy),
+        input.algorithm_version
     );
     children.push((
         Rel::Contains,
@@ -534,7 +584,14 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
                         dcm("111637", "Accumulated Average Glandular Dose"),
                         input.accumulated_agd_mgy,
                         mgy(),
-                        vec![laterality_mod(h.laterality)],
+                        vec![(
+                            Rel::HasConceptMod,
+                            Item::Code(
+                                Code::new("272741003", "SCT", "Laterality"),
+                                h.laterality.breast(),
+                                vec![],
+                            ),
+                        )],
                     ),
                 ),
                 (
@@ -558,7 +615,6 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
                         vec![],
                     ),
                 ),
-                (Rel::Contains, Item::Text(dcm("121106", "Comment"), method)),
             ],
         ),
     ));
@@ -600,13 +656,19 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
                     format!("DBT projection {} of {}", i + 1, input.events.len()),
                 ),
             ),
+            // TID 10003 rows 9-10: the anatomy and its laterality (CID 244);
+            // row 17: the target region (no laterality of its own there).
             (
                 Rel::Contains,
                 Item::Code(
-                    dcm("123014", "Target Region"),
+                    Code::new("91723000", "SCT", "Anatomical structure"),
                     breast(),
                     vec![laterality_mod(h.laterality)],
                 ),
+            ),
+            (
+                Rel::Contains,
+                Item::Code(dcm("123014", "Target Region"), breast(), vec![]),
             ),
             (
                 Rel::Contains,
@@ -633,6 +695,14 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
                     ev.entrance_kerma_mgy,
                     mgy(),
                     vec![],
+                ),
+            ),
+            // TID 10003 row 22 (required with row 21): where the kerma is.
+            (
+                Rel::Contains,
+                Item::Text(
+                    dcm("113780", "Reference Point Definition"),
+                    REFERENCE_POINT.into(),
                 ),
             ),
             (
@@ -666,6 +736,17 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
                     vec![],
                 ),
             ),
+            // TID 10003B row 7 (required without Fluoro Mode): one exposure
+            // per projection.
+            (
+                Rel::Contains,
+                Item::Num(
+                    dcm("113768", "Number of Pulses"),
+                    1.0,
+                    Code::ucum("1", "no units"),
+                    vec![],
+                ),
+            ),
             (
                 Rel::Contains,
                 Item::Num(
@@ -679,7 +760,8 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
                 Rel::Contains,
                 Item::Code(
                     dcm("111632", "Anode Target Material"),
-                    Code::new("C-164F9", "SRT", "Tungsten or tungsten compound"),
+                    // CID 10016 (current edition; the legacy SRT code was C-164F9).
+                    Code::new("26194003", "SCT", "Tungsten"),
                     vec![],
                 ),
             ),
@@ -700,7 +782,8 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
                             Rel::Contains,
                             Item::Code(
                                 dcm("113757", "X-Ray Filter Material"),
-                                Code::new("C-167F9", "SRT", "Rhodium or rhodium compound"),
+                                // CID 10006 (legacy SRT: C-167F9).
+                                Code::new("59801003", "SCT", "Rhodium"),
                                 vec![],
                             ),
                         ),
@@ -731,6 +814,21 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
             Item::Container(dcm("113706", "Irradiation Event X-Ray Data"), items),
         ));
     }
+    // Row 15: how the dose was computed, and by what exactly.
+    children.push((Rel::Contains, Item::Text(dcm("121106", "Comment"), method)));
+    // Row 18 (CID 10020): the dose is calculated by this system (Monte
+    // Carlo on the reconstructed breast, from the acquisition's technique),
+    // not measured, entered by hand, copied or derived from other reports.
+    // With this source TID 10001 requires the irradiation events (TID 10003;
+    // it would not with "Computed From Image Attributes", 113867).
+    children.push((
+        Rel::Contains,
+        Item::Code(
+            dcm("113854", "Source of Dose Information"),
+            dcm("113940", "System Calculated"),
+            vec![],
+        ),
+    ));
     let root = Item::Container(dcm("113701", "X-Ray Radiation Dose Report"), children);
     let kind = DocKind {
         class: DOSE_SR_CLASS,

@@ -64,6 +64,8 @@ pub fn dose_input() -> DoseInput {
         model_agd_mgy: 1.84,
         content_date: "20261122".into(),
         content_time: "102000".into(),
+        intent: ProcedureIntent::Diagnostic,
+        algorithm_version: "model test (manifest sha256:0123abcd), fp32 on the fast engine".into(),
     }
 }
 
@@ -165,7 +167,9 @@ fn values_read_back() {
         get("Model-breast Accumulated Average Glandular Dose"),
         vec!["1.84 mGy".to_string()]
     );
-    assert_eq!(get("Laterality")[0], "Left");
+    // The accumulated dose's side from CID 6022, the events' anatomy from CID 244.
+    assert_eq!(get("Laterality")[0], "Left breast");
+    assert_eq!(get("Laterality")[1], "Left");
     let r = density_report(&density_input(), &mut uids).unwrap();
     let (class, values) = read_values(&r.to_bytes().unwrap()).unwrap();
     assert_eq!(class, "1.2.840.10008.5.1.4.1.1.88.33");
@@ -219,4 +223,150 @@ fn bad_inputs_are_named() {
     assert_eq!(composition_category(0.06).0, 'b');
     assert_eq!(composition_category(0.10).0, 'c');
     assert_eq!(composition_category(0.30).0, 'd');
+}
+
+/// The dose SR meets its templates (TID 10001, 1002, 10002, 10005, 10003,
+/// 10003B, 10003C) by our template-level check, and the check catches each
+/// defect an independent SR validator found in earlier reports: the
+/// Procedure reported without Has Intent, the Scope of Accumulation related
+/// by CONTAINS, no Source of Dose Information, a CID 244 laterality where
+/// TID 10005 wants CID 6022; and an event without its Number of Pulses.
+#[test]
+fn dose_report_meets_its_templates_and_each_known_defect_is_caught() {
+    use dbt_dicom::templates::{check_dose_report, read_tree, Coded, Node};
+    let mut uids = UidSource::new("1.2.826.0.1.3680043.10.543", 42).unwrap();
+    let bytes = dose_report(&dose_input(), &mut uids)
+        .unwrap()
+        .to_bytes()
+        .unwrap();
+    let good = read_tree(&bytes).unwrap();
+    let v = check_dose_report(&good);
+    assert!(v.is_empty(), "{}", v.join("\n"));
+    assert_eq!(
+        good.named("113706", "DCM").count(),
+        25,
+        "one event per view"
+    );
+
+    let find = |n: &mut Node, v: &str| -> usize {
+        n.children.iter().position(|c| c.is(v, "DCM")).unwrap()
+    };
+    type Break<'a> = Box<dyn Fn(&mut Node) + 'a>;
+    let defects: Vec<(&str, Break)> = vec![
+        (
+            "TID 10001 row 3",
+            Box::new(|n: &mut Node| {
+                let i = find(n, "121058");
+                n.children[i].children.clear();
+            }),
+        ),
+        (
+            "TID 10001 row 6",
+            Box::new(|n: &mut Node| {
+                let i = find(n, "113705");
+                n.children[i].relationship = "CONTAINS".into();
+            }),
+        ),
+        (
+            "TID 10001 row 18",
+            Box::new(|n: &mut Node| {
+                let i = find(n, "113854");
+                n.children.remove(i);
+            }),
+        ),
+        (
+            "TID 10005 row 2",
+            Box::new(|n: &mut Node| {
+                let i = find(n, "113702");
+                let acc = &mut n.children[i];
+                let j = acc
+                    .children
+                    .iter()
+                    .position(|c| c.is("111637", "DCM"))
+                    .unwrap();
+                acc.children[j].children[0].code = Some(Coded {
+                    value: "7771000".into(),
+                    scheme: "SCT".into(),
+                    meaning: "Left".into(),
+                });
+            }),
+        ),
+        (
+            "TID 10003B row 7",
+            Box::new(|n: &mut Node| {
+                let i = find(n, "113706");
+                n.children[i].children.retain(|c| !c.is("113768", "DCM"));
+            }),
+        ),
+    ];
+    for (row, break_it) in defects {
+        let mut t = good.clone();
+        break_it(&mut t);
+        let v = check_dose_report(&t);
+        assert!(
+            v.iter().any(|m| m.starts_with(row)),
+            "{row} not caught: {v:?}"
+        );
+    }
+}
+
+/// PixelMed's DicomSRValidator (Debian libpixelmed-java; `.ci/run` installs
+/// it), an SR validator independent of ours, finds no template error in the
+/// dose SR, except where its value sets predate the current edition: its
+/// CID 10006 and 10016 (2022 build) know the metals only by the retired
+/// "X or X compound" codes, where PS3.16 2024 lists the elements (Rhodium
+/// 59801003, Tungsten 26194003, as pydicom 3.0's tables of that edition do).
+#[test]
+fn dose_report_passes_pixelmed_sr_validation() {
+    let jar = Path::new("/usr/share/java/pixelmed.jar");
+    assert!(
+        jar.is_file(),
+        "PixelMed not found: apt-get install libpixelmed-java (.ci/run installs it)"
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let mut uids = UidSource::new("1.2.826.0.1.3680043.10.543", 42).unwrap();
+    let p = dir.path().join("dose.dcm");
+    std::fs::write(
+        &p,
+        dose_report(&dose_input(), &mut uids)
+            .unwrap()
+            .to_bytes()
+            .unwrap(),
+    )
+    .unwrap();
+    let out = Command::new("java")
+        // PixelMed's compiled templates exceed the JDK's default XPath limits.
+        .args([
+            "-Djdk.xml.xpathExprOpLimit=0",
+            "-Djdk.xml.xpathExprGrpLimit=0",
+            "-Djdk.xml.xpathTotalOpLimit=0",
+            "-cp",
+        ])
+        .arg(jar)
+        .arg("com.pixelmed.validate.DicomSRValidator")
+        .arg(&p)
+        .output()
+        .expect("java (default-jre-headless)");
+    let text =
+        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    assert!(
+        text.contains("Found Root Template TID_10001"),
+        "validator did not run: {text}"
+    );
+    let errors: Vec<&str> = text
+        .lines()
+        .filter(|l| l.starts_with("Error"))
+        .filter(|l| {
+            !(l.contains("(59801003,SCT,\"Rhodium\") not found in context group 10006")
+                || l.contains("(26194003,SCT,\"Tungsten\") not found in context group 10016"))
+        })
+        .collect();
+    assert!(errors.is_empty(), "{}", errors.join("\n"));
+    // Its warnings are our two private NUMs in the (extensible) TID 10002.
+    let warnings: Vec<&str> = text.lines().filter(|l| l.starts_with("Warning")).collect();
+    assert!(
+        warnings.iter().all(|w| w.contains("99DBTOR")),
+        "{}",
+        warnings.join("\n")
+    );
 }

@@ -14,7 +14,7 @@ use crate::plausibility::{
 use dbt_acquisition::log_transform;
 use dbt_dicom::{
     density_report, dose_report, DensityInput, DoseEvent, DoseInput, Equipment, Header, Laterality,
-    Report, UidSource,
+    ProcedureIntent, Report, UidSource,
 };
 use dbt_dose::patient::{dbt_views, mgd_to_uncertainty, Breast, MgdResult, Model};
 use dbt_projector::Projector;
@@ -103,6 +103,9 @@ impl Default for PipelineOptions {
 pub struct ProcessResult {
     /// Reconstructor used.
     pub reconstructor: String,
+    /// What exactly produced the result ([`algorithm_version`]): the
+    /// reports' Algorithm Version.
+    pub algorithm_version: String,
     /// Volume dimensions `[lateral, vertical, depth]`.
     pub dims: [usize; 3],
     /// Voxel side, mm.
@@ -210,6 +213,39 @@ pub fn reconstructor_name(opts: &PipelineOptions) -> String {
             }
         ),
         None => format!("MLTR {} iterations", opts.mltr_iterations),
+    }
+}
+
+/// What exactly produced a result, for the reports' Algorithm Version: the
+/// model's name and the SHA-256 of its manifest (which pins every ONNX
+/// file by its own SHA-256), the precision and engine, the glandularity
+/// calibration in use, and this software's version; for MLTR, its
+/// iterations.
+pub fn algorithm_version(opts: &PipelineOptions) -> String {
+    let software = concat!("dbt-pipeline ", env!("CARGO_PKG_VERSION"));
+    match &opts.dbtor {
+        Some(m) => format!(
+            "model {} (manifest sha256:{}), {} on the {} engine, {}; {software}",
+            m.manifest().name,
+            if m.manifest().file_sha256.is_empty() {
+                "unknown"
+            } else {
+                &m.manifest().file_sha256
+            },
+            m.precision_label(),
+            m.engine(),
+            match &opts.calibration {
+                Some(c) => format!(
+                    "glandularity calibrated G = {:.5} + {:.5} x partial-volume estimate",
+                    c.offset, c.slope
+                ),
+                None => "glandularity uncalibrated (partial-volume estimate)".into(),
+            }
+        ),
+        None => format!(
+            "MLTR, {} iterations (no learned model); {software}",
+            opts.mltr_iterations
+        ),
     }
 }
 
@@ -386,6 +422,7 @@ pub fn process_with_progress(
     let kerma_mgy = h.mas_total * h.tube_output_mgy_per_mas;
     Ok(ProcessResult {
         reconstructor,
+        algorithm_version: algorithm_version(opts),
         dims,
         voxel_mm: g.image.pixel_mm,
         mu,
@@ -481,6 +518,10 @@ pub fn reports(
             model_agd_mgy: res.model_mgd_mgy,
             content_date: content_date.into(),
             content_time: content_time.into(),
+            // Nothing in the acquisition says screening or diagnostic: the
+            // DBT sweep is reported as a diagnostic imaging procedure.
+            intent: ProcedureIntent::Diagnostic,
+            algorithm_version: res.algorithm_version.clone(),
         },
         uids,
     )?;
@@ -494,7 +535,7 @@ pub fn reports(
             fibroglandular_cm3: res.density.fibroglandular_partial_volume_cm3,
             breast_cm3: res.density.breast_cm3.max(1.0),
             reconstructor: res.reconstructor.clone(),
-            model_version: "baseline (no learned model)".into(),
+            model_version: res.algorithm_version.clone(),
             content_date: content_date.into(),
             content_time: content_time.into(),
         },
