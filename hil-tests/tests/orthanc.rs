@@ -62,6 +62,7 @@ fn dose(agd: f64) -> DoseInput {
         content_date: "20261122".into(),
         content_time: "102000".into(),
         intent: ProcedureIntent::Diagnostic,
+        source_distances_mm: [650.0, 700.0],
         algorithm_version: "model test (manifest sha256:0123abcd), fp32 on the fast engine".into(),
     }
 }

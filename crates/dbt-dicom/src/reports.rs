@@ -206,6 +206,9 @@ pub struct DoseInput {
     pub content_time: String,
     /// The procedure's intent (TID 10001 "Has Intent").
     pub intent: ProcedureIntent,
+    /// Source to isocentre (the rotation centre) and source to detector
+    /// distances of the acquisition geometry, mm (TID 10003C rows 11a, 11c).
+    pub source_distances_mm: [f64; 2],
     /// What exactly computed the dose (model, manifest SHA-256, precision,
     /// engine, calibration, software): in the report's Comment.
     pub algorithm_version: String,
@@ -524,6 +527,18 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
         1000.0,
     )?;
     check("model_agd_mgy", input.model_agd_mgy, 0.0, 1000.0)?;
+    check(
+        "source_distances_mm[0]",
+        input.source_distances_mm[0],
+        100.0,
+        2000.0,
+    )?;
+    check(
+        "source_distances_mm[1]",
+        input.source_distances_mm[1],
+        input.source_distances_mm[0],
+        2000.0,
+    )?;
     check("relative_uncertainty", input.relative_uncertainty, 0.0, 1.0)?;
     if input.events.is_empty() {
         return Err(DicomError::Field {

@@ -65,6 +65,7 @@ pub fn dose_input() -> DoseInput {
         content_date: "20261122".into(),
         content_time: "102000".into(),
         intent: ProcedureIntent::Diagnostic,
+        source_distances_mm: [650.0, 700.0],
         algorithm_version: "model test (manifest sha256:0123abcd), fp32 on the fast engine".into(),
     }
 }

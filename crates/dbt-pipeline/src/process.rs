@@ -521,6 +521,7 @@ pub fn reports(
             // Nothing in the acquisition says screening or diagnostic: the
             // DBT sweep is reported as a diagnostic imaging procedure.
             intent: ProcedureIntent::Diagnostic,
+            source_distances_mm: [g.source_to_center_mm, g.source_to_detector_mm],
             algorithm_version: res.algorithm_version.clone(),
         },
         uids,
