@@ -19,7 +19,7 @@
 use anyhow::{bail, Context, Result};
 use clap::Parser;
 use dbt_bench::median;
-use dbt_dbtor::{Dbtor, Engine, Precision, Role, SliceProfile};
+use dbt_dbtor::{Dbtor, Engine, Kernel, Precision, Role, SliceProfile};
 use dbt_geometry::Geometry;
 use dbt_projector::Projector;
 use serde_json::{json, Map, Value};
@@ -50,6 +50,10 @@ struct Args {
     /// Without tract.
     #[arg(long = "no-tract", action = clap::ArgAction::SetFalse)]
     tract: bool,
+    /// Also the fast engine forced down to each slower kernel this CPU runs
+    /// (AVX2, portable), as `DBTOR_KERNEL` would.
+    #[arg(long)]
+    all_kernels: bool,
     /// Adds "fast mixed": int8 with these blocks in fp32 (e.g.
     /// `primal08,primal09`).
     #[arg(long, value_parser = parse_blocks)]
@@ -213,27 +217,44 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
     let mut outputs: Vec<(String, Vec<f32>)> = Vec::new();
     let mut flops = None;
     let mut fast_projector_ms = f64::NAN;
-    let mut combos: Vec<(Engine, Precision, &[String])> = [
-        (Engine::Fast, Precision::Fp32),
-        (Engine::Fast, Precision::Int8),
-        (Engine::Tract, Precision::Fp32),
-        (Engine::Tract, Precision::Int8),
-    ]
-    .into_iter()
-    .filter(|(e, _)| a.tract || *e == Engine::Fast)
-    .map(|(e, p)| (e, p, &[][..]))
-    .collect();
-    if let Some(Blocks(mixed)) = a.mixed.as_ref().filter(|b| !b.0.is_empty()) {
-        combos.insert(2, (Engine::Fast, Precision::Int8, &mixed[..]));
+    // The fast engine with each kernel this CPU runs, fastest first (the
+    // kernels below the best forced with the same limit DBTOR_KERNEL sets);
+    // int8 has no AVX2 kernel (it runs the portable one there).
+    let best = Kernel::best_fp32();
+    let forced: Vec<Kernel> = Kernel::ALL
+        .into_iter()
+        .rev()
+        .filter(|k| *k <= best && (a.all_kernels || *k == best))
+        .collect();
+    let mut combos: Vec<(Engine, Precision, &[String], Kernel)> = Vec::new();
+    for (i, k) in forced.iter().enumerate() {
+        combos.push((Engine::Fast, Precision::Fp32, &[][..], *k));
+        let int8 = Kernel::best_int8_up_to(*k);
+        if i == 0 || (int8 == *k && int8 != Kernel::best_int8()) {
+            combos.push((Engine::Fast, Precision::Int8, &[][..], *k));
+        }
     }
-    for (engine, precision, fp32_blocks) in combos {
+    if a.tract {
+        for p in [Precision::Fp32, Precision::Int8] {
+            combos.push((Engine::Tract, p, &[][..], best));
+        }
+    }
+    if let Some(Blocks(mixed)) = a.mixed.as_ref().filter(|b| !b.0.is_empty()) {
+        combos.insert(2, (Engine::Fast, Precision::Int8, &mixed[..], best));
+    }
+    for (engine, precision, fp32_blocks, limit) in combos {
+        let forced_note = if engine == Engine::Fast && limit != best {
+            format!(" [{}]", limit.name())
+        } else {
+            String::new()
+        };
         let name = if fp32_blocks.is_empty() {
-            format!("{engine} {precision}")
+            format!("{engine} {precision}{forced_note}")
         } else {
             format!("{engine} mixed")
         };
         let t = Instant::now();
-        let d = Dbtor::load_for_geometry(&a.model, precision, fp32_blocks, engine, g)
+        let d = Dbtor::load_for_geometry_up_to(&a.model, precision, fp32_blocks, engine, g, limit)
             .with_context(|| format!("loading {name}"))?;
         let load_s = t.elapsed().as_secs_f64();
         if flops.is_none() {
@@ -403,6 +424,9 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
         "slice_ms_tract_fp32": by("tract fp32"), "slice_ms_tract_int8": by("tract int8"),
         "slice_ms_ort_fp32": by("ort fp32"), "slice_ms_ort_int8": by("ort int8"),
         "slice_ms_fast_mixed": by("fast mixed"),
+        "slice_ms_fast_fp32_avx2": by("fast fp32 [avx2]"),
+        "slice_ms_fast_fp32_portable": by("fast fp32 [portable]"),
+        "slice_ms_fast_int8_portable": by("fast int8 [portable]"),
         "variants": rows_json,
         "agreement": agreement,
     }))
@@ -412,12 +436,14 @@ fn main() -> Result<()> {
     let a = Args::parse();
     let model_geometry = dbt_dbtor::ModelManifest::load(&a.model)?.geometry;
     let peaks = measured_peaks();
+    println!("cpu: {}", dbt_cli::cpu_summary());
     println!(
         "measured peak on 2 threads: fp32 FMA {:.1} GFLOP/s, int8 VNNI {:.1} GOP/s",
         peaks.0, peaks.1
     );
     let mut out = Map::new();
     out.insert("model".into(), json!(a.model));
+    out.insert("cpu".into(), json!(dbt_cli::cpu_summary()));
     out.insert("reps".into(), json!(a.reps));
     out.insert("threads".into(), json!(rayon::current_num_threads()));
     out.insert("peak_fp32_gflops".into(), json!(peaks.0));

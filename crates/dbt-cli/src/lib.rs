@@ -85,6 +85,31 @@ impl std::io::Write for LogWriter {
     }
 }
 
+/// This machine as every benchmark and diagnostic prints it: the CPU model
+/// (`/proc/cpuinfo`), the instruction sets the kernels use that it has, and
+/// the logical CPUs.
+pub fn cpu_summary() -> String {
+    let model = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|t| {
+            t.lines()
+                .find(|l| l.starts_with("model name"))
+                .and_then(|l| l.split_once(':'))
+                .map(|(_, m)| m.trim().to_string())
+        })
+        .unwrap_or_else(|| "unknown CPU".into());
+    let isa = dbt_isa::present();
+    format!(
+        "{model}; {} logical CPUs; {}",
+        std::thread::available_parallelism().map_or(1, |n| n.get()),
+        if isa.is_empty() {
+            "none of avx2/fma/avx512f/avx512bw/avx512vnni".to_string()
+        } else {
+            isa.join(" ")
+        }
+    )
+}
+
 /// Whether a progress bar may be drawn: stderr is a terminal and the command
 /// does not print JSON.
 pub fn bars_wanted(json: bool) -> bool {

@@ -90,10 +90,12 @@ impl Fp32Block {
     /// Pack checked weights for `kernel`.
     pub fn new(b: &BlockWeights, kernel: Kernel) -> Result<Self, ConvError> {
         b.check()?;
-        if kernel == Kernel::Avx512 && Kernel::best_fp32() != Kernel::Avx512 {
-            return Err(ConvError::Shape(
-                "the AVX-512 kernel was asked for on a CPU without AVX-512F".into(),
-            ));
+        if kernel > Kernel::best_fp32() {
+            return Err(ConvError::Shape(format!(
+                "the {} fp32 kernel was asked for on a CPU that lacks it (best here: {})",
+                kernel.name(),
+                Kernel::best_fp32().name()
+            )));
         }
         Ok(Self {
             state_ch: b.state_ch,
@@ -285,6 +287,14 @@ fn run_tile(
                 }
             }
         }
+        #[cfg(target_arch = "x86_64")]
+        Kernel::Avx2 => {
+            let (i, wp, t) = (inp[base..].as_ptr(), p.w[g0..].as_ptr(), tile.as_mut_ptr());
+            // SAFETY: AVX2 and FMA were detected when the block was made
+            // (Fp32Block::new refuses otherwise); the asserts above bound
+            // every address the kernel reads and writes.
+            unsafe { tile_avx2(gw / L, np, i, rs, cs, p.cin, wp, p.ocp, t) }
+        }
         _ => {
             if gw == GROUP {
                 dispatch_np!(
@@ -402,6 +412,98 @@ unsafe fn tile_avx512<const NB: usize, const NP: usize>(
     }
 }
 
+/// AVX2 + FMA: the AVX-512 tile computed in register-sized pieces. AVX2 has
+/// 16 vector registers of 8 lanes, so one pass keeps 16 output channels
+/// (2 registers) x up to 5 pixels (10 accumulators) plus 2 weight vectors
+/// and a broadcast; the tile of `nb` x 16 channels x `np` pixels is covered
+/// by `nb` x ceil(np / 5) passes, written where the AVX-512 kernel writes
+/// (`out[(p * nb + j) * 16 + k]`).
+///
+/// # Safety
+/// AVX2 and FMA; the pointer ranges of [`tile_avx512`]'s contract with
+/// `NB = nb`, `NP = np` (`np` in 1..=10, `nb` in 1..=4).
+#[cfg(target_arch = "x86_64")]
+#[allow(clippy::too_many_arguments)]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn tile_avx2(
+    nb: usize,
+    np: usize,
+    inp: *const f32,
+    rs: usize,
+    cs: usize,
+    cin: usize,
+    w: *const f32,
+    ocp: usize,
+    out: *mut f32,
+) {
+    let mut p0 = 0;
+    while p0 < np {
+        let n = (np - p0).min(5);
+        for j in 0..nb {
+            // SAFETY: the pass reads pixels p0..p0 + n of the tile (inside
+            // its input range) and channels j * 16..(j + 1) * 16 of the
+            // group (inside its weights), and writes those values of `out`.
+            unsafe {
+                let (i, wj, o) = (inp.add(p0 * cs), w.add(j * L), out.add((p0 * nb + j) * L));
+                match n {
+                    1 => pass_avx2::<1>(i, rs, cs, cin, wj, ocp, o, nb),
+                    2 => pass_avx2::<2>(i, rs, cs, cin, wj, ocp, o, nb),
+                    3 => pass_avx2::<3>(i, rs, cs, cin, wj, ocp, o, nb),
+                    4 => pass_avx2::<4>(i, rs, cs, cin, wj, ocp, o, nb),
+                    _ => pass_avx2::<5>(i, rs, cs, cin, wj, ocp, o, nb),
+                }
+            }
+        }
+        p0 += n;
+    }
+}
+
+/// 16 output channels x `NP` pixels: the accumulators of one AVX2 pass,
+/// stored at `out[p * nb * 16 + k]`.
+///
+/// # Safety
+/// AVX2 and FMA; `inp` valid for every tap of `NP` pixels, `w` for
+/// `9 * cin * ocp` values from the pass's first channel, `out` for
+/// `(NP - 1) * nb * 16 + 16` values.
+#[cfg(target_arch = "x86_64")]
+#[allow(clippy::too_many_arguments)]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn pass_avx2<const NP: usize>(
+    inp: *const f32,
+    rs: usize,
+    cs: usize,
+    cin: usize,
+    w: *const f32,
+    ocp: usize,
+    out: *mut f32,
+    nb: usize,
+) {
+    // SAFETY: AVX2, FMA and the pointer ranges per the contract.
+    unsafe {
+        use std::arch::x86_64::*;
+        let mut lo = [_mm256_setzero_ps(); NP];
+        let mut hi = [_mm256_setzero_ps(); NP];
+        for t in 0..9 {
+            let ib = inp.add((t / 3) * rs + (t % 3) * cs);
+            let wb = w.add(t * cin * ocp);
+            for ic in 0..cin {
+                let wr = wb.add(ic * ocp);
+                let (w0, w1) = (_mm256_loadu_ps(wr), _mm256_loadu_ps(wr.add(8)));
+                for p in 0..NP {
+                    let b = _mm256_broadcast_ss(&*ib.add(p * cs + ic));
+                    lo[p] = _mm256_fmadd_ps(b, w0, lo[p]);
+                    hi[p] = _mm256_fmadd_ps(b, w1, hi[p]);
+                }
+            }
+        }
+        for p in 0..NP {
+            let o = out.add(p * nb * L);
+            _mm256_storeu_ps(o, lo[p]);
+            _mm256_storeu_ps(o.add(8), hi[p]);
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -457,6 +559,20 @@ mod tests {
     #[test]
     fn portable_matches_definition() {
         check_shapes(Kernel::Portable);
+    }
+
+    #[test]
+    fn avx2_matches_definition() {
+        if !dbt_isa::kernel_test_runs("fp32 avx2", &["avx2", "fma"]) {
+            return;
+        }
+        assert!(Kernel::best_fp32() >= Kernel::Avx2);
+        check_shapes(Kernel::Avx2);
+        // Every pixel count of a tile (1..=10) and both group widths.
+        for w in 1..=12 {
+            check(Kernel::Avx2, 5, 2, 64, 2, w);
+            check(Kernel::Avx2, 5, 2, 16, 2, w);
+        }
     }
 
     #[test]

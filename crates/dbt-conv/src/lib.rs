@@ -18,10 +18,20 @@
 //!   4 weight vectors and broadcasts 6 input values, 24 fused multiply-adds;
 //! * output rows are shared among the threads with rayon.
 //!
+//! On AVX2 CPUs (issue #30) the same tiles are computed in register-sized
+//! passes: 16 vector registers of 8 lanes hold 16 output channels x 5
+//! pixels (fp32, FMA) or 8 channels x 5 pixels (int8: the bytes widened to
+//! i16 and `vpmaddwd`, exact where `vpmaddubsw` would saturate), written
+//! where the AVX-512 kernels write, so packing, epilogues and the block loop
+//! are shared.
+//!
 //! The portable kernel computes the same tiles with plain arrays (the
-//! compiler vectorises what it can); it runs where AVX-512 is absent and is
-//! the reference the AVX-512 kernel is tested against, both being tested
-//! against a direct transcription of the convolution's definition.
+//! compiler vectorises what it can); it runs where neither is present and is
+//! the reference the SIMD kernels are tested against, all being tested
+//! against a direct transcription of the convolution's definition (int8:
+//! the AVX2 and VNNI kernels bit-identical to the portable one).
+//! [`Kernel`] orders the kernels; a caller may force a slower one
+//! (`dbt_dbtor::KERNEL_ENV`).
 
 // Kernel crate (issue #25): every unsafe operation in its own `unsafe` block
 // with a `SAFETY:` comment, every unsafe function with its `# Safety` contract.
@@ -244,16 +254,22 @@ impl BlockWeights {
     }
 }
 
-/// Which kernel runs the tiles.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// Which kernel runs the tiles, slowest first (the order is the dispatch's:
+/// a kernel may be forced down to any lower one).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Kernel {
     /// Plain Rust arrays, any CPU.
     Portable,
+    /// AVX2 + FMA (fp32) or AVX2 `vpmaddwd` on bytes widened to i16 (int8).
+    Avx2,
     /// AVX-512F fused multiply-add (fp32) or AVX-512 VNNI `vpdpbusd` (int8).
     Avx512,
 }
 
 impl Kernel {
+    /// Every kernel, slowest first.
+    pub const ALL: [Kernel; 3] = [Kernel::Portable, Kernel::Avx2, Kernel::Avx512];
+
     /// The fastest kernel this CPU runs for fp32.
     pub fn best_fp32() -> Self {
         #[cfg(target_arch = "x86_64")]
@@ -261,8 +277,28 @@ impl Kernel {
             if std::arch::is_x86_feature_detected!("avx512f") {
                 return Self::Avx512;
             }
+            if std::arch::is_x86_feature_detected!("avx2")
+                && std::arch::is_x86_feature_detected!("fma")
+            {
+                return Self::Avx2;
+            }
         }
         Self::Portable
+    }
+
+    /// The fastest fp32 kernel this CPU runs, at most `limit`.
+    pub fn best_fp32_up_to(limit: Kernel) -> Self {
+        Self::best_fp32().min(limit)
+    }
+
+    /// The fastest int8 kernel this CPU runs, at most `limit`.
+    pub fn best_int8_up_to(limit: Kernel) -> Self {
+        Self::best_int8().min(limit)
+    }
+
+    /// A kernel by its [`Kernel::name`].
+    pub fn parse(name: &str) -> Option<Kernel> {
+        Self::ALL.into_iter().find(|k| k.name() == name)
     }
 
     /// The fastest kernel this CPU runs for int8.
@@ -275,6 +311,9 @@ impl Kernel {
             {
                 return Self::Avx512;
             }
+            if std::arch::is_x86_feature_detected!("avx2") {
+                return Self::Avx2;
+            }
         }
         Self::Portable
     }
@@ -283,6 +322,7 @@ impl Kernel {
     pub fn name(self) -> &'static str {
         match self {
             Self::Portable => "portable",
+            Self::Avx2 => "avx2",
             Self::Avx512 => "avx512",
         }
     }

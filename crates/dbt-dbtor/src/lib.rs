@@ -15,13 +15,15 @@ mod fast;
 mod fixtures;
 mod manifest;
 
+/// The fast engine's kernels (re-exported for the benchmarks and diagnostics).
+pub use dbt_conv::Kernel;
 pub use fixtures::{check_fixtures, FixtureCheck, FP32_TOL_NETWORK_UNITS};
 
 pub use manifest::{
     sha256_file, verify_checksums, BlockEntry, Fixture, ModelManifest, Normalisation, Role, FORMAT,
 };
 
-use dbt_conv::{Fp32Block, Fp32Workspace, Int8Block, Int8Workspace, Kernel};
+use dbt_conv::{Fp32Block, Fp32Workspace, Int8Block, Int8Workspace};
 use dbt_geometry::Geometry;
 use dbt_projector::Projector;
 use std::path::{Path, PathBuf};
@@ -286,6 +288,25 @@ pub struct Dbtor {
     constraints: Constraints,
 }
 
+/// The environment variable that forces the fast engine down to a slower
+/// kernel (`portable`, `avx2`, `avx512`): to test and benchmark every path
+/// on a CPU that has a faster one. Unset: the fastest the CPU runs.
+pub const KERNEL_ENV: &str = "DBTOR_KERNEL";
+
+/// The fastest kernel the fast engine may use: [`KERNEL_ENV`] if set (an
+/// unknown name is an error naming it and the choices), else any.
+pub fn kernel_limit() -> Result<Kernel, DbtorError> {
+    match std::env::var(KERNEL_ENV) {
+        Err(_) => Ok(Kernel::Avx512),
+        Ok(v) => Kernel::parse(v.trim()).ok_or_else(|| {
+            DbtorError::Input(format!(
+                "{KERNEL_ENV}={v:?}: expected one of {}",
+                Kernel::ALL.map(|k| k.name()).join(", ")
+            ))
+        }),
+    }
+}
+
 /// What [`Dbtor::reconstruct`] enforces on the network's output: priors the
 /// acquisition guarantees, which the network only approximates.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -352,7 +373,15 @@ impl Dbtor {
         let manifest = ModelManifest::load(dir)?;
         manifest.verify_files(dir)?;
         let g = manifest.geometry.clone();
-        Self::load_on(dir, manifest, precision, fp32_blocks, engine, &g)
+        Self::load_on(
+            dir,
+            manifest,
+            precision,
+            fp32_blocks,
+            engine,
+            &g,
+            kernel_limit()?,
+        )
     }
 
     /// As [`Dbtor::load_mixed`], but run the (fully convolutional) blocks on
@@ -365,12 +394,32 @@ impl Dbtor {
         engine: Engine,
         geometry: &Geometry,
     ) -> Result<Self, DbtorError> {
+        Self::load_for_geometry_up_to(
+            dir,
+            precision,
+            fp32_blocks,
+            engine,
+            geometry,
+            kernel_limit()?,
+        )
+    }
+
+    /// As [`Dbtor::load_for_geometry`], the fast engine's kernels at most
+    /// `limit` (the benchmarks force each path in turn this way).
+    pub fn load_for_geometry_up_to(
+        dir: &Path,
+        precision: Precision,
+        fp32_blocks: &[String],
+        engine: Engine,
+        geometry: &Geometry,
+        limit: Kernel,
+    ) -> Result<Self, DbtorError> {
         let manifest = ModelManifest::load(dir)?;
         manifest.verify_files(dir)?;
         let mut m = manifest;
         m.geometry = geometry.clone();
         let g = geometry.clone();
-        Self::load_on(dir, m, precision, fp32_blocks, engine, &g)
+        Self::load_on(dir, m, precision, fp32_blocks, engine, &g, limit)
     }
 
     fn load_on(
@@ -380,6 +429,7 @@ impl Dbtor {
         fp32_blocks: &[String],
         engine: Engine,
         g: &Geometry,
+        limit: Kernel,
     ) -> Result<Self, DbtorError> {
         let c = manifest.state_channels;
         let names: Vec<String> = manifest.blocks.iter().map(block_name).collect();
@@ -446,13 +496,15 @@ impl Dbtor {
                         Precision::Fp32 => {
                             let w = fast::fp32_block(&path, c, b.aux_channels)?;
                             FastBlock::Fp32(
-                                Fp32Block::new(&w, Kernel::best_fp32()).map_err(conv_err(&path))?,
+                                Fp32Block::new(&w, Kernel::best_fp32_up_to(limit))
+                                    .map_err(conv_err(&path))?,
                             )
                         }
                         Precision::Int8 => {
                             let w = fast::int8_block(&path, c, b.aux_channels)?;
                             FastBlock::Int8(
-                                Int8Block::new(&w, Kernel::best_int8()).map_err(conv_err(&path))?,
+                                Int8Block::new(&w, Kernel::best_int8_up_to(limit))
+                                    .map_err(conv_err(&path))?,
                             )
                         }
                     };
@@ -547,7 +599,8 @@ impl Dbtor {
         self.engine
     }
 
-    /// The fast path's kernel ("avx512" or "portable"), `None` on tract.
+    /// The fast path's kernel ("avx512", "avx2" or "portable"; the first
+    /// block's, which mixed precision may differ from), `None` on tract.
     pub fn kernel(&self) -> Option<&'static str> {
         match &self.blocks {
             Blocks::Tract(_) => None,

@@ -428,3 +428,27 @@ fn mixed_precision_runs_the_named_blocks_in_fp32() {
     assert!(f.fp32_blocks().is_empty());
     assert_eq!(f.precision_label(), "fp32");
 }
+
+/// Every fast-path kernel this CPU runs, forced in turn as `DBTOR_KERNEL`
+/// forces it (AVX-512, AVX2, portable for fp32; AVX-512 VNNI and portable
+/// for int8), passes the model's fixtures against PyTorch (fp32) and
+/// onnxruntime (int8), and reports the kernel it runs.
+#[test]
+fn every_forced_kernel_matches_the_fixtures() {
+    use dbt_dbtor::Kernel;
+    let dir = model_dir();
+    let g = dbt_dbtor::ModelManifest::load(&dir).unwrap().geometry;
+    for p in [Precision::Fp32, Precision::Int8] {
+        for limit in Kernel::ALL {
+            let m = Dbtor::load_for_geometry_up_to(&dir, p, &[], Engine::Fast, &g, limit).unwrap();
+            let want = match p {
+                Precision::Fp32 => Kernel::best_fp32_up_to(limit),
+                Precision::Int8 => Kernel::best_int8_up_to(limit),
+            };
+            assert_eq!(m.kernel(), Some(want.name()), "{p} up to {limit:?}");
+            for c in check_fixtures(&m, &dir).unwrap() {
+                assert!(c.pass, "{p} on {}: {c:?}", want.name());
+            }
+        }
+    }
+}

@@ -31,6 +31,17 @@ pub fn detected(name: &str) -> Option<bool> {
     }
 }
 
+/// The extensions [`detected`] knows, in its spelling.
+pub const KNOWN: [&str; 5] = ["avx2", "fma", "avx512f", "avx512bw", "avx512vnni"];
+
+/// The extensions of [`KNOWN`] this CPU has.
+pub fn present() -> Vec<&'static str> {
+    KNOWN
+        .into_iter()
+        .filter(|n| detected(n) == Some(true))
+        .collect()
+}
+
 /// Whether a kernel test that needs `needs` runs here: `true` if the CPU
 /// has every one; `false` (the test is skipped, said on stderr) if not.
 ///

@@ -204,12 +204,29 @@ fn run_cmd(cmd: Cmd) -> Result<bool> {
     }
 }
 
+/// The fast engine's kernels here: fp32 and int8, and whether
+/// `DBTOR_KERNEL` forces them down.
+fn conv_kernels() -> Result<String> {
+    let limit = dbt_dbtor::kernel_limit()?;
+    Ok(format!(
+        "fp32 {}, int8 {}{}",
+        dbt_conv::Kernel::best_fp32_up_to(limit).name(),
+        dbt_conv::Kernel::best_int8_up_to(limit).name(),
+        match std::env::var(dbt_dbtor::KERNEL_ENV) {
+            Ok(v) => format!(" ({}={v})", dbt_dbtor::KERNEL_ENV),
+            Err(_) => String::new(),
+        }
+    ))
+}
+
 /// `dbtor-diag selftest`: `Ok(false)` when a check failed.
 fn run_selftest(args: SelftestArgs) -> Result<bool> {
     let SelftestArgs { geometry, json } = args;
     let g = load_geometry(&geometry)?;
     let checks = selftest::projector(&g);
     let ok = checks.iter().all(|c| c.passed());
+    let cpu = dbt_cli::cpu_summary();
+    let kernels = conv_kernels()?;
     if json {
         let v: Vec<_> = checks
             .iter()
@@ -217,9 +234,11 @@ fn run_selftest(args: SelftestArgs) -> Result<bool> {
             .collect();
         println!(
             "{}",
-            serde_json::json!({"geometry": g.describe(), "passed": ok, "checks": v})
+            serde_json::json!({"geometry": g.describe(), "cpu": cpu, "conv_kernels": kernels, "passed": ok, "checks": v})
         );
     } else {
+        println!("cpu: {cpu}");
+        println!("DBToR fast engine: {kernels}");
         println!("geometry: {}", g.describe());
         println!(
             "{:<24} {:>6} {:>11} {:>9}  detail",
@@ -459,6 +478,11 @@ fn run_replay(args: ReplayArgs) -> Result<bool> {
 /// `dbtor-diag bench`: `Ok(false)` when a check failed.
 fn run_bench(args: BenchArgs) -> Result<bool> {
     let BenchArgs { model, reps, json } = args;
+    let (cpu, kernels) = (dbt_cli::cpu_summary(), conv_kernels()?);
+    if !json {
+        println!("cpu: {cpu}");
+        println!("DBToR fast engine: {kernels}");
+    }
     let g = Geometry::paper();
     let p = dbt_projector::Projector::new(&g);
     let x = vec![0.05f32; g.n_pixels()];
@@ -521,7 +545,10 @@ fn run_bench(args: BenchArgs) -> Result<bool> {
             .iter()
             .map(|(k, v)| (k.clone(), serde_json::json!(v)))
             .collect();
-        println!("{}", serde_json::json!({"reps": reps, "median_ms": o}));
+        println!(
+            "{}",
+            serde_json::json!({"cpu": cpu, "conv_kernels": kernels, "reps": reps, "median_ms": o})
+        );
     } else {
         println!("{:<44} {:>12}", "operation (median of reps)", "ms");
         for (k, v) in &rows {

@@ -293,6 +293,20 @@ pub(super) fn run_tile(
                 }
             }
         }
+        #[cfg(target_arch = "x86_64")]
+        Kernel::Avx2 => {
+            assert!(p.w16.len() == p.w.len());
+            let (i, wp, t) = (
+                inp[base..].as_ptr(),
+                p.w16[g0 * 4..].as_ptr(),
+                tile.as_mut_ptr(),
+            );
+            // SAFETY: AVX2 was detected when the block was made
+            // (Int8Block::new refuses otherwise); the asserts above bound
+            // every address the kernel touches (w16 is w widened, same
+            // length and order).
+            unsafe { tile_avx2(gw / L, np, i, rs, cs, g4, wp, p.ocp, t) }
+        }
         _ => {
             if gw == GROUP {
                 dispatch_np!(
@@ -408,6 +422,108 @@ pub(super) unsafe fn tile_vnni<const NB: usize, const NP: usize>(
             for (j, aj) in a.iter().enumerate() {
                 _mm512_storeu_si512(out.add((p * NB + j) * L) as *mut __m512i, *aj);
             }
+        }
+    }
+}
+
+/// AVX2: the VNNI tile computed exactly with `vpmaddwd`. Each pass keeps 8
+/// output channels x up to 5 pixels: two accumulators per pixel, each
+/// holding 4 channels x 2 partial sums (pairs of the 4 inputs of a group);
+/// the weights are the packing widened to i16 and the 4 input bytes are
+/// zero-extended to i16 and broadcast. The partial sums are added once per
+/// pass. Written where the VNNI kernel writes (`out[(p * nb + j) * 16 + k]`).
+///
+/// # Safety
+/// AVX2; `inp` valid for every tap of the tile (`2 * rs + (np + 1) * cs`
+/// bytes), `w` for `9 * g4 * ocp * 4` i16 from the group's first lane,
+/// `out` for `np * nb * 16` i32; `np` in 1..=10, `nb` in 1..=4.
+#[cfg(target_arch = "x86_64")]
+#[allow(clippy::too_many_arguments)]
+#[target_feature(enable = "avx2")]
+pub(super) unsafe fn tile_avx2(
+    nb: usize,
+    np: usize,
+    inp: *const u8,
+    rs: usize,
+    cs: usize,
+    g4: usize,
+    w: *const i16,
+    ocp: usize,
+    out: *mut i32,
+) {
+    let mut p0 = 0;
+    while p0 < np {
+        let n = (np - p0).min(5);
+        for q in 0..2 * nb {
+            // SAFETY: the pass reads pixels p0..p0 + n of the tile and the
+            // weights of channels 8q..8q + 8 of the group, and writes those
+            // values of `out`: inside the contract's ranges.
+            unsafe {
+                let (i, wq, o) = (
+                    inp.add(p0 * cs),
+                    w.add(q * 8 * 4),
+                    out.add(p0 * nb * L + q * 8),
+                );
+                match n {
+                    1 => pass_avx2::<1>(i, rs, cs, g4, wq, ocp, o, nb),
+                    2 => pass_avx2::<2>(i, rs, cs, g4, wq, ocp, o, nb),
+                    3 => pass_avx2::<3>(i, rs, cs, g4, wq, ocp, o, nb),
+                    4 => pass_avx2::<4>(i, rs, cs, g4, wq, ocp, o, nb),
+                    _ => pass_avx2::<5>(i, rs, cs, g4, wq, ocp, o, nb),
+                }
+            }
+        }
+        p0 += n;
+    }
+}
+
+/// 8 output channels x `NP` pixels of [`tile_avx2`], stored at
+/// `out[p * nb * 16 + k]`.
+///
+/// # Safety
+/// AVX2; `inp` valid for every tap of `NP` pixels, `w` for the group's
+/// weights from the pass's first channel, `out` for `(NP - 1) * nb * 16 + 8`
+/// i32.
+#[cfg(target_arch = "x86_64")]
+#[allow(clippy::too_many_arguments)]
+#[target_feature(enable = "avx2")]
+unsafe fn pass_avx2<const NP: usize>(
+    inp: *const u8,
+    rs: usize,
+    cs: usize,
+    g4: usize,
+    w: *const i16,
+    ocp: usize,
+    out: *mut i32,
+    nb: usize,
+) {
+    // SAFETY: AVX2 and the pointer ranges per the contract.
+    unsafe {
+        use std::arch::x86_64::*;
+        // lo: channels 0-3 of the pass, hi: 4-7; lanes (channel, pair).
+        let mut lo = [_mm256_setzero_si256(); NP];
+        let mut hi = [_mm256_setzero_si256(); NP];
+        for t in 0..9 {
+            let ib = inp.add((t / 3) * rs + (t % 3) * cs);
+            let wb = w.add(t * g4 * ocp * 4);
+            for g in 0..g4 {
+                let wr = wb.add(g * ocp * 4);
+                let w0 = _mm256_loadu_si256(wr as *const __m256i);
+                let w1 = _mm256_loadu_si256(wr.add(16) as *const __m256i);
+                for p in 0..NP {
+                    let four = (ib.add(p * cs + 4 * g) as *const i32).read_unaligned();
+                    // 4 bytes -> 4 x i16 (zero-extended), broadcast to 4 x 64 bits.
+                    let a = _mm256_broadcastq_epi64(_mm_cvtepu8_epi16(_mm_cvtsi32_si128(four)));
+                    lo[p] = _mm256_add_epi32(lo[p], _mm256_madd_epi16(a, w0));
+                    hi[p] = _mm256_add_epi32(hi[p], _mm256_madd_epi16(a, w1));
+                }
+            }
+        }
+        for p in 0..NP {
+            // [c0 c1 c4 c5 | c2 c3 c6 c7] -> [c0 .. c7]
+            let h = _mm256_hadd_epi32(lo[p], hi[p]);
+            let r = _mm256_permute4x64_epi64(h, 0b11_01_10_00);
+            _mm256_storeu_si256(out.add(p * nb * L) as *mut __m256i, r);
         }
     }
 }

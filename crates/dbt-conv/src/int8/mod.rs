@@ -113,6 +113,11 @@ impl Int8Block {
                 "the AVX-512 VNNI kernel was asked for on a CPU without it".into(),
             ));
         }
+        if kernel == Kernel::Avx2 && Kernel::best_int8() < Kernel::Avx2 {
+            return Err(ConvError::Shape(
+                "the AVX2 int8 kernel was asked for on a CPU without AVX2".into(),
+            ));
+        }
         let [l1, l2, l3] = &b.layers;
         // check(): layers 1 and 2 end in a quantized PReLU
         let (Some(q2), Some(q3)) = (l1.q_act, l2.q_act) else {
@@ -439,6 +444,32 @@ mod tests {
             assert_eq!(Kernel::best_int8(), Kernel::Avx512);
             // Same integers, same float epilogue: bit-identical.
             assert_eq!(run(&b, Kernel::Avx512, &state, &aux, h, w), got);
+        }
+        if dbt_isa::kernel_test_runs("int8 avx2", &["avx2"]) {
+            assert!(Kernel::best_int8() >= Kernel::Avx2);
+            // Exact integer products and sums: bit-identical too.
+            assert_eq!(run(&b, Kernel::Avx2, &state, &aux, h, w), got);
+        }
+    }
+
+    /// Every pixel count of a tile (1..=10 and a tail) and both group
+    /// widths, on the AVX2 kernel, against the portable one.
+    #[test]
+    fn avx2_int8_matches_portable_on_every_tile_shape() {
+        if !dbt_isa::kernel_test_runs("int8 avx2", &["avx2"]) {
+            return;
+        }
+        for w in 1..=12 {
+            for hidden in [64, 16] {
+                let b = in_form(random_int8(5, 2, hidden, 11 + w as u64), Form::Plain, 1);
+                let state = random_vec(5 * 2 * w, 1);
+                let aux = random_vec(2 * 2 * w, 2);
+                assert_eq!(
+                    run(&b, Kernel::Avx2, &state, &aux, 2, w),
+                    run(&b, Kernel::Portable, &state, &aux, 2, w),
+                    "{hidden} channels, width {w}"
+                );
+            }
         }
     }
 

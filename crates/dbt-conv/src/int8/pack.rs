@@ -12,6 +12,10 @@ pub(super) struct PackedI8 {
     pub(super) ocp: usize,
     /// `[tap][cin4 / 4][ocp][4]`.
     pub(super) w: Vec<i8>,
+    /// `w` widened to i16, same order: the AVX2 kernel's operands
+    /// (`vpmaddwd` sums pairs of i16 products exactly, where `vpmaddubsw`
+    /// on the bytes would saturate).
+    pub(super) w16: Vec<i16>,
     /// `sx * sw[o]`, 0 on padded lanes.
     pub(super) scale: Vec<f32>,
     /// `(128 + zx) * sum qw[o]`.
@@ -47,11 +51,13 @@ pub(super) fn pack(l: &Int8Conv, q_in: QuantParams) -> PackedI8 {
             slope[o] = p[o];
         }
     }
+    let w16 = w.iter().map(|&v| i16::from(v)).collect();
     PackedI8 {
         cin: l.in_ch,
         cin4,
         ocp,
         w,
+        w16,
         scale,
         corr,
         bias,
