@@ -463,6 +463,20 @@ fn base(
         VR::SQ,
         sq(vec![]),
     ));
+    // SOP Common: our private coding scheme, declared.
+    o.put(DataElement::new(
+        tags::CODING_SCHEME_IDENTIFICATION_SEQUENCE,
+        VR::SQ,
+        sq(vec![InMemDicomObject::from_element_iter([
+            DataElement::new(tags::CODING_SCHEME_DESIGNATOR, VR::SH, PRIVATE_SCHEME),
+            DataElement::new(tags::CODING_SCHEME_NAME, VR::ST, "DBToR private codes"),
+            DataElement::new(
+                tags::CODING_SCHEME_RESPONSIBLE_ORGANIZATION,
+                VR::ST,
+                "DBToR (docs/conformance.md)",
+            ),
+        ])]),
+    ));
     o.put(DataElement::new(
         tags::CONTENT_TEMPLATE_SEQUENCE,
         VR::SQ,
