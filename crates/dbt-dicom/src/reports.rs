@@ -13,8 +13,11 @@ use dicom_object::{FileMetaTableBuilder, InMemDicomObject};
 pub const DOSE_SR_CLASS: &str = "1.2.840.10008.5.1.4.1.1.88.67";
 /// Comprehensive SR Storage.
 pub const COMPREHENSIVE_SR_CLASS: &str = "1.2.840.10008.5.1.4.1.1.88.33";
-/// Breast Tomosynthesis Image Storage (the source projections).
-pub const BREAST_TOMO_CLASS: &str = "1.2.840.10008.5.1.4.1.1.13.1.3";
+/// Breast Projection X-Ray Image Storage - For Processing: the class of the
+/// source projections the reports reference as evidence (raw counts, one
+/// per view; Breast Tomosynthesis Image Storage, 1.2.840.10008.5.1.4.1.1.13.1.3,
+/// is a reconstructed volume, which we never receive).
+pub const BREAST_PROJECTION_FOR_PROCESSING_CLASS: &str = "1.2.840.10008.5.1.4.1.1.13.1.5";
 /// Our private coding scheme.
 pub const PRIVATE_SCHEME: &str = "99DBTOR";
 
@@ -491,7 +494,11 @@ fn base(
         .iter()
         .map(|u| {
             InMemDicomObject::from_element_iter([
-                DataElement::new(tags::REFERENCED_SOP_CLASS_UID, VR::UI, BREAST_TOMO_CLASS),
+                DataElement::new(
+                    tags::REFERENCED_SOP_CLASS_UID,
+                    VR::UI,
+                    BREAST_PROJECTION_FOR_PROCESSING_CLASS,
+                ),
                 DataElement::new(tags::REFERENCED_SOP_INSTANCE_UID, VR::UI, u.as_str()),
             ])
         })
