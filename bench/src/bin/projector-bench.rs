@@ -57,6 +57,7 @@ fn main() -> Result<()> {
     };
     let g = base.binned(args.binning)?;
     let threads = rayon::current_num_threads();
+    println!("cpu: {}", dbt_cli::cpu_summary());
     println!("geometry: {}", g.describe());
     println!(
         "threads: {threads}, repetitions: {} (after {} warm-up)",
@@ -68,6 +69,8 @@ fn main() -> Result<()> {
     let build_ms = t.elapsed().as_secs_f64() * 1e3;
     let fast = proj.clone();
     let scalar = proj.clone().with_kernel(Kernel::Scalar);
+    // The AVX2 path, forced where a faster one is the default (issue #30).
+    let avx2 = proj.clone().with_kernel(Kernel::Avx2);
 
     let mut rng = ChaCha8Rng::seed_from_u64(2024);
     // Attenuation-like values (per mm) so that line integrals are realistic.
@@ -84,6 +87,18 @@ fn main() -> Result<()> {
     let adj_ms = median_ms(args.warmup, args.reps, || {
         let _ = fast.adjoint(&sino_in, &mut back);
     });
+    let (afwd_ms, aadj_ms) = if avx2.kernel() == Kernel::Avx2 && fast.kernel() != Kernel::Avx2 {
+        (
+            median_ms(args.warmup, args.reps, || {
+                let _ = avx2.forward(&img, &mut sino);
+            }),
+            median_ms(args.warmup, args.reps, || {
+                let _ = avx2.adjoint(&sino_in, &mut back);
+            }),
+        )
+    } else {
+        (f64::NAN, f64::NAN)
+    };
     let sreps = (args.reps / 5).max(3);
     let sfwd_ms = median_ms(1, sreps, || {
         let _ = scalar.forward(&img, &mut sino);
@@ -128,6 +143,14 @@ fn main() -> Result<()> {
         fwd_ms,
         adj_ms
     );
+    if afwd_ms.is_finite() {
+        println!(
+            "{:<34} {:>8.2}ms {:>8.2}ms",
+            format!("ours, Avx2 (forced), {threads} threads"),
+            afwd_ms,
+            aadj_ms
+        );
+    }
     println!(
         "{:<34} {:>8.2}ms {:>8.2}ms",
         format!("ours, scalar, {threads} threads"),
@@ -187,6 +210,9 @@ fn main() -> Result<()> {
         "reps": args.reps,
         "forward_ms": fwd_ms,
         "adjoint_ms": adj_ms,
+        "avx2_forced_forward_ms": if afwd_ms.is_finite() { json!(afwd_ms) } else { Value::Null },
+        "avx2_forced_adjoint_ms": if aadj_ms.is_finite() { json!(aadj_ms) } else { Value::Null },
+        "cpu": dbt_cli::cpu_summary(),
         "scalar_forward_ms": sfwd_ms,
         "scalar_adjoint_ms": sadj_ms,
         "astra_forward_ms": num("astra_forward_ms"),

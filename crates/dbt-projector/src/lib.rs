@@ -37,6 +37,8 @@ use rayon::prelude::*;
 use thiserror::Error;
 
 #[cfg(target_arch = "x86_64")]
+mod avx2;
+#[cfg(target_arch = "x86_64")]
 mod avx512;
 mod csr;
 mod table;
@@ -76,6 +78,9 @@ fn check_len(what: &'static str, got: usize, expected: usize) -> Result<(), Proj
 pub enum Kernel {
     /// Portable scalar code (the reference the others are tested against).
     Scalar,
+    /// AVX2 forward (masked gathers), scalar adjoint (x86-64 with AVX2
+    /// detected at run time).
+    Avx2,
     /// AVX-512F kernels (x86-64 with the feature detected at run time).
     Avx512,
 }
@@ -108,6 +113,7 @@ impl Projector {
     pub fn with_kernel(mut self, kernel: Kernel) -> Self {
         self.kernel = match kernel {
             Kernel::Avx512 if best_kernel() == Kernel::Avx512 => Kernel::Avx512,
+            Kernel::Avx2 if has_avx2() => Kernel::Avx2,
             _ => Kernel::Scalar,
         };
         self
@@ -190,6 +196,12 @@ impl Projector {
                 // detection of AVX-512F.
                 unsafe { avx512::forward_rays(&self.table, img, r0, out) }
             }
+            #[cfg(target_arch = "x86_64")]
+            Kernel::Avx2 => {
+                // SAFETY: `Kernel::Avx2` is only selected after run-time
+                // detection of AVX2.
+                unsafe { avx2::forward_rays(&self.table, img, r0, out) }
+            }
             _ => {
                 for (o, r) in out.iter_mut().zip(r0..) {
                     *o = self.table.forward_ray_scalar(r, img);
@@ -266,5 +278,19 @@ pub fn best_kernel() -> Kernel {
             return Kernel::Avx512;
         }
     }
+    if has_avx2() {
+        return Kernel::Avx2;
+    }
     Kernel::Scalar
+}
+
+fn has_avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
 }
