@@ -14,6 +14,7 @@
 
 pub mod bounds;
 mod content;
+pub mod projections;
 pub mod reports;
 pub mod templates;
 

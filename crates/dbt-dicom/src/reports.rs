@@ -268,6 +268,19 @@ impl Report {
         Ok(out)
     }
 
+    /// A report of `obj`, an object of `sop_class` built elsewhere in the crate.
+    pub(crate) fn from_parts(
+        sop_class: &'static str,
+        sop_instance: String,
+        obj: InMemDicomObject,
+    ) -> Self {
+        Self {
+            sop_class,
+            sop_instance,
+            obj,
+        }
+    }
+
     /// The dataset (for tests that break it on purpose).
     pub fn dataset_mut(&mut self) -> &mut InMemDicomObject {
         &mut self.obj
