@@ -36,6 +36,10 @@ enum Cmd {
     Modbus(ModbusArgs),
     /// Export a training dataset (see DATASET.md).
     Dataset(DatasetArgs),
+    /// Write a recorded acquisition as a Breast Projection X-Ray Image - For
+    /// Processing object (one frame per view), check it with dciodvfy, and
+    /// send it by C-STORE, as a modality sends to a density or dose server.
+    DicomSend(DicomSendArgs),
     /// Add the FBP of one noise level's sinograms to every split of a dataset
     /// (`fbp-<level>`, the U-Net baseline's input; DATASET.md).
     Fbp(FbpArgs),
@@ -160,6 +164,42 @@ struct DatasetArgs {
     population: PopulationKind,
 }
 
+/// The options of `host-sim dicom-send`.
+#[derive(Args)]
+struct DicomSendArgs {
+    /// Recorded acquisition folder (from `acquire`).
+    #[arg(long)]
+    acq: PathBuf,
+    /// Also write the object here (DICOM Part 10).
+    #[arg(long, required_unless_present = "to")]
+    out: Option<PathBuf>,
+    /// Send it to this Storage SCP, AET@host:port.
+    #[arg(long)]
+    to: Option<String>,
+    /// Our calling AE title.
+    #[arg(long, default_value = "HOSTSIM")]
+    calling_ae: String,
+    /// Compression force of the simulated gantry, N (its Modbus register's).
+    #[arg(long, default_value_t = 110.0)]
+    compression_force_n: f64,
+    /// Exposure time of each view, ms, and the time between views' starts:
+    /// the simulated gantry's sweep (25 views in about 3.7 s).
+    #[arg(long, default_value_t = 60.0)]
+    exposure_ms: f64,
+    /// See `exposure_ms`.
+    #[arg(long, default_value_t = 150.0)]
+    view_interval_ms: f64,
+    /// The simulated modality's own dose estimate, mGy (Organ Dose).
+    /// Default: the incident air kerma times 0.25, a typical DBT
+    /// conversion for a 50 mm breast of 50 % glandularity; the product
+    /// computes its own MGD and never reads this.
+    #[arg(long)]
+    organ_dose_mgy: Option<f64>,
+    /// Skip the dciodvfy check (it is required otherwise).
+    #[arg(long)]
+    no_check: bool,
+}
+
 /// The options of `host-sim fbp`.
 #[derive(Args)]
 struct FbpArgs {
@@ -185,6 +225,7 @@ fn main() -> Result<()> {
         Cmd::Modbus(a) => run_modbus(a),
         Cmd::Dataset(a) => run_dataset(a),
         Cmd::Fbp(a) => run_fbp(a),
+        Cmd::DicomSend(a) => run_dicom_send(a),
     }
 }
 
@@ -438,5 +479,119 @@ fn run_fbp(args: FbpArgs) -> Result<()> {
         println!("{split}: fbp-{level} of {n} slices");
     }
     println!("{:.0} s", t.elapsed().as_secs_f64());
+    Ok(())
+}
+
+/// `host-sim dicom-send`.
+fn run_dicom_send(args: DicomSendArgs) -> Result<()> {
+    let DicomSendArgs {
+        acq,
+        out,
+        to,
+        calling_ae,
+        compression_force_n,
+        exposure_ms,
+        view_interval_ms,
+        organ_dose_mgy,
+        no_check,
+    } = args;
+    let a = dbt_store::acquisition::read_acquisition(&acq)?;
+    let h = &a.header;
+    let g = &h.geometry;
+    let (views, det) = (g.n_views(), g.n_det());
+    // Frames: view v, detector row = coronal slice, column = element.
+    let mut counts = Vec::with_capacity(views * h.slices * det);
+    for v in 0..views {
+        for (s, slice) in a.counts.iter().enumerate() {
+            for (e, c) in slice[v * det..(v + 1) * det].iter().enumerate() {
+                let c = c.round();
+                if !(0.0..=65535.0).contains(&c) {
+                    bail!("count {c} of view {v}, slice {s}, element {e} does not fit 16 bits");
+                }
+                counts.push(c as u16);
+            }
+        }
+    }
+    let angles: Vec<f64> = (0..views).map(|v| g.angle_deg(v)).collect();
+    let kerma = h.mas_total * h.tube_output_mgy_per_mas;
+    let header = dbt_pipeline::dicom_header(&a);
+    let equipment = dbt_dicom::Equipment {
+        manufacturer: "DBToR host-sim".into(),
+        model: "simulated DBT gantry".into(),
+        serial: "SIM-GANTRY".into(),
+        software_version: env!("CARGO_PKG_VERSION").into(),
+        device_uid: "1.2.826.0.1.3680043.10.543.2.9".into(),
+    };
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs())
+        .unwrap_or(0);
+    let (date, time) = dbt_dicom::dicom_datetime_utc(now);
+    let set = dbt_dicom::projections::ProjectionSet {
+        header: &header,
+        equipment: &equipment,
+        rows: h.slices,
+        columns: det,
+        pixel_spacing_mm: [h.slice_spacing_mm, g.detector.pitch_mm],
+        angles_deg: &angles,
+        source_to_detector_mm: g.source_to_detector_mm,
+        source_to_isocenter_mm: g.source_to_center_mm,
+        thickness_mm: h.thickness_mm,
+        compression_force_n,
+        support_to_detector_mm: 0.0,
+        exposure_ms_per_view: exposure_ms,
+        view_interval_ms,
+        modality_agd_mgy: organ_dose_mgy.unwrap_or(0.25 * kerma),
+        entrance_dose_mgy: kerma,
+        kvp: h.kvp,
+        exposure_uas_per_view: h.mas_total * 1000.0 / views as f64,
+        filter_rh_mm: dbt_dose::xray::paper_spectrum(h.thickness_mm)?.rh_mm,
+        counts: &counts,
+        content_date: &date,
+        content_time: &time,
+    };
+    let mut uids = dbt_dicom::UidSource::new("1.2.826.0.1.3680043.10.543.2", now)?;
+    let obj = dbt_dicom::projections::projection_object(&set, &mut uids)?;
+    let bytes = obj.to_bytes()?;
+    let file = match &out {
+        Some(p) => p.clone(),
+        None => std::env::temp_dir().join(format!("host-sim-{}.dcm", obj.sop_instance)),
+    };
+    std::fs::write(&file, &bytes).with_context(|| format!("writing {}", file.display()))?;
+    if !no_check {
+        let o = std::process::Command::new("dciodvfy")
+            .arg(&file)
+            .output()
+            .context("running dciodvfy (apt-get install dicom3tools; --no-check skips it)")?;
+        let text =
+            String::from_utf8_lossy(&o.stderr).to_string() + &String::from_utf8_lossy(&o.stdout);
+        let errors: Vec<&str> = text.lines().filter(|l| l.starts_with("Error")).collect();
+        if !errors.is_empty() {
+            bail!(
+                "dciodvfy finds {} errors in {}:\n{}",
+                errors.len(),
+                file.display(),
+                errors.join("\n")
+            );
+        }
+    }
+    println!(
+        "{}: {} frames of {} x {}, SOP instance {}{}",
+        file.display(),
+        views,
+        h.slices,
+        det,
+        obj.sop_instance,
+        if no_check { "" } else { ", dciodvfy: no error" }
+    );
+    if let Some(to) = to {
+        let mut cfg = dbt_pacs::PacsConfig::parse(&to)?;
+        cfg.calling_ae_title = calling_ae;
+        dbt_pacs::store_with_retry(&cfg, &bytes)?;
+        println!("sent to {to}");
+    }
+    if out.is_none() {
+        let _ = std::fs::remove_file(&file);
+    }
     Ok(())
 }

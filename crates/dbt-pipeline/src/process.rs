@@ -448,18 +448,12 @@ pub fn process_with_progress(
     })
 }
 
-/// The dose and density reports of a processed acquisition.
-pub fn reports(
-    acq: &Acquisition,
-    res: &ProcessResult,
-    equipment: &Equipment,
-    uids: &mut UidSource,
-    content_date: &str,
-    content_time: &str,
-) -> Result<(Report, Report), PipelineError> {
+/// The DICOM identity of an acquisition (patient, study, laterality, its
+/// projections' series and instances), as its reports and its DICOM
+/// projection object carry it.
+pub fn dicom_header(acq: &Acquisition) -> Header {
     let h = &acq.header;
-    let g = &h.geometry;
-    let header = Header {
+    Header {
         patient_name: h.patient.name.clone(),
         patient_id: h.patient.id.clone(),
         patient_birth_date: h.patient.birth_date.clone(),
@@ -477,7 +471,21 @@ pub fn reports(
         },
         source_series_uid: h.study.series_uid.clone(),
         source_instance_uids: h.study.instance_uids.clone(),
-    };
+    }
+}
+
+/// The dose and density reports of a processed acquisition.
+pub fn reports(
+    acq: &Acquisition,
+    res: &ProcessResult,
+    equipment: &Equipment,
+    uids: &mut UidSource,
+    content_date: &str,
+    content_time: &str,
+) -> Result<(Report, Report), PipelineError> {
+    let h = &acq.header;
+    let g = &h.geometry;
+    let header = dicom_header(acq);
     let nv = g.n_views();
     let step = if nv > 1 {
         g.angle_deg(1) - g.angle_deg(0)
