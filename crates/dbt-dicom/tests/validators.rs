@@ -467,3 +467,105 @@ fn projection_object_passes_dciodvfy() {
     .to_string();
     assert!(e.contains("thickness_mm"), "{e}");
 }
+
+/// What `projection_object` writes, `read_projection_object` reads back;
+/// and each kind of unusable input is refused naming what is wrong: another
+/// class (an SR), For Presentation, no thickness, pixel data of another
+/// size, a truncated file.
+#[test]
+fn projection_object_reads_back_and_bad_input_is_named() {
+    use dbt_dicom::projections::{projection_object, read_projection_object, ProjectionSet};
+    let (h, eq) = (header(), equipment());
+    let angles: Vec<f64> = (0..25).map(|i| -24.0 + 2.0 * i as f64).collect();
+    let counts = projection_counts(25, 6, 20);
+    let p = ProjectionSet {
+        header: &h,
+        equipment: &eq,
+        rows: 6,
+        columns: 20,
+        pixel_spacing_mm: [0.8, 0.8],
+        angles_deg: &angles,
+        source_to_detector_mm: 700.0,
+        source_to_isocenter_mm: 650.0,
+        thickness_mm: 45.0,
+        compression_force_n: 110.0,
+        support_to_detector_mm: 5.0,
+        exposure_ms_per_view: 60.0,
+        view_interval_ms: 150.0,
+        modality_agd_mgy: 1.6,
+        entrance_dose_mgy: 6.6,
+        kvp: 29.0,
+        exposure_uas_per_view: 2400.0,
+        filter_rh_mm: 0.058,
+        counts: &counts,
+        content_date: "20261122",
+        content_time: "101500",
+    };
+    let mut uids = UidSource::new("1.2.826.0.1.3680043.10.543", 9).unwrap();
+    let r = projection_object(&p, &mut uids).unwrap();
+    let bytes = r.to_bytes().unwrap();
+    let got = read_projection_object(&bytes).unwrap();
+    assert_eq!(got.counts, counts);
+    assert_eq!((got.rows, got.columns), (6, 20));
+    assert_eq!(got.angles_deg, angles);
+    assert_eq!(got.pixel_spacing_mm, [0.8, 0.8]);
+    assert_eq!(
+        (got.source_to_detector_mm, got.source_to_isocenter_mm),
+        (700.0, 650.0)
+    );
+    assert_eq!((got.thickness_mm, got.kvp), (45.0, 29.0));
+    assert!((got.exposure_mas - 60.0).abs() < 1e-9);
+    assert_eq!(got.compression_force_n, Some(110.0));
+    assert_eq!(got.header.patient_id, h.patient_id);
+    assert_eq!(got.header.laterality, Laterality::Left);
+    assert_eq!(
+        got.header.source_instance_uids,
+        vec![r.sop_instance.clone()]
+    );
+
+    let named = |bytes: &[u8], want: &str| {
+        let e = read_projection_object(bytes).err().map(|e| e.to_string());
+        assert!(
+            e.as_deref().is_some_and(|e| e.contains(want)),
+            "{want}: {e:?}"
+        );
+    };
+    let sr = dose_report(&dose_input(), &mut uids)
+        .unwrap()
+        .to_bytes()
+        .unwrap();
+    let edited = |f: &dyn Fn(&mut dbt_dicom::Report)| {
+        let mut u = UidSource::new("1.2.826.0.1.3680043.10.543", 10).unwrap();
+        let mut r = projection_object(&p, &mut u).unwrap();
+        f(&mut r);
+        r.to_bytes().unwrap()
+    };
+    named(&sr, "is not Breast Projection X-Ray Image - For Processing");
+    named(
+        &edited(&|r| {
+            r.dataset_mut().put(dicom_core::DataElement::new(
+                tags::PRESENTATION_INTENT_TYPE,
+                dicom_core::VR::CS,
+                "FOR PRESENTATION",
+            ));
+        }),
+        "not FOR PROCESSING",
+    );
+    named(
+        &edited(&|r| {
+            r.dataset_mut().remove_element(tags::BODY_PART_THICKNESS);
+        }),
+        "BodyPartThickness: missing",
+    );
+    named(
+        &edited(&|r| {
+            r.dataset_mut().put(dicom_core::DataElement::new(
+                tags::ROWS,
+                dicom_core::VR::US,
+                dicom_core::PrimitiveValue::from(7u16),
+            ));
+        }),
+        "PixelData: 3000 values for 25 frames of 7 x 20",
+    );
+    named(&bytes[..bytes.len() / 2], "not a readable DICOM object");
+}

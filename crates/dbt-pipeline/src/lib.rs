@@ -10,6 +10,7 @@
 //! * [`process`]: reconstruction, classification, density, dose, reports.
 
 pub mod acquisition;
+pub mod dicom_input;
 pub mod plausibility;
 pub mod process;
 

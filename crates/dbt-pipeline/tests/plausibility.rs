@@ -388,3 +388,89 @@ fn the_reconstructed_breast_must_fit_its_tissues_and_its_box() {
     // No breast at all.
     assert!(check_volume(&a.header, &fp, &mu, &vec![0u8; labels.len()], px).is_err());
 }
+
+/// The DICOM input's conversion (issue #31): an acquisition written as a
+/// Breast Projection X-Ray For Processing object and read back is the same
+/// acquisition on the same configured system (counts exactly: integers);
+/// an object from another gantry is refused naming the attribute.
+#[test]
+fn a_projection_object_reads_back_as_the_same_acquisition() {
+    use dbt_dicom::projections::{projection_object, read_projection_object, ProjectionSet};
+    use dbt_pipeline::dicom_input::{acquisition_from_projections, System};
+    let acq = acquisition(6, 45.0, 120.0, 45.0, 5);
+    let h = &acq.header;
+    let g = &h.geometry;
+    let (views, det) = (g.n_views(), g.n_det());
+    let counts: Vec<u16> = (0..views)
+        .flat_map(|v| {
+            acq.counts
+                .iter()
+                .flat_map(move |slice| slice[v * det..(v + 1) * det].iter().map(|c| *c as u16))
+        })
+        .collect();
+    let angles: Vec<f64> = (0..views).map(|v| g.angle_deg(v)).collect();
+    let header = dbt_pipeline::dicom_header(&acq);
+    let equipment = dbt_dicom::Equipment {
+        manufacturer: "test".into(),
+        model: "test gantry".into(),
+        serial: "1".into(),
+        software_version: "0".into(),
+        device_uid: "1.2.826.0.1.3680043.10.543.9".into(),
+    };
+    let set = ProjectionSet {
+        header: &header,
+        equipment: &equipment,
+        rows: h.slices,
+        columns: det,
+        pixel_spacing_mm: [h.slice_spacing_mm, g.detector.pitch_mm],
+        angles_deg: &angles,
+        source_to_detector_mm: g.source_to_detector_mm,
+        source_to_isocenter_mm: g.source_to_center_mm,
+        thickness_mm: h.thickness_mm,
+        compression_force_n: 110.0,
+        support_to_detector_mm: 0.0,
+        exposure_ms_per_view: 60.0,
+        view_interval_ms: 150.0,
+        modality_agd_mgy: 1.5,
+        entrance_dose_mgy: h.mas_total * h.tube_output_mgy_per_mas,
+        kvp: h.kvp,
+        exposure_uas_per_view: h.mas_total * 1000.0 / views as f64,
+        filter_rh_mm: 0.05,
+        counts: &counts,
+        content_date: "20261124",
+        content_time: "101500",
+    };
+    let mut uids = dbt_dicom::UidSource::new("1.2.826.0.1.3680043.10.543", 3).unwrap();
+    let bytes = projection_object(&set, &mut uids)
+        .unwrap()
+        .to_bytes()
+        .unwrap();
+    let received = read_projection_object(&bytes).unwrap();
+    let system = System {
+        geometry: g.clone(),
+        flux: h.flux,
+        tube_output_mgy_per_mas: h.tube_output_mgy_per_mas,
+    };
+    let back = acquisition_from_projections(&received, &system).unwrap();
+    let rounded: Vec<Vec<f32>> = acq
+        .counts
+        .iter()
+        .map(|s| s.iter().map(|c| (*c as u16) as f32).collect())
+        .collect();
+    assert_eq!(back.counts, rounded);
+    let mut want = h.clone();
+    want.study.series_uid = received.header.source_series_uid.clone();
+    want.study.instance_uids = received.header.source_instance_uids.clone();
+    assert!((back.header.mas_total - want.mas_total).abs() < 1e-9);
+    want.mas_total = back.header.mas_total;
+    assert_eq!(back.header, want);
+
+    let other = System {
+        geometry: g.clone().binned(2).unwrap(),
+        ..system
+    };
+    let e = acquisition_from_projections(&received, &other)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("Columns") && e.contains("elements"), "{e}");
+}
