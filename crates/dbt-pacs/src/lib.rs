@@ -10,6 +10,8 @@
 //! warning (Bxxx, stored with coercion). A report the PACS refuses with a
 //! failure status stays in the outbox too, so a service engineer can see it.
 
+pub mod scp;
+
 use dicom_core::{dicom_value, DataElement, VR};
 use dicom_dictionary_std::tags;
 use dicom_object::InMemDicomObject;
