@@ -277,6 +277,42 @@ fn default_status_address() -> String {
     StatusPageConfig::DEFAULT_ADDRESS.into()
 }
 
+/// The DICOM input: a Storage SCP for the modality's For Processing
+/// projections (issue #31), beside the frame link.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct DicomInputConfig {
+    /// `host:port` to listen on, or `"off"` (the default).
+    #[serde(default = "default_off")]
+    pub address: String,
+    /// Our AE title (the called AE title the modality must use).
+    #[serde(default = "default_ae")]
+    pub ae_title: String,
+    /// The detector's unattenuated counts per element at the technique
+    /// (the flat field the For Processing counts are relative to; from the
+    /// system's calibration). Required when the input is on.
+    #[serde(default)]
+    pub flat_field_counts: Option<f64>,
+}
+
+impl Default for DicomInputConfig {
+    fn default() -> Self {
+        Self {
+            address: default_off(),
+            ae_title: default_ae(),
+            flat_field_counts: None,
+        }
+    }
+}
+
+fn default_off() -> String {
+    "off".into()
+}
+
+fn default_ae() -> String {
+    "DBTOR".into()
+}
+
 /// The whole file.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -294,6 +330,9 @@ pub struct Config {
     /// The status page (default: served on loopback).
     #[serde(default)]
     pub status_page: StatusPageConfig,
+    /// The DICOM input (default: off).
+    #[serde(default)]
+    pub dicom_input: DicomInputConfig,
 }
 
 /// The dotted key (`recon.engine`) of the value at byte `at` of a TOML
@@ -389,6 +428,53 @@ impl Config {
         Ok(Some(addr))
     }
 
+    /// The DICOM input's address and flat field, `None` when off; refuses an
+    /// unparsable address, an AE title that is not 1-16 characters, and a
+    /// missing or non-positive flat field.
+    pub fn dicom_input_address(
+        &self,
+        path: &Path,
+    ) -> Result<Option<(SocketAddr, f64)>, ConfigError> {
+        let d = &self.dicom_input;
+        if d.address == "off" {
+            return Ok(None);
+        }
+        let bad = |key: &'static str, reason: String| ConfigError::Invalid {
+            path: path.to_path_buf(),
+            key,
+            reason,
+        };
+        let addr: SocketAddr = d.address.parse().map_err(|e| {
+            bad(
+                "dicom_input.address",
+                format!(
+                    "{:?}: {e} (an IP address and a port, e.g. 0.0.0.0:11112, or \"off\")",
+                    d.address
+                ),
+            )
+        })?;
+        let ae = d.ae_title.trim();
+        if ae.is_empty() || ae.len() > 16 || ae.contains('\\') {
+            return Err(bad(
+                "dicom_input.ae_title",
+                format!("{:?}: 1 to 16 characters, no backslash", d.ae_title),
+            ));
+        }
+        let flux = d.flat_field_counts.ok_or_else(|| {
+            bad(
+                "dicom_input.flat_field_counts",
+                "required with the DICOM input on (the system's calibrated flat field)".into(),
+            )
+        })?;
+        if !(flux.is_finite() && flux > 0.0 && flux <= 65535.0 * 16.0) {
+            return Err(bad(
+                "dicom_input.flat_field_counts",
+                format!("{flux} is not a positive count"),
+            ));
+        }
+        Ok(Some((addr, flux)))
+    }
+
     fn validate(&self, path: &Path) -> Result<(), ConfigError> {
         let bad = |key: &'static str, reason: String| ConfigError::Invalid {
             path: path.to_path_buf(),
@@ -396,6 +482,7 @@ impl Config {
             reason,
         };
         self.status_page_address(path)?;
+        self.dicom_input_address(path)?;
         match self.frames.transport {
             FrameTransport::Tcp => {
                 let a = self.frames.address.as_deref().ok_or_else(|| {
@@ -690,6 +777,38 @@ mod tests {
             e.contains("`status_page.address`") && e.contains("localhost"),
             "{e}"
         );
+    }
+
+    /// The DICOM input: off by default; on, it needs an address, an AE title
+    /// of 1-16 characters and the flat field, each refused by name.
+    #[test]
+    fn dicom_input_is_checked() {
+        let path = Path::new("x.toml");
+        let c = example(|t| t).unwrap();
+        assert_eq!(c.dicom_input_address(path).unwrap(), None);
+        let on = |extra: &str| {
+            example(move |t| {
+                let i = t.find("[dicom_input]").unwrap();
+                format!("{}[dicom_input]\n{extra}\n", &t[..i])
+            })
+        };
+        let c = on("address = \"127.0.0.1:11112\"\nflat_field_counts = 16000.0").unwrap();
+        assert_eq!(
+            c.dicom_input_address(path).unwrap(),
+            Some(("127.0.0.1:11112".parse().unwrap(), 16000.0))
+        );
+        for (extra, key) in [
+            ("address = \"127.0.0.1:11112\"", "dicom_input.flat_field_counts"),
+            ("address = \"nowhere\"\nflat_field_counts = 1.0", "dicom_input.address"),
+            (
+                "address = \"127.0.0.1:1\"\nflat_field_counts = 1.0\nae_title = \"A_TITLE_MUCH_TOO_LONG\"",
+                "dicom_input.ae_title",
+            ),
+            ("address = \"127.0.0.1:1\"\nflat_field_counts = -3.0", "dicom_input.flat_field_counts"),
+        ] {
+            let e = on(extra).unwrap_err().to_string();
+            assert!(e.contains(&format!("`{key}`")), "{extra}: {e}");
+        }
     }
 
     /// Transport, reconstructor and precision are typed: a misspelt value is

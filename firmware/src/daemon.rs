@@ -179,6 +179,48 @@ pub fn write_durable(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     Ok(())
 }
 
+/// Write `acq` durably as spool entry `id`: into `tmp/`, every file and the
+/// folder fsynced, then renamed into `incoming/` (and that folder fsynced),
+/// so a crash leaves either nothing or a complete entry. Used by both
+/// inputs (the frame link, the DICOM input's thread).
+pub fn spool_entry(
+    spool: &Path,
+    id: &str,
+    acq: &Acquisition,
+    gantry: &serde_json::Value,
+) -> std::io::Result<()> {
+    let tmp = spool.join("tmp").join(id);
+    let dst = spool.join("incoming").join(id);
+    let _ = std::fs::remove_dir_all(&tmp);
+    write_acquisition(&tmp, acq).map_err(std::io::Error::other)?;
+    write_durable(
+        &tmp.join("gantry.json"),
+        &serde_json::to_vec_pretty(gantry).map_err(std::io::Error::other)?,
+    )?;
+    for f in ["acquisition.json", "counts.f32"] {
+        std::fs::File::open(tmp.join(f))?.sync_all()?;
+    }
+    fsync_dir(&tmp)?;
+    std::fs::rename(&tmp, &dst)?;
+    fsync_dir(&spool.join("incoming"))?;
+    fsync_dir(&spool.join("tmp"))
+}
+
+/// A spool entry id: the time in ms, then the patient id made safe for a
+/// file name (ASCII letters and digits, the rest `_`, at most 32).
+pub fn entry_id(patient_id: &str) -> String {
+    let ms = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_millis())
+        .unwrap_or(0);
+    let safe: String = patient_id
+        .chars()
+        .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
+        .take(32)
+        .collect();
+    format!("{ms:013}-{safe}")
+}
+
 /// The daemon.
 pub struct Daemon {
     cfg: Config,
@@ -195,6 +237,10 @@ pub struct Daemon {
     last_flush: Option<Instant>,
     /// The status page's server, if it serves (stops with the daemon).
     _status_page: Option<StatusServer>,
+    /// The DICOM input's thread, if on, and the faults it reports.
+    dicom: Option<crate::dicom_input::DicomInput>,
+    /// Spool entries processed (or tried) in this run.
+    attempted: std::collections::HashSet<String>,
 }
 
 /// Why an acquisition did not reach the spool: a fault of `kind` (`link`:
@@ -290,7 +336,29 @@ impl Daemon {
             unreachable_logged: None,
             last_flush: None,
             _status_page: status_page,
+            dicom: None,
+            attempted: Default::default(),
         };
+        if let Some((addr, flux)) = d.cfg.dicom_input_address(&d.config_path)? {
+            let input = crate::dicom_input::DicomInput::start(
+                addr,
+                &d.cfg.dicom_input.ae_title,
+                d.cfg.paths.spool.clone(),
+                dbt_pipeline::dicom_input::System {
+                    geometry: d.geom.clone(),
+                    flux,
+                    tube_output_mgy_per_mas: d.cfg.report.tube_output_mgy_per_mas,
+                },
+                Arc::clone(&d.stop),
+            )
+            .map_err(|e| DaemonError::Resource {
+                what: format!("dicom_input.address = {addr}"),
+                reason: e.to_string(),
+            })?;
+            tracing::info!(address = %addr, "DICOM input listening");
+            d.status.dicom_input = Some(format!("{}@{}", d.cfg.dicom_input.ae_title, input.addr()));
+            d.dicom = Some(input);
+        }
         d.publish("starting", None);
         if let Some(msg) = page_fault {
             d.fault(None, "status_page", msg);
@@ -299,6 +367,12 @@ impl Daemon {
     }
 
     fn publish(&mut self, state: &str, current: Option<&str>) {
+        if let Some(faults) = self.dicom.as_ref().map(|d| d.drain()) {
+            for f in faults {
+                tracing::error!(acquisition = f.acquisition, kind = %f.kind, message = %f.message, "fault");
+                self.status.push_fault(f);
+            }
+        }
         self.status.state = state.into();
         self.status.current = current.map(String::from);
         self.status.updated_unix = now_unix();
@@ -325,6 +399,15 @@ impl Daemon {
         let state = self.status.state.clone();
         let current = self.status.current.clone();
         self.publish(&state, current.as_deref());
+    }
+
+    /// `incoming/` entries not yet tried in this run.
+    fn new_entries(&self) -> Vec<String> {
+        self.incoming()
+            .unwrap_or_default()
+            .into_iter()
+            .filter(|id| !self.attempted.contains(id))
+            .collect()
     }
 
     fn incoming(&self) -> std::io::Result<Vec<String>> {
@@ -404,10 +487,27 @@ impl Daemon {
             if self.stop.load(Ordering::SeqCst) {
                 break;
             }
+            self.attempted.insert(id.clone());
             self.process_entry(&id);
             self.status.recovered += 1;
         }
         while !self.stop.load(Ordering::SeqCst) {
+            // Entries the DICOM input spooled meanwhile (each tried once per
+            // run: one whose delivery failed stays for the next start).
+            let new = self.new_entries();
+            if !new.is_empty() {
+                for id in new {
+                    if self.stop.load(Ordering::SeqCst) {
+                        break;
+                    }
+                    self.attempted.insert(id.clone());
+                    self.process_entry(&id);
+                }
+                if once {
+                    break;
+                }
+                continue;
+            }
             self.publish("waiting", None);
             match self.receive_one() {
                 Ok(Some(id)) => {
@@ -450,6 +550,9 @@ impl Daemon {
                         break s;
                     }
                     Err(e) => {
+                        if self.dicom.is_some() && !self.new_entries().is_empty() {
+                            return Ok(None);
+                        }
                         self.flush_outbox();
                         // Quiet while the gantry is off; a fault once the
                         // link has been down for the idle timeout, then a
@@ -510,19 +613,7 @@ impl Daemon {
         };
         let acq = to_acquisition(&rx, &self.geom, self.cfg.report.tube_output_mgy_per_mas)
             .map_err(|e| ReceiveFault::link(format!("acquisition rejected: {e}")))?;
-        let ms = SystemTime::now()
-            .duration_since(UNIX_EPOCH)
-            .map(|d| d.as_millis())
-            .unwrap_or(0);
-        let safe: String = acq
-            .header
-            .patient
-            .id
-            .chars()
-            .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
-            .take(32)
-            .collect();
-        let id = format!("{ms:013}-{safe}");
+        let id = entry_id(&acq.header.patient.id);
         let gantry_json = serde_json::json!({
             "link": stats,
             "saturated_pixels": rx.saturated,
@@ -574,21 +665,7 @@ impl Daemon {
         acq: &Acquisition,
         gantry: &serde_json::Value,
     ) -> std::io::Result<()> {
-        let tmp = self.cfg.paths.spool.join("tmp").join(id);
-        let dst = self.cfg.paths.spool.join("incoming").join(id);
-        let _ = std::fs::remove_dir_all(&tmp);
-        write_acquisition(&tmp, acq).map_err(std::io::Error::other)?;
-        write_durable(
-            &tmp.join("gantry.json"),
-            &serde_json::to_vec_pretty(gantry).map_err(std::io::Error::other)?,
-        )?;
-        for f in ["acquisition.json", "counts.f32"] {
-            std::fs::File::open(tmp.join(f))?.sync_all()?;
-        }
-        fsync_dir(&tmp)?;
-        std::fs::rename(&tmp, &dst)?;
-        fsync_dir(&self.cfg.paths.spool.join("incoming"))?;
-        fsync_dir(&self.cfg.paths.spool.join("tmp"))
+        spool_entry(&self.cfg.paths.spool, id, acq, gantry)
     }
 
     fn move_entry(&mut self, id: &str, to: &str, note_name: &str, note: &serde_json::Value) {
@@ -636,7 +713,9 @@ impl Daemon {
             self.reject(id, "data", msg);
             return;
         }
-        if self.cfg.modbus.transport != ModbusTransport::Off {
+        // The thickness cross-check is the gantry integration's: a DICOM
+        // object carries its own Body Part Thickness.
+        if self.cfg.modbus.transport != ModbusTransport::Off && gantry["source"] != "dicom" {
             let reg = gantry["modbus"]["thickness_mm"].as_f64();
             let end = gantry["modbus_end"]["thickness_mm"].as_f64();
             let header = acq.header.thickness_mm;

@@ -7,6 +7,7 @@
 pub mod cli;
 pub mod config;
 pub mod daemon;
+pub mod dicom_input;
 pub mod link;
 pub mod modbus;
 pub mod selftest;

@@ -107,6 +107,9 @@ pub struct Status {
     /// The status page's address, when it serves one.
     #[serde(default)]
     pub status_page: Option<String>,
+    /// The DICOM input (`AET@host:port`), when it listens.
+    #[serde(default)]
+    pub dicom_input: Option<String>,
 }
 
 impl Status {
@@ -133,6 +136,7 @@ impl Status {
             faults: vec![],
             fault_counts: BTreeMap::new(),
             status_page: None,
+            dicom_input: None,
         }
     }
 

@@ -335,6 +335,13 @@ fn run_status(args: StatusArgs) -> Result<bool> {
         (None, Some(a)) => println!("status page   configured on {a}, not served (see the faults)"),
         (None, None) => println!("status page   off"),
     }
+    println!(
+        "dicom input   {}",
+        st.dicom_input
+            .as_deref()
+            .map(|a| format!("listening as {a}"))
+            .unwrap_or_else(|| "off".into())
+    );
     let recent = if reader.spool().is_some() {
         &snap.history
     } else {

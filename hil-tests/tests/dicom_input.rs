@@ -1,0 +1,189 @@
+//! The daemon with both inputs (issue #31): the same simulated acquisition
+//! arrives once over the frame link (host-sim stream) and once over DICOM
+//! (host-sim dicom-send, a For Processing object, C-STORE); both are
+//! reported, with the same glandularity and MGD. An object from another
+//! gantry (other detector) is refused with a named reason, kept in
+//! `faulted/`, recorded as an `input` fault, and the daemon keeps serving.
+
+use hil_tests::{free_port, wait_for_status, workspace_bin};
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+fn results(dir: &Path) -> Vec<serde_json::Value> {
+    let done = dir.join("spool/done");
+    let mut ids: Vec<_> = std::fs::read_dir(&done)
+        .unwrap()
+        .flatten()
+        .map(|e| e.path())
+        .collect();
+    ids.sort();
+    ids.iter()
+        .map(|p| serde_json::from_slice(&std::fs::read(p.join("result.json")).unwrap()).unwrap())
+        .collect()
+}
+
+#[test]
+fn both_inputs_report_the_same_acquisition_alike() {
+    let dir = tempfile::tempdir().unwrap();
+    let acq = hil_tests::acquire(dir.path(), 2);
+    let h: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(acq.join("acquisition.json")).unwrap()).unwrap();
+    let flux = h["flux"].as_f64().unwrap();
+    let (frames, dport) = (format!("127.0.0.1:{}", free_port()), free_port());
+    let cfg = dir.path().join("dbtor.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            r#"
+[frames]
+transport = "tcp"
+address = "{frames}"
+idle_timeout_s = 20
+binning = 4
+
+[modbus]
+transport = "off"
+
+[recon]
+reconstructor = "mltr"
+mltr_iterations = 20
+dose_uncertainty = 0.05
+
+[paths]
+spool = "spool"
+output = "output"
+status = "run/status.json"
+
+[report]
+uid_root = "1.2.826.0.1.3680043.10.543.1"
+tube_output_mgy_per_mas = {tube}
+
+[status_page]
+address = "off"
+
+[dicom_input]
+address = "127.0.0.1:{dport}"
+ae_title = "DBTOR"
+flat_field_counts = {flux}
+"#,
+            tube = h["tube_output_mgy_per_mas"],
+        ),
+    )
+    .unwrap();
+    let mut daemon = Command::new(workspace_bin("dbtor-daemon"))
+        .arg("--config")
+        .arg(&cfg)
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let limit = Duration::from_secs(240);
+    wait_for_status(dir.path(), "the daemon", limit, |s| s["state"] == "waiting");
+    // 1. The frame link.
+    let mut stream = Command::new(workspace_bin("host-sim"))
+        .args(["stream", "--acq"])
+        .arg(&acq)
+        .args(["--listen", &frames])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    wait_for_status(dir.path(), "the frame-link report", limit, |s| {
+        s["processed"] == 1
+    });
+    let _ = stream.wait();
+    // 2. DICOM.
+    let out = Command::new(workspace_bin("host-sim"))
+        .args(["dicom-send", "--acq"])
+        .arg(&acq)
+        .args(["--to", &format!("DBTOR@127.0.0.1:{dport}")])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    wait_for_status(dir.path(), "the DICOM report", limit, |s| {
+        s["processed"] == 2
+    });
+    let r = results(dir.path());
+    assert_eq!(r.len(), 2);
+    assert_eq!(
+        r[0]["glandularity_reported"], r[1]["glandularity_reported"],
+        "same counts, same glandularity: {r:?}"
+    );
+    let (a, b) = (
+        r[0]["mgd_mgy"].as_f64().unwrap(),
+        r[1]["mgd_mgy"].as_f64().unwrap(),
+    );
+    // Within 3 standard deviations of the difference of two 5 % runs.
+    assert!((a - b).abs() <= 3.0 * 0.05 * 2f64.sqrt() * a, "{a} vs {b}");
+    let reports = std::fs::read_dir(dir.path().join("output"))
+        .unwrap()
+        .flatten()
+        .filter(|e| e.file_name().to_string_lossy().ends_with(".dcm"))
+        .count();
+    assert_eq!(reports, 4, "two SRs per acquisition");
+
+    // 3. An object from another detector (binned x2): refused, named, kept.
+    let other = dir.path().join("other");
+    let st = Command::new(workspace_bin("host-sim"))
+        .args([
+            "acquire",
+            "--index",
+            "2",
+            "--binning",
+            "2",
+            "--noise",
+            "N8",
+            "--out",
+        ])
+        .arg(&other)
+        .output()
+        .unwrap();
+    assert!(st.status.success());
+    let out = Command::new(workspace_bin("host-sim"))
+        .args(["dicom-send", "--acq"])
+        .arg(&other)
+        .args(["--to", &format!("DBTOR@127.0.0.1:{dport}")])
+        .output()
+        .unwrap();
+    assert!(
+        !out.status.success(),
+        "the SCP accepted another detector's object"
+    );
+    let s = wait_for_status(dir.path(), "the input fault", limit, |s| {
+        s["fault_counts"]["input"].as_u64() == Some(1)
+    });
+    let f = s["faults"].as_array().unwrap().last().unwrap().clone();
+    assert!(f["message"].as_str().unwrap().contains("Columns"), "{f}");
+    let faulted: Vec<_> = std::fs::read_dir(dir.path().join("spool/faulted"))
+        .unwrap()
+        .flatten()
+        .collect();
+    assert_eq!(faulted.len(), 1);
+    assert!(faulted[0].path().join("object.dcm").is_file());
+
+    // 4. Still serving: the first acquisition again, over DICOM.
+    let out = Command::new(workspace_bin("host-sim"))
+        .args(["dicom-send", "--acq"])
+        .arg(&acq)
+        .args(["--to", &format!("DBTOR@127.0.0.1:{dport}")])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    wait_for_status(dir.path(), "a report after the fault", limit, |s| {
+        s["processed"] == 3
+    });
+    assert!(Command::new("kill")
+        .args(["-TERM", &daemon.id().to_string()])
+        .status()
+        .unwrap()
+        .success());
+    let _ = daemon.wait();
+}
