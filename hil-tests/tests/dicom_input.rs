@@ -23,6 +23,16 @@ fn results(dir: &Path) -> Vec<serde_json::Value> {
         .collect()
 }
 
+/// `host-sim dicom-send` of `acq` to the daemon's input on `port`.
+fn dicom_send(acq: &Path, port: u16) -> std::process::Output {
+    Command::new(workspace_bin("host-sim"))
+        .args(["dicom-send", "--acq"])
+        .arg(acq)
+        .args(["--to", &format!("DBTOR@127.0.0.1:{port}")])
+        .output()
+        .unwrap()
+}
+
 #[test]
 fn both_inputs_report_the_same_acquisition_alike() {
     let dir = tempfile::tempdir().unwrap();
@@ -93,12 +103,7 @@ flat_field_counts = {flux}
     });
     let _ = stream.wait();
     // 2. DICOM.
-    let out = Command::new(workspace_bin("host-sim"))
-        .args(["dicom-send", "--acq"])
-        .arg(&acq)
-        .args(["--to", &format!("DBTOR@127.0.0.1:{dport}")])
-        .output()
-        .unwrap();
+    let out = dicom_send(&acq, dport);
     assert!(
         out.status.success(),
         "{}",
@@ -143,12 +148,7 @@ flat_field_counts = {flux}
         .output()
         .unwrap();
     assert!(st.status.success());
-    let out = Command::new(workspace_bin("host-sim"))
-        .args(["dicom-send", "--acq"])
-        .arg(&other)
-        .args(["--to", &format!("DBTOR@127.0.0.1:{dport}")])
-        .output()
-        .unwrap();
+    let out = dicom_send(&other, dport);
     assert!(
         !out.status.success(),
         "the SCP accepted another detector's object"
@@ -166,12 +166,7 @@ flat_field_counts = {flux}
     assert!(faulted[0].path().join("object.dcm").is_file());
 
     // 4. Still serving: the first acquisition again, over DICOM.
-    let out = Command::new(workspace_bin("host-sim"))
-        .args(["dicom-send", "--acq"])
-        .arg(&acq)
-        .args(["--to", &format!("DBTOR@127.0.0.1:{dport}")])
-        .output()
-        .unwrap();
+    let out = dicom_send(&acq, dport);
     assert!(
         out.status.success(),
         "{}",

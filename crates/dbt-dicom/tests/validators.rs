@@ -372,6 +372,40 @@ fn dose_report_passes_pixelmed_sr_validation() {
     );
 }
 
+/// A projection set of `rows x columns` frames at the paper's 25 angles.
+fn projection_set<'a>(
+    h: &'a Header,
+    eq: &'a Equipment,
+    angles: &'a [f64],
+    counts: &'a [u16],
+    rows: usize,
+    columns: usize,
+) -> dbt_dicom::projections::ProjectionSet<'a> {
+    dbt_dicom::projections::ProjectionSet {
+        header: h,
+        equipment: eq,
+        rows,
+        columns,
+        pixel_spacing_mm: [0.8, 0.8],
+        angles_deg: angles,
+        source_to_detector_mm: 700.0,
+        source_to_isocenter_mm: 650.0,
+        thickness_mm: 45.0,
+        compression_force_n: 110.0,
+        support_to_detector_mm: 5.0,
+        exposure_ms_per_view: 60.0,
+        view_interval_ms: 150.0,
+        modality_agd_mgy: 1.6,
+        entrance_dose_mgy: 6.6,
+        kvp: 29.0,
+        exposure_uas_per_view: 2400.0,
+        filter_rh_mm: 0.058,
+        counts,
+        content_date: "20261122",
+        content_time: "101500",
+    }
+}
+
 fn projection_counts(frames: usize, rows: usize, cols: usize) -> Vec<u16> {
     (0..frames * rows * cols)
         .map(|i| (1000 + (i * 7919) % 15000) as u16)
@@ -386,29 +420,7 @@ fn projection_object_passes_dciodvfy() {
     let (h, eq) = (header(), equipment());
     let angles: Vec<f64> = (0..25).map(|i| -24.0 + 2.0 * i as f64).collect();
     let counts = projection_counts(25, 12, 40);
-    let p = ProjectionSet {
-        header: &h,
-        equipment: &eq,
-        rows: 12,
-        columns: 40,
-        pixel_spacing_mm: [0.8, 0.8],
-        angles_deg: &angles,
-        source_to_detector_mm: 700.0,
-        source_to_isocenter_mm: 650.0,
-        thickness_mm: 45.0,
-        compression_force_n: 110.0,
-        support_to_detector_mm: 5.0,
-        exposure_ms_per_view: 60.0,
-        view_interval_ms: 150.0,
-        modality_agd_mgy: 1.6,
-        entrance_dose_mgy: 6.6,
-        kvp: 29.0,
-        exposure_uas_per_view: 2400.0,
-        filter_rh_mm: 0.058,
-        counts: &counts,
-        content_date: "20261122",
-        content_time: "101500",
-    };
+    let p = projection_set(&h, &eq, &angles, &counts, 12, 40);
     let mut uids = UidSource::new("1.2.826.0.1.3680043.10.543", 7).unwrap();
     let r = projection_object(&p, &mut uids).unwrap();
     let dir = tempfile::tempdir().unwrap();
@@ -474,33 +486,11 @@ fn projection_object_passes_dciodvfy() {
 /// size, a truncated file.
 #[test]
 fn projection_object_reads_back_and_bad_input_is_named() {
-    use dbt_dicom::projections::{projection_object, read_projection_object, ProjectionSet};
+    use dbt_dicom::projections::{projection_object, read_projection_object};
     let (h, eq) = (header(), equipment());
     let angles: Vec<f64> = (0..25).map(|i| -24.0 + 2.0 * i as f64).collect();
     let counts = projection_counts(25, 6, 20);
-    let p = ProjectionSet {
-        header: &h,
-        equipment: &eq,
-        rows: 6,
-        columns: 20,
-        pixel_spacing_mm: [0.8, 0.8],
-        angles_deg: &angles,
-        source_to_detector_mm: 700.0,
-        source_to_isocenter_mm: 650.0,
-        thickness_mm: 45.0,
-        compression_force_n: 110.0,
-        support_to_detector_mm: 5.0,
-        exposure_ms_per_view: 60.0,
-        view_interval_ms: 150.0,
-        modality_agd_mgy: 1.6,
-        entrance_dose_mgy: 6.6,
-        kvp: 29.0,
-        exposure_uas_per_view: 2400.0,
-        filter_rh_mm: 0.058,
-        counts: &counts,
-        content_date: "20261122",
-        content_time: "101500",
-    };
+    let p = projection_set(&h, &eq, &angles, &counts, 6, 20);
     let mut uids = UidSource::new("1.2.826.0.1.3680043.10.543", 9).unwrap();
     let r = projection_object(&p, &mut uids).unwrap();
     let bytes = r.to_bytes().unwrap();
