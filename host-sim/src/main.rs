@@ -499,19 +499,7 @@ fn run_dicom_send(args: DicomSendArgs) -> Result<()> {
     let h = &a.header;
     let g = &h.geometry;
     let (views, det) = (g.n_views(), g.n_det());
-    // Frames: view v, detector row = coronal slice, column = element.
-    let mut counts = Vec::with_capacity(views * h.slices * det);
-    for v in 0..views {
-        for (s, slice) in a.counts.iter().enumerate() {
-            for (e, c) in slice[v * det..(v + 1) * det].iter().enumerate() {
-                let c = c.round();
-                if !(0.0..=65535.0).contains(&c) {
-                    bail!("count {c} of view {v}, slice {s}, element {e} does not fit 16 bits");
-                }
-                counts.push(c as u16);
-            }
-        }
-    }
+    let counts = dbt_pipeline::dicom_input::frames_of(&a)?;
     let angles: Vec<f64> = (0..views).map(|v| g.angle_deg(v)).collect();
     let kerma = h.mas_total * h.tube_output_mgy_per_mas;
     let header = dbt_pipeline::dicom_header(&a);
@@ -527,29 +515,22 @@ fn run_dicom_send(args: DicomSendArgs) -> Result<()> {
         .map(|d| d.as_secs())
         .unwrap_or(0);
     let (date, time) = dbt_dicom::dicom_datetime_utc(now);
-    let set = dbt_dicom::projections::ProjectionSet {
-        header: &header,
-        equipment: &equipment,
-        rows: h.slices,
-        columns: det,
-        pixel_spacing_mm: [h.slice_spacing_mm, g.detector.pitch_mm],
-        angles_deg: &angles,
-        source_to_detector_mm: g.source_to_detector_mm,
-        source_to_isocenter_mm: g.source_to_center_mm,
-        thickness_mm: h.thickness_mm,
-        compression_force_n,
-        support_to_detector_mm: 0.0,
-        exposure_ms_per_view: exposure_ms,
-        view_interval_ms,
-        modality_agd_mgy: organ_dose_mgy.unwrap_or(0.25 * kerma),
-        entrance_dose_mgy: kerma,
-        kvp: h.kvp,
-        exposure_uas_per_view: h.mas_total * 1000.0 / views as f64,
-        filter_rh_mm: dbt_dose::xray::paper_spectrum(h.thickness_mm)?.rh_mm,
-        counts: &counts,
-        content_date: &date,
-        content_time: &time,
-    };
+    let set = dbt_pipeline::dicom_input::projection_set(
+        &a,
+        &header,
+        &equipment,
+        &angles,
+        &counts,
+        dbt_pipeline::dicom_input::Sweep {
+            compression_force_n,
+            exposure_ms_per_view: exposure_ms,
+            view_interval_ms,
+            modality_agd_mgy: organ_dose_mgy.unwrap_or(0.25 * kerma),
+            filter_rh_mm: dbt_dose::xray::paper_spectrum(h.thickness_mm)?.rh_mm,
+            content_date: &date,
+            content_time: &time,
+        },
+    );
     let mut uids = dbt_dicom::UidSource::new("1.2.826.0.1.3680043.10.543.2", now)?;
     let obj = dbt_dicom::projections::projection_object(&set, &mut uids)?;
     let bytes = obj.to_bytes()?;

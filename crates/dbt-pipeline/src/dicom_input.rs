@@ -7,7 +7,7 @@
 use crate::acquisition::{
     validate_header, Acquisition, AcquisitionHeader, HeaderError, Patient, Study, ACQ_FORMAT,
 };
-use dbt_dicom::projections::ReceivedProjections;
+use dbt_dicom::projections::{ProjectionSet, ReceivedProjections};
 use dbt_dicom::Laterality;
 use dbt_geometry::Geometry;
 
@@ -146,4 +146,90 @@ pub fn acquisition_from_projections(
     };
     validate_header(&header)?;
     Ok(Acquisition { header, counts })
+}
+
+/// What a modality knows of its sweep beyond the acquisition file.
+#[derive(Debug, Clone, Copy)]
+pub struct Sweep<'a> {
+    /// Compression force, N.
+    pub compression_force_n: f64,
+    /// Exposure time of each view, ms.
+    pub exposure_ms_per_view: f64,
+    /// Time between views' starts, ms.
+    pub view_interval_ms: f64,
+    /// The modality's own dose estimate of the sweep, mGy.
+    pub modality_agd_mgy: f64,
+    /// Rhodium filter, mm.
+    pub filter_rh_mm: f64,
+    /// Content date and time.
+    pub content_date: &'a str,
+    /// See `content_date`.
+    pub content_time: &'a str,
+}
+
+/// The frames of `acq` for its projection object: view by view, detector
+/// rows = coronal slices, columns = elements; refused where a count does
+/// not fit 16 bits.
+pub fn frames_of(acq: &Acquisition) -> Result<Vec<u16>, HeaderError> {
+    let g = &acq.header.geometry;
+    let (views, det) = (g.n_views(), g.n_det());
+    let mut out = Vec::with_capacity(views * acq.counts.len() * det);
+    for v in 0..views {
+        for (s, slice) in acq.counts.iter().enumerate() {
+            let row = slice
+                .get(v * det..(v + 1) * det)
+                .ok_or_else(|| refuse("counts", s, format!("slice {s} has no view {v}")))?;
+            for (e, c) in row.iter().enumerate() {
+                let c = c.round();
+                if !(0.0..=65535.0).contains(&c) {
+                    return Err(refuse(
+                        "counts",
+                        c,
+                        format!("view {v}, slice {s}, element {e} does not fit 16 bits"),
+                    ));
+                }
+                out.push(c as u16);
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// The projection object's content for `acq` (the inverse of
+/// [`acquisition_from_projections`]), with its frames (`frames_of`) and the
+/// views' angles given.
+pub fn projection_set<'a>(
+    acq: &'a Acquisition,
+    header: &'a dbt_dicom::Header,
+    equipment: &'a dbt_dicom::Equipment,
+    angles_deg: &'a [f64],
+    counts: &'a [u16],
+    sweep: Sweep<'a>,
+) -> ProjectionSet<'a> {
+    let h = &acq.header;
+    let g = &h.geometry;
+    let views = g.n_views();
+    ProjectionSet {
+        header,
+        equipment,
+        rows: h.slices,
+        columns: g.n_det(),
+        pixel_spacing_mm: [h.slice_spacing_mm, g.detector.pitch_mm],
+        angles_deg,
+        source_to_detector_mm: g.source_to_detector_mm,
+        source_to_isocenter_mm: g.source_to_center_mm,
+        thickness_mm: h.thickness_mm,
+        compression_force_n: sweep.compression_force_n,
+        support_to_detector_mm: 0.0,
+        exposure_ms_per_view: sweep.exposure_ms_per_view,
+        view_interval_ms: sweep.view_interval_ms,
+        modality_agd_mgy: sweep.modality_agd_mgy,
+        entrance_dose_mgy: h.mas_total * h.tube_output_mgy_per_mas,
+        kvp: h.kvp,
+        exposure_uas_per_view: h.mas_total * 1000.0 / views as f64,
+        filter_rh_mm: sweep.filter_rh_mm,
+        counts,
+        content_date: sweep.content_date,
+        content_time: sweep.content_time,
+    }
 }

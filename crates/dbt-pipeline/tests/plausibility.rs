@@ -395,19 +395,13 @@ fn the_reconstructed_breast_must_fit_its_tissues_and_its_box() {
 /// an object from another gantry is refused naming the attribute.
 #[test]
 fn a_projection_object_reads_back_as_the_same_acquisition() {
-    use dbt_dicom::projections::{projection_object, read_projection_object, ProjectionSet};
+    use dbt_dicom::projections::{projection_object, read_projection_object};
     use dbt_pipeline::dicom_input::{acquisition_from_projections, System};
     let acq = acquisition(6, 45.0, 120.0, 45.0, 5);
     let h = &acq.header;
     let g = &h.geometry;
-    let (views, det) = (g.n_views(), g.n_det());
-    let counts: Vec<u16> = (0..views)
-        .flat_map(|v| {
-            acq.counts
-                .iter()
-                .flat_map(move |slice| slice[v * det..(v + 1) * det].iter().map(|c| *c as u16))
-        })
-        .collect();
+    let views = g.n_views();
+    let counts = dbt_pipeline::dicom_input::frames_of(&acq).unwrap();
     let angles: Vec<f64> = (0..views).map(|v| g.angle_deg(v)).collect();
     let header = dbt_pipeline::dicom_header(&acq);
     let equipment = dbt_dicom::Equipment {
@@ -417,29 +411,22 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
         software_version: "0".into(),
         device_uid: "1.2.826.0.1.3680043.10.543.9".into(),
     };
-    let set = ProjectionSet {
-        header: &header,
-        equipment: &equipment,
-        rows: h.slices,
-        columns: det,
-        pixel_spacing_mm: [h.slice_spacing_mm, g.detector.pitch_mm],
-        angles_deg: &angles,
-        source_to_detector_mm: g.source_to_detector_mm,
-        source_to_isocenter_mm: g.source_to_center_mm,
-        thickness_mm: h.thickness_mm,
-        compression_force_n: 110.0,
-        support_to_detector_mm: 0.0,
-        exposure_ms_per_view: 60.0,
-        view_interval_ms: 150.0,
-        modality_agd_mgy: 1.5,
-        entrance_dose_mgy: h.mas_total * h.tube_output_mgy_per_mas,
-        kvp: h.kvp,
-        exposure_uas_per_view: h.mas_total * 1000.0 / views as f64,
-        filter_rh_mm: 0.05,
-        counts: &counts,
-        content_date: "20261124",
-        content_time: "101500",
-    };
+    let set = dbt_pipeline::dicom_input::projection_set(
+        &acq,
+        &header,
+        &equipment,
+        &angles,
+        &counts,
+        dbt_pipeline::dicom_input::Sweep {
+            compression_force_n: 110.0,
+            exposure_ms_per_view: 60.0,
+            view_interval_ms: 150.0,
+            modality_agd_mgy: 1.5,
+            filter_rh_mm: 0.05,
+            content_date: "20261124",
+            content_time: "101500",
+        },
+    );
     let mut uids = dbt_dicom::UidSource::new("1.2.826.0.1.3680043.10.543", 3).unwrap();
     let bytes = projection_object(&set, &mut uids)
         .unwrap()
