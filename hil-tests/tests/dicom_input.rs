@@ -1,11 +1,12 @@
 //! The daemon with both inputs (issue #31): the same simulated acquisition
 //! arrives once over the frame link (host-sim stream) and once over DICOM
-//! (host-sim dicom-send, a For Processing object, C-STORE); both are
-//! reported, with the same glandularity and MGD. An object from another
+//! (host-sim dicom-send, a For Processing object, C-STORE), then once more
+//! from dcmtk's storescu; all are reported with the same glandularity (MGD
+//! within the Monte Carlo uncertainty) and their SRs reach Orthanc. An object from another
 //! gantry (other detector) is refused with a named reason, kept in
 //! `faulted/`, recorded as an `input` fault, and the daemon keeps serving.
 
-use hil_tests::{free_port, wait_for_status, workspace_bin};
+use hil_tests::{free_port, http_get, wait_for_status, workspace_bin, Orthanc};
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
@@ -41,6 +42,11 @@ fn both_inputs_report_the_same_acquisition_alike() {
         serde_json::from_slice(&std::fs::read(acq.join("acquisition.json")).unwrap()).unwrap();
     let flux = h["flux"].as_f64().unwrap();
     let (frames, dport) = (format!("127.0.0.1:{}", free_port()), free_port());
+    // The reports go on to Orthanc, the site's PACS.
+    let (pacs, pacs_http) = (free_port(), free_port());
+    let orthanc_dir = dir.path().join("orthanc");
+    std::fs::create_dir_all(&orthanc_dir).unwrap();
+    let orthanc = Orthanc::start(&orthanc_dir, pacs, pacs_http);
     let cfg = dir.path().join("dbtor.toml");
     std::fs::write(
         &cfg,
@@ -67,6 +73,7 @@ status = "run/status.json"
 
 [report]
 uid_root = "1.2.826.0.1.3680043.10.543.1"
+pacs = "ORTHANC@127.0.0.1:{pacs}"
 tube_output_mgy_per_mas = {tube}
 
 [status_page]
@@ -165,20 +172,60 @@ flat_field_counts = {flux}
     assert_eq!(faulted.len(), 1);
     assert!(faulted[0].path().join("object.dcm").is_file());
 
-    // 4. Still serving: the first acquisition again, over DICOM.
-    let out = dicom_send(&acq, dport);
+    // 4. Still serving, and dcmtk's storescu is a modality too: the first
+    // acquisition written as an object (a new SOP instance) and sent by it.
+    let file = dir.path().join("again.dcm");
+    let out = Command::new(workspace_bin("host-sim"))
+        .args(["dicom-send", "--acq"])
+        .arg(&acq)
+        .arg("--out")
+        .arg(&file)
+        .output()
+        .unwrap();
     assert!(
         out.status.success(),
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
+    let st = Command::new("storescu")
+        .args([
+            "-R",
+            "-aec",
+            "DBTOR",
+            "-aet",
+            "MODALITY",
+            "127.0.0.1",
+            &dport.to_string(),
+        ])
+        .arg(&file)
+        .output()
+        .expect("storescu (dcmtk)");
+    assert!(
+        st.status.success(),
+        "{}",
+        String::from_utf8_lossy(&st.stderr)
+    );
     wait_for_status(dir.path(), "a report after the fault", limit, |s| {
         s["processed"] == 3
     });
+    let r = results(dir.path());
+    assert_eq!(r[2]["glandularity_reported"], r[0]["glandularity_reported"]);
+    // Every report reached the PACS: two SRs per acquisition.
+    let t0 = std::time::Instant::now();
+    let stored = loop {
+        let v: Vec<String> =
+            serde_json::from_slice(&http_get(pacs_http, "/instances").unwrap()).unwrap();
+        if v.len() >= 6 || t0.elapsed() > Duration::from_secs(30) {
+            break v;
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    assert_eq!(stored.len(), 6, "{stored:?}");
     assert!(Command::new("kill")
         .args(["-TERM", &daemon.id().to_string()])
         .status()
         .unwrap()
         .success());
     let _ = daemon.wait();
+    orthanc.stop();
 }
