@@ -76,6 +76,49 @@ impl DicomInput {
     }
 }
 
+/// The SOP instances already spooled from DICOM, with a digest of their
+/// counts: a second copy with the same counts is answered Success without a
+/// second acquisition (a modality resending after a lost response); one
+/// with other counts is refused.
+#[derive(Debug, Default)]
+pub struct Seen(std::collections::HashMap<String, u64>);
+
+impl Seen {
+    /// The DICOM entries in `incoming/` and `done/` (their `gantry.json`).
+    pub fn load(spool: &Path) -> Self {
+        let mut seen = Self::default();
+        for sub in ["incoming", "done"] {
+            let Ok(rd) = std::fs::read_dir(spool.join(sub)) else {
+                continue;
+            };
+            for e in rd.flatten() {
+                let v: serde_json::Value = std::fs::read(e.path().join("gantry.json"))
+                    .ok()
+                    .and_then(|b| serde_json::from_slice(&b).ok())
+                    .unwrap_or_default();
+                if let (Some(sop), Some(d)) =
+                    (v["sop_instance"].as_str(), v["counts_digest"].as_u64())
+                {
+                    seen.0.insert(sop.to_string(), d);
+                }
+            }
+        }
+        seen
+    }
+}
+
+/// FNV-1a over the counts.
+pub fn counts_digest(counts: &[u16]) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for c in counts {
+        for b in c.to_le_bytes() {
+            h ^= u64::from(b);
+            h = h.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    }
+    h
+}
+
 fn serve(
     listener: TcpListener,
     ae: &str,
@@ -84,6 +127,7 @@ fn serve(
     stop: &AtomicBool,
     faults: &Sender<FaultRecord>,
 ) {
+    let mut seen = Seen::load(spool);
     while !stop.load(Ordering::SeqCst) {
         let stream = match listener.accept() {
             Ok((s, _)) => s,
@@ -104,7 +148,9 @@ fn serve(
             ae,
             &ACCEPTED,
             Duration::from_secs(30),
-            &mut |class, instance, bytes| receive(spool, system, faults, class, instance, bytes),
+            &mut |class, instance, bytes| {
+                receive(spool, system, &mut seen, faults, class, instance, bytes)
+            },
         );
         if let Some(e) = &report.error {
             tracing::warn!(calling = %report.calling_ae_title, error = %e, "DICOM association ended");
@@ -112,10 +158,12 @@ fn serve(
     }
 }
 
-/// One object: spooled (Success) or kept in `faulted/` (failure).
-fn receive(
+/// One object: spooled (Success), a duplicate (Success, nothing new), or
+/// kept in `faulted/` (failure).
+pub fn receive(
     spool: &Path,
     system: &System,
+    seen: &mut Seen,
     faults: &Sender<FaultRecord>,
     class: &str,
     instance: &str,
@@ -124,22 +172,38 @@ fn receive(
     let read = dbt_dicom::projections::read_projection_object(&bytes)
         .map_err(|e| e.to_string())
         .and_then(|p| {
+            let digest = counts_digest(&p.counts);
+            match seen.0.get(instance) {
+                Some(d) if *d == digest => return Ok(None),
+                Some(_) => {
+                    return Err(format!(
+                        "a second copy of SOP instance {instance} with other counts than the one received"
+                    ))
+                }
+                None => {}
+            }
             acquisition_from_projections(&p, system)
-                .map(|a| (p, a))
+                .map(|a| Some((p, a, digest)))
                 .map_err(|e| e.to_string())
         });
     match read {
-        Ok((p, acq)) => {
+        Ok(None) => {
+            tracing::info!(%instance, "a copy of an object already received: nothing new");
+            Verdict::Stored
+        }
+        Ok(Some((p, acq, digest))) => {
             let id = entry_id(&acq.header.patient.id);
             let note = serde_json::json!({
                 "source": "dicom",
                 "sop_class": class,
                 "sop_instance": instance,
+                "counts_digest": digest,
                 "compression_force_n": p.compression_force_n,
             });
             match spool_entry(spool, &id, &acq, &note) {
                 Ok(()) => {
                     tracing::info!(acquisition = %id, %instance, "spooled from DICOM");
+                    seen.0.insert(instance.to_string(), digest);
                     Verdict::Stored
                 }
                 Err(e) => {

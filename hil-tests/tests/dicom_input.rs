@@ -210,6 +210,30 @@ flat_field_counts = {flux}
     });
     let r = results(dir.path());
     assert_eq!(r[2]["glandularity_reported"], r[0]["glandularity_reported"]);
+    // The same object again (a modality resending after a lost response):
+    // Success, and no second acquisition.
+    let st = Command::new("storescu")
+        .args([
+            "-R",
+            "-aec",
+            "DBTOR",
+            "-aet",
+            "MODALITY",
+            "127.0.0.1",
+            &dport.to_string(),
+        ])
+        .arg(&file)
+        .output()
+        .unwrap();
+    assert!(
+        st.status.success(),
+        "{}",
+        String::from_utf8_lossy(&st.stderr)
+    );
+    std::thread::sleep(Duration::from_secs(2));
+    let s = hil_tests::daemon_status(dir.path());
+    assert_eq!(s["processed"], 3, "a duplicate made a new acquisition: {s}");
+    assert_eq!(s["incoming"], 0, "{s}");
     // Every report reached the PACS: two SRs per acquisition.
     let t0 = std::time::Instant::now();
     let stored = loop {

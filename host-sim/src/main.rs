@@ -531,7 +531,15 @@ fn run_dicom_send(args: DicomSendArgs) -> Result<()> {
             content_time: &time,
         },
     );
-    let mut uids = dbt_dicom::UidSource::new("1.2.826.0.1.3680043.10.543.2", now)?;
+    // UIDs unique per send: the milliseconds and the process id.
+    let ms = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_millis() as u64)
+        .unwrap_or(0);
+    let mut uids = dbt_dicom::UidSource::new(
+        &format!("1.2.826.0.1.3680043.10.543.2.{}", std::process::id()),
+        ms,
+    )?;
     let obj = dbt_dicom::projections::projection_object(&set, &mut uids)?;
     let bytes = obj.to_bytes()?;
     let file = match &out {
