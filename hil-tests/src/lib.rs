@@ -233,3 +233,22 @@ pub fn wait_for_status(
         std::thread::sleep(Duration::from_millis(10));
     }
 }
+
+/// dcmtk's `storescu` sending `file` to `called`@127.0.0.1:`port` as
+/// `calling`, with `-R`: only the presentation contexts the file needs (the
+/// For Processing projection class is not in storescu's default list).
+pub fn storescu(called: &str, calling: &str, port: u16, file: &Path) -> std::process::Output {
+    Command::new("storescu")
+        .args([
+            "-R",
+            "-aec",
+            called,
+            "-aet",
+            calling,
+            "127.0.0.1",
+            &port.to_string(),
+        ])
+        .arg(file)
+        .output()
+        .expect("storescu (dcmtk; .ci/run installs it)")
+}

@@ -187,19 +187,7 @@ flat_field_counts = {flux}
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let st = Command::new("storescu")
-        .args([
-            "-R",
-            "-aec",
-            "DBTOR",
-            "-aet",
-            "MODALITY",
-            "127.0.0.1",
-            &dport.to_string(),
-        ])
-        .arg(&file)
-        .output()
-        .expect("storescu (dcmtk)");
+    let st = hil_tests::storescu("DBTOR", "MODALITY", dport, &file);
     assert!(
         st.status.success(),
         "{}",
@@ -212,19 +200,7 @@ flat_field_counts = {flux}
     assert_eq!(r[2]["glandularity_reported"], r[0]["glandularity_reported"]);
     // The same object again (a modality resending after a lost response):
     // Success, and no second acquisition.
-    let st = Command::new("storescu")
-        .args([
-            "-R",
-            "-aec",
-            "DBTOR",
-            "-aet",
-            "MODALITY",
-            "127.0.0.1",
-            &dport.to_string(),
-        ])
-        .arg(&file)
-        .output()
-        .unwrap();
+    let st = hil_tests::storescu("DBTOR", "MODALITY", dport, &file);
     assert!(
         st.status.success(),
         "{}",

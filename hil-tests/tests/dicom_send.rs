@@ -62,21 +62,7 @@ fn dicom_send_and_storescu_deliver_a_valid_projection_object() {
 
     // dcmtk's storescu sends the same file (a new instance: Orthanc keeps
     // one copy of an SOP instance, so the count stays 1).
-    let st = Command::new("storescu")
-        // -R: propose only the presentation contexts the file needs (its class
-        // is not in storescu's default list).
-        .args([
-            "-R",
-            "-aec",
-            "ORTHANC",
-            "-aet",
-            "STORESCU",
-            "127.0.0.1",
-            &dicom.to_string(),
-        ])
-        .arg(&file)
-        .output()
-        .expect("storescu (dcmtk)");
+    let st = hil_tests::storescu("ORTHANC", "STORESCU", dicom, &file);
     assert!(
         st.status.success(),
         "{}",

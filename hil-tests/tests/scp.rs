@@ -85,11 +85,7 @@ fn echo_store_and_refusal_with_dcmtk_and_host_sim() {
         String::from_utf8_lossy(&out.stderr)
     );
     // 3. storescu with the same file.
-    let st = Command::new("storescu")
-        .args(["-R", "-aec", "DBTOR", "-aet", "MODALITY", "127.0.0.1", &p])
-        .arg(&file)
-        .output()
-        .unwrap();
+    let st = hil_tests::storescu("DBTOR", "MODALITY", port, &file);
     assert!(
         st.status.success(),
         "{}",
@@ -133,11 +129,7 @@ fn echo_store_and_refusal_with_dcmtk_and_host_sim() {
     )
     .unwrap();
     std::fs::write(&sr, d.to_bytes().unwrap()).unwrap();
-    let st = Command::new("storescu")
-        .args(["-R", "-aec", "DBTOR", "-aet", "MODALITY", "127.0.0.1", &p])
-        .arg(&sr)
-        .output()
-        .unwrap();
+    let st = hil_tests::storescu("DBTOR", "MODALITY", port, &sr);
     // storescu exits non-zero on a failure status (its status text is
     // below; the SCP's account is checked at the end).
     assert!(!st.status.success(), "storescu reported success for an SR");
