@@ -108,15 +108,12 @@ impl Int8Block {
     /// Pack checked weights for `kernel`.
     pub fn new(b: &Int8BlockWeights, kernel: Kernel) -> Result<Self, ConvError> {
         b.check()?;
-        if kernel == Kernel::Avx512 && Kernel::best_int8() != Kernel::Avx512 {
-            return Err(ConvError::Shape(
-                "the AVX-512 VNNI kernel was asked for on a CPU without it".into(),
-            ));
-        }
-        if kernel == Kernel::Avx2 && Kernel::best_int8() < Kernel::Avx2 {
-            return Err(ConvError::Shape(
-                "the AVX2 int8 kernel was asked for on a CPU without AVX2".into(),
-            ));
+        if kernel > Kernel::best_int8() {
+            return Err(ConvError::Shape(format!(
+                "the {} int8 kernel was asked for on a CPU that lacks it (best here: {})",
+                kernel.name(),
+                Kernel::best_int8().name()
+            )));
         }
         let [l1, l2, l3] = &b.layers;
         // check(): layers 1 and 2 end in a quantized PReLU
