@@ -20,8 +20,8 @@ pub mod templates;
 
 pub use content::{format_ds, Code, Item, Rel};
 pub use reports::{
-    composition_category, density_report, dose_report, read_values, DensityInput, DoseEvent,
-    DoseInput, Equipment, Header, Laterality, ProcedureIntent, Report, UidSource,
+    composition_category, composition_code, density_report, dose_report, read_values, DensityInput,
+    DoseEvent, DoseInput, Equipment, Header, Laterality, ProcedureIntent, Report, UidSource,
 };
 
 use thiserror::Error;

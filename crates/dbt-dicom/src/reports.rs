@@ -903,18 +903,31 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
 /// density grades). Our choice, to be tuned by the evaluation (issue #7).
 pub fn composition_category(volume_fraction: f64) -> (char, Code) {
     let p = 100.0 * volume_fraction;
-    if p < 4.5 {
-        ('a', Code::new("129715009", "SCT", "Almost entirely fatty"))
+    let letter = if p < 4.5 {
+        'a'
     } else if p < 7.5 {
-        (
-            'b',
-            Code::new("129716005", "SCT", "Scattered fibroglandular densities"),
-        )
+        'b'
     } else if p < 15.5 {
-        ('c', Code::new("129717001", "SCT", "Heterogeneously dense"))
+        'c'
     } else {
-        ('d', Code::new("129718006", "SCT", "Extremely dense"))
-    }
+        'd'
+    };
+    (
+        letter,
+        composition_code(letter).unwrap_or_else(|| Code::new("", "SCT", "")),
+    )
+}
+
+/// The CID 6000 code of BI-RADS composition category `a`..`d`.
+pub fn composition_code(letter: char) -> Option<Code> {
+    let (v, m) = match letter {
+        'a' => ("129715009", "Almost entirely fatty"),
+        'b' => ("129716005", "Scattered fibroglandular densities"),
+        'c' => ("129717001", "Heterogeneously dense"),
+        'd' => ("129718006", "Extremely dense"),
+        _ => return None,
+    };
+    Some(Code::new(v, "SCT", m))
 }
 
 /// Build the density report (Comprehensive SR).

@@ -45,14 +45,15 @@ pub fn utc(unix: u64) -> String {
     )
 }
 
-/// The BI-RADS-style composition category's name (CID 6000 meanings).
-pub fn composition_name(letter: &str) -> &'static str {
-    match letter {
-        "a" => "almost entirely fatty",
-        "b" => "scattered fibroglandular densities",
-        "c" => "heterogeneously dense",
-        "d" => "extremely dense",
-        _ => "unknown",
+/// The BI-RADS-style composition category's name: its CID 6000 meaning
+/// (`dbt_dicom::composition_code`), in lower case; `unknown` otherwise.
+pub fn composition_name(letter: &str) -> String {
+    let mut c = letter.chars();
+    match (c.next(), c.next()) {
+        (Some(l), None) => dbt_dicom::composition_code(l)
+            .map(|code| code.meaning.to_lowercase())
+            .unwrap_or_else(|| "unknown".into()),
+        _ => "unknown".into(),
     }
 }
 
