@@ -510,11 +510,11 @@ fn run_dicom_send(args: DicomSendArgs) -> Result<()> {
         software_version: env!("CARGO_PKG_VERSION").into(),
         device_uid: "1.2.826.0.1.3680043.10.543.2.9".into(),
     };
-    let now = std::time::SystemTime::now()
+    let ms = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_secs())
+        .map(|d| d.as_millis() as u64)
         .unwrap_or(0);
-    let (date, time) = dbt_dicom::dicom_datetime_utc(now);
+    let (date, time) = dbt_dicom::dicom_datetime_utc(ms / 1000);
     let set = dbt_pipeline::dicom_input::projection_set(
         &a,
         &header,
@@ -532,10 +532,6 @@ fn run_dicom_send(args: DicomSendArgs) -> Result<()> {
         },
     );
     // UIDs unique per send: the milliseconds and the process id.
-    let ms = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_millis() as u64)
-        .unwrap_or(0);
     let mut uids = dbt_dicom::UidSource::new(
         &format!("1.2.826.0.1.3680043.10.543.2.{}", std::process::id()),
         ms,
