@@ -474,6 +474,8 @@ pub fn domain_header(
         mas_total: h.mas_total,
         tube_output_mgy_per_mas,
         laterality: h.laterality.clone(),
+        compression_force_n: None,
+        exposure_ms_per_view: None,
         patient: Patient {
             name: h.patient_name.clone(),
             id: h.patient_id.clone(),
@@ -494,6 +496,7 @@ pub fn domain_header(
                 h.study_uid.clone()
             },
             instance_uids: vec![],
+            source_class: None,
         },
         truth: None,
     }

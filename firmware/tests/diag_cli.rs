@@ -73,6 +73,7 @@ fn a_corrupted_dicom_length_is_refused_not_allocated() {
         laterality: Laterality::Left,
         source_series_uid: "1.2.826.0.1.3680043.10.543.77.2".into(),
         source_instance_uids: vec![],
+        source_class: dbt_dicom::projections::BPXR_FOR_PROCESSING_CLASS.into(),
     };
     let equipment = Equipment {
         manufacturer: "DBToR".into(),

@@ -27,6 +27,7 @@ fn header() -> Header {
         laterality: Laterality::Right,
         source_series_uid: "1.2.826.0.1.3680043.10.543.88.2".into(),
         source_instance_uids: vec!["1.2.826.0.1.3680043.10.543.88.3".into()],
+        source_class: dbt_dicom::projections::BPXR_FOR_PROCESSING_CLASS.into(),
     }
 }
 
@@ -49,11 +50,13 @@ fn dose(agd: f64) -> DoseInput {
             angle_end_deg: 1.0,
             kvp: 29.0,
             exposure_uas: 3000.0,
+            exposure_ms: Some(60.0),
             agd_mgy: agd,
             entrance_kerma_mgy: 4.2,
             datetime: "20261122101500".into(),
         }],
         compression_mm: 52.0,
+        compression_force_n: Some(110.0),
         hvl_mm_al: 0.538,
         filter_rh_mm: 0.0583,
         accumulated_agd_mgy: agd,

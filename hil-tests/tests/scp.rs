@@ -109,6 +109,7 @@ fn echo_store_and_refusal_with_dcmtk_and_host_sim() {
                 laterality: dbt_dicom::Laterality::Left,
                 source_series_uid: "1.2.826.0.1.3680043.10.543.88.1".into(),
                 source_instance_uids: vec![],
+                source_class: dbt_dicom::projections::BPXR_FOR_PROCESSING_CLASS.into(),
             },
             equipment: dbt_dicom::Equipment {
                 manufacturer: "x".into(),

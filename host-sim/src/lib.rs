@@ -167,6 +167,8 @@ pub fn simulate_acquisition(
         mas_total: technique.mas_total,
         tube_output_mgy_per_mas: technique.tube_output_mgy_per_mas,
         laterality: "L".into(),
+        compression_force_n: None,
+        exposure_ms_per_view: None,
         patient: Patient {
             name: format!("Phantom^{patient_id}"),
             id: patient_id.into(),
@@ -181,6 +183,7 @@ pub fn simulate_acquisition(
             study_id: "1".into(),
             series_uid: uid(2),
             instance_uids: (0..geom.n_views() as u64).map(|v| uid(100 + v)).collect(),
+            source_class: None,
         },
         truth: Some(serde_json::json!({
             "glandularity": vol.glandularity(),

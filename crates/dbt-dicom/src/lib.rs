@@ -14,6 +14,8 @@
 
 pub mod bounds;
 mod content;
+pub mod dm;
+pub mod input;
 pub mod projections;
 pub mod reports;
 pub mod templates;

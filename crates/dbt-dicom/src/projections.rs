@@ -67,11 +67,11 @@ pub struct ProjectionSet<'a> {
     pub content_time: &'a str,
 }
 
-fn bad(field: &'static str, reason: String) -> DicomError {
+pub(crate) fn bad(field: &'static str, reason: String) -> DicomError {
     DicomError::Field { field, reason }
 }
 
-fn ds(v: f64) -> String {
+pub(crate) fn ds(v: f64) -> String {
     crate::format_ds(v)
 }
 
@@ -79,11 +79,11 @@ fn item(elems: Vec<DataElement<InMemDicomObject>>) -> InMemDicomObject {
     InMemDicomObject::from_element_iter(elems)
 }
 
-fn sq(items: Vec<InMemDicomObject>) -> dicom_core::value::Value<InMemDicomObject> {
+pub(crate) fn sq(items: Vec<InMemDicomObject>) -> dicom_core::value::Value<InMemDicomObject> {
     dicom_core::value::DataSetSequence::from(items).into()
 }
 
-fn code(v: &str, s: &str, m: &str) -> InMemDicomObject {
+pub(crate) fn code(v: &str, s: &str, m: &str) -> InMemDicomObject {
     item(vec![
         DataElement::new(tags::CODE_VALUE, VR::SH, v),
         DataElement::new(tags::CODING_SCHEME_DESIGNATOR, VR::SH, s),
@@ -91,13 +91,9 @@ fn code(v: &str, s: &str, m: &str) -> InMemDicomObject {
     ])
 }
 
-/// The object, checked: a frame per angle, counts of the announced size,
-/// physical values in range. UIDs (series, instance, frame of reference)
-/// from `uids`.
-pub fn projection_object(
-    p: &ProjectionSet<'_>,
-    uids: &mut UidSource,
-) -> Result<Report, DicomError> {
+/// The checks of a projection set before any object is written: a frame
+/// per angle, counts of the announced size, physical values in range.
+pub(crate) fn check(p: &ProjectionSet<'_>) -> Result<(), DicomError> {
     let frames = p.angles_deg.len();
     if frames == 0 {
         return Err(bad("angles_deg", "no view".into()));
@@ -165,6 +161,18 @@ pub fn projection_object(
             return Err(bad(field, format!("{v} is outside [{lo}, {hi}]")));
         }
     }
+    Ok(())
+}
+
+/// The object, checked: a frame per angle, counts of the announced size,
+/// physical values in range. UIDs (series, instance, frame of reference)
+/// from `uids`.
+pub fn projection_object(
+    p: &ProjectionSet<'_>,
+    uids: &mut UidSource,
+) -> Result<Report, DicomError> {
+    check(p)?;
+    let frames = p.angles_deg.len();
     let h = p.header;
     let sop_instance = uids.next_uid();
     let series = uids.next_uid();
@@ -543,7 +551,7 @@ pub fn projection_object(
 /// milliseconds (the frames of one sweep are less than a day apart; a
 /// start that does not parse is kept as it is, with the offset in the
 /// fraction).
-fn frame_datetime(start: &str, ms: u64) -> String {
+pub(crate) fn frame_datetime(start: &str, ms: u64) -> String {
     let secs: Option<u64> = (start.len() == 14)
         .then(|| {
             let n = |r: std::ops::Range<usize>| start.get(r).and_then(|v| v.parse::<u64>().ok());
@@ -566,264 +574,11 @@ fn frame_datetime(start: &str, ms: u64) -> String {
     }
 }
 
-/// What the daemon's DICOM input reads from a Breast Projection X-Ray For
-/// Processing object (the inverse of [`projection_object`]).
-#[derive(Debug, Clone, PartialEq)]
-pub struct ReceivedProjections {
-    /// Patient, study and laterality (the object's own series and instance
-    /// as the source series and the one source instance).
-    pub header: Header,
-    /// Study instance UID, series and SOP instance UID of the object.
-    pub sop_instance: String,
-    /// Detector rows and columns.
-    pub rows: usize,
-    /// See `rows`.
-    pub columns: usize,
-    /// Imager pixel spacing (rows, columns), mm.
-    pub pixel_spacing_mm: [f64; 2],
-    /// Positioner (source) primary angle of each frame, degrees.
-    pub angles_deg: Vec<f64>,
-    /// Source to detector and to isocentre, mm.
-    pub source_to_detector_mm: f64,
-    /// See `source_to_detector_mm`.
-    pub source_to_isocenter_mm: f64,
-    /// Body Part Thickness, mm.
-    pub thickness_mm: f64,
-    /// Compression Force, N.
-    pub compression_force_n: Option<f64>,
-    /// KVP.
-    pub kvp: f64,
-    /// Exposure of the whole sweep, mAs.
-    pub exposure_mas: f64,
-    /// Counts, frame-major (`frames x rows x columns`).
-    pub counts: Vec<u16>,
-}
+pub use crate::input::{InputError, ReceivedProjections};
 
-/// Why an object is not usable input.
-#[derive(Debug, thiserror::Error)]
-pub enum InputError {
-    /// Not a DICOM object, truncated, or a length beyond the file.
-    #[error("not a readable DICOM object: {0}")]
-    Unreadable(String),
-    /// Another SOP class than the For Processing projections.
-    #[error("SOP class {0} is not Breast Projection X-Ray Image - For Processing ({BPXR_FOR_PROCESSING_CLASS})")]
-    Class(String),
-    /// A required attribute is missing or malformed.
-    #[error("{attribute}: {reason}")]
-    Attribute {
-        /// The attribute's keyword.
-        attribute: &'static str,
-        /// What is wrong.
-        reason: String,
-    },
-}
-
-fn attr(attribute: &'static str, reason: impl Into<String>) -> InputError {
-    InputError::Attribute {
-        attribute,
-        reason: reason.into(),
-    }
-}
-
-/// Read a For Processing projection object: refused, naming the attribute,
-/// when it is another class (For Presentation included), lacks the
-/// thickness, technique or geometry, or its pixel data disagree with its
-/// rows, columns and frames.
+/// Read a For Processing projection object (Breast Projection X-Ray, or one
+/// view as Digital Mammography X-Ray): [`crate::input::read_input_object`]
+/// without private classes.
 pub fn read_projection_object(bytes: &[u8]) -> Result<ReceivedProjections, InputError> {
-    crate::bounds::check_lengths(bytes).map_err(|e| InputError::Unreadable(e.to_string()))?;
-    let o = dicom_object::from_reader(bytes).map_err(|e| InputError::Unreadable(e.to_string()))?;
-    let text = |t, name: &'static str| -> Result<String, InputError> {
-        o.element(t)
-            .map_err(|_| attr(name, "missing"))?
-            .to_str()
-            .map(|s| s.trim_end_matches(['\0', ' ']).trim().to_string())
-            .map_err(|e| attr(name, e.to_string()))
-    };
-    let opt_text = |t| {
-        o.element(t)
-            .ok()
-            .and_then(|e| e.to_str().ok())
-            .map(|s| s.trim_end_matches(['\0', ' ']).trim().to_string())
-            .unwrap_or_default()
-    };
-    let num = |t, name: &'static str| -> Result<f64, InputError> {
-        let v = o
-            .element(t)
-            .map_err(|_| attr(name, "missing"))?
-            .to_float64()
-            .map_err(|e| attr(name, e.to_string()))?;
-        if v.is_finite() {
-            Ok(v)
-        } else {
-            Err(attr(name, format!("{v} is not finite")))
-        }
-    };
-    let class = text(tags::SOP_CLASS_UID, "SOPClassUID")?;
-    if class != BPXR_FOR_PROCESSING_CLASS {
-        return Err(InputError::Class(class));
-    }
-    let intent = text(tags::PRESENTATION_INTENT_TYPE, "PresentationIntentType")?;
-    if intent != "FOR PROCESSING" {
-        return Err(attr(
-            "PresentationIntentType",
-            format!("{intent:?}, not FOR PROCESSING"),
-        ));
-    }
-    let rows = num(tags::ROWS, "Rows")? as usize;
-    let columns = num(tags::COLUMNS, "Columns")? as usize;
-    let frames = num(tags::NUMBER_OF_FRAMES, "NumberOfFrames")? as usize;
-    for (name, t, want) in [
-        ("BitsAllocated", tags::BITS_ALLOCATED, 16.0),
-        ("PixelRepresentation", tags::PIXEL_REPRESENTATION, 0.0),
-        ("SamplesPerPixel", tags::SAMPLES_PER_PIXEL, 1.0),
-    ] {
-        let v = num(t, name)?;
-        if v != want {
-            return Err(attr(name, format!("{v}, expected {want}")));
-        }
-    }
-    let counts = o
-        .element(tags::PIXEL_DATA)
-        .map_err(|_| attr("PixelData", "missing"))?
-        .to_multi_int::<u16>()
-        .map_err(|e| attr("PixelData", e.to_string()))?;
-    let want = frames * rows * columns;
-    if counts.len() != want || want == 0 {
-        return Err(attr(
-            "PixelData",
-            format!(
-                "{} values for {frames} frames of {rows} x {columns} ({want})",
-                counts.len()
-            ),
-        ));
-    }
-    // Functional groups.
-    let items = |o: &InMemDicomObject,
-                 t,
-                 name: &'static str|
-     -> Result<Vec<InMemDicomObject>, InputError> {
-        Ok(o.element(t)
-            .map_err(|_| attr(name, "missing"))?
-            .items()
-            .ok_or_else(|| attr(name, "not a sequence"))?
-            .to_vec())
-    };
-    let first =
-        |o: &InMemDicomObject, t, name: &'static str| -> Result<InMemDicomObject, InputError> {
-            items(o, t, name)?
-                .into_iter()
-                .next()
-                .ok_or_else(|| attr(name, "empty"))
-        };
-    let shared = first(
-        &o,
-        tags::SHARED_FUNCTIONAL_GROUPS_SEQUENCE,
-        "SharedFunctionalGroupsSequence",
-    )?;
-    let per_frame = items(
-        &o,
-        tags::PER_FRAME_FUNCTIONAL_GROUPS_SEQUENCE,
-        "PerFrameFunctionalGroupsSequence",
-    )?;
-    if per_frame.len() != frames {
-        return Err(attr(
-            "PerFrameFunctionalGroupsSequence",
-            format!("{} items for {frames} frames", per_frame.len()),
-        ));
-    }
-    // A macro's item in the frame's group, else in the shared one.
-    let group = |k: usize, t, name: &'static str| -> Result<InMemDicomObject, InputError> {
-        first(&per_frame[k], t, name).or_else(|_| first(&shared, t, name))
-    };
-    let fnum = |o: &InMemDicomObject, t, name: &'static str| -> Result<f64, InputError> {
-        o.element(t)
-            .map_err(|_| attr(name, "missing"))?
-            .to_float64()
-            .map_err(|e| attr(name, e.to_string()))
-    };
-    let mut angles = Vec::with_capacity(frames);
-    for k in 0..frames {
-        let iso = group(
-            k,
-            tags::ISOCENTER_REFERENCE_SYSTEM_SEQUENCE,
-            "IsocenterReferenceSystemSequence",
-        )?;
-        angles.push(fnum(
-            &iso,
-            tags::X_RAY_SOURCE_ISOCENTER_PRIMARY_ANGLE,
-            "XRaySourceIsocenterPrimaryAngle",
-        )?);
-    }
-    let geom = group(0, tags::X_RAY_GEOMETRY_SEQUENCE, "XRayGeometrySequence")?;
-    let props = group(
-        0,
-        tags::FRAME_PIXEL_DATA_PROPERTIES_SEQUENCE,
-        "FramePixelDataPropertiesSequence",
-    )?;
-    let spacing = props
-        .element(tags::IMAGER_PIXEL_SPACING)
-        .map_err(|_| attr("ImagerPixelSpacing", "missing"))?
-        .to_multi_float64()
-        .map_err(|e| attr("ImagerPixelSpacing", e.to_string()))?;
-    if spacing.len() != 2 || spacing.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
-        return Err(attr("ImagerPixelSpacing", format!("{spacing:?}")));
-    }
-    let laterality = {
-        let anat = group(0, tags::FRAME_ANATOMY_SEQUENCE, "FrameAnatomySequence")?;
-        match anat
-            .element(tags::FRAME_LATERALITY)
-            .ok()
-            .and_then(|e| e.to_str().ok())
-            .map(|s| s.trim().to_string())
-            .as_deref()
-        {
-            Some("L") => Laterality::Left,
-            Some("R") => Laterality::Right,
-            other => {
-                return Err(attr(
-                    "FrameLaterality",
-                    format!("{other:?}, expected L or R"),
-                ))
-            }
-        }
-    };
-    let study_uid = text(tags::STUDY_INSTANCE_UID, "StudyInstanceUID")?;
-    let sop_instance = text(tags::SOP_INSTANCE_UID, "SOPInstanceUID")?;
-    Ok(ReceivedProjections {
-        header: Header {
-            patient_name: opt_text(tags::PATIENT_NAME),
-            patient_id: text(tags::PATIENT_ID, "PatientID")?,
-            patient_birth_date: opt_text(tags::PATIENT_BIRTH_DATE),
-            patient_sex: opt_text(tags::PATIENT_SEX),
-            study_uid,
-            study_date: opt_text(tags::STUDY_DATE),
-            study_time: opt_text(tags::STUDY_TIME),
-            study_id: opt_text(tags::STUDY_ID),
-            accession_number: opt_text(tags::ACCESSION_NUMBER),
-            referring_physician: opt_text(tags::REFERRING_PHYSICIAN_NAME),
-            laterality,
-            source_series_uid: text(tags::SERIES_INSTANCE_UID, "SeriesInstanceUID")?,
-            source_instance_uids: vec![sop_instance.clone()],
-        },
-        sop_instance,
-        rows,
-        columns,
-        pixel_spacing_mm: [spacing[0], spacing[1]],
-        angles_deg: angles,
-        source_to_detector_mm: fnum(
-            &geom,
-            tags::DISTANCE_SOURCE_TO_DETECTOR,
-            "DistanceSourceToDetector",
-        )?,
-        source_to_isocenter_mm: fnum(
-            &geom,
-            tags::DISTANCE_SOURCE_TO_ISOCENTER,
-            "DistanceSourceToIsocenter",
-        )?,
-        thickness_mm: num(tags::BODY_PART_THICKNESS, "BodyPartThickness")?,
-        compression_force_n: num(tags::COMPRESSION_FORCE, "CompressionForce").ok(),
-        kvp: num(tags::KVP, "KVP")?,
-        exposure_mas: num(tags::EXPOSURE_INM_AS, "ExposureInmAs")?,
-        counts,
-    })
+    crate::input::read_input_object(bytes, &[])
 }

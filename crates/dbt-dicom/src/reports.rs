@@ -103,6 +103,9 @@ pub struct Header {
     pub source_series_uid: String,
     /// SOP Instance UIDs of the projections.
     pub source_instance_uids: Vec<String>,
+    /// Their SOP class (Breast Projection X-Ray For Processing, or Digital
+    /// Mammography X-Ray For Processing when the views came one by one).
+    pub source_class: String,
 }
 
 /// The reporting device.
@@ -174,6 +177,8 @@ pub struct DoseEvent {
     pub kvp: f64,
     /// Exposure, uAs.
     pub exposure_uas: f64,
+    /// Exposure time, ms, when the acquisition gave it.
+    pub exposure_ms: Option<f64>,
     /// Patient-specific Monte Carlo AGD of this projection, mGy.
     pub agd_mgy: f64,
     /// Incident air kerma at the reference point, mGy.
@@ -193,6 +198,8 @@ pub struct DoseInput {
     pub events: Vec<DoseEvent>,
     /// Compressed breast thickness, mm.
     pub compression_mm: f64,
+    /// Compression force, N, when the acquisition gave it.
+    pub compression_force_n: Option<f64>,
     /// First HVL, mm Al.
     pub hvl_mm_al: f64,
     /// Rhodium filter thickness, mm.
@@ -406,6 +413,7 @@ fn base(
 ) -> Result<Report, DicomError> {
     check_uid("header.study_uid", &h.study_uid)?;
     check_uid("header.source_series_uid", &h.source_series_uid)?;
+    check_uid("header.source_class", &h.source_class)?;
     for u in &h.source_instance_uids {
         check_uid("header.source_instance_uids", u)?;
     }
@@ -510,7 +518,7 @@ fn base(
                 DataElement::new(
                     tags::REFERENCED_SOP_CLASS_UID,
                     VR::UI,
-                    BREAST_PROJECTION_FOR_PROCESSING_CLASS,
+                    h.source_class.as_str(),
                 ),
                 DataElement::new(tags::REFERENCED_SOP_INSTANCE_UID, VR::UI, u.as_str()),
             ])
@@ -553,6 +561,9 @@ fn mgy() -> Code {
 /// Build the X-Ray Radiation Dose SR (TID 10001/10003/10005).
 pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, DicomError> {
     check("compression_mm", input.compression_mm, 1.0, 200.0)?;
+    if let Some(f) = input.compression_force_n {
+        check("compression_force_n", f, 0.0, 500.0)?;
+    }
     check("hvl_mm_al", input.hvl_mm_al, 0.05, 10.0)?;
     check(
         "accumulated_agd_mgy",
@@ -679,8 +690,11 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
                 reason: format!("`{}` is not a DICOM DT (YYYYMMDD[HHMMSS])", ev.datetime),
             });
         }
+        if let Some(t) = ev.exposure_ms {
+            check("events.exposure_ms", t, 0.0, 60_000.0)?;
+        }
         let eu = uids.next_uid();
-        let items = vec![
+        let mut items = vec![
             single_plane(),
             (
                 Rel::Contains,
@@ -858,6 +872,46 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
                 ),
             ),
         ];
+        // What the acquisition gave beyond the technique: the compression
+        // force (TID 10003 row 25a, after the thickness) and the exposure
+        // time (TID 10003B, after the exposure); absent rows are omitted,
+        // not written as zero.
+        let after = |items: &[(Rel, Item)], code: &str| {
+            items
+                .iter()
+                .position(|(_, it)| matches!(it, Item::Num(c, ..) if c.value == code))
+                .map_or(items.len(), |i| i + 1)
+        };
+        if let Some(f) = input.compression_force_n {
+            let at = after(&items, "111633");
+            items.insert(
+                at,
+                (
+                    Rel::Contains,
+                    Item::Num(
+                        dcm("111647", "Compression Force"),
+                        f,
+                        Code::ucum("N", "N"),
+                        vec![],
+                    ),
+                ),
+            );
+        }
+        if let Some(t) = ev.exposure_ms {
+            let at = after(&items, "113736");
+            items.insert(
+                at,
+                (
+                    Rel::Contains,
+                    Item::Num(
+                        dcm("113824", "Exposure Time"),
+                        t,
+                        Code::ucum("ms", "ms"),
+                        vec![],
+                    ),
+                ),
+            );
+        }
         children.push((
             Rel::Contains,
             Item::Container(dcm("113706", "Irradiation Event X-Ray Data"), items),

@@ -25,6 +25,7 @@ fn header() -> Header {
         source_instance_uids: (1..=25)
             .map(|i| format!("1.2.826.0.1.3680043.10.543.77.3.{i}"))
             .collect(),
+        source_class: dbt_dicom::projections::BPXR_FOR_PROCESSING_CLASS.into(),
     }
 }
 
@@ -50,6 +51,7 @@ pub fn dose_input() -> DoseInput {
                     angle_end_deg: a + 1.0,
                     kvp: 28.0,
                     exposure_uas: 2000.0,
+                    exposure_ms: Some(60.0),
                     agd_mgy: 0.0571234567891234,
                     entrance_kerma_mgy: 0.21,
                     datetime: format!("202611221015{:02}", i),
@@ -57,6 +59,7 @@ pub fn dose_input() -> DoseInput {
             })
             .collect(),
         compression_mm: 44.0,
+        compression_force_n: Some(110.0),
         hvl_mm_al: 0.53,
         filter_rh_mm: 0.0587,
         accumulated_agd_mgy: 1.428,
@@ -363,10 +366,14 @@ fn dose_report_passes_pixelmed_sr_validation() {
         })
         .collect();
     assert!(errors.is_empty(), "{}", errors.join("\n"));
-    // Its warnings are our two private NUMs in the (extensible) TID 10002.
+    // Its warnings are our two private NUMs in the (extensible) TID 10002,
+    // and Compression Force: row 10a of TID 10003C since CP-1770 (PS3.16
+    // 2019b, with Compression Pressure and Contact Area; OpenREM reads it
+    // there, its issue #914), which PixelMed's templates predate.
     let warnings: Vec<&str> = text.lines().filter(|l| l.starts_with("Warning")).collect();
     assert!(
-        warnings.iter().all(|w| w.contains("99DBTOR")),
+        warnings.iter().all(|w| w.contains("99DBTOR")
+            || w.contains("NUM (111647,DCM,\"Compression Force\"): Content Item not in template")),
         "{}",
         warnings.join("\n")
     );
@@ -501,7 +508,7 @@ fn projection_object_reads_back_and_bad_input_is_named() {
     assert_eq!(got.pixel_spacing_mm, [0.8, 0.8]);
     assert_eq!(
         (got.source_to_detector_mm, got.source_to_isocenter_mm),
-        (700.0, 650.0)
+        (700.0, Some(650.0))
     );
     assert_eq!((got.thickness_mm, got.kvp), (45.0, 29.0));
     assert!((got.exposure_mas - 60.0).abs() < 1e-9);
@@ -530,7 +537,7 @@ fn projection_object_reads_back_and_bad_input_is_named() {
         f(&mut r);
         r.to_bytes().unwrap()
     };
-    named(&sr, "is not Breast Projection X-Ray Image - For Processing");
+    named(&sr, "is not one the input reads");
     named(
         &edited(&|r| {
             r.dataset_mut().put(dicom_core::DataElement::new(
@@ -558,4 +565,146 @@ fn projection_object_reads_back_and_bad_input_is_named() {
         "PixelData: 3000 values for 25 frames of 7 x 20",
     );
     named(&bytes[..bytes.len() / 2], "not a readable DICOM object");
+}
+
+/// A simulated acquisition as Digital Mammography X-Ray For Processing
+/// objects, one per view: every one passes dciodvfy with no Error line and
+/// nothing outside the IOD, and holds its view's counts and angle.
+#[test]
+fn view_objects_pass_dciodvfy() {
+    use dbt_dicom::dm::{view_objects, DM_FOR_PROCESSING_CLASS};
+    let (h, eq) = (header(), equipment());
+    let angles: Vec<f64> = (0..25).map(|i| -24.0 + 2.0 * i as f64).collect();
+    let counts = projection_counts(25, 12, 40);
+    let p = projection_set(&h, &eq, &angles, &counts, 12, 40);
+    let mut uids = UidSource::new("1.2.826.0.1.3680043.10.543", 8).unwrap();
+    let objects = view_objects(&p, &mut uids).unwrap();
+    assert_eq!(objects.len(), 25);
+    let dir = tempfile::tempdir().unwrap();
+    for (k, r) in objects.iter().enumerate() {
+        assert_eq!(r.sop_class, DM_FOR_PROCESSING_CLASS);
+        let bytes = r.to_bytes().unwrap();
+        let obj = dicom_object::from_reader(&bytes[..]).unwrap();
+        let px = obj
+            .element(tags::PIXEL_DATA)
+            .unwrap()
+            .to_multi_int::<u16>()
+            .unwrap();
+        assert_eq!(px, counts[k * 480..(k + 1) * 480]);
+        let angle = obj
+            .element(tags::POSITIONER_PRIMARY_ANGLE)
+            .unwrap()
+            .to_float64()
+            .unwrap();
+        assert_eq!(angle, angles[k]);
+        if ![0, 12, 24].contains(&k) {
+            continue;
+        }
+        let path = dir.path().join(format!("dm{k}.dcm"));
+        std::fs::write(&path, &bytes).unwrap();
+        if let Ok(d) = std::env::var("DBT_DICOM_KEEP") {
+            std::fs::write(Path::new(&d).join(format!("dm{k}.dcm")), &bytes).unwrap();
+        }
+        let out = Command::new("dciodvfy").arg(&path).output().unwrap();
+        let text = String::from_utf8_lossy(&out.stderr).to_string()
+            + &String::from_utf8_lossy(&out.stdout);
+        assert!(text.contains("MammographyImageForProcessing"), "{text}");
+        assert!(!text.contains("Warning"), "{text}");
+        let bad: Vec<&str> = text
+            .lines()
+            .filter(|l| l.starts_with("Error") || l.contains("not present in standard DICOM IOD"))
+            .collect();
+        assert!(bad.is_empty(), "view {k}:\n{}", bad.join("\n"));
+    }
+}
+
+/// A view object reads back with its angle, technique and view; a private
+/// class is read only with its mapping (the thickness moved to a private
+/// tag of a named creator), and refused naming what is wrong otherwise.
+#[test]
+fn view_objects_and_mapped_private_objects_read_back() {
+    use dbt_dicom::dm::view_objects;
+    use dbt_dicom::input::{read_input_object, Layout, Mapping};
+    use dicom_core::{DataElement, Tag, VR};
+    let (h, eq) = (header(), equipment());
+    let angles: Vec<f64> = (0..25).map(|i| -24.0 + 2.0 * i as f64).collect();
+    let counts = projection_counts(25, 6, 20);
+    let p = projection_set(&h, &eq, &angles, &counts, 6, 20);
+    let mut uids = UidSource::new("1.2.826.0.1.3680043.10.543", 11).unwrap();
+    let objects = view_objects(&p, &mut uids).unwrap();
+    let got = read_input_object(&objects[3].to_bytes().unwrap(), &[]).unwrap();
+    assert_eq!(got.layout, Layout::PerView);
+    assert_eq!(got.angles_deg, vec![angles[3]]);
+    assert_eq!(got.counts, counts[3 * 120..4 * 120]);
+    assert_eq!((got.rows, got.columns), (6, 20));
+    assert_eq!(got.source_to_isocenter_mm, None);
+    assert!((got.exposure_mas - 2.4).abs() < 1e-9);
+    assert_eq!(got.exposure_ms_per_view, Some(60.0));
+    assert_eq!(got.compression_force_n, Some(110.0));
+    assert_eq!(got.anode.as_deref(), Some("TUNGSTEN"));
+    assert_eq!(got.filter.as_deref(), Some("RHODIUM"));
+    assert_eq!(got.view, "cranio-caudal");
+    assert_eq!(got.instance_number, Some(4));
+    assert_eq!(got.header.laterality, Laterality::Left);
+
+    // For Presentation is named as such.
+    let mut r = view_objects(&p, &mut uids).unwrap().remove(0);
+    r.dataset_mut().put(DataElement::new(
+        tags::SOP_CLASS_UID,
+        VR::UI,
+        "1.2.840.10008.5.1.4.1.1.1.2",
+    ));
+    let e = read_input_object(&r.to_bytes().unwrap(), &[])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("For Presentation"), "{e}");
+
+    // A vendor's class: thickness in (0019,1012) of creator "ACME DBT".
+    let private = "1.2.826.0.1.3680043.10.543.77.1";
+    let mut r = view_objects(&p, &mut uids).unwrap().remove(5);
+    let o = r.dataset_mut();
+    o.put(DataElement::new(tags::SOP_CLASS_UID, VR::UI, private));
+    o.remove_element(tags::BODY_PART_THICKNESS);
+    o.remove_element(tags::PRESENTATION_INTENT_TYPE);
+    o.put(DataElement::new(Tag(0x0019, 0x0010), VR::LO, "ACME DBT"));
+    o.put(DataElement::new(Tag(0x0019, 0x1012), VR::DS, "45.0"));
+    let bytes = r.to_bytes().unwrap();
+    let e = read_input_object(&bytes, &[]).unwrap_err().to_string();
+    assert!(e.contains(private) && e.contains("configured private class"), "{e}");
+    let mapping = |creator: &str| {
+        Mapping::new(
+            "ACME",
+            private,
+            Layout::PerView,
+            [("BodyPartThickness".to_string(), Tag(0x0019, 0x1012))].into(),
+            [(Tag(0x0019, 0x0010), creator.to_string())].into(),
+        )
+        .unwrap()
+    };
+    let got = read_input_object(&bytes, &[mapping("ACME DBT")]).unwrap();
+    assert_eq!(got.thickness_mm, 45.0);
+    assert_eq!(got.angles_deg, vec![angles[5]]);
+    let e = read_input_object(&bytes, &[mapping("OTHER")])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("PrivateCreator") && e.contains("ACME DBT"), "{e}");
+    // A mapping names only attributes the input reads, for a private class.
+    let e = Mapping::new(
+        "x",
+        private,
+        Layout::PerView,
+        [("PatientAge".to_string(), Tag(0x0019, 0x1001))].into(),
+        Default::default(),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("PatientAge"), "{e}");
+    assert!(Mapping::new(
+        "x",
+        dbt_dicom::dm::DM_FOR_PROCESSING_CLASS,
+        Layout::PerView,
+        Default::default(),
+        Default::default()
+    )
+    .is_err());
 }

@@ -47,6 +47,10 @@ pub struct Study {
     pub series_uid: String,
     /// SOP Instance UIDs of the projections (one per view).
     pub instance_uids: Vec<String>,
+    /// Their SOP class, when they came over DICOM (absent: the frame link's
+    /// projections, referenced as Breast Projection X-Ray For Processing).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub source_class: Option<String>,
 }
 
 /// The acquisition header.
@@ -73,6 +77,13 @@ pub struct AcquisitionHeader {
     pub tube_output_mgy_per_mas: f64,
     /// `L` or `R`.
     pub laterality: String,
+    /// Compression force, N, where the acquisition gave it (a DICOM input
+    /// object's Compression Force, the gantry's Modbus register).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub compression_force_n: Option<f64>,
+    /// Exposure time of each view, ms, where the acquisition gave it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub exposure_ms_per_view: Option<f64>,
     /// Patient.
     pub patient: Patient,
     /// Study.

@@ -1,12 +1,16 @@
-//! A received Breast Projection X-Ray For Processing object as an
-//! acquisition (issue #31, the DICOM input): the object's technique,
-//! thickness and identity; the configured system's geometry, flat field and
-//! tube output, which the object must agree with. Everything the pipeline
-//! reads is then checked again by [`validate_header`].
+//! Received For Processing projections as an acquisition (issue #31, the
+//! DICOM input): a Breast Projection X-Ray object (the whole sweep), or the
+//! views of one sweep sent one object each ([`assemble`] after grouping by
+//! [`group_key`] and placing each by [`view_index`]). The objects give the
+//! technique, thickness and identity; the configured system gives the
+//! geometry, flat field and tube output, which the objects must agree with.
+//! Everything the pipeline reads is then checked again by
+//! [`validate_header`].
 
 use crate::acquisition::{
     validate_header, Acquisition, AcquisitionHeader, HeaderError, Patient, Study, ACQ_FORMAT,
 };
+use dbt_dicom::input::Layout;
 use dbt_dicom::projections::{ProjectionSet, ReceivedProjections};
 use dbt_dicom::Laterality;
 use dbt_geometry::Geometry;
@@ -31,6 +35,16 @@ const ANGLE_TOL_DEG: f64 = 0.01;
 const DISTANCE_TOL_MM: f64 = 0.5;
 /// Relative tolerance of the pixel spacing.
 const SPACING_TOL: f64 = 1e-3;
+/// The views of one sweep may disagree on the thickness by this much, mm
+/// (DS rounding; a paddle that moved between views is a new acquisition).
+const THICKNESS_TOL_MM: f64 = 0.5;
+
+/// The anode the dose model's spectra are for (TASMICS tungsten spectra,
+/// `dbt-dose`), as DICOM's Anode Target Material names it.
+pub const ANODE: &str = "TUNGSTEN";
+/// The filter the dose model's spectra are for (rhodium), as DICOM's Filter
+/// Material names it.
+pub const FILTER: &str = "RHODIUM";
 
 fn refuse(field: &'static str, value: impl ToString, reason: impl Into<String>) -> HeaderError {
     HeaderError {
@@ -82,7 +96,7 @@ pub fn acquisition_from_projections(
     for (field, got, want) in [
         (
             "DistanceSourceToDetector",
-            p.source_to_detector_mm,
+            Some(p.source_to_detector_mm),
             g.source_to_detector_mm,
         ),
         (
@@ -91,11 +105,32 @@ pub fn acquisition_from_projections(
             g.source_to_center_mm,
         ),
     ] {
+        // An object without the isocentre distance (the DM IOD has none)
+        // is taken on the configured one.
+        let Some(got) = got else { continue };
         if (got - want).abs() > DISTANCE_TOL_MM {
             return Err(refuse(
                 field,
                 got,
                 format!("the configured gantry's is {want} mm"),
+            ));
+        }
+    }
+    // The dose model's spectra are W/Rh: another anode or filter would be
+    // reported with the wrong dose.
+    if let Some(a) = p.anode.as_deref().filter(|a| *a != ANODE) {
+        return Err(refuse(
+            "AnodeTargetMaterial",
+            a,
+            format!("the dose model is for a {ANODE} anode"),
+        ));
+    }
+    if let Some(f) = p.filter.as_deref() {
+        if f.split('\\').any(|m| m.trim() != FILTER) {
+            return Err(refuse(
+                "FilterMaterial",
+                f,
+                format!("the dose model is for a {FILTER} filter"),
             ));
         }
     }
@@ -127,6 +162,8 @@ pub fn acquisition_from_projections(
             Laterality::Right => "R",
         }
         .into(),
+        compression_force_n: p.compression_force_n,
+        exposure_ms_per_view: p.exposure_ms_per_view,
         patient: Patient {
             name: h.patient_name.clone(),
             id: h.patient_id.clone(),
@@ -141,11 +178,139 @@ pub fn acquisition_from_projections(
             study_id: h.study_id.clone(),
             series_uid: h.source_series_uid.clone(),
             instance_uids: h.source_instance_uids.clone(),
+            source_class: Some(p.sop_class.clone()),
         },
         truth: None,
     };
     validate_header(&header)?;
     Ok(Acquisition { header, counts })
+}
+
+/// The group a view object belongs to: one acquisition per study,
+/// laterality and view (`study|L|cranio-caudal`).
+pub fn group_key(p: &ReceivedProjections) -> String {
+    let lat = match p.header.laterality {
+        Laterality::Left => "L",
+        Laterality::Right => "R",
+    };
+    format!("{}|{lat}|{}", p.header.study_uid, p.view)
+}
+
+/// The configured view a one-view object is, by its angle; refused naming
+/// the angle when no configured view is within the tolerance.
+pub fn view_index(p: &ReceivedProjections, geometry: &Geometry) -> Result<usize, HeaderError> {
+    let [a] = p.angles_deg[..] else {
+        return Err(refuse(
+            "NumberOfFrames",
+            p.angles_deg.len(),
+            "a one-view object has one frame",
+        ));
+    };
+    (0..geometry.n_views())
+        .find(|&v| (geometry.angle_deg(v) - a).abs() <= ANGLE_TOL_DEG)
+        .ok_or_else(|| {
+            refuse(
+                "PositionerPrimaryAngle",
+                a,
+                format!(
+                    "no configured view is at this angle (the gantry's {} views run from {} to {} deg)",
+                    geometry.n_views(),
+                    geometry.angle_deg(0),
+                    geometry.angle_deg(geometry.n_views().saturating_sub(1))
+                ),
+            )
+        })
+}
+
+/// One sweep from its one-view objects (one per configured view, any
+/// order): the frames in view order, the exposures summed, every source
+/// instance kept. Refused, naming the attribute, where the views disagree
+/// (patient, series, detector, thickness, technique) or a view is missing
+/// or twice.
+pub fn assemble(
+    views: &[ReceivedProjections],
+    geometry: &Geometry,
+) -> Result<ReceivedProjections, HeaderError> {
+    let n = geometry.n_views();
+    let mut slots: Vec<Option<&ReceivedProjections>> = vec![None; n];
+    for p in views {
+        let k = view_index(p, geometry)?;
+        if slots[k].is_some() {
+            return Err(refuse(
+                "PositionerPrimaryAngle",
+                p.angles_deg[0],
+                format!("view {} is there twice", k + 1),
+            ));
+        }
+        slots[k] = Some(p);
+    }
+    let placed: Vec<&ReceivedProjections> = slots.iter().flatten().copied().collect();
+    if placed.len() != n {
+        let missing: Vec<String> = (0..n)
+            .filter(|&k| slots[k].is_none())
+            .map(|k| format!("{} deg", geometry.angle_deg(k)))
+            .collect();
+        return Err(refuse(
+            "views",
+            placed.len(),
+            format!("{n} views make a sweep; missing the views at {}", missing.join(", ")),
+        ));
+    }
+    let first = placed[0];
+    for p in &placed[1..] {
+        let differs = |field: &'static str, a: String, b: String| {
+            (a != b).then(|| {
+                refuse(
+                    field,
+                    b,
+                    format!("the sweep's other views have {a} (view at {} deg)", p.angles_deg[0]),
+                )
+            })
+        };
+        let checks = [
+            differs("PatientID", first.header.patient_id.clone(), p.header.patient_id.clone()),
+            differs(
+                "SeriesInstanceUID",
+                first.header.source_series_uid.clone(),
+                p.header.source_series_uid.clone(),
+            ),
+            differs("SOPClassUID", first.sop_class.clone(), p.sop_class.clone()),
+            differs(
+                "Rows",
+                format!("{} x {}", first.rows, first.columns),
+                format!("{} x {}", p.rows, p.columns),
+            ),
+            differs(
+                "ImagerPixelSpacing",
+                format!("{:?}", first.pixel_spacing_mm),
+                format!("{:?}", p.pixel_spacing_mm),
+            ),
+            differs("KVP", first.kvp.to_string(), p.kvp.to_string()),
+            ((first.thickness_mm - p.thickness_mm).abs() > THICKNESS_TOL_MM).then(|| {
+                refuse(
+                    "BodyPartThickness",
+                    p.thickness_mm,
+                    format!(
+                        "the sweep's other views have {} mm (view at {} deg)",
+                        first.thickness_mm, p.angles_deg[0]
+                    ),
+                )
+            }),
+        ];
+        if let Some(e) = checks.into_iter().flatten().next() {
+            return Err(e);
+        }
+    }
+    let mut header = first.header.clone();
+    header.source_instance_uids = placed.iter().map(|p| p.sop_instance.clone()).collect();
+    Ok(ReceivedProjections {
+        header,
+        layout: Layout::PerView,
+        angles_deg: placed.iter().map(|p| p.angles_deg[0]).collect(),
+        exposure_mas: placed.iter().map(|p| p.exposure_mas).sum(),
+        counts: placed.iter().flat_map(|p| p.counts.iter().copied()).collect(),
+        ..first.clone()
+    })
 }
 
 /// What a modality knows of its sweep beyond the acquisition file.

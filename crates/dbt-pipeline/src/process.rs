@@ -471,6 +471,11 @@ pub fn dicom_header(acq: &Acquisition) -> Header {
         },
         source_series_uid: h.study.series_uid.clone(),
         source_instance_uids: h.study.instance_uids.clone(),
+        source_class: h
+            .study
+            .source_class
+            .clone()
+            .unwrap_or_else(|| dbt_dicom::projections::BPXR_FOR_PROCESSING_CLASS.into()),
     }
 }
 
@@ -507,6 +512,7 @@ pub fn reports(
                 angle_end_deg: a + step / 2.0,
                 kvp: h.kvp,
                 exposure_uas: h.mas_total * 1000.0 / nv as f64,
+                exposure_ms: h.exposure_ms_per_view,
                 agd_mgy: res.mgd_mgy * frac,
                 entrance_kerma_mgy: res.kerma_mgy / nv as f64,
                 datetime: format!("{}{}", h.study.date, h.study.time),
@@ -519,6 +525,7 @@ pub fn reports(
             equipment: equipment.clone(),
             events,
             compression_mm: h.thickness_mm,
+            compression_force_n: h.compression_force_n,
             hvl_mm_al: tube.hvl_mm_al,
             filter_rh_mm: tube.rh_mm,
             accumulated_agd_mgy: res.mgd_mgy,

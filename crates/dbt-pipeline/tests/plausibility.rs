@@ -31,6 +31,8 @@ fn header(slices: usize, thickness: f64) -> AcquisitionHeader {
         mas_total: 60.0,
         tube_output_mgy_per_mas: 0.11,
         laterality: "L".into(),
+        compression_force_n: None,
+        exposure_ms_per_view: None,
         patient: Patient {
             name: "Doe^Jane".into(),
             id: "P-0001".into(),
@@ -45,6 +47,7 @@ fn header(slices: usize, thickness: f64) -> AcquisitionHeader {
             study_id: "1".into(),
             series_uid: "1.2.826.0.1.3680043.10.543.7.1".into(),
             instance_uids: vec![],
+            source_class: None,
         },
         truth: None,
     }
@@ -448,6 +451,10 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
     let mut want = h.clone();
     want.study.series_uid = received.header.source_series_uid.clone();
     want.study.instance_uids = received.header.source_instance_uids.clone();
+    want.study.source_class = Some(dbt_dicom::projections::BPXR_FOR_PROCESSING_CLASS.into());
+    // What the object carried beyond the frame link's header.
+    want.compression_force_n = Some(110.0);
+    want.exposure_ms_per_view = Some(60.0);
     assert!((back.header.mas_total - want.mas_total).abs() < 1e-9);
     want.mas_total = back.header.mas_total;
     assert_eq!(back.header, want);
@@ -460,4 +467,47 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("Columns") && e.contains("elements"), "{e}");
+
+    // The same sweep as one Digital Mammography For Processing object per
+    // view, received in any order: assembled, the same acquisition (but
+    // the evidence: the views' own class and instances).
+    use dbt_pipeline::dicom_input::{assemble, group_key, view_index};
+    let objects = dbt_dicom::dm::view_objects(&set, &mut uids).unwrap();
+    let mut views: Vec<_> = objects
+        .iter()
+        .map(|o| read_projection_object(&o.to_bytes().unwrap()).unwrap())
+        .collect();
+    views.reverse();
+    views.swap(3, 11);
+    let keys: std::collections::BTreeSet<String> = views.iter().map(group_key).collect();
+    assert_eq!(keys.len(), 1, "{keys:?}");
+    assert_eq!(view_index(&views[0], g).unwrap(), g.n_views() - 1);
+    let swept = assemble(&views, g).unwrap();
+    let from_views = acquisition_from_projections(&swept, &system).unwrap();
+    assert_eq!(from_views.counts, back.counts);
+    let mut want_views = back.header.clone();
+    want_views.study.series_uid = views[0].header.source_series_uid.clone();
+    want_views.study.instance_uids = objects.iter().map(|o| o.sop_instance.clone()).collect();
+    want_views.study.source_class = Some(dbt_dicom::dm::DM_FOR_PROCESSING_CLASS.into());
+    // The per-view exposures are whole uAs: their sum within 0.5 uAs each.
+    assert!((from_views.header.mas_total - back.header.mas_total).abs() < 0.5e-3 * views.len() as f64);
+    want_views.mas_total = from_views.header.mas_total;
+    assert_eq!(from_views.header, want_views);
+
+    // A view missing, a view twice, a view of another thickness: named.
+    let named = |v: &[dbt_dicom::projections::ReceivedProjections], want: &str| {
+        let e = assemble(v, g).unwrap_err().to_string();
+        assert!(e.contains(want), "{want}: {e}");
+    };
+    named(&views[1..], "missing the views at");
+    let mut twice = views.clone();
+    twice[5] = twice[6].clone();
+    named(&twice, "is there twice");
+    let mut thicker = views.clone();
+    thicker[9].thickness_mm += 5.0;
+    named(&thicker, "BodyPartThickness");
+    let mut other_angle = views.clone();
+    other_angle[2].angles_deg[0] += 0.7;
+    named(&other_angle, "no configured view is at this angle");
 }
+

@@ -1,0 +1,213 @@
+//! A DBT acquisition as one Digital Mammography X-Ray Image - For Processing
+//! object per projection (issue #31), the way systems that do not send the
+//! multi-frame Breast Projection object deliver their projections to a
+//! density or dose server. Each object is one view: the raw counts of the
+//! detector (16 bits, linear), its Positioner Primary Angle, and the
+//! technique of that view; the views of one sweep share the study, the
+//! series, Image Laterality and View Position, and are told apart by their
+//! angle (and Instance Number).
+//!
+//! The modules are the DM IOD's (PS3.3 A.26.2): DX Series, DX Anatomy
+//! Imaged, DX Image, DX Detector, DX Positioning, X-Ray Acquisition Dose,
+//! X-Ray Generation, X-Ray Filtration, Mammography Image, Acquisition
+//! Context. The IOD has no isocentre distance: the reader takes the
+//! configured one (see `docs/conformance.md`).
+
+use crate::projections::{bad, check, code, ds, frame_datetime, sq, ProjectionSet};
+use crate::reports::{Laterality, Report};
+use crate::{DicomError, UidSource};
+use dicom_core::value::PrimitiveValue;
+use dicom_core::{DataElement, VR};
+use dicom_dictionary_std::tags;
+use dicom_object::InMemDicomObject;
+
+/// Digital Mammography X-Ray Image Storage - For Processing.
+pub const DM_FOR_PROCESSING_CLASS: &str = "1.2.840.10008.5.1.4.1.1.1.2.1";
+
+/// One object per view of `p` (same series, Instance Number = view + 1),
+/// checked as `projection_object` checks the multi-frame one.
+pub fn view_objects(p: &ProjectionSet<'_>, uids: &mut UidSource) -> Result<Vec<Report>, DicomError> {
+    check(p)?;
+    let frames = p.angles_deg.len();
+    if p.rows > u16::MAX as usize || p.columns > u16::MAX as usize {
+        return Err(bad("rows", format!("{} x {}", p.rows, p.columns)));
+    }
+    let h = p.header;
+    let series = uids.next_uid();
+    let frame_of_reference = uids.next_uid();
+    let (lat, orientation) = match h.laterality {
+        // Patient Orientation (PS3.3 C.7.6.1.1.1): along a row the columns
+        // run across the breast, down a column the rows (coronal slices)
+        // run from the chest wall to the nipple (A).
+        Laterality::Left => ("L", "R\\A"),
+        Laterality::Right => ("R", "L\\A"),
+    };
+    let start = format!("{}{}", h.study_date, h.study_time);
+    let plane = p.rows * p.columns;
+    let s = |t, vr, v: &str| DataElement::new(t, vr, v.to_string());
+    let us = |t, v: u16| DataElement::new(t, VR::US, PrimitiveValue::from(v));
+    let seq = |t, items: Vec<InMemDicomObject>| DataElement::new(t, VR::SQ, sq(items));
+    let spacing = format!(
+        "{}\\{}",
+        ds(p.pixel_spacing_mm[0]),
+        ds(p.pixel_spacing_mm[1])
+    );
+    let magnification =
+        p.source_to_detector_mm / (p.source_to_detector_mm - p.thickness_mm.max(1.0));
+    let mut out = Vec::with_capacity(frames);
+    for (k, angle) in p.angles_deg.iter().enumerate() {
+        let sop_instance = uids.next_uid();
+        let at = frame_datetime(&start, (p.view_interval_ms * k as f64).round() as u64);
+        let (date, time) = (at.get(..8).unwrap_or(""), at.get(8..).unwrap_or(""));
+        let mut o = InMemDicomObject::new_empty();
+        for e in [
+            s(tags::SPECIFIC_CHARACTER_SET, VR::CS, "ISO_IR 192"),
+            s(tags::SOP_CLASS_UID, VR::UI, DM_FOR_PROCESSING_CLASS),
+            s(tags::SOP_INSTANCE_UID, VR::UI, &sop_instance),
+            s(tags::IMAGE_TYPE, VR::CS, "ORIGINAL\\PRIMARY\\"),
+            s(tags::STUDY_DATE, VR::DA, &h.study_date),
+            s(tags::STUDY_TIME, VR::TM, &h.study_time),
+            s(tags::CONTENT_DATE, VR::DA, p.content_date),
+            s(tags::CONTENT_TIME, VR::TM, p.content_time),
+            s(tags::ACQUISITION_DATE, VR::DA, date),
+            s(tags::ACQUISITION_TIME, VR::TM, time),
+            s(tags::ACQUISITION_DATE_TIME, VR::DT, &at),
+            s(tags::ACCESSION_NUMBER, VR::SH, &h.accession_number),
+            s(tags::MODALITY, VR::CS, "MG"),
+            s(tags::MANUFACTURER, VR::LO, &p.equipment.manufacturer),
+            s(tags::INSTITUTION_NAME, VR::LO, ""),
+            s(
+                tags::REFERRING_PHYSICIAN_NAME,
+                VR::PN,
+                &h.referring_physician,
+            ),
+            s(tags::MANUFACTURER_MODEL_NAME, VR::LO, &p.equipment.model),
+            s(tags::PATIENT_NAME, VR::PN, &h.patient_name),
+            s(tags::PATIENT_ID, VR::LO, &h.patient_id),
+            s(tags::PATIENT_BIRTH_DATE, VR::DA, &h.patient_birth_date),
+            s(tags::PATIENT_SEX, VR::CS, &h.patient_sex),
+            s(tags::BODY_PART_EXAMINED, VR::CS, "BREAST"),
+            s(tags::KVP, VR::DS, &ds(p.kvp)),
+            s(tags::DEVICE_SERIAL_NUMBER, VR::LO, &p.equipment.serial),
+            s(
+                tags::SOFTWARE_VERSIONS,
+                VR::LO,
+                &p.equipment.software_version,
+            ),
+            s(
+                tags::DISTANCE_SOURCE_TO_DETECTOR,
+                VR::DS,
+                &ds(p.source_to_detector_mm),
+            ),
+            s(
+                tags::DISTANCE_SOURCE_TO_PATIENT,
+                VR::DS,
+                &ds(p.source_to_detector_mm - p.thickness_mm),
+            ),
+            s(
+                tags::ESTIMATED_RADIOGRAPHIC_MAGNIFICATION_FACTOR,
+                VR::DS,
+                &ds(magnification),
+            ),
+            s(
+                tags::EXPOSURE_TIME,
+                VR::IS,
+                &format!("{}", p.exposure_ms_per_view.round().max(1.0) as i64),
+            ),
+            s(
+                tags::EXPOSURE_INU_AS,
+                VR::IS,
+                &format!("{}", p.exposure_uas_per_view.round() as i64),
+            ),
+            s(tags::FILTER_MATERIAL, VR::CS, "RHODIUM"),
+            s(tags::FILTER_THICKNESS_MINIMUM, VR::DS, &ds(p.filter_rh_mm)),
+            s(tags::FILTER_THICKNESS_MAXIMUM, VR::DS, &ds(p.filter_rh_mm)),
+            s(tags::FOCAL_SPOTS, VR::DS, "0.3"),
+            s(tags::ANODE_TARGET_MATERIAL, VR::CS, "TUNGSTEN"),
+            s(tags::BODY_PART_THICKNESS, VR::DS, &ds(p.thickness_mm)),
+            s(tags::COMPRESSION_FORCE, VR::DS, &ds(p.compression_force_n)),
+            s(tags::PADDLE_DESCRIPTION, VR::LO, "flat compression paddle"),
+            s(tags::DETECTOR_TYPE, VR::CS, "DIRECT"),
+            s(tags::IMAGER_PIXEL_SPACING, VR::DS, &spacing),
+            s(tags::POSITIONER_TYPE, VR::CS, "MAMMOGRAPHIC"),
+            s(tags::POSITIONER_PRIMARY_ANGLE, VR::DS, &ds(*angle)),
+            s(tags::POSITIONER_SECONDARY_ANGLE, VR::DS, "0"),
+            s(tags::STUDY_INSTANCE_UID, VR::UI, &h.study_uid),
+            s(tags::SERIES_INSTANCE_UID, VR::UI, &series),
+            s(tags::STUDY_ID, VR::SH, &h.study_id),
+            s(tags::SERIES_NUMBER, VR::IS, "1"),
+            s(tags::INSTANCE_NUMBER, VR::IS, &(k + 1).to_string()),
+            s(tags::PATIENT_ORIENTATION, VR::CS, orientation),
+            s(tags::FRAME_OF_REFERENCE_UID, VR::UI, &frame_of_reference),
+            s(tags::POSITION_REFERENCE_INDICATOR, VR::LO, ""),
+            s(tags::IMAGE_LATERALITY, VR::CS, lat),
+            s(tags::PHOTOMETRIC_INTERPRETATION, VR::CS, "MONOCHROME2"),
+            s(tags::QUALITY_CONTROL_IMAGE, VR::CS, "NO"),
+            s(tags::BURNED_IN_ANNOTATION, VR::CS, "NO"),
+            s(tags::RESCALE_INTERCEPT, VR::DS, "0"),
+            s(tags::RESCALE_SLOPE, VR::DS, "1"),
+            s(tags::RESCALE_TYPE, VR::LO, "US"),
+            s(tags::LOSSY_IMAGE_COMPRESSION, VR::CS, "00"),
+            s(tags::PRESENTATION_LUT_SHAPE, VR::CS, "IDENTITY"),
+            s(tags::PRESENTATION_INTENT_TYPE, VR::CS, "FOR PROCESSING"),
+            s(tags::PIXEL_INTENSITY_RELATIONSHIP, VR::CS, "LIN"),
+            s(tags::ORGAN_EXPOSED, VR::CS, "BREAST"),
+            s(tags::BREAST_IMPLANT_PRESENT, VR::CS, "NO"),
+            s(tags::PARTIAL_VIEW, VR::CS, "NO"),
+            s(
+                tags::ORGAN_DOSE,
+                VR::DS,
+                &ds(p.modality_agd_mgy / 100.0 / frames as f64),
+            ),
+            s(
+                tags::ENTRANCE_DOSE_INM_GY,
+                VR::DS,
+                &ds(p.entrance_dose_mgy / frames as f64),
+            ),
+        ] {
+            o.put(e);
+        }
+        o.put(DataElement::new(
+            tags::PIXEL_INTENSITY_RELATIONSHIP_SIGN,
+            VR::SS,
+            PrimitiveValue::from(1i16),
+        ));
+        for e in [
+            us(tags::SAMPLES_PER_PIXEL, 1),
+            us(tags::ROWS, p.rows as u16),
+            us(tags::COLUMNS, p.columns as u16),
+            us(tags::BITS_ALLOCATED, 16),
+            us(tags::BITS_STORED, 16),
+            us(tags::HIGH_BIT, 15),
+            us(tags::PIXEL_REPRESENTATION, 0),
+        ] {
+            o.put(e);
+        }
+        for e in [
+            seq(
+                tags::ANATOMIC_REGION_SEQUENCE,
+                vec![code("76752008", "SCT", "Breast")],
+            ),
+            seq(tags::VIEW_CODE_SEQUENCE, vec![{
+                let mut v = code("399162004", "SCT", "cranio-caudal");
+                v.put(DataElement::new(
+                    tags::VIEW_MODIFIER_CODE_SEQUENCE,
+                    VR::SQ,
+                    sq(vec![]),
+                ));
+                v
+            }]),
+            seq(tags::ACQUISITION_CONTEXT_SEQUENCE, vec![]),
+        ] {
+            o.put(e);
+        }
+        let counts = &p.counts[k * plane..(k + 1) * plane];
+        o.put(DataElement::new(
+            tags::PIXEL_DATA,
+            VR::OW,
+            PrimitiveValue::U16(counts.iter().copied().collect()),
+        ));
+        out.push(Report::from_parts(DM_FOR_PROCESSING_CLASS, sop_instance, o));
+    }
+    Ok(out)
+}
