@@ -293,6 +293,45 @@ pub struct DicomInputConfig {
     /// system's calibration). Required when the input is on.
     #[serde(default)]
     pub flat_field_counts: Option<f64>,
+    /// A sweep sent one object per view is complete when every configured
+    /// view is in; when no view of it arrived for this long, s, it is
+    /// faulted as incomplete (default 120: a modality sends its views within
+    /// seconds of the sweep, and a resend after a network fault within a
+    /// minute or two).
+    #[serde(default = "default_quiet_time")]
+    pub quiet_time_s: f64,
+    /// Associations served at once (default 4); more wait for a free one.
+    #[serde(default = "default_max_associations")]
+    pub max_associations: usize,
+    /// Vendor private projection classes, each with its mapping file
+    /// (none built in).
+    #[serde(default)]
+    pub private_class: Vec<PrivateClassConfig>,
+}
+
+/// A vendor's private projection class and the file that says where it
+/// keeps what the input reads.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PrivateClassConfig {
+    /// Its SOP class UID.
+    pub sop_class: String,
+    /// The mapping file (TOML: `name`, `layout` = "multi-frame" or
+    /// "per-view", `[tags]` keyword = "gggg,eeee", `[creators]`
+    /// "gggg,00xx" = private creator); relative to the configuration.
+    pub mapping: PathBuf,
+}
+
+/// A mapping file's content.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct MappingFile {
+    name: String,
+    layout: String,
+    #[serde(default)]
+    tags: std::collections::BTreeMap<String, String>,
+    #[serde(default)]
+    creators: std::collections::BTreeMap<String, String>,
 }
 
 impl Default for DicomInputConfig {
@@ -301,8 +340,36 @@ impl Default for DicomInputConfig {
             address: default_off(),
             ae_title: default_ae(),
             flat_field_counts: None,
+            quiet_time_s: default_quiet_time(),
+            max_associations: default_max_associations(),
+            private_class: vec![],
         }
     }
+}
+
+fn default_quiet_time() -> f64 {
+    120.0
+}
+
+fn default_max_associations() -> usize {
+    4
+}
+
+/// The DICOM input as configured and checked.
+#[derive(Debug, Clone)]
+pub struct DicomInputSettings {
+    /// Where it listens.
+    pub address: SocketAddr,
+    /// Our AE title.
+    pub ae_title: String,
+    /// The flat field, counts.
+    pub flat_field_counts: f64,
+    /// See [`DicomInputConfig::quiet_time_s`].
+    pub quiet_time: std::time::Duration,
+    /// See [`DicomInputConfig::max_associations`].
+    pub max_associations: usize,
+    /// The private classes' mappings.
+    pub private: Vec<dbt_dicom::input::Mapping>,
 }
 
 fn default_off() -> String {
@@ -428,13 +495,12 @@ impl Config {
         Ok(Some(addr))
     }
 
-    /// The DICOM input's address and flat field, `None` when off; refuses an
-    /// unparsable address, an AE title that is not 1-16 characters, and a
-    /// missing or non-positive flat field.
-    pub fn dicom_input_address(
-        &self,
-        path: &Path,
-    ) -> Result<Option<(SocketAddr, f64)>, ConfigError> {
+    /// The DICOM input's settings, `None` when off; refuses an unparsable
+    /// address, an AE title that is not 1-16 characters, a missing or
+    /// non-positive flat field, a quiet time outside 1 s - 1 day, no
+    /// association, and a private class whose mapping file is unreadable
+    /// or maps what the input does not read (each named).
+    pub fn dicom_input(&self, path: &Path) -> Result<Option<DicomInputSettings>, ConfigError> {
         let d = &self.dicom_input;
         if d.address == "off" {
             return Ok(None);
@@ -472,7 +538,63 @@ impl Config {
                 format!("{flux} is not a positive count"),
             ));
         }
-        Ok(Some((addr, flux)))
+        if !(d.quiet_time_s.is_finite() && (1.0..=86_400.0).contains(&d.quiet_time_s)) {
+            return Err(bad(
+                "dicom_input.quiet_time_s",
+                format!("{}: 1 to 86400 s", d.quiet_time_s),
+            ));
+        }
+        if !(1..=64).contains(&d.max_associations) {
+            return Err(bad(
+                "dicom_input.max_associations",
+                format!("{}: 1 to 64", d.max_associations),
+            ));
+        }
+        let base = path.parent().unwrap_or(Path::new("."));
+        let mut private = Vec::new();
+        for (i, pc) in d.private_class.iter().enumerate() {
+            let file = base.join(&pc.mapping);
+            let named = |reason: String| {
+                bad(
+                    "dicom_input.private_class.mapping",
+                    format!("[{i}] {}: {reason}", file.display()),
+                )
+            };
+            let text = std::fs::read_to_string(&file).map_err(|e| named(e.to_string()))?;
+            let m: MappingFile = toml::from_str(&text).map_err(|e| named(e.to_string()))?;
+            let layout = dbt_dicom::input::Layout::parse(&m.layout).ok_or_else(|| {
+                named(format!(
+                    "layout {:?}: \"multi-frame\" or \"per-view\"",
+                    m.layout
+                ))
+            })?;
+            let tag = |t: &str| {
+                dbt_dicom::input::parse_tag(t)
+                    .ok_or_else(|| named(format!("{t:?} is not a tag (gggg,eeee)")))
+            };
+            let tags = m
+                .tags
+                .iter()
+                .map(|(k, v)| Ok((k.clone(), tag(v)?)))
+                .collect::<Result<_, ConfigError>>()?;
+            let creators = m
+                .creators
+                .iter()
+                .map(|(k, v)| Ok((tag(k)?, v.clone())))
+                .collect::<Result<_, ConfigError>>()?;
+            let mapping =
+                dbt_dicom::input::Mapping::new(&m.name, pc.sop_class.trim(), layout, tags, creators)
+                    .map_err(|e| named(e.to_string()))?;
+            private.push(mapping);
+        }
+        Ok(Some(DicomInputSettings {
+            address: addr,
+            ae_title: ae.to_string(),
+            flat_field_counts: flux,
+            quiet_time: std::time::Duration::from_secs_f64(d.quiet_time_s),
+            max_associations: d.max_associations,
+            private,
+        }))
     }
 
     fn validate(&self, path: &Path) -> Result<(), ConfigError> {
@@ -482,7 +604,7 @@ impl Config {
             reason,
         };
         self.status_page_address(path)?;
-        self.dicom_input_address(path)?;
+        self.dicom_input(path)?;
         match self.frames.transport {
             FrameTransport::Tcp => {
                 let a = self.frames.address.as_deref().ok_or_else(|| {
@@ -780,12 +902,14 @@ mod tests {
     }
 
     /// The DICOM input: off by default; on, it needs an address, an AE title
-    /// of 1-16 characters and the flat field, each refused by name.
+    /// of 1-16 characters and the flat field, a quiet time and an
+    /// association limit in range, and readable private-class mappings of
+    /// what the input reads, each refused by name.
     #[test]
     fn dicom_input_is_checked() {
         let path = Path::new("x.toml");
         let c = example(|t| t).unwrap();
-        assert_eq!(c.dicom_input_address(path).unwrap(), None);
+        assert!(c.dicom_input(path).unwrap().is_none());
         let on = |extra: &str| {
             example(move |t| {
                 let i = t.find("[dicom_input]").unwrap();
@@ -793,21 +917,52 @@ mod tests {
             })
         };
         let c = on("address = \"127.0.0.1:11112\"\nflat_field_counts = 16000.0").unwrap();
-        assert_eq!(
-            c.dicom_input_address(path).unwrap(),
-            Some(("127.0.0.1:11112".parse().unwrap(), 16000.0))
-        );
-        for (extra, key) in [
-            ("address = \"127.0.0.1:11112\"", "dicom_input.flat_field_counts"),
-            ("address = \"nowhere\"\nflat_field_counts = 1.0", "dicom_input.address"),
+        let d = c.dicom_input(path).unwrap().unwrap();
+        assert_eq!(d.address, "127.0.0.1:11112".parse().unwrap());
+        assert_eq!(d.flat_field_counts, 16000.0);
+        assert_eq!(d.quiet_time.as_secs(), 120);
+        assert_eq!(d.max_associations, 4);
+        assert!(d.private.is_empty());
+        // A private class and its mapping.
+        let dir = tempfile::tempdir().unwrap();
+        let mapping = dir.path().join("acme.toml");
+        std::fs::write(
+            &mapping,
+            "name = \"ACME\"\nlayout = \"per-view\"\n[tags]\nBodyPartThickness = \"0019,1012\"\n[creators]\n\"0019,0010\" = \"ACME DBT\"\n",
+        )
+        .unwrap();
+        let private = |file: &Path| {
+            format!(
+                "address = \"127.0.0.1:1\"\nflat_field_counts = 1.0\n[[dicom_input.private_class]]\nsop_class = \"1.2.826.0.1.3680043.10.543.77.1\"\nmapping = {:?}",
+                file.display().to_string()
+            )
+        };
+        let c = on(&private(&mapping)).unwrap();
+        let m = &c.dicom_input(path).unwrap().unwrap().private[0];
+        assert_eq!(m.layout, dbt_dicom::input::Layout::PerView);
+        assert_eq!(m.tags["BodyPartThickness"], dbt_dicom::input::Tag(0x0019, 0x1012));
+        let bad_mapping = dir.path().join("bad.toml");
+        std::fs::write(
+            &bad_mapping,
+            "name = \"X\"\nlayout = \"per-view\"\n[tags]\nPatientAge = \"0019,1001\"\n",
+        )
+        .unwrap();
+        for (extra, key, says) in [
+            ("address = \"127.0.0.1:11112\"".to_string(), "dicom_input.flat_field_counts", ""),
+            ("address = \"nowhere\"\nflat_field_counts = 1.0".into(), "dicom_input.address", "nowhere"),
             (
-                "address = \"127.0.0.1:1\"\nflat_field_counts = 1.0\nae_title = \"A_TITLE_MUCH_TOO_LONG\"",
+                "address = \"127.0.0.1:1\"\nflat_field_counts = 1.0\nae_title = \"A_TITLE_MUCH_TOO_LONG\"".into(),
                 "dicom_input.ae_title",
+                "A_TITLE",
             ),
-            ("address = \"127.0.0.1:1\"\nflat_field_counts = -3.0", "dicom_input.flat_field_counts"),
+            ("address = \"127.0.0.1:1\"\nflat_field_counts = -3.0".into(), "dicom_input.flat_field_counts", "-3"),
+            ("address = \"127.0.0.1:1\"\nflat_field_counts = 1.0\nquiet_time_s = 0.0".into(), "dicom_input.quiet_time_s", "0"),
+            ("address = \"127.0.0.1:1\"\nflat_field_counts = 1.0\nmax_associations = 0".into(), "dicom_input.max_associations", "0"),
+            (private(&dir.path().join("none.toml")), "dicom_input.private_class.mapping", "none.toml"),
+            (private(&bad_mapping), "dicom_input.private_class.mapping", "PatientAge"),
         ] {
-            let e = on(extra).unwrap_err().to_string();
-            assert!(e.contains(&format!("`{key}`")), "{extra}: {e}");
+            let e = on(&extra).unwrap_err().to_string();
+            assert!(e.contains(&format!("`{key}`")) && e.contains(says), "{extra}: {e}");
         }
     }
 

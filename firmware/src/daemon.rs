@@ -206,13 +206,23 @@ pub fn spool_entry(
     fsync_dir(&spool.join("tmp"))
 }
 
-/// A spool entry id: the time in ms, then the patient id made safe for a
+/// A spool entry id: the time in ms (one later than the last id's when
+/// two come in the same ms: the frame link and the DICOM input's
+/// associations make ids concurrently), then the patient id made safe for a
 /// file name (ASCII letters and digits, the rest `_`, at most 32).
 pub fn entry_id(patient_id: &str) -> String {
-    let ms = SystemTime::now()
+    use std::sync::atomic::AtomicU64;
+    static LAST_MS: AtomicU64 = AtomicU64::new(0);
+    let now = SystemTime::now()
         .duration_since(UNIX_EPOCH)
-        .map(|d| d.as_millis())
+        .map(|d| d.as_millis() as u64)
         .unwrap_or(0);
+    let prev = LAST_MS
+        .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |last| {
+            Some(now.max(last + 1))
+        })
+        .unwrap_or(0);
+    let ms = now.max(prev + 1);
     let safe: String = patient_id
         .chars()
         .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
@@ -241,6 +251,10 @@ pub struct Daemon {
     dicom: Option<crate::dicom_input::DicomInput>,
     /// Spool entries processed (or tried) in this run.
     attempted: std::collections::HashSet<String>,
+    /// Set by the DICOM input on every change (an object, a spooled sweep,
+    /// an association): the loop then publishes the status and takes new
+    /// entries, also while it waits for the frame link.
+    wake: Arc<AtomicBool>,
 }
 
 /// Why an acquisition did not reach the spool: a fault of `kind` (`link`:
@@ -338,25 +352,33 @@ impl Daemon {
             _status_page: status_page,
             dicom: None,
             attempted: Default::default(),
+            wake: Arc::new(AtomicBool::new(false)),
         };
-        if let Some((addr, flux)) = d.cfg.dicom_input_address(&d.config_path)? {
-            let input = crate::dicom_input::DicomInput::start(
-                addr,
-                &d.cfg.dicom_input.ae_title,
-                d.cfg.paths.spool.clone(),
-                dbt_pipeline::dicom_input::System {
+        if let Some(di) = d.cfg.dicom_input(&d.config_path)? {
+            let settings = crate::dicom_input::InputSettings {
+                ae_title: di.ae_title.clone(),
+                spool: d.cfg.paths.spool.clone(),
+                system: dbt_pipeline::dicom_input::System {
                     geometry: d.geom.clone(),
-                    flux,
+                    flux: di.flat_field_counts,
                     tube_output_mgy_per_mas: d.cfg.report.tube_output_mgy_per_mas,
                 },
+                quiet_time: di.quiet_time,
+                max_associations: di.max_associations,
+                private: di.private.clone(),
+            };
+            let input = crate::dicom_input::DicomInput::start(
+                di.address,
+                settings,
                 Arc::clone(&d.stop),
+                Arc::clone(&d.wake),
             )
             .map_err(|e| DaemonError::Resource {
-                what: format!("dicom_input.address = {addr}"),
+                what: format!("dicom_input.address = {}", di.address),
                 reason: e.to_string(),
             })?;
-            tracing::info!(address = %addr, "DICOM input listening");
-            d.status.dicom_input = Some(format!("{}@{}", d.cfg.dicom_input.ae_title, input.addr()));
+            tracing::info!(address = %input.addr(), "DICOM input listening");
+            d.status.dicom_input = Some(input.status());
             d.dicom = Some(input);
         }
         d.publish("starting", None);
@@ -367,11 +389,12 @@ impl Daemon {
     }
 
     fn publish(&mut self, state: &str, current: Option<&str>) {
-        if let Some(faults) = self.dicom.as_ref().map(|d| d.drain()) {
-            for f in faults {
+        if let Some(input) = &self.dicom {
+            for f in input.drain() {
                 tracing::error!(acquisition = f.acquisition, kind = %f.kind, message = %f.message, "fault");
                 self.status.push_fault(f);
             }
+            self.status.dicom_input = Some(input.status());
         }
         self.status.state = state.into();
         self.status.current = current.map(String::from);
@@ -494,6 +517,7 @@ impl Daemon {
         while !self.stop.load(Ordering::SeqCst) {
             // Entries the DICOM input spooled meanwhile (each tried once per
             // run: one whose delivery failed stays for the next start).
+            self.wake.store(false, Ordering::SeqCst);
             let new = self.new_entries();
             if !new.is_empty() {
                 for id in new {
@@ -535,6 +559,8 @@ impl Daemon {
     fn receive_one(&mut self) -> Result<Option<String>, ReceiveFault> {
         let link = LinkOptions {
             stop: Some(Arc::clone(&self.stop)),
+            // Before the first byte, the DICOM input's work goes first.
+            yield_to: self.dicom.as_ref().map(|_| Arc::clone(&self.wake)),
             ..LinkOptions::new(self.cfg.idle_timeout())
                 .for_site(&self.geom, self.cfg.report.tube_output_mgy_per_mas)
         };
@@ -550,8 +576,14 @@ impl Daemon {
                         break s;
                     }
                     Err(e) => {
-                        if self.dicom.is_some() && !self.new_entries().is_empty() {
-                            return Ok(None);
+                        // The DICOM input changed something: show it, and
+                        // process what it spooled.
+                        if self.wake.swap(false, Ordering::SeqCst) {
+                            let state = self.status.state.clone();
+                            self.publish(&state, None);
+                            if !self.new_entries().is_empty() {
+                                return Ok(None);
+                            }
                         }
                         self.flush_outbox();
                         // Quiet while the gantry is off; a fault once the
@@ -696,7 +728,7 @@ impl Daemon {
         let _span = tracing::info_span!("acquisition", id).entered();
         self.publish("processing", Some(id));
         let dir = self.cfg.paths.spool.join("incoming").join(id);
-        let acq = match read_acquisition(&dir) {
+        let mut acq = match read_acquisition(&dir) {
             Ok(a) => a,
             Err(e) => {
                 let msg = format!("spooled acquisition refused: {e}");
@@ -739,6 +771,13 @@ impl Daemon {
                 self.reject(id, "thickness", msg);
                 return;
             }
+        }
+        // The compression force the gantry reported at exposure time goes
+        // into the dose SR (a DICOM object carries its own).
+        if acq.header.compression_force_n.is_none() {
+            acq.header.compression_force_n = gantry["modbus"]["force_n"]
+                .as_f64()
+                .filter(|f| f.is_finite() && *f > 0.0 && *f <= 500.0);
         }
         let t0 = Instant::now();
         let res = match process(&acq, &self.opts) {

@@ -116,6 +116,9 @@ pub struct LinkOptions {
     pub min_rate: f64,
     /// Set to stop the reception (SIGTERM).
     pub stop: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
+    /// Set when other work waits (the DICOM input): the reception returns
+    /// [`LinkError::NoHeader`] with no byte if none has arrived yet.
+    pub yield_to: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
     /// The configured geometry and tube output: the header is validated as
     /// soon as it arrives ([`dbt_pipeline::validate_header`]).
     pub site: Option<(Geometry, f64)>,
@@ -131,6 +134,7 @@ impl LinkOptions {
             budget: None,
             min_rate: 8192.0,
             stop: None,
+            yield_to: None,
             site: None,
         }
     }
@@ -264,6 +268,14 @@ pub fn receive_from<S: Read + Write>(
             .is_some_and(|s| s.load(std::sync::atomic::Ordering::SeqCst))
         {
             return Err(LinkError::Stopped);
+        }
+        if stats.bytes == 0
+            && opts
+                .yield_to
+                .as_ref()
+                .is_some_and(|s| s.load(std::sync::atomic::Ordering::SeqCst))
+        {
+            return Err(ended(&asm, &stats));
         }
         // Bytes that do not advance the acquisition (garbage, corrupt or
         // repeated frames) get `idle_timeout`; a frame in progress the time

@@ -37,12 +37,18 @@ fn scp(
                     "1.2.840.10008.5.1.4.1.1.88.33",
                 ],
                 Duration::from_secs(20),
-                &mut |_, _, bytes| match dbt_dicom::projections::read_projection_object(&bytes) {
-                    Ok(_) => {
-                        tx.send(bytes).unwrap();
-                        Verdict::Stored
+                &mut |_, _, received| {
+                    let bytes = match received {
+                        Ok(b) => b,
+                        Err(u) => return Verdict::Refused(STATUS_CANNOT_UNDERSTAND, u.reason),
+                    };
+                    match dbt_dicom::projections::read_projection_object(&bytes) {
+                        Ok(_) => {
+                            tx.send(bytes).unwrap();
+                            Verdict::Stored
+                        }
+                        Err(e) => Verdict::Refused(STATUS_CANNOT_UNDERSTAND, e.to_string()),
                     }
-                    Err(e) => Verdict::Refused(STATUS_CANNOT_UNDERSTAND, e.to_string()),
                 },
             );
             reports.push(r);

@@ -198,6 +198,12 @@ struct DicomSendArgs {
     /// Skip the dciodvfy check (it is required otherwise).
     #[arg(long)]
     no_check: bool,
+    /// One Digital Mammography X-Ray For Processing object per view (as
+    /// systems without the multi-frame Breast Projection object send them);
+    /// `--out` is then a folder (`view-01.dcm`, ...).
+    #[arg(long)]
+    per_view: bool,
+
 }
 
 /// The options of `host-sim fbp`.
@@ -483,6 +489,26 @@ fn run_fbp(args: FbpArgs) -> Result<()> {
 }
 
 /// `host-sim dicom-send`.
+/// `file` passes dciodvfy with no Error line (dicom3tools).
+fn dciodvfy_clean(file: &std::path::Path) -> Result<()> {
+    let o = std::process::Command::new("dciodvfy")
+        .arg(file)
+        .output()
+        .context("running dciodvfy (apt-get install dicom3tools; --no-check skips it)")?;
+    let text =
+        String::from_utf8_lossy(&o.stderr).to_string() + &String::from_utf8_lossy(&o.stdout);
+    let errors: Vec<&str> = text.lines().filter(|l| l.starts_with("Error")).collect();
+    if !errors.is_empty() {
+        bail!(
+            "dciodvfy finds {} errors in {}:\n{}",
+            errors.len(),
+            file.display(),
+            errors.join("\n")
+        );
+    }
+    Ok(())
+}
+
 fn run_dicom_send(args: DicomSendArgs) -> Result<()> {
     let DicomSendArgs {
         acq,
@@ -494,6 +520,7 @@ fn run_dicom_send(args: DicomSendArgs) -> Result<()> {
         view_interval_ms,
         organ_dose_mgy,
         no_check,
+        per_view,
     } = args;
     let a = dbt_store::acquisition::read_acquisition(&acq)?;
     let h = &a.header;
@@ -536,47 +563,55 @@ fn run_dicom_send(args: DicomSendArgs) -> Result<()> {
         &format!("1.2.826.0.1.3680043.10.543.2.{}", std::process::id()),
         ms,
     )?;
-    let obj = dbt_dicom::projections::projection_object(&set, &mut uids)?;
-    let bytes = obj.to_bytes()?;
-    let file = match &out {
-        Some(p) => p.clone(),
-        None => std::env::temp_dir().join(format!("host-sim-{}.dcm", obj.sop_instance)),
+    let objects = if per_view {
+        dbt_dicom::dm::view_objects(&set, &mut uids)?
+    } else {
+        vec![dbt_dicom::projections::projection_object(&set, &mut uids)?]
     };
-    std::fs::write(&file, &bytes).with_context(|| format!("writing {}", file.display()))?;
-    if !no_check {
-        let o = std::process::Command::new("dciodvfy")
-            .arg(&file)
-            .output()
-            .context("running dciodvfy (apt-get install dicom3tools; --no-check skips it)")?;
-        let text =
-            String::from_utf8_lossy(&o.stderr).to_string() + &String::from_utf8_lossy(&o.stdout);
-        let errors: Vec<&str> = text.lines().filter(|l| l.starts_with("Error")).collect();
-        if !errors.is_empty() {
-            bail!(
-                "dciodvfy finds {} errors in {}:\n{}",
-                errors.len(),
-                file.display(),
-                errors.join("\n")
-            );
+    let dir = match (&out, per_view) {
+        (Some(p), true) => {
+            std::fs::create_dir_all(p).with_context(|| format!("creating {}", p.display()))?;
+            Some(p.clone())
         }
+        _ => None,
+    };
+    let mut written = Vec::new();
+    for (k, obj) in objects.iter().enumerate() {
+        let bytes = obj.to_bytes()?;
+        let file = match (&dir, &out) {
+            (Some(d), _) => d.join(format!("view-{:02}.dcm", k + 1)),
+            (None, Some(p)) => p.clone(),
+            (None, None) => std::env::temp_dir().join(format!("host-sim-{}.dcm", obj.sop_instance)),
+        };
+        std::fs::write(&file, &bytes).with_context(|| format!("writing {}", file.display()))?;
+        if !no_check {
+            dciodvfy_clean(&file)?;
+        }
+        written.push((file, bytes, obj.sop_instance.clone()));
     }
+    let what = if per_view {
+        format!("{} view objects (Digital Mammography X-Ray For Processing) of {} x {det}", objects.len(), h.slices)
+    } else {
+        format!("{views} frames of {} x {det}", h.slices)
+    };
     println!(
-        "{}: {} frames of {} x {}, SOP instance {}{}",
-        file.display(),
-        views,
-        h.slices,
-        det,
-        obj.sop_instance,
+        "{}: {what}, SOP instance {}{}",
+        dir.as_ref().unwrap_or(&written[0].0).display(),
+        written.iter().map(|w| w.2.as_str()).collect::<Vec<_>>().join(" "),
         if no_check { "" } else { ", dciodvfy: no error" }
     );
     if let Some(to) = to {
         let mut cfg = dbt_pacs::PacsConfig::parse(&to)?;
         cfg.calling_ae_title = calling_ae;
-        dbt_pacs::store_with_retry(&cfg, &bytes)?;
+        for (_, bytes, _) in &written {
+            dbt_pacs::store_with_retry(&cfg, bytes)?;
+        }
         println!("sent to {to}");
     }
     if out.is_none() {
-        let _ = std::fs::remove_file(&file);
+        for (f, _, _) in &written {
+            let _ = std::fs::remove_file(f);
+        }
     }
     Ok(())
 }

@@ -45,17 +45,35 @@ pub struct AssociationReport {
     /// An abort or a transport error, if the association did not end by
     /// release.
     pub error: Option<String>,
+    /// Presentation contexts refused at negotiation: the abstract syntax
+    /// and why (a class not served, or none of the transfer syntaxes
+    /// proposed is one the SCP decodes).
+    pub refused_contexts: Vec<String>,
+}
+
+/// A C-STORE data set that could not be made a Part 10 file (truncated,
+/// an element beyond its end): handed over as received, so the caller
+/// keeps it with the reason.
+#[derive(Debug, Clone)]
+pub struct Unreadable {
+    /// Why.
+    pub reason: String,
+    /// The presentation context's transfer syntax.
+    pub transfer_syntax: String,
+    /// The data set's bytes as received.
+    pub data_set: Vec<u8>,
 }
 
 /// Serve one association on `stream` as `ae_title`, accepting `classes`
 /// (and Verification) in explicit or implicit VR little endian; `on_store`
-/// gets `(sop class, sop instance, Part 10 bytes)`.
+/// gets `(sop class, sop instance, Part 10 bytes)`, or the data set as
+/// received and why it is not readable.
 pub fn serve_association(
     stream: TcpStream,
     ae_title: &str,
     classes: &[&str],
     timeout: Duration,
-    on_store: &mut dyn FnMut(&str, &str, Vec<u8>) -> Verdict,
+    on_store: &mut dyn FnMut(&str, &str, Result<Vec<u8>, Unreadable>) -> Verdict,
 ) -> AssociationReport {
     let mut report = AssociationReport::default();
     let mut opts = ServerAssociationOptions::new()
@@ -81,6 +99,23 @@ pub fn serve_association(
         assoc.peer_ae_title().to_string()
     };
     let pcs = assoc.presentation_contexts().to_vec();
+    use dicom_ul::pdu::PresentationContextResultReason as Why;
+    report.refused_contexts = pcs
+        .iter()
+        .filter(|p| p.reason != Why::Acceptance)
+        .map(|p| {
+            let why = match p.reason {
+                Why::AbstractSyntaxNotSupported => "SOP class not served".to_string(),
+                Why::TransferSyntaxesNotSupported => format!(
+                    "none of the proposed transfer syntaxes is accepted (only {} and {})",
+                    EXPLICIT_VR_LITTLE_ENDIAN.uid(),
+                    IMPLICIT_VR_LITTLE_ENDIAN.uid()
+                ),
+                _ => format!("{:?}", p.reason),
+            };
+            format!("{}: {why}", p.abstract_syntax.trim_end_matches('\0'))
+        })
+        .collect();
     let mut command: Vec<u8> = Vec::new();
     let mut data: Vec<u8> = Vec::new();
     let mut pending: Option<(u8, InMemDicomObject)> = None;
@@ -157,10 +192,14 @@ pub fn serve_association(
                                 .map(|p| p.transfer_syntax.trim_end_matches('\0').to_string())
                                 .unwrap_or_default();
                             let body = std::mem::take(&mut data);
-                            let verdict = match part10(&class, &instance, &ts, body) {
-                                Ok(bytes) => on_store(&class, &instance, bytes),
-                                Err(e) => Verdict::Refused(STATUS_CANNOT_UNDERSTAND, e),
-                            };
+                            let received = part10(&class, &instance, &ts, &body).map_err(|reason| {
+                                Unreadable {
+                                    reason,
+                                    transfer_syntax: ts.clone(),
+                                    data_set: body,
+                                }
+                            });
+                            let verdict = on_store(&class, &instance, received);
                             let (status, comment) = match &verdict {
                                 Verdict::Stored => (0, None),
                                 Verdict::Refused(s, c) => (*s, Some(c.as_str())),
@@ -193,7 +232,7 @@ pub fn serve_association(
 }
 
 /// The data set received in transfer syntax `ts` as a Part 10 file.
-fn part10(class: &str, instance: &str, ts: &str, body: Vec<u8>) -> Result<Vec<u8>, String> {
+fn part10(class: &str, instance: &str, ts: &str, body: &[u8]) -> Result<Vec<u8>, String> {
     let syntax = if ts == IMPLICIT_VR_LITTLE_ENDIAN.uid() {
         IMPLICIT_VR_LITTLE_ENDIAN.erased()
     } else if ts == EXPLICIT_VR_LITTLE_ENDIAN.uid() {
@@ -201,7 +240,7 @@ fn part10(class: &str, instance: &str, ts: &str, body: Vec<u8>) -> Result<Vec<u8
     } else {
         return Err(format!("transfer syntax {ts} not accepted"));
     };
-    let obj = InMemDicomObject::read_dataset_with_ts(&body[..], &syntax)
+    let obj = InMemDicomObject::read_dataset_with_ts(body, &syntax)
         .map_err(|e| format!("data set unreadable: {e}"))?;
     let file = obj
         .with_meta(

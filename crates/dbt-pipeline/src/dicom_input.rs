@@ -54,31 +54,12 @@ fn refuse(field: &'static str, value: impl ToString, reason: impl Into<String>) 
     }
 }
 
-/// The acquisition of `p` on `system`, refused naming the attribute where
-/// the object disagrees with the configured system (views, angles,
-/// distances, detector columns and pitch) or with the header's limits.
-pub fn acquisition_from_projections(
-    p: &ReceivedProjections,
-    system: &System,
-) -> Result<Acquisition, HeaderError> {
+/// The checks of one object against the configured system that do not
+/// depend on how many views it holds: detector columns and pitch, source
+/// distances, anode and filter.
+pub fn check_object(p: &ReceivedProjections, system: &System) -> Result<(), HeaderError> {
     let g = &system.geometry;
-    let (views, det) = (g.n_views(), g.n_det());
-    if p.angles_deg.len() != views {
-        return Err(refuse(
-            "NumberOfFrames",
-            p.angles_deg.len(),
-            format!("the configured gantry has {views} views"),
-        ));
-    }
-    for (v, a) in p.angles_deg.iter().enumerate() {
-        if (a - g.angle_deg(v)).abs() > ANGLE_TOL_DEG {
-            return Err(refuse(
-                "XRaySourceIsocenterPrimaryAngle",
-                format!("{a} (frame {})", v + 1),
-                format!("the configured view {} is at {} deg", v + 1, g.angle_deg(v)),
-            ));
-        }
-    }
+    let det = g.n_det();
     if p.columns != det {
         return Err(refuse(
             "Columns",
@@ -134,6 +115,35 @@ pub fn acquisition_from_projections(
             ));
         }
     }
+    Ok(())
+}
+
+/// The acquisition of `p` on `system`, refused naming the attribute where
+/// the object disagrees with the configured system (views, angles,
+/// distances, detector columns and pitch) or with the header's limits.
+pub fn acquisition_from_projections(
+    p: &ReceivedProjections,
+    system: &System,
+) -> Result<Acquisition, HeaderError> {
+    let g = &system.geometry;
+    let (views, det) = (g.n_views(), g.n_det());
+    if p.angles_deg.len() != views {
+        return Err(refuse(
+            "NumberOfFrames",
+            p.angles_deg.len(),
+            format!("the configured gantry has {views} views"),
+        ));
+    }
+    for (v, a) in p.angles_deg.iter().enumerate() {
+        if (a - g.angle_deg(v)).abs() > ANGLE_TOL_DEG {
+            return Err(refuse(
+                "XRaySourceIsocenterPrimaryAngle",
+                format!("{a} (frame {})", v + 1),
+                format!("the configured view {} is at {} deg", v + 1, g.angle_deg(v)),
+            ));
+        }
+    }
+    check_object(p, system)?;
     // Frames are views of (rows = coronal slices) x (columns = elements).
     let (rows, frame) = (p.rows, p.rows * p.columns);
     let counts: Vec<Vec<f32>> = (0..rows)
@@ -258,48 +268,7 @@ pub fn assemble(
     }
     let first = placed[0];
     for p in &placed[1..] {
-        let differs = |field: &'static str, a: String, b: String| {
-            (a != b).then(|| {
-                refuse(
-                    field,
-                    b,
-                    format!("the sweep's other views have {a} (view at {} deg)", p.angles_deg[0]),
-                )
-            })
-        };
-        let checks = [
-            differs("PatientID", first.header.patient_id.clone(), p.header.patient_id.clone()),
-            differs(
-                "SeriesInstanceUID",
-                first.header.source_series_uid.clone(),
-                p.header.source_series_uid.clone(),
-            ),
-            differs("SOPClassUID", first.sop_class.clone(), p.sop_class.clone()),
-            differs(
-                "Rows",
-                format!("{} x {}", first.rows, first.columns),
-                format!("{} x {}", p.rows, p.columns),
-            ),
-            differs(
-                "ImagerPixelSpacing",
-                format!("{:?}", first.pixel_spacing_mm),
-                format!("{:?}", p.pixel_spacing_mm),
-            ),
-            differs("KVP", first.kvp.to_string(), p.kvp.to_string()),
-            ((first.thickness_mm - p.thickness_mm).abs() > THICKNESS_TOL_MM).then(|| {
-                refuse(
-                    "BodyPartThickness",
-                    p.thickness_mm,
-                    format!(
-                        "the sweep's other views have {} mm (view at {} deg)",
-                        first.thickness_mm, p.angles_deg[0]
-                    ),
-                )
-            }),
-        ];
-        if let Some(e) = checks.into_iter().flatten().next() {
-            return Err(e);
-        }
+        check_same_sweep(first, p)?;
     }
     let mut header = first.header.clone();
     header.source_instance_uids = placed.iter().map(|p| p.sop_instance.clone()).collect();
@@ -311,6 +280,65 @@ pub fn assemble(
         counts: placed.iter().flat_map(|p| p.counts.iter().copied()).collect(),
         ..first.clone()
     })
+}
+
+/// Whether `p` is a view of the same sweep as `first`: refused naming the
+/// attribute where they differ (patient, series, class, detector, spacing,
+/// kV, thickness).
+pub fn check_same_sweep(
+    first: &ReceivedProjections,
+    p: &ReceivedProjections,
+) -> Result<(), HeaderError> {
+    let differs = |field: &'static str, a: String, b: String| {
+        (a != b).then(|| {
+            refuse(
+                field,
+                b,
+                format!(
+                    "the sweep's other views have {a} (view at {} deg)",
+                    p.angles_deg.first().copied().unwrap_or(f64::NAN)
+                ),
+            )
+        })
+    };
+    let checks = [
+        differs(
+            "PatientID",
+            first.header.patient_id.clone(),
+            p.header.patient_id.clone(),
+        ),
+        differs(
+            "SeriesInstanceUID",
+            first.header.source_series_uid.clone(),
+            p.header.source_series_uid.clone(),
+        ),
+        differs("SOPClassUID", first.sop_class.clone(), p.sop_class.clone()),
+        differs(
+            "Rows",
+            format!("{} x {}", first.rows, first.columns),
+            format!("{} x {}", p.rows, p.columns),
+        ),
+        differs(
+            "ImagerPixelSpacing",
+            format!("{:?}", first.pixel_spacing_mm),
+            format!("{:?}", p.pixel_spacing_mm),
+        ),
+        differs("KVP", first.kvp.to_string(), p.kvp.to_string()),
+        ((first.thickness_mm - p.thickness_mm).abs() > THICKNESS_TOL_MM).then(|| {
+            refuse(
+                "BodyPartThickness",
+                p.thickness_mm,
+                format!(
+                    "the sweep's other views have {} mm (tolerance {THICKNESS_TOL_MM} mm)",
+                    first.thickness_mm
+                ),
+            )
+        }),
+    ];
+    match checks.into_iter().flatten().next() {
+        Some(e) => Err(e),
+        None => Ok(()),
+    }
 }
 
 /// What a modality knows of its sweep beyond the acquisition file.

@@ -18,4 +18,7 @@ pub mod picture;
 pub mod plot;
 pub mod state;
 
-pub use state::{public_id, valid_entry_id, AcquisitionRecord, FaultRecord, Snapshot, Status};
+pub use state::{
+    public_id, valid_entry_id, AcquisitionRecord, DicomInputStatus, FaultRecord, Snapshot, Status,
+    WaitingSweep,
+};

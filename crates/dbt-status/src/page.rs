@@ -121,6 +121,33 @@ pub fn render(s: &Snapshot, now_unix: u64) -> String {
         st.incoming,
         st.fault_total(),
     );
+    // The DICOM input.
+    if let Some(d) = &st.dicom_input {
+        let _ = write!(
+            h,
+            r#"<h2>DICOM input</h2><table id="dicom-input"><tr><th>listening as</th><td>{}</td></tr><tr><th>associations open, since start</th><td id="associations">{}, {}</td></tr><tr><th>objects kept, duplicates, refused</th><td id="dicom-objects">{}, {}, {}</td></tr><tr><th>presentation contexts refused</th><td>{}</td></tr>"#,
+            escape(&d.listening),
+            d.associations_open,
+            d.associations_total,
+            d.objects_stored,
+            d.objects_duplicate,
+            d.objects_refused,
+            d.contexts_refused,
+        );
+        for w in &d.waiting {
+            let _ = write!(
+                h,
+                r#"<tr><th>sweep waiting for views</th><td class="waiting">{} {}: {} of {} views, the last at {} UTC (faulted after {} s)</td></tr>"#,
+                escape(&w.laterality),
+                escape(&w.view),
+                w.views_received,
+                w.views_expected,
+                utc(w.last_view_unix),
+                d.quiet_time_s,
+            );
+        }
+        h.push_str("</table>");
+    }
     // The latest acquisition's picture.
     if let Some(r) = latest {
         let _ = write!(

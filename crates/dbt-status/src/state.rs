@@ -107,9 +107,53 @@ pub struct Status {
     /// The status page's address, when it serves one.
     #[serde(default)]
     pub status_page: Option<String>,
-    /// The DICOM input (`AET@host:port`), when it listens.
+    /// The DICOM input, when it listens.
     #[serde(default)]
-    pub dicom_input: Option<String>,
+    pub dicom_input: Option<DicomInputStatus>,
+}
+
+/// The DICOM input's state (issue #31): where it listens, its associations
+/// and objects, and the sweeps sent one view at a time that wait for their
+/// other views.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct DicomInputStatus {
+    /// `AET@host:port`.
+    pub listening: String,
+    /// Associations open now.
+    pub associations_open: u64,
+    /// Associations since start.
+    pub associations_total: u64,
+    /// The last association's calling AE title and start, unix s.
+    pub last_association: Option<(String, u64)>,
+    /// Objects kept (whole sweeps or views).
+    pub objects_stored: u64,
+    /// Copies of objects already kept (answered Success, nothing new).
+    pub objects_duplicate: u64,
+    /// Objects refused (kept in `faulted/`).
+    pub objects_refused: u64,
+    /// Presentation contexts refused at negotiation (a class or transfer
+    /// syntax the input does not take).
+    pub contexts_refused: u64,
+    /// Sweeps waiting for views.
+    pub waiting: Vec<WaitingSweep>,
+    /// How long a sweep waits for its last view before it is faulted, s.
+    pub quiet_time_s: f64,
+}
+
+/// A sweep whose views come one object each, not yet complete. No patient
+/// or study identifier: the status page shows it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct WaitingSweep {
+    /// `L` or `R`.
+    pub laterality: String,
+    /// The view (e.g. `cranio-caudal`).
+    pub view: String,
+    /// Views received.
+    pub views_received: usize,
+    /// Views a sweep of the configured gantry has.
+    pub views_expected: usize,
+    /// When its last view arrived, unix s.
+    pub last_view_unix: u64,
 }
 
 impl Status {

@@ -335,13 +335,7 @@ fn run_status(args: StatusArgs) -> Result<bool> {
         (None, Some(a)) => println!("status page   configured on {a}, not served (see the faults)"),
         (None, None) => println!("status page   off"),
     }
-    println!(
-        "dicom input   {}",
-        st.dicom_input
-            .as_deref()
-            .map(|a| format!("listening as {a}"))
-            .unwrap_or_else(|| "off".into())
-    );
+    print_dicom_input(st.dicom_input.as_ref(), st.updated_unix);
     let recent = if reader.spool().is_some() {
         &snap.history
     } else {
@@ -753,5 +747,42 @@ fn main() -> ExitCode {
             );
             ExitCode::from(2)
         }
+    }
+}
+
+/// The DICOM input's lines of `dbtor-diag status`: where it listens, its
+/// associations and objects, and each sweep waiting for views.
+fn print_dicom_input(d: Option<&dbt_status::DicomInputStatus>, now_unix: u64) {
+    let Some(d) = d else {
+        println!("dicom input   off");
+        return;
+    };
+    println!("dicom input   listening as {}", d.listening);
+    println!(
+        "  associations {} open, {} since start{}",
+        d.associations_open,
+        d.associations_total,
+        d.last_association
+            .as_ref()
+            .map(|(ae, t)| format!(" (last: {ae}, {} s before this status)", now_unix.saturating_sub(*t)))
+            .unwrap_or_default()
+    );
+    println!(
+        "  objects      {} kept, {} duplicates, {} refused; {} presentation contexts refused",
+        d.objects_stored, d.objects_duplicate, d.objects_refused, d.contexts_refused
+    );
+    if d.waiting.is_empty() {
+        println!("  waiting      no sweep waits for views");
+    }
+    for w in &d.waiting {
+        println!(
+            "  waiting      {} {}: {} of {} views, last {} s before this status (faulted after {} s)",
+            w.laterality,
+            w.view,
+            w.views_received,
+            w.views_expected,
+            now_unix.saturating_sub(w.last_view_unix),
+            d.quiet_time_s
+        );
     }
 }
