@@ -582,9 +582,14 @@ impl Config {
                 .iter()
                 .map(|(k, v)| Ok((tag(k)?, v.clone())))
                 .collect::<Result<_, ConfigError>>()?;
-            let mapping =
-                dbt_dicom::input::Mapping::new(&m.name, pc.sop_class.trim(), layout, tags, creators)
-                    .map_err(|e| named(e.to_string()))?;
+            let mapping = dbt_dicom::input::Mapping::new(
+                &m.name,
+                pc.sop_class.trim(),
+                layout,
+                tags,
+                creators,
+            )
+            .map_err(|e| named(e.to_string()))?;
             private.push(mapping);
         }
         Ok(Some(DicomInputSettings {
@@ -940,7 +945,10 @@ mod tests {
         let c = on(&private(&mapping)).unwrap();
         let m = &c.dicom_input(path).unwrap().unwrap().private[0];
         assert_eq!(m.layout, dbt_dicom::input::Layout::PerView);
-        assert_eq!(m.tags["BodyPartThickness"], dbt_dicom::input::Tag(0x0019, 0x1012));
+        assert_eq!(
+            m.tags["BodyPartThickness"],
+            dbt_dicom::input::Tag(0x0019, 0x1012)
+        );
         let bad_mapping = dir.path().join("bad.toml");
         std::fs::write(
             &bad_mapping,

@@ -29,8 +29,8 @@ use dbt_pacs::scp::{
     serve_association, Unreadable, Verdict, STATUS_CANNOT_UNDERSTAND, STATUS_OUT_OF_RESOURCES,
 };
 use dbt_pipeline::dicom_input::{
-    acquisition_from_projections, assemble, check_object, check_same_sweep, group_key,
-    view_index, System,
+    acquisition_from_projections, assemble, check_object, check_same_sweep, group_key, view_index,
+    System,
 };
 use dbt_status::{DicomInputStatus, FaultRecord, WaitingSweep};
 use std::collections::{BTreeMap, HashMap};
@@ -385,7 +385,14 @@ impl State {
             Ok(b) => b,
             Err(u) => {
                 let reason = format!("data set unreadable ({})", u.reason);
-                self.keep_refused(class, instance, &u.data_set, "data-set.bin", &reason, faults);
+                self.keep_refused(
+                    class,
+                    instance,
+                    &u.data_set,
+                    "data-set.bin",
+                    &reason,
+                    faults,
+                );
                 return Outcome::Refused(STATUS_CANNOT_UNDERSTAND, reason);
             }
         };
@@ -406,20 +413,20 @@ impl State {
         faults: &mut Vec<FaultRecord>,
     ) -> Result<Outcome, (u16, String)> {
         let refuse = |e: String| (STATUS_CANNOT_UNDERSTAND, e);
-        let p = read_input_object(bytes, &self.settings.private).map_err(|e| refuse(e.to_string()))?;
+        let p =
+            read_input_object(bytes, &self.settings.private).map_err(|e| refuse(e.to_string()))?;
         let digest = counts_digest(&p.counts);
         match self.seen.get(instance) {
             Some(d) if *d == digest => return Ok(Outcome::Duplicate),
-            Some(_) => {
-                return Err(refuse(format!(
-                    "a second copy of SOP instance {instance} with other pixels than the one received"
-                )))
-            }
+            Some(_) => return Err(refuse(format!(
+                "a second copy of SOP instance {instance} with other pixels than the one received"
+            ))),
             None => {}
         }
         let system = &self.settings.system;
         if p.layout == Layout::MultiFrame {
-            let acq = acquisition_from_projections(&p, system).map_err(|e| refuse(e.to_string()))?;
+            let acq =
+                acquisition_from_projections(&p, system).map_err(|e| refuse(e.to_string()))?;
             let id = entry_id(&acq.header.patient.id);
             let note = serde_json::json!({
                 "source": "dicom",
@@ -452,8 +459,7 @@ impl State {
         std::fs::create_dir_all(&dir)
             .and_then(|_| write_durable(&dir.join(format!("{k:03}.dcm")), bytes))
             .and_then(|_| {
-                std::fs::File::open(self.settings.spool.join("views"))
-                    .and_then(|d| d.sync_all())
+                std::fs::File::open(self.settings.spool.join("views")).and_then(|d| d.sync_all())
             })
             .map_err(|e| {
                 (

@@ -71,7 +71,11 @@ impl Scu {
                 VR::US,
                 dicom_core::PrimitiveValue::from(self.message),
             ),
-            DataElement::new(tags::PRIORITY, VR::US, dicom_core::PrimitiveValue::from(0u16)),
+            DataElement::new(
+                tags::PRIORITY,
+                VR::US,
+                dicom_core::PrimitiveValue::from(0u16),
+            ),
             DataElement::new(
                 tags::COMMAND_DATA_SET_TYPE,
                 VR::US,
@@ -121,8 +125,16 @@ impl Scu {
 /// A Part 10 file's class, instance and data set (explicit VR LE).
 fn data_set(file: &Path) -> (String, String, Vec<u8>) {
     let o = dicom_object::open_file(file).unwrap();
-    let class = o.meta().media_storage_sop_class_uid().trim_end_matches('\0').to_string();
-    let instance = o.meta().media_storage_sop_instance_uid().trim_end_matches('\0').to_string();
+    let class = o
+        .meta()
+        .media_storage_sop_class_uid()
+        .trim_end_matches('\0')
+        .to_string();
+    let instance = o
+        .meta()
+        .media_storage_sop_instance_uid()
+        .trim_end_matches('\0')
+        .to_string();
     let mut bytes = Vec::new();
     o.write_dataset_with_ts(&mut bytes, &EXPLICIT_VR_LITTLE_ENDIAN.erased())
         .unwrap();
@@ -223,7 +235,9 @@ fn views_of(acq: &Path, out: &Path) -> Vec<PathBuf> {
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(String::from_utf8_lossy(&o.stdout).contains("dciodvfy: no error"));
-    (1..=25).map(|k| out.join(format!("view-{k:02}.dcm"))).collect()
+    (1..=25)
+        .map(|k| out.join(format!("view-{k:02}.dcm")))
+        .collect()
 }
 
 fn storescu(port: u16, files: &[PathBuf]) -> std::process::Output {
@@ -277,7 +291,16 @@ fn views_make_one_sweep_and_bad_objects_are_refused_by_name() {
     // pixels, same size).
     let acq_b = d.join("acq-b");
     let o = Command::new(workspace_bin("host-sim"))
-        .args(["acquire", "--index", "2", "--binning", "4", "--noise", "N4", "--out"])
+        .args([
+            "acquire",
+            "--index",
+            "2",
+            "--binning",
+            "4",
+            "--noise",
+            "N4",
+            "--out",
+        ])
         .arg(&acq_b)
         .output()
         .unwrap();
@@ -365,8 +388,7 @@ fn views_make_one_sweep_and_bad_objects_are_refused_by_name() {
         if let Some(f) = file {
             let o = storescu(dport, &[f.to_path_buf()]);
             assert!(
-                !o.status.success()
-                    || String::from_utf8_lossy(&o.stderr).contains("Status: Error"),
+                !o.status.success() || String::from_utf8_lossy(&o.stderr).contains("Status: Error"),
                 "{want}: accepted\n{}",
                 String::from_utf8_lossy(&o.stderr)
             );
@@ -419,7 +441,10 @@ fn views_make_one_sweep_and_bad_objects_are_refused_by_name() {
     let o = storescu(dport, &views[24..]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let s = wait_for_status(d, "the per-view report", LIMIT, |s| s["processed"] == 1);
-    assert!(s["dicom_input"]["waiting"].as_array().unwrap().is_empty(), "{s}");
+    assert!(
+        s["dicom_input"]["waiting"].as_array().unwrap().is_empty(),
+        "{s}"
+    );
     // The same views again: Success, nothing new.
     let o = storescu(dport, &views[..3]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -546,7 +571,12 @@ fn sigkill_mid_association_loses_no_view_answered_success() {
     let kept: Vec<PathBuf> = std::fs::read_dir(d.join("spool/views"))
         .unwrap()
         .flatten()
-        .flat_map(|g| std::fs::read_dir(g.path()).unwrap().flatten().map(|e| e.path()))
+        .flat_map(|g| {
+            std::fs::read_dir(g.path())
+                .unwrap()
+                .flatten()
+                .map(|e| e.path())
+        })
         .filter(|p| p.extension().is_some_and(|x| x == "dcm"))
         .collect();
     assert_eq!(kept.len(), answered.len(), "{kept:?}");
@@ -563,6 +593,9 @@ fn sigkill_mid_association_loses_no_view_answered_success() {
     assert_eq!(s["dicom_input"]["objects_duplicate"], 8, "{s}");
     assert_eq!(s["dicom_input"]["objects_stored"], 17, "{s}");
     assert!(faulted(d).is_empty());
-    assert_eq!(daemon_status(d)["fault_counts"]["input"], serde_json::Value::Null);
+    assert_eq!(
+        daemon_status(d)["fault_counts"]["input"],
+        serde_json::Value::Null
+    );
     daemon.stop();
 }

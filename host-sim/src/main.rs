@@ -203,7 +203,6 @@ struct DicomSendArgs {
     /// `--out` is then a folder (`view-01.dcm`, ...).
     #[arg(long)]
     per_view: bool,
-
 }
 
 /// The options of `host-sim fbp`.
@@ -495,8 +494,7 @@ fn dciodvfy_clean(file: &std::path::Path) -> Result<()> {
         .arg(file)
         .output()
         .context("running dciodvfy (apt-get install dicom3tools; --no-check skips it)")?;
-    let text =
-        String::from_utf8_lossy(&o.stderr).to_string() + &String::from_utf8_lossy(&o.stdout);
+    let text = String::from_utf8_lossy(&o.stderr).to_string() + &String::from_utf8_lossy(&o.stdout);
     let errors: Vec<&str> = text.lines().filter(|l| l.starts_with("Error")).collect();
     if !errors.is_empty() {
         bail!(
@@ -590,14 +588,22 @@ fn run_dicom_send(args: DicomSendArgs) -> Result<()> {
         written.push((file, bytes, obj.sop_instance.clone()));
     }
     let what = if per_view {
-        format!("{} view objects (Digital Mammography X-Ray For Processing) of {} x {det}", objects.len(), h.slices)
+        format!(
+            "{} view objects (Digital Mammography X-Ray For Processing) of {} x {det}",
+            objects.len(),
+            h.slices
+        )
     } else {
         format!("{views} frames of {} x {det}", h.slices)
     };
     println!(
         "{}: {what}, SOP instance {}{}",
         dir.as_ref().unwrap_or(&written[0].0).display(),
-        written.iter().map(|w| w.2.as_str()).collect::<Vec<_>>().join(" "),
+        written
+            .iter()
+            .map(|w| w.2.as_str())
+            .collect::<Vec<_>>()
+            .join(" "),
         if no_check { "" } else { ", dciodvfy: no error" }
     );
     if let Some(to) = to {

@@ -26,7 +26,10 @@ pub const DM_FOR_PROCESSING_CLASS: &str = "1.2.840.10008.5.1.4.1.1.1.2.1";
 
 /// One object per view of `p` (same series, Instance Number = view + 1),
 /// checked as `projection_object` checks the multi-frame one.
-pub fn view_objects(p: &ProjectionSet<'_>, uids: &mut UidSource) -> Result<Vec<Report>, DicomError> {
+pub fn view_objects(
+    p: &ProjectionSet<'_>,
+    uids: &mut UidSource,
+) -> Result<Vec<Report>, DicomError> {
     check(p)?;
     let frames = p.angles_deg.len();
     if p.rows > u16::MAX as usize || p.columns > u16::MAX as usize {
@@ -188,15 +191,18 @@ pub fn view_objects(p: &ProjectionSet<'_>, uids: &mut UidSource) -> Result<Vec<R
                 tags::ANATOMIC_REGION_SEQUENCE,
                 vec![code("76752008", "SCT", "Breast")],
             ),
-            seq(tags::VIEW_CODE_SEQUENCE, vec![{
-                let mut v = code("399162004", "SCT", "cranio-caudal");
-                v.put(DataElement::new(
-                    tags::VIEW_MODIFIER_CODE_SEQUENCE,
-                    VR::SQ,
-                    sq(vec![]),
-                ));
-                v
-            }]),
+            seq(
+                tags::VIEW_CODE_SEQUENCE,
+                vec![{
+                    let mut v = code("399162004", "SCT", "cranio-caudal");
+                    v.put(DataElement::new(
+                        tags::VIEW_MODIFIER_CODE_SEQUENCE,
+                        VR::SQ,
+                        sq(vec![]),
+                    ));
+                    v
+                }],
+            ),
             seq(tags::ACQUISITION_CONTEXT_SEQUENCE, vec![]),
         ] {
             o.put(e);

@@ -302,7 +302,11 @@ impl Source<'_> {
     }
 }
 
-fn items(o: &InMemDicomObject, t: Tag, name: &'static str) -> Result<Vec<InMemDicomObject>, InputError> {
+fn items(
+    o: &InMemDicomObject,
+    t: Tag,
+    name: &'static str,
+) -> Result<Vec<InMemDicomObject>, InputError> {
     Ok(o.element(t)
         .map_err(|_| attr(name, "missing"))?
         .items()
@@ -451,16 +455,26 @@ pub fn read_input_object(
         sop_class: class.clone(),
         layout,
         header: Header {
-            patient_name: plain.opt_text("PatientName", tags::PATIENT_NAME).unwrap_or_default(),
+            patient_name: plain
+                .opt_text("PatientName", tags::PATIENT_NAME)
+                .unwrap_or_default(),
             patient_id: plain.text("PatientID", tags::PATIENT_ID)?,
             patient_birth_date: plain
                 .opt_text("PatientBirthDate", tags::PATIENT_BIRTH_DATE)
                 .unwrap_or_default(),
-            patient_sex: plain.opt_text("PatientSex", tags::PATIENT_SEX).unwrap_or_default(),
+            patient_sex: plain
+                .opt_text("PatientSex", tags::PATIENT_SEX)
+                .unwrap_or_default(),
             study_uid,
-            study_date: plain.opt_text("StudyDate", tags::STUDY_DATE).unwrap_or_default(),
-            study_time: plain.opt_text("StudyTime", tags::STUDY_TIME).unwrap_or_default(),
-            study_id: plain.opt_text("StudyID", tags::STUDY_ID).unwrap_or_default(),
+            study_date: plain
+                .opt_text("StudyDate", tags::STUDY_DATE)
+                .unwrap_or_default(),
+            study_time: plain
+                .opt_text("StudyTime", tags::STUDY_TIME)
+                .unwrap_or_default(),
+            study_id: plain
+                .opt_text("StudyID", tags::STUDY_ID)
+                .unwrap_or_default(),
             accession_number: plain
                 .opt_text("AccessionNumber", tags::ACCESSION_NUMBER)
                 .unwrap_or_default(),
@@ -516,8 +530,14 @@ fn spacing(v: Vec<f64>) -> Result<[f64; 2], InputError> {
 fn per_view_geometry(src: &Source<'_>) -> Result<Geometry, InputError> {
     Ok(Geometry {
         angles: vec![src.num("PositionerPrimaryAngle", tags::POSITIONER_PRIMARY_ANGLE)?],
-        sdd: src.num("DistanceSourceToDetector", tags::DISTANCE_SOURCE_TO_DETECTOR)?,
-        sid: src.opt_num("DistanceSourceToIsocenter", tags::DISTANCE_SOURCE_TO_ISOCENTER)?,
+        sdd: src.num(
+            "DistanceSourceToDetector",
+            tags::DISTANCE_SOURCE_TO_DETECTOR,
+        )?,
+        sid: src.opt_num(
+            "DistanceSourceToIsocenter",
+            tags::DISTANCE_SOURCE_TO_ISOCENTER,
+        )?,
         spacing: spacing(src.numbers("ImagerPixelSpacing", tags::IMAGER_PIXEL_SPACING)?)?,
         laterality: laterality(
             src.opt_text("ImageLaterality", tags::IMAGE_LATERALITY),
@@ -556,11 +576,13 @@ fn multi_frame_geometry(
     let group = |fg: &(InMemDicomObject, Vec<InMemDicomObject>), k: usize, t, name| {
         first(&fg.1[k], t, name).or_else(|_| first(&fg.0, t, name))
     };
-    let num_in = |o: &InMemDicomObject, keyword: &'static str, t| {
-        Source { o, map: None }.num(keyword, t)
-    };
+    let num_in =
+        |o: &InMemDicomObject, keyword: &'static str, t| Source { o, map: None }.num(keyword, t);
     let angles = if src.mapped("XRaySourceIsocenterPrimaryAngle") {
-        let v = src.numbers("XRaySourceIsocenterPrimaryAngle", tags::X_RAY_SOURCE_ISOCENTER_PRIMARY_ANGLE)?;
+        let v = src.numbers(
+            "XRaySourceIsocenterPrimaryAngle",
+            tags::X_RAY_SOURCE_ISOCENTER_PRIMARY_ANGLE,
+        )?;
         if v.len() != frames {
             return Err(attr(
                 "XRaySourceIsocenterPrimaryAngle",
@@ -588,17 +610,38 @@ fn multi_frame_geometry(
     };
     // Each remaining value: the mapped tag, else its functional group.
     let geometry_item = || {
-        fg().and_then(|fg| group(&fg, 0, tags::X_RAY_GEOMETRY_SEQUENCE, "XRayGeometrySequence"))
+        fg().and_then(|fg| {
+            group(
+                &fg,
+                0,
+                tags::X_RAY_GEOMETRY_SEQUENCE,
+                "XRayGeometrySequence",
+            )
+        })
     };
     let sdd = if src.mapped("DistanceSourceToDetector") {
-        src.num("DistanceSourceToDetector", tags::DISTANCE_SOURCE_TO_DETECTOR)?
+        src.num(
+            "DistanceSourceToDetector",
+            tags::DISTANCE_SOURCE_TO_DETECTOR,
+        )?
     } else {
-        num_in(&geometry_item()?, "DistanceSourceToDetector", tags::DISTANCE_SOURCE_TO_DETECTOR)?
+        num_in(
+            &geometry_item()?,
+            "DistanceSourceToDetector",
+            tags::DISTANCE_SOURCE_TO_DETECTOR,
+        )?
     };
     let sid = if src.mapped("DistanceSourceToIsocenter") {
-        src.num("DistanceSourceToIsocenter", tags::DISTANCE_SOURCE_TO_ISOCENTER)?
+        src.num(
+            "DistanceSourceToIsocenter",
+            tags::DISTANCE_SOURCE_TO_ISOCENTER,
+        )?
     } else {
-        num_in(&geometry_item()?, "DistanceSourceToIsocenter", tags::DISTANCE_SOURCE_TO_ISOCENTER)?
+        num_in(
+            &geometry_item()?,
+            "DistanceSourceToIsocenter",
+            tags::DISTANCE_SOURCE_TO_ISOCENTER,
+        )?
     };
     let spacing = spacing(if src.mapped("ImagerPixelSpacing") {
         src.numbers("ImagerPixelSpacing", tags::IMAGER_PIXEL_SPACING)?
@@ -610,15 +653,26 @@ fn multi_frame_geometry(
             tags::FRAME_PIXEL_DATA_PROPERTIES_SEQUENCE,
             "FramePixelDataPropertiesSequence",
         )?;
-        Source { o: &props, map: None }.numbers("ImagerPixelSpacing", tags::IMAGER_PIXEL_SPACING)?
+        Source {
+            o: &props,
+            map: None,
+        }
+        .numbers("ImagerPixelSpacing", tags::IMAGER_PIXEL_SPACING)?
     })?;
     let laterality = if src.mapped("ImageLaterality") {
-        laterality(src.opt_text("ImageLaterality", tags::IMAGE_LATERALITY), "ImageLaterality")?
+        laterality(
+            src.opt_text("ImageLaterality", tags::IMAGE_LATERALITY),
+            "ImageLaterality",
+        )?
     } else {
         let fg = fg()?;
         let anat = group(&fg, 0, tags::FRAME_ANATOMY_SEQUENCE, "FrameAnatomySequence")?;
         laterality(
-            Source { o: &anat, map: None }.opt_text("FrameLaterality", tags::FRAME_LATERALITY),
+            Source {
+                o: &anat,
+                map: None,
+            }
+            .opt_text("FrameLaterality", tags::FRAME_LATERALITY),
             "FrameLaterality",
         )?
     };

@@ -670,7 +670,10 @@ fn view_objects_and_mapped_private_objects_read_back() {
     o.put(DataElement::new(Tag(0x0019, 0x1012), VR::DS, "45.0"));
     let bytes = r.to_bytes().unwrap();
     let e = read_input_object(&bytes, &[]).unwrap_err().to_string();
-    assert!(e.contains(private) && e.contains("configured private class"), "{e}");
+    assert!(
+        e.contains(private) && e.contains("configured private class"),
+        "{e}"
+    );
     let mapping = |creator: &str| {
         Mapping::new(
             "ACME",
@@ -687,7 +690,10 @@ fn view_objects_and_mapped_private_objects_read_back() {
     let e = read_input_object(&bytes, &[mapping("OTHER")])
         .unwrap_err()
         .to_string();
-    assert!(e.contains("PrivateCreator") && e.contains("ACME DBT"), "{e}");
+    assert!(
+        e.contains("PrivateCreator") && e.contains("ACME DBT"),
+        "{e}"
+    );
     // A mapping names only attributes the input reads, for a private class.
     let e = Mapping::new(
         "x",

@@ -51,6 +51,10 @@ pub struct AssociationReport {
     pub refused_contexts: Vec<String>,
 }
 
+/// What a C-STORE brought: the object as a Part 10 file, or the data set as
+/// received when it could not be read.
+pub type Received = Result<Vec<u8>, Unreadable>;
+
 /// A C-STORE data set that could not be made a Part 10 file (truncated,
 /// an element beyond its end): handed over as received, so the caller
 /// keeps it with the reason.
@@ -73,7 +77,7 @@ pub fn serve_association(
     ae_title: &str,
     classes: &[&str],
     timeout: Duration,
-    on_store: &mut dyn FnMut(&str, &str, Result<Vec<u8>, Unreadable>) -> Verdict,
+    on_store: &mut dyn FnMut(&str, &str, Received) -> Verdict,
 ) -> AssociationReport {
     let mut report = AssociationReport::default();
     let mut opts = ServerAssociationOptions::new()
@@ -192,13 +196,14 @@ pub fn serve_association(
                                 .map(|p| p.transfer_syntax.trim_end_matches('\0').to_string())
                                 .unwrap_or_default();
                             let body = std::mem::take(&mut data);
-                            let received = part10(&class, &instance, &ts, &body).map_err(|reason| {
-                                Unreadable {
-                                    reason,
-                                    transfer_syntax: ts.clone(),
-                                    data_set: body,
-                                }
-                            });
+                            let received =
+                                part10(&class, &instance, &ts, &body).map_err(|reason| {
+                                    Unreadable {
+                                        reason,
+                                        transfer_syntax: ts.clone(),
+                                        data_set: body,
+                                    }
+                                });
                             let verdict = on_store(&class, &instance, received);
                             let (status, comment) = match &verdict {
                                 Verdict::Stored => (0, None),

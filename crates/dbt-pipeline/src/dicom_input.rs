@@ -263,7 +263,10 @@ pub fn assemble(
         return Err(refuse(
             "views",
             placed.len(),
-            format!("{n} views make a sweep; missing the views at {}", missing.join(", ")),
+            format!(
+                "{n} views make a sweep; missing the views at {}",
+                missing.join(", ")
+            ),
         ));
     }
     let first = placed[0];
@@ -277,7 +280,10 @@ pub fn assemble(
         layout: Layout::PerView,
         angles_deg: placed.iter().map(|p| p.angles_deg[0]).collect(),
         exposure_mas: placed.iter().map(|p| p.exposure_mas).sum(),
-        counts: placed.iter().flat_map(|p| p.counts.iter().copied()).collect(),
+        counts: placed
+            .iter()
+            .flat_map(|p| p.counts.iter().copied())
+            .collect(),
         ..first.clone()
     })
 }

@@ -490,7 +490,9 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
     want_views.study.instance_uids = objects.iter().map(|o| o.sop_instance.clone()).collect();
     want_views.study.source_class = Some(dbt_dicom::dm::DM_FOR_PROCESSING_CLASS.into());
     // The per-view exposures are whole uAs: their sum within 0.5 uAs each.
-    assert!((from_views.header.mas_total - back.header.mas_total).abs() < 0.5e-3 * views.len() as f64);
+    assert!(
+        (from_views.header.mas_total - back.header.mas_total).abs() < 0.5e-3 * views.len() as f64
+    );
     want_views.mas_total = from_views.header.mas_total;
     assert_eq!(from_views.header, want_views);
 
@@ -510,4 +512,3 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
     other_angle[2].angles_deg[0] += 0.7;
     named(&other_angle, "no configured view is at this angle");
 }
-

@@ -764,7 +764,10 @@ fn print_dicom_input(d: Option<&dbt_status::DicomInputStatus>, now_unix: u64) {
         d.associations_total,
         d.last_association
             .as_ref()
-            .map(|(ae, t)| format!(" (last: {ae}, {} s before this status)", now_unix.saturating_sub(*t)))
+            .map(|(ae, t)| format!(
+                " (last: {ae}, {} s before this status)",
+                now_unix.saturating_sub(*t)
+            ))
             .unwrap_or_default()
     );
     println!(
