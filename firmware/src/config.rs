@@ -48,6 +48,9 @@ pub enum FrameTransport {
     Tcp,
     /// A serial line (`frames.port`, `frames.baud`).
     Serial,
+    /// No frame link: a site without our gantry integration, whose
+    /// projections come over the DICOM input only (which must be on).
+    Off,
 }
 
 /// How the gantry controller's registers are read.
@@ -625,6 +628,15 @@ impl Config {
                     return Err(bad("frames.address", format!("{a:?}: port 0")));
                 }
             }
+            FrameTransport::Off => {
+                if self.dicom_input.address == "off" {
+                    return Err(bad(
+                        "frames.transport",
+                        "\"off\" leaves no input: turn the DICOM input on ([dicom_input] address)"
+                            .into(),
+                    ));
+                }
+            }
             FrameTransport::Serial => {
                 if self.frames.port.is_none() {
                     return Err(bad(
@@ -921,6 +933,24 @@ mod tests {
                 format!("{}[dicom_input]\n{extra}\n", &t[..i])
             })
         };
+        // No frame link: only with the DICOM input on.
+        let e = example(|t| t.replacen("transport = \"tcp\"", "transport = \"off\"", 1))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("`frames.transport`") && e.contains("no input"),
+            "{e}"
+        );
+        let c = example(|t| {
+            let i = t.find("[dicom_input]").unwrap();
+            format!(
+                "{}[dicom_input]\naddress = \"127.0.0.1:11112\"\nflat_field_counts = 1.0\n",
+                &t[..i]
+            )
+            .replacen("transport = \"tcp\"", "transport = \"off\"", 1)
+        })
+        .unwrap();
+        assert_eq!(c.frames.transport, FrameTransport::Off);
         let c = on("address = \"127.0.0.1:11112\"\nflat_field_counts = 16000.0").unwrap();
         let d = c.dicom_input(path).unwrap().unwrap();
         assert_eq!(d.address, "127.0.0.1:11112".parse().unwrap());

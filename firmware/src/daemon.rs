@@ -564,6 +564,22 @@ impl Daemon {
             ..LinkOptions::new(self.cfg.idle_timeout())
                 .for_site(&self.geom, self.cfg.report.tube_output_mgy_per_mas)
         };
+        if self.cfg.frames.transport == FrameTransport::Off {
+            // DICOM input only: wait for it (or SIGTERM), sending what waits
+            // in the outbox meanwhile.
+            while !self.stop.load(Ordering::SeqCst) {
+                if self.wake.swap(false, Ordering::SeqCst) {
+                    let state = self.status.state.clone();
+                    self.publish(&state, None);
+                    if !self.new_entries().is_empty() {
+                        break;
+                    }
+                }
+                self.flush_outbox();
+                std::thread::sleep(Duration::from_millis(100));
+            }
+            return Ok(None);
+        }
         let received = if self.cfg.frames.transport == FrameTransport::Tcp {
             let addr = self.cfg.frames.address.clone().unwrap_or_default();
             let mut stream = loop {

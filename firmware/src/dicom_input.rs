@@ -384,7 +384,7 @@ impl State {
         let bytes = match received {
             Ok(b) => b,
             Err(u) => {
-                let reason = format!("data set unreadable ({})", u.reason);
+                let reason = format!("{} (transfer syntax {})", u.reason, u.transfer_syntax);
                 self.keep_refused(
                     class,
                     instance,
@@ -418,9 +418,11 @@ impl State {
         let digest = counts_digest(&p.counts);
         match self.seen.get(instance) {
             Some(d) if *d == digest => return Ok(Outcome::Duplicate),
-            Some(_) => return Err(refuse(format!(
+            Some(_) => {
+                return Err(refuse(format!(
                 "a second copy of SOP instance {instance} with other pixels than the one received"
-            ))),
+            )))
+            }
             None => {}
         }
         let system = &self.settings.system;

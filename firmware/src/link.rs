@@ -116,8 +116,9 @@ pub struct LinkOptions {
     pub min_rate: f64,
     /// Set to stop the reception (SIGTERM).
     pub stop: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
-    /// Set when other work waits (the DICOM input): the reception returns
-    /// [`LinkError::NoHeader`] with no byte if none has arrived yet.
+    /// Set when other work waits (the DICOM input): while no byte has
+    /// arrived, a read that finds the line idle returns
+    /// [`LinkError::NoHeader`] with no byte.
     pub yield_to: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
     /// The configured geometry and tube output: the header is validated as
     /// soon as it arrives ([`dbt_pipeline::validate_header`]).
@@ -269,14 +270,7 @@ pub fn receive_from<S: Read + Write>(
         {
             return Err(LinkError::Stopped);
         }
-        if stats.bytes == 0
-            && opts
-                .yield_to
-                .as_ref()
-                .is_some_and(|s| s.load(std::sync::atomic::Ordering::SeqCst))
-        {
-            return Err(ended(&asm, &stats));
-        }
+
         // Bytes that do not advance the acquisition (garbage, corrupt or
         // repeated frames) get `idle_timeout`; a frame in progress the time
         // its declared length takes at `min_rate` on top.
@@ -299,7 +293,14 @@ pub fn receive_from<S: Read + Write>(
                         | std::io::ErrorKind::Interrupted
                 ) =>
             {
-                if last_data.elapsed() > opts.idle_timeout {
+                // Nothing has arrived and other work waits: give way (the
+                // line is idle; a gantry that starts sending finds us back).
+                let give_way = stats.bytes == 0
+                    && opts
+                        .yield_to
+                        .as_ref()
+                        .is_some_and(|s| s.load(std::sync::atomic::Ordering::SeqCst));
+                if give_way || last_data.elapsed() > opts.idle_timeout {
                     return Err(ended(&asm, &stats));
                 }
                 continue;
@@ -580,6 +581,50 @@ mod tests {
             o = o.for_site(&g, 0.11);
         }
         receive_from(&mut p, &o).unwrap_err()
+    }
+
+    /// The DICOM input's wake flag ends a reception on an idle line (the
+    /// daemon then processes what the input spooled) long before the idle
+    /// timeout, and never one whose bytes are arriving.
+    #[test]
+    fn a_reception_yields_before_its_first_byte_only() {
+        let flag = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let o = LinkOptions {
+            yield_to: Some(std::sync::Arc::clone(&flag)),
+            ..LinkOptions::new(Duration::from_secs(30))
+        };
+        let raiser = {
+            let flag = std::sync::Arc::clone(&flag);
+            std::thread::spawn(move || {
+                std::thread::sleep(Duration::from_millis(200));
+                flag.store(true, std::sync::atomic::Ordering::SeqCst);
+            })
+        };
+        let mut idle = Peer {
+            input: std::io::Cursor::new(vec![]),
+            writes_stall: false,
+        };
+        let t0 = std::time::Instant::now();
+        let e = receive_from(&mut idle, &o).unwrap_err();
+        raiser.join().unwrap();
+        assert!(matches!(e, LinkError::NoHeader { bytes: 0, .. }), "{e}");
+        assert!(t0.elapsed() < Duration::from_secs(5), "{:?}", t0.elapsed());
+        // Flag still set: a reception under way is not interrupted (it ends
+        // by its own rule: the idle timeout of this short peer).
+        let o = LinkOptions {
+            idle_timeout: Duration::from_millis(300),
+            ..o
+        };
+        let e = run_with(encode(&Frame::Header(header()), 0), &o);
+        assert!(matches!(e, LinkError::Incomplete(_)), "{e}");
+    }
+
+    fn run_with(input: Vec<u8>, o: &LinkOptions) -> LinkError {
+        let mut p = Peer {
+            input: std::io::Cursor::new(input),
+            writes_stall: false,
+        };
+        receive_from(&mut p, o).unwrap_err()
     }
 
     #[test]

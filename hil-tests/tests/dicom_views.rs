@@ -141,18 +141,16 @@ fn data_set(file: &Path) -> (String, String, Vec<u8>) {
     (class, instance, bytes)
 }
 
-/// The daemon's configuration: the DICOM input (quiet time `quiet` s), the
-/// frame link on a port nobody serves.
-fn config(dir: &Path, dport: u16, flux: f64, tube: f64, quiet: f64) -> PathBuf {
+/// The daemon's configuration at a site without the frame link: the DICOM
+/// input only (quiet time `quiet` s).
+fn config(dir: &Path, dport: u16, flux: f64, tube: f64, quiet: f64, extra: &str) -> PathBuf {
     let cfg = dir.join("dbtor.toml");
     std::fs::write(
         &cfg,
         format!(
             r#"
 [frames]
-transport = "tcp"
-address = "127.0.0.1:{frames}"
-idle_timeout_s = 20
+transport = "off"
 binning = 4
 
 [modbus]
@@ -180,8 +178,8 @@ address = "127.0.0.1:{dport}"
 ae_title = "DBTOR"
 flat_field_counts = {flux}
 quiet_time_s = {quiet}
+{extra}
 "#,
-            frames = free_port(),
         ),
     )
     .unwrap();
@@ -280,6 +278,9 @@ fn header(acq: &Path) -> (f64, f64) {
 /// the bad objects take to send (a few seconds), short enough to wait for.
 const QUIET_S: f64 = 15.0;
 
+/// The private class of the test's vendor (under our UID root).
+const PRIVATE: &str = "1.2.826.0.1.3680043.10.543.77.1";
+
 #[test]
 fn views_make_one_sweep_and_bad_objects_are_refused_by_name() {
     let dir = tempfile::tempdir().unwrap();
@@ -354,7 +355,23 @@ fn views_make_one_sweep_and_bad_objects_are_refused_by_name() {
     let truncated = data_set(&views_b[5]);
 
     let dport = free_port();
-    let cfg = config(d, dport, flux, tube, QUIET_S);
+    // A vendor's private class: its views keep the thickness in a private
+    // tag of their own creator.
+    std::fs::write(
+        d.join("acme.toml"),
+        "name = \"ACME DBT\"\nlayout = \"per-view\"\n[tags]\nBodyPartThickness = \"0019,1012\"\n[creators]\n\"0019,0010\" = \"ACME DBT\"\n",
+    )
+    .unwrap();
+    let cfg = config(
+        d,
+        dport,
+        flux,
+        tube,
+        QUIET_S,
+        &format!(
+            "[[dicom_input.private_class]]\nsop_class = \"{PRIVATE}\"\nmapping = \"acme.toml\""
+        ),
+    );
     let daemon = start_daemon(&cfg, &d.join("daemon.log"));
     wait_for_status(d, "the daemon", LIMIT, |s| s["state"] == "waiting");
 
@@ -534,6 +551,75 @@ fn views_make_one_sweep_and_bad_objects_are_refused_by_name() {
             && l.contains("=DigitalMammographyXRayImageStorageForProcessing")),
         "{dump}"
     );
+
+    // 6. The same views as the vendor's private class (new instances, the
+    // thickness moved to the vendor's tag, written as UN as an Implicit VR
+    // sender's private tags arrive): read through the configured mapping,
+    // reported alike.
+    let thickness = text_of(tags::BODY_PART_THICKNESS);
+    let private_dir = d.join("private");
+    std::fs::create_dir_all(&private_dir).unwrap();
+    let private: Vec<PathBuf> = views
+        .iter()
+        .enumerate()
+        .map(|(k, v)| {
+            let mut o = dicom_object::open_file(v).unwrap();
+            let instance = format!("{}.{}", text_of(tags::SERIES_INSTANCE_UID), 900 + k);
+            o.put(DataElement::new(tags::SOP_CLASS_UID, VR::UI, PRIVATE));
+            o.put(DataElement::new(
+                tags::SOP_INSTANCE_UID,
+                VR::UI,
+                instance.as_str(),
+            ));
+            o.remove_element(tags::BODY_PART_THICKNESS);
+            o.remove_element(tags::PRESENTATION_INTENT_TYPE);
+            o.put(DataElement::new(
+                dicom_core::Tag(0x0019, 0x0010),
+                VR::LO,
+                "ACME DBT",
+            ));
+            let mut t = thickness.clone().into_bytes();
+            if t.len() % 2 == 1 {
+                t.push(b' ');
+            }
+            o.put(DataElement::new(
+                dicom_core::Tag(0x0019, 0x1012),
+                VR::UN,
+                dicom_core::PrimitiveValue::U8(t.into()),
+            ));
+            o.meta_mut().media_storage_sop_class_uid = PRIVATE.to_string();
+            o.meta_mut().media_storage_sop_instance_uid = instance;
+            let p = private_dir.join(format!("view-{:02}.dcm", k + 1));
+            o.write_to_file(&p).unwrap();
+            p
+        })
+        .collect();
+    // (dcmtk's storescu sends no class it does not know.)
+    let mut scu = Scu::connect(dport, &[PRIVATE]);
+    for f in &private {
+        let (class, instance, bytes) = data_set(f);
+        let status = scu.store(&class, &instance, &bytes);
+        assert_eq!(status, 0, "{}: {}", f.display(), daemon_status(d)["faults"]);
+    }
+    scu.release();
+    wait_for_status(d, "the private class's report", LIMIT, |s| {
+        s["processed"] == 3
+    });
+    let done: Vec<PathBuf> = {
+        let mut v: Vec<_> = std::fs::read_dir(d.join("spool/done"))
+            .unwrap()
+            .flatten()
+            .map(|e| e.path())
+            .collect();
+        v.sort();
+        v
+    };
+    let r2: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(done[2].join("result.json")).unwrap()).unwrap();
+    assert_eq!(r2["glandularity_reported"], r[0]["glandularity_reported"]);
+    let g: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(done[2].join("gantry.json")).unwrap()).unwrap();
+    assert_eq!(g["sop_class"], PRIVATE, "{g}");
     daemon.stop();
 }
 
@@ -548,7 +634,7 @@ fn sigkill_mid_association_loses_no_view_answered_success() {
     let acq = hil_tests::acquire(d, 2);
     let (flux, tube) = header(&acq);
     let dport = free_port();
-    let cfg = config(d, dport, flux, tube, 120.0);
+    let cfg = config(d, dport, flux, tube, 120.0, "");
     let daemon = start_daemon(&cfg, &d.join("daemon-1.log"));
     wait_for_status(d, "the daemon", LIMIT, |s| s["state"] == "waiting");
     let views = views_of(&acq, &d.join("views"));
