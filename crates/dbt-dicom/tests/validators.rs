@@ -714,3 +714,75 @@ fn view_objects_and_mapped_private_objects_read_back() {
     )
     .is_err());
 }
+
+/// A vendor's multi-frame class without functional groups: every geometry
+/// value from the mapped top-level tags (the angles one value per frame);
+/// a mapped angle list of another length is refused naming it.
+#[test]
+fn a_mapped_multi_frame_private_object_reads_without_functional_groups() {
+    use dbt_dicom::input::{read_input_object, Layout, Mapping, Tag};
+    use dicom_core::{DataElement, VR};
+    let (h, eq) = (header(), equipment());
+    let angles: Vec<f64> = (0..25).map(|i| -24.0 + 2.0 * i as f64).collect();
+    let counts = projection_counts(25, 6, 20);
+    let p = projection_set(&h, &eq, &angles, &counts, 6, 20);
+    let mut uids = UidSource::new("1.2.826.0.1.3680043.10.543", 12).unwrap();
+    let private = "1.2.826.0.1.3680043.10.543.77.2";
+    let mut object = |angle_values: &[f64]| {
+        let mut r = dbt_dicom::projections::projection_object(&p, &mut uids).unwrap();
+        let o = r.dataset_mut();
+        o.put(DataElement::new(tags::SOP_CLASS_UID, VR::UI, private));
+        o.remove_element(tags::SHARED_FUNCTIONAL_GROUPS_SEQUENCE);
+        o.remove_element(tags::PER_FRAME_FUNCTIONAL_GROUPS_SEQUENCE);
+        let ds = |v: &[f64]| {
+            v.iter()
+                .map(|x| format!("{x}"))
+                .collect::<Vec<_>>()
+                .join("\\")
+        };
+        for (t, vr, v) in [
+            (Tag(0x0019, 0x1020), VR::DS, ds(angle_values)),
+            (Tag(0x0019, 0x1021), VR::DS, "700".to_string()),
+            (Tag(0x0019, 0x1022), VR::DS, "650".to_string()),
+            (Tag(0x0019, 0x1023), VR::DS, "0.8\\0.8".to_string()),
+            (Tag(0x0019, 0x1024), VR::CS, "R".to_string()),
+        ] {
+            o.put(DataElement::new(t, vr, v));
+        }
+        r.to_bytes().unwrap()
+    };
+    let mapping = Mapping::new(
+        "vendor",
+        private,
+        Layout::MultiFrame,
+        [
+            ("XRaySourceIsocenterPrimaryAngle", 0x1020),
+            ("DistanceSourceToDetector", 0x1021),
+            ("DistanceSourceToIsocenter", 0x1022),
+            ("ImagerPixelSpacing", 0x1023),
+            ("ImageLaterality", 0x1024),
+        ]
+        .into_iter()
+        .map(|(k, e)| (k.to_string(), Tag(0x0019, e)))
+        .collect(),
+        Default::default(),
+    )
+    .unwrap();
+    let got = read_input_object(&object(&angles), std::slice::from_ref(&mapping)).unwrap();
+    assert_eq!(got.layout, Layout::MultiFrame);
+    assert_eq!(got.angles_deg, angles);
+    assert_eq!(got.counts, counts);
+    assert_eq!(
+        (got.source_to_detector_mm, got.source_to_isocenter_mm),
+        (700.0, Some(650.0))
+    );
+    assert_eq!(got.pixel_spacing_mm, [0.8, 0.8]);
+    assert_eq!(got.header.laterality, Laterality::Right);
+    let e = read_input_object(&object(&angles[..24]), &[mapping])
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("XRaySourceIsocenterPrimaryAngle") && e.contains("24 values for 25 frames"),
+        "{e}"
+    );
+}
