@@ -13,7 +13,9 @@
 //! Context. The IOD has no isocentre distance: the reader takes the
 //! configured one (see `docs/conformance.md`).
 
-use crate::projections::{bad, check, code, ds, frame_datetime, sq, ProjectionSet};
+use crate::projections::{
+    bad, check, code, common_elements, distance_elements, ds, frame_datetime, sq, ProjectionSet,
+};
 use crate::reports::{Laterality, Report};
 use crate::{DicomError, UidSource};
 use dicom_core::value::PrimitiveValue;
@@ -55,63 +57,23 @@ pub fn view_objects(
         ds(p.pixel_spacing_mm[0]),
         ds(p.pixel_spacing_mm[1])
     );
-    let magnification =
-        p.source_to_detector_mm / (p.source_to_detector_mm - p.thickness_mm.max(1.0));
     let mut out = Vec::with_capacity(frames);
     for (k, angle) in p.angles_deg.iter().enumerate() {
         let sop_instance = uids.next_uid();
         let at = frame_datetime(&start, (p.view_interval_ms * k as f64).round() as u64);
         let (date, time) = (at.get(..8).unwrap_or(""), at.get(8..).unwrap_or(""));
         let mut o = InMemDicomObject::new_empty();
+        for e in common_elements(p).into_iter().chain(distance_elements(p)) {
+            o.put(e);
+        }
         for e in [
-            s(tags::SPECIFIC_CHARACTER_SET, VR::CS, "ISO_IR 192"),
             s(tags::SOP_CLASS_UID, VR::UI, DM_FOR_PROCESSING_CLASS),
             s(tags::SOP_INSTANCE_UID, VR::UI, &sop_instance),
             s(tags::IMAGE_TYPE, VR::CS, "ORIGINAL\\PRIMARY\\"),
-            s(tags::STUDY_DATE, VR::DA, &h.study_date),
-            s(tags::STUDY_TIME, VR::TM, &h.study_time),
-            s(tags::CONTENT_DATE, VR::DA, p.content_date),
-            s(tags::CONTENT_TIME, VR::TM, p.content_time),
             s(tags::ACQUISITION_DATE, VR::DA, date),
             s(tags::ACQUISITION_TIME, VR::TM, time),
             s(tags::ACQUISITION_DATE_TIME, VR::DT, &at),
-            s(tags::ACCESSION_NUMBER, VR::SH, &h.accession_number),
-            s(tags::MODALITY, VR::CS, "MG"),
-            s(tags::MANUFACTURER, VR::LO, &p.equipment.manufacturer),
-            s(tags::INSTITUTION_NAME, VR::LO, ""),
-            s(
-                tags::REFERRING_PHYSICIAN_NAME,
-                VR::PN,
-                &h.referring_physician,
-            ),
-            s(tags::MANUFACTURER_MODEL_NAME, VR::LO, &p.equipment.model),
-            s(tags::PATIENT_NAME, VR::PN, &h.patient_name),
-            s(tags::PATIENT_ID, VR::LO, &h.patient_id),
-            s(tags::PATIENT_BIRTH_DATE, VR::DA, &h.patient_birth_date),
-            s(tags::PATIENT_SEX, VR::CS, &h.patient_sex),
             s(tags::BODY_PART_EXAMINED, VR::CS, "BREAST"),
-            s(tags::KVP, VR::DS, &ds(p.kvp)),
-            s(tags::DEVICE_SERIAL_NUMBER, VR::LO, &p.equipment.serial),
-            s(
-                tags::SOFTWARE_VERSIONS,
-                VR::LO,
-                &p.equipment.software_version,
-            ),
-            s(
-                tags::DISTANCE_SOURCE_TO_DETECTOR,
-                VR::DS,
-                &ds(p.source_to_detector_mm),
-            ),
-            s(
-                tags::DISTANCE_SOURCE_TO_PATIENT,
-                VR::DS,
-                &ds(p.source_to_detector_mm - p.thickness_mm),
-            ),
-            s(
-                tags::ESTIMATED_RADIOGRAPHIC_MAGNIFICATION_FACTOR,
-                VR::DS,
-                &ds(magnification),
-            ),
             s(
                 tags::EXPOSURE_TIME,
                 VR::IS,
@@ -125,37 +87,19 @@ pub fn view_objects(
             s(tags::FILTER_MATERIAL, VR::CS, "RHODIUM"),
             s(tags::FILTER_THICKNESS_MINIMUM, VR::DS, &ds(p.filter_rh_mm)),
             s(tags::FILTER_THICKNESS_MAXIMUM, VR::DS, &ds(p.filter_rh_mm)),
-            s(tags::FOCAL_SPOTS, VR::DS, "0.3"),
-            s(tags::ANODE_TARGET_MATERIAL, VR::CS, "TUNGSTEN"),
-            s(tags::BODY_PART_THICKNESS, VR::DS, &ds(p.thickness_mm)),
-            s(tags::COMPRESSION_FORCE, VR::DS, &ds(p.compression_force_n)),
-            s(tags::PADDLE_DESCRIPTION, VR::LO, "flat compression paddle"),
-            s(tags::DETECTOR_TYPE, VR::CS, "DIRECT"),
             s(tags::IMAGER_PIXEL_SPACING, VR::DS, &spacing),
-            s(tags::POSITIONER_TYPE, VR::CS, "MAMMOGRAPHIC"),
             s(tags::POSITIONER_PRIMARY_ANGLE, VR::DS, &ds(*angle)),
             s(tags::POSITIONER_SECONDARY_ANGLE, VR::DS, "0"),
-            s(tags::STUDY_INSTANCE_UID, VR::UI, &h.study_uid),
             s(tags::SERIES_INSTANCE_UID, VR::UI, &series),
-            s(tags::STUDY_ID, VR::SH, &h.study_id),
-            s(tags::SERIES_NUMBER, VR::IS, "1"),
             s(tags::INSTANCE_NUMBER, VR::IS, &(k + 1).to_string()),
             s(tags::PATIENT_ORIENTATION, VR::CS, orientation),
             s(tags::FRAME_OF_REFERENCE_UID, VR::UI, &frame_of_reference),
-            s(tags::POSITION_REFERENCE_INDICATOR, VR::LO, ""),
             s(tags::IMAGE_LATERALITY, VR::CS, lat),
-            s(tags::PHOTOMETRIC_INTERPRETATION, VR::CS, "MONOCHROME2"),
-            s(tags::QUALITY_CONTROL_IMAGE, VR::CS, "NO"),
-            s(tags::BURNED_IN_ANNOTATION, VR::CS, "NO"),
             s(tags::RESCALE_INTERCEPT, VR::DS, "0"),
             s(tags::RESCALE_SLOPE, VR::DS, "1"),
             s(tags::RESCALE_TYPE, VR::LO, "US"),
-            s(tags::LOSSY_IMAGE_COMPRESSION, VR::CS, "00"),
-            s(tags::PRESENTATION_LUT_SHAPE, VR::CS, "IDENTITY"),
-            s(tags::PRESENTATION_INTENT_TYPE, VR::CS, "FOR PROCESSING"),
             s(tags::PIXEL_INTENSITY_RELATIONSHIP, VR::CS, "LIN"),
             s(tags::ORGAN_EXPOSED, VR::CS, "BREAST"),
-            s(tags::BREAST_IMPLANT_PRESENT, VR::CS, "NO"),
             s(tags::PARTIAL_VIEW, VR::CS, "NO"),
             s(
                 tags::ORGAN_DOSE,

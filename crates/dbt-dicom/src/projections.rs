@@ -164,46 +164,22 @@ pub(crate) fn check(p: &ProjectionSet<'_>) -> Result<(), DicomError> {
     Ok(())
 }
 
-/// The object, checked: a frame per angle, counts of the announced size,
-/// physical values in range. UIDs (series, instance, frame of reference)
-/// from `uids`.
-pub fn projection_object(
-    p: &ProjectionSet<'_>,
-    uids: &mut UidSource,
-) -> Result<Report, DicomError> {
-    check(p)?;
-    let frames = p.angles_deg.len();
+/// The attributes a projection object of either class states alike:
+/// patient, study, equipment, technique and the fixed values of a raw
+/// For Processing mammography image.
+pub(crate) fn common_elements(p: &ProjectionSet<'_>) -> Vec<DataElement<InMemDicomObject>> {
     let h = p.header;
-    let sop_instance = uids.next_uid();
-    let series = uids.next_uid();
-    let frame_of_reference = uids.next_uid();
-    let lat = match h.laterality {
-        Laterality::Left => "L",
-        Laterality::Right => "R",
-    };
     let s = |t, vr, v: &str| DataElement::new(t, vr, v.to_string());
-    let mut o = InMemDicomObject::new_empty();
-    for e in [
+    vec![
         s(tags::SPECIFIC_CHARACTER_SET, VR::CS, "ISO_IR 192"),
-        s(tags::SOP_CLASS_UID, VR::UI, BPXR_FOR_PROCESSING_CLASS),
-        s(tags::SOP_INSTANCE_UID, VR::UI, &sop_instance),
-        s(
-            tags::IMAGE_TYPE,
-            VR::CS,
-            "ORIGINAL\\PRIMARY\\TOMOSYNTHESIS\\NONE",
-        ),
         s(tags::STUDY_DATE, VR::DA, &h.study_date),
         s(tags::STUDY_TIME, VR::TM, &h.study_time),
         s(tags::CONTENT_DATE, VR::DA, p.content_date),
         s(tags::CONTENT_TIME, VR::TM, p.content_time),
-        s(
-            tags::ACQUISITION_DATE_TIME,
-            VR::DT,
-            &format!("{}{}", h.study_date, h.study_time),
-        ),
         s(tags::ACCESSION_NUMBER, VR::SH, &h.accession_number),
         s(tags::MODALITY, VR::CS, "MG"),
         s(tags::MANUFACTURER, VR::LO, &p.equipment.manufacturer),
+        s(tags::INSTITUTION_NAME, VR::LO, ""),
         s(
             tags::REFERRING_PHYSICIAN_NAME,
             VR::PN,
@@ -223,21 +199,83 @@ pub fn projection_object(
         s(tags::BODY_PART_THICKNESS, VR::DS, &ds(p.thickness_mm)),
         s(tags::KVP, VR::DS, &ds(p.kvp)),
         s(tags::STUDY_INSTANCE_UID, VR::UI, &h.study_uid),
-        s(tags::SERIES_INSTANCE_UID, VR::UI, &series),
         s(tags::STUDY_ID, VR::SH, &h.study_id),
+        s(tags::FOCAL_SPOTS, VR::DS, "0.3"),
+        s(tags::ANODE_TARGET_MATERIAL, VR::CS, "TUNGSTEN"),
+        s(tags::COMPRESSION_FORCE, VR::DS, &ds(p.compression_force_n)),
+        s(tags::PADDLE_DESCRIPTION, VR::LO, "flat compression paddle"),
+        s(tags::BREAST_IMPLANT_PRESENT, VR::CS, "NO"),
+        s(tags::POSITIONER_TYPE, VR::CS, "MAMMOGRAPHIC"),
+        s(tags::QUALITY_CONTROL_IMAGE, VR::CS, "NO"),
+        s(tags::BURNED_IN_ANNOTATION, VR::CS, "NO"),
+        s(tags::LOSSY_IMAGE_COMPRESSION, VR::CS, "00"),
+        s(tags::PRESENTATION_INTENT_TYPE, VR::CS, "FOR PROCESSING"),
+        s(tags::PHOTOMETRIC_INTERPRETATION, VR::CS, "MONOCHROME2"),
+        s(tags::DETECTOR_TYPE, VR::CS, "DIRECT"),
+        s(tags::PRESENTATION_LUT_SHAPE, VR::CS, "IDENTITY"),
+        s(tags::POSITION_REFERENCE_INDICATOR, VR::LO, ""),
         s(tags::SERIES_NUMBER, VR::IS, "1"),
+    ]
+}
+
+/// Source to detector and to the breast's upper surface, and the
+/// magnification at the breast support: the X-Ray geometry both classes
+/// state.
+pub(crate) fn distance_elements(p: &ProjectionSet<'_>) -> Vec<DataElement<InMemDicomObject>> {
+    let s = |t, v: f64| DataElement::new(t, VR::DS, ds(v));
+    vec![
+        s(tags::DISTANCE_SOURCE_TO_DETECTOR, p.source_to_detector_mm),
+        s(
+            tags::DISTANCE_SOURCE_TO_PATIENT,
+            p.source_to_detector_mm - p.thickness_mm,
+        ),
+        s(
+            tags::ESTIMATED_RADIOGRAPHIC_MAGNIFICATION_FACTOR,
+            p.source_to_detector_mm / (p.source_to_detector_mm - p.thickness_mm.max(1.0)),
+        ),
+    ]
+}
+
+/// The object, checked: a frame per angle, counts of the announced size,
+/// physical values in range. UIDs (series, instance, frame of reference)
+/// from `uids`.
+pub fn projection_object(
+    p: &ProjectionSet<'_>,
+    uids: &mut UidSource,
+) -> Result<Report, DicomError> {
+    check(p)?;
+    let frames = p.angles_deg.len();
+    let h = p.header;
+    let sop_instance = uids.next_uid();
+    let series = uids.next_uid();
+    let frame_of_reference = uids.next_uid();
+    let lat = match h.laterality {
+        Laterality::Left => "L",
+        Laterality::Right => "R",
+    };
+    let s = |t, vr, v: &str| DataElement::new(t, vr, v.to_string());
+    let mut o = InMemDicomObject::new_empty();
+    for e in common_elements(p) {
+        o.put(e);
+    }
+    for e in [
+        s(tags::SOP_CLASS_UID, VR::UI, BPXR_FOR_PROCESSING_CLASS),
+        s(tags::SOP_INSTANCE_UID, VR::UI, &sop_instance),
+        s(
+            tags::IMAGE_TYPE,
+            VR::CS,
+            "ORIGINAL\\PRIMARY\\TOMOSYNTHESIS\\NONE",
+        ),
+        s(
+            tags::ACQUISITION_DATE_TIME,
+            VR::DT,
+            &format!("{}{}", h.study_date, h.study_time),
+        ),
+        s(tags::SERIES_INSTANCE_UID, VR::UI, &series),
         s(tags::INSTANCE_NUMBER, VR::IS, "1"),
         s(tags::FRAME_OF_REFERENCE_UID, VR::UI, &frame_of_reference),
-        s(tags::POSITION_REFERENCE_INDICATOR, VR::LO, ""),
-        s(tags::PRESENTATION_INTENT_TYPE, VR::CS, "FOR PROCESSING"),
-        s(tags::BURNED_IN_ANNOTATION, VR::CS, "NO"),
-        s(tags::PHOTOMETRIC_INTERPRETATION, VR::CS, "MONOCHROME2"),
-        s(tags::QUALITY_CONTROL_IMAGE, VR::CS, "NO"),
-        s(tags::LOSSY_IMAGE_COMPRESSION, VR::CS, "00"),
         s(tags::CONTENT_QUALIFICATION, VR::CS, "PRODUCT"),
-        s(tags::DETECTOR_TYPE, VR::CS, "DIRECT"),
         s(tags::NUMBER_OF_FRAMES, VR::IS, &frames.to_string()),
-        s(tags::INSTITUTION_NAME, VR::LO, ""),
     ] {
         o.put(e);
     }
@@ -274,11 +312,6 @@ pub fn projection_object(
     let ma = p.exposure_uas_per_view / p.exposure_ms_per_view;
     for e in [
         s(tags::POSITIONER_MOTION, VR::CS, "DYNAMIC"),
-        s(tags::POSITIONER_TYPE, VR::CS, "MAMMOGRAPHIC"),
-        s(tags::FOCAL_SPOTS, VR::DS, "0.3"),
-        s(tags::ANODE_TARGET_MATERIAL, VR::CS, "TUNGSTEN"),
-        s(tags::COMPRESSION_FORCE, VR::DS, &ds(p.compression_force_n)),
-        s(tags::PADDLE_DESCRIPTION, VR::LO, "flat compression paddle"),
         s(tags::EXPOSURE_CONTROL_MODE, VR::CS, "MANUAL"),
         s(
             tags::EXPOSURE_CONTROL_MODE_DESCRIPTION,
@@ -288,8 +321,6 @@ pub fn projection_object(
         s(tags::ORGAN_DOSE, VR::DS, &ds(p.modality_agd_mgy / 100.0)),
         s(tags::ENTRANCE_DOSE_INM_GY, VR::DS, &ds(p.entrance_dose_mgy)),
         s(tags::TYPE_OF_DETECTOR_MOTION, VR::CS, "NONE"),
-        s(tags::PRESENTATION_LUT_SHAPE, VR::CS, "IDENTITY"),
-        s(tags::BREAST_IMPLANT_PRESENT, VR::CS, "NO"),
     ] {
         o.put(e);
     }
@@ -344,29 +375,17 @@ pub fn projection_object(
         ds(p.pixel_spacing_mm[0]),
         ds(p.pixel_spacing_mm[1])
     );
-    let magnification =
-        p.source_to_detector_mm / (p.source_to_detector_mm - p.thickness_mm.max(1.0));
     let shared = item(vec![
         seq(
             tags::X_RAY_GEOMETRY_SEQUENCE,
-            vec![item(vec![
-                fl(tags::DISTANCE_SOURCE_TO_ISOCENTER, p.source_to_isocenter_mm),
-                s(
-                    tags::DISTANCE_SOURCE_TO_DETECTOR,
-                    VR::DS,
-                    &ds(p.source_to_detector_mm),
-                ),
-                s(
-                    tags::DISTANCE_SOURCE_TO_PATIENT,
-                    VR::DS,
-                    &ds(p.source_to_detector_mm - p.thickness_mm),
-                ),
-                s(
-                    tags::ESTIMATED_RADIOGRAPHIC_MAGNIFICATION_FACTOR,
-                    VR::DS,
-                    &ds(magnification),
-                ),
-            ])],
+            vec![item(
+                std::iter::once(fl(
+                    tags::DISTANCE_SOURCE_TO_ISOCENTER,
+                    p.source_to_isocenter_mm,
+                ))
+                .chain(distance_elements(p))
+                .collect(),
+            )],
         ),
         seq(
             tags::FRAME_ANATOMY_SEQUENCE,
