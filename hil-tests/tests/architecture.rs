@@ -23,6 +23,7 @@ use std::process::Command;
 const PURE: &[&str] = &[
     "dbt-geometry",
     "dbt-projector",
+    "dbt-cone",
     "dbt-materials",
     "dbt-phantom",
     "dbt-acquisition",

@@ -22,6 +22,9 @@
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
+pub mod cone;
+pub use cone::{ConeSystem, DetectorMotion};
+
 /// The geometry of the paper, as shipped in `geometry/paper.toml`.
 pub const PAPER_TOML: &str = include_str!("../geometry/paper.toml");
 

@@ -1,0 +1,352 @@
+//! A real gantry's geometry (issue #28): the source on an arc, x-rays
+//! diverging in depth as well as across, a 2-D detector that rotates with the
+//! source or stays still.
+//!
+//! # Coordinate system
+//! Millimetres. `x` across the chest wall (0 on the central plane of the
+//! sweep), `y` the depth from the detector's chest-wall edge towards the
+//! nipple, `z` up from the detector's input plane at 0 degrees. The source
+//! turns about the axis `{x = 0, z = axis_height_mm}` (parallel to `y`): at
+//! view angle `theta` it sits at
+//! `(R sin theta, source_depth_mm, axis_height_mm + R cos theta)`.
+//! Detector element (row `j`, column `k`) at 0 degrees lies at
+//! `((k - (columns - 1) / 2) pitch, (j + 1/2) pitch, 0)`: rows run from the
+//! chest wall, columns across. A `stationary` detector keeps that position
+//! at every view; a `rotating` one turns with the source about the same
+//! axis, so that in every plane `y = const` the source, the axis and the
+//! detector's centre line stay aligned (the paper's fan-beam geometry is
+//! the plane `y = source_depth_mm` of the rotating system).
+//!
+//! A breast volume rests on the support (`z = support_height_mm`), is
+//! centred across (`x = 0`) and starts at the chest wall (`y = 0`).
+
+use crate::{invalid, GeometryError, Views};
+use serde::{Deserialize, Serialize};
+
+/// `paper-cone`: the paper's gantry as a cone-beam system.
+pub const PAPER_CONE_TOML: &str = include_str!("../geometry/paper-cone.toml");
+/// `ge-essential`: a stationary-detector, narrow-angle system.
+pub const GE_ESSENTIAL_TOML: &str = include_str!("../geometry/ge-essential.toml");
+
+/// The built-in cone-beam systems by name.
+pub const BUILTIN_SYSTEMS: [(&str, &str); 2] = [
+    ("paper-cone", PAPER_CONE_TOML),
+    ("ge-essential", GE_ESSENTIAL_TOML),
+];
+
+/// Whether the detector turns with the source.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum DetectorMotion {
+    /// Turns with the source about the rotation axis.
+    Rotating,
+    /// Stays in the plane `z = 0`.
+    Stationary,
+}
+
+/// A flat 2-D detector of square elements.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Detector2d {
+    /// Elements across the chest wall.
+    pub columns: usize,
+    /// Elements from the chest wall towards the nipple.
+    pub rows: usize,
+    /// Element pitch, mm.
+    pub pitch_mm: f64,
+}
+
+/// A validated cone-beam DBT system.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ConeSystem {
+    /// Its name (what the gantry interface states).
+    pub name: String,
+    /// Source to rotation axis, mm.
+    pub arc_radius_mm: f64,
+    /// Rotation axis above the detector's input plane (at 0 degrees), mm.
+    pub axis_height_mm: f64,
+    /// Breast support above the detector's input plane, mm.
+    pub support_height_mm: f64,
+    /// The source's depth `y`, mm (0: above the chest-wall edge).
+    pub source_depth_mm: f64,
+    /// Rotating or stationary detector.
+    pub detector_motion: DetectorMotion,
+    /// Views.
+    pub views: Views,
+    /// Detector.
+    pub detector: Detector2d,
+}
+
+/// A point, mm.
+pub type Point3 = [f64; 3];
+
+impl ConeSystem {
+    /// Parse and validate from TOML text.
+    pub fn from_toml_str(text: &str) -> Result<Self, GeometryError> {
+        let s: Self = toml::from_str(text).map_err(|e| GeometryError::Parse(e.to_string()))?;
+        s.validate()?;
+        Ok(s)
+    }
+
+    /// A built-in system by name (`paper-cone`, `ge-essential`).
+    pub fn builtin(name: &str) -> Option<Self> {
+        BUILTIN_SYSTEMS
+            .iter()
+            .find(|(n, _)| *n == name)
+            // The embedded files are part of this crate and covered by its tests.
+            .map(|(_, t)| Self::from_toml_str(t).expect("embedded system is valid"))
+    }
+
+    /// Elements `factor` times larger on each side (same detector area).
+    pub fn binned(&self, factor: usize) -> Result<Self, GeometryError> {
+        if factor == 0 {
+            return Err(invalid("binning", "factor must be at least 1"));
+        }
+        let d = &self.detector;
+        let s = Self {
+            detector: Detector2d {
+                columns: d.columns / factor,
+                rows: d.rows / factor,
+                pitch_mm: d.pitch_mm * factor as f64,
+            },
+            ..self.clone()
+        };
+        s.validate()?;
+        Ok(s)
+    }
+
+    /// Check every constraint, naming the first offending field.
+    pub fn validate(&self) -> Result<(), GeometryError> {
+        let positive = |field: &'static str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(invalid(
+                    field,
+                    format!("must be a finite positive number, got {v}"),
+                ))
+            }
+        };
+        positive("arc_radius_mm", self.arc_radius_mm)?;
+        positive("axis_height_mm", self.axis_height_mm)?;
+        positive("detector.pitch_mm", self.detector.pitch_mm)?;
+        if !(self.support_height_mm.is_finite()
+            && self.support_height_mm >= 0.0
+            && self.support_height_mm < self.axis_height_mm + self.arc_radius_mm / 2.0)
+        {
+            return Err(invalid(
+                "support_height_mm",
+                format!(
+                    "must lie between the detector and well below the source, got {}",
+                    self.support_height_mm
+                ),
+            ));
+        }
+        if !self.source_depth_mm.is_finite() {
+            return Err(invalid("source_depth_mm", "must be finite"));
+        }
+        if self.views.count < 2 {
+            return Err(invalid("views.count", "at least 2 views are needed"));
+        }
+        for (field, a) in [
+            ("views.first_deg", self.views.first_deg),
+            ("views.last_deg", self.views.last_deg),
+        ] {
+            if !a.is_finite() || a.abs() >= 60.0 {
+                return Err(invalid(
+                    field,
+                    format!("must be within (-60, 60) degrees, got {a}"),
+                ));
+            }
+        }
+        if self.views.last_deg <= self.views.first_deg {
+            return Err(invalid("views.last_deg", "must exceed views.first_deg"));
+        }
+        for (field, n) in [
+            ("detector.columns", self.detector.columns),
+            ("detector.rows", self.detector.rows),
+        ] {
+            if n == 0 || n > 1 << 16 {
+                return Err(invalid(field, format!("{n} elements")));
+            }
+        }
+        // The source stays above the support at every view.
+        for v in 0..self.views.count {
+            let s = self.source(v);
+            if s[2] <= self.support_height_mm + 50.0 {
+                return Err(invalid(
+                    "arc_radius_mm",
+                    format!(
+                        "the source at view {v} is {:.1} mm high, not above the breast",
+                        s[2]
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// Number of views.
+    pub fn n_views(&self) -> usize {
+        self.views.count
+    }
+
+    /// View angle, degrees.
+    pub fn angle_deg(&self, v: usize) -> f64 {
+        let w = &self.views;
+        w.first_deg + (w.last_deg - w.first_deg) * v as f64 / (w.count - 1) as f64
+    }
+
+    /// Detector elements of one view (rows x columns).
+    pub fn n_elements(&self) -> usize {
+        self.detector.rows * self.detector.columns
+    }
+
+    /// The source at view `v`.
+    pub fn source(&self, v: usize) -> Point3 {
+        let t = self.angle_deg(v).to_radians();
+        [
+            self.arc_radius_mm * t.sin(),
+            self.source_depth_mm,
+            self.axis_height_mm + self.arc_radius_mm * t.cos(),
+        ]
+    }
+
+    /// The centre of detector element (`row`, `column`) at view `v`.
+    pub fn element(&self, v: usize, row: usize, column: usize) -> Point3 {
+        let p = self.detector.pitch_mm;
+        let x = (column as f64 - (self.detector.columns as f64 - 1.0) / 2.0) * p;
+        let y = (row as f64 + 0.5) * p;
+        match self.detector_motion {
+            DetectorMotion::Stationary => [x, y, 0.0],
+            DetectorMotion::Rotating => {
+                // (x, 0) turned about the axis (0, h) in the x-z plane as
+                // the source is: (0, R) relative to the axis goes to
+                // (R sin t, R cos t), so (dx, dz) goes to
+                // (dx cos t + dz sin t, -dx sin t + dz cos t).
+                let t = self.angle_deg(v).to_radians();
+                let h = self.axis_height_mm;
+                let (dx, dz) = (x, -h);
+                [
+                    dx * t.cos() + dz * t.sin(),
+                    y,
+                    h - dx * t.sin() + dz * t.cos(),
+                ]
+            }
+        }
+    }
+
+    /// The 2-D fan-beam geometry of the plane `y = source_depth_mm` of a
+    /// rotating system, with an image of `columns x rows` pixels of
+    /// `pixel_mm` centred across and resting on the support (the image's
+    /// centre must then be on the axis: the paper's layout).
+    pub fn central_fan(
+        &self,
+        columns: usize,
+        rows: usize,
+        pixel_mm: f64,
+    ) -> Result<crate::Geometry, GeometryError> {
+        if self.detector_motion != DetectorMotion::Rotating {
+            return Err(invalid(
+                "detector_motion",
+                "a stationary detector has no rotating fan-beam equivalent",
+            ));
+        }
+        let centre = self.support_height_mm + rows as f64 * pixel_mm / 2.0;
+        if (centre - self.axis_height_mm).abs() > 1e-9 {
+            return Err(invalid(
+                "support_height_mm",
+                format!(
+                    "an image of {rows} rows of {pixel_mm} mm on the support is centred {centre} mm high, not on the axis ({} mm)",
+                    self.axis_height_mm
+                ),
+            ));
+        }
+        let g = crate::Geometry {
+            source_to_center_mm: self.arc_radius_mm,
+            source_to_detector_mm: self.arc_radius_mm + self.axis_height_mm,
+            views: self.views.clone(),
+            detector: crate::Detector {
+                elements: self.detector.columns,
+                pitch_mm: self.detector.pitch_mm,
+            },
+            image: crate::Image {
+                columns,
+                rows,
+                pixel_mm,
+            },
+        };
+        g.validate()?;
+        Ok(g)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn builtin_systems_load_and_match_their_sources() {
+        let p = ConeSystem::builtin("paper-cone").unwrap();
+        // The paper: source 650 mm from the axis, 700 mm from the detector.
+        let s = p.source(12);
+        assert!((s[2] - 700.0).abs() < 1e-9 && s[0].abs() < 1e-9);
+        assert!((p.element(12, 0, 640)[2]).abs() < 1e-9);
+        let g = ConeSystem::builtin("ge-essential").unwrap();
+        assert_eq!(g.detector_motion, DetectorMotion::Stationary);
+        // GE: source 660 mm above the detector at 0 degrees.
+        assert!((g.source(4)[2] - 660.0).abs() < 1e-9);
+        assert!(ConeSystem::builtin("nonesuch").is_none());
+    }
+
+    /// A rotating detector stays at the same distance from the source and
+    /// perpendicular to the central ray; a stationary one stays put.
+    #[test]
+    fn detectors_move_as_declared() {
+        let p = ConeSystem::builtin("paper-cone")
+            .unwrap()
+            .binned(8)
+            .unwrap();
+        let dist = |a: Point3, b: Point3| {
+            ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+        };
+        let c = (p.detector.columns - 1) as f64 / 2.0;
+        for v in [0, 7, 24] {
+            // Between the two central columns: the central ray's foot.
+            let (a, b) = (
+                p.element(v, 0, c.floor() as usize),
+                p.element(v, 0, c.ceil() as usize),
+            );
+            let foot = [(a[0] + b[0]) / 2.0, p.source_depth_mm, (a[2] + b[2]) / 2.0];
+            let d = dist(p.source(v), [foot[0], p.source_depth_mm, foot[2]]);
+            assert!((d - 700.0).abs() < 1e-6, "view {v}: {d}");
+        }
+        let g = ConeSystem::builtin("ge-essential")
+            .unwrap()
+            .binned(8)
+            .unwrap();
+        assert_eq!(g.element(0, 3, 5), g.element(8, 3, 5));
+    }
+
+    #[test]
+    fn bad_systems_are_refused_by_field() {
+        let bad = |from: &str, to: &str, field: &str| {
+            let t = PAPER_CONE_TOML.replace(from, to);
+            let e = ConeSystem::from_toml_str(&t).unwrap_err().to_string();
+            assert!(e.contains(field), "{to}: {e}");
+        };
+        bad(
+            "arc_radius_mm = 650.0",
+            "arc_radius_mm = -1.0",
+            "arc_radius_mm",
+        );
+        bad(
+            "detector_motion = \"rotating\"",
+            "detector_motion = \"wobbling\"",
+            "wobbling",
+        );
+        bad("last_deg = 24.0", "last_deg = -30.0", "views.last_deg");
+        bad("columns = 1280", "columns = 0", "detector.columns");
+    }
+}
