@@ -16,7 +16,7 @@ fn systems() -> Vec<ConeSystem> {
             .unwrap()
             .binned(8)
             .unwrap(),
-        ConeSystem::builtin("ge-essential")
+        ConeSystem::builtin("siemens-victre")
             .unwrap()
             .binned(16)
             .unwrap(),
@@ -44,7 +44,9 @@ fn adjoint_is_the_transpose() {
         };
         let a = ConeProjector::new(&sys, grid).unwrap();
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
-        let x: Vec<f32> = (0..grid.len()).map(|_| rng.random_range(0.0..0.1)).collect();
+        let x: Vec<f32> = (0..grid.len())
+            .map(|_| rng.random_range(0.0..0.1))
+            .collect();
         let y: Vec<f32> = (0..a.range_len())
             .map(|_| rng.random_range(0.0..1.0))
             .collect();

@@ -25,13 +25,13 @@ use serde::{Deserialize, Serialize};
 
 /// `paper-cone`: the paper's gantry as a cone-beam system.
 pub const PAPER_CONE_TOML: &str = include_str!("../geometry/paper-cone.toml");
-/// `ge-essential`: a stationary-detector, narrow-angle system.
-pub const GE_ESSENTIAL_TOML: &str = include_str!("../geometry/ge-essential.toml");
+/// `siemens-victre`: a stationary-detector, wide-angle system.
+pub const SIEMENS_VICTRE_TOML: &str = include_str!("../geometry/siemens-victre.toml");
 
 /// The built-in cone-beam systems by name.
 pub const BUILTIN_SYSTEMS: [(&str, &str); 2] = [
     ("paper-cone", PAPER_CONE_TOML),
-    ("ge-essential", GE_ESSENTIAL_TOML),
+    ("siemens-victre", SIEMENS_VICTRE_TOML),
 ];
 
 /// Whether the detector turns with the source.
@@ -89,7 +89,7 @@ impl ConeSystem {
         Ok(s)
     }
 
-    /// A built-in system by name (`paper-cone`, `ge-essential`).
+    /// A built-in system by name (`paper-cone`, `siemens-victre`).
     pub fn builtin(name: &str) -> Option<Self> {
         BUILTIN_SYSTEMS
             .iter()
@@ -293,10 +293,12 @@ mod tests {
         let s = p.source(12);
         assert!((s[2] - 700.0).abs() < 1e-9 && s[0].abs() < 1e-9);
         assert!((p.element(12, 0, 640)[2]).abs() < 1e-9);
-        let g = ConeSystem::builtin("ge-essential").unwrap();
+        let g = ConeSystem::builtin("siemens-victre").unwrap();
         assert_eq!(g.detector_motion, DetectorMotion::Stationary);
-        // GE: source 660 mm above the detector at 0 degrees.
-        assert!((g.source(4)[2] - 660.0).abs() < 1e-9);
+        // VICTRE: source 650 mm above the detector at 0 degrees, views
+        // 2.0833 degrees apart.
+        assert!((g.source(12)[2] - 650.0).abs() < 1e-9);
+        assert!((g.angle_deg(1) - g.angle_deg(0) - 50.0 / 24.0).abs() < 1e-12);
         assert!(ConeSystem::builtin("nonesuch").is_none());
     }
 
@@ -322,11 +324,11 @@ mod tests {
             let d = dist(p.source(v), [foot[0], p.source_depth_mm, foot[2]]);
             assert!((d - 700.0).abs() < 1e-6, "view {v}: {d}");
         }
-        let g = ConeSystem::builtin("ge-essential")
+        let g = ConeSystem::builtin("siemens-victre")
             .unwrap()
-            .binned(8)
+            .binned(16)
             .unwrap();
-        assert_eq!(g.element(0, 3, 5), g.element(8, 3, 5));
+        assert_eq!(g.element(0, 3, 5), g.element(24, 3, 5));
     }
 
     #[test]
