@@ -7,12 +7,14 @@
 //!   one header validation of every input (frame link, files, DICOM);
 //! * [`plausibility`]: the counts against the flat field and the thickness,
 //!   and the reconstructed breast against its tissues and its box;
-//! * [`process`]: reconstruction, classification, density, dose, reports.
+//! * [`process`]: reconstruction, classification, density, dose, reports;
+//! * [`rebin`]: cone-beam projections as slice-wise fan-beam sinograms.
 
 pub mod acquisition;
 pub mod dicom_input;
 pub mod plausibility;
 pub mod process;
+pub mod rebin;
 
 pub use acquisition::{
     validate_header, Acquisition, AcquisitionHeader, HeaderError, Patient, Study, ACQ_FORMAT,
