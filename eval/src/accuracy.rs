@@ -180,19 +180,30 @@ pub fn run_cases(
     opts: &[PipelineOptions],
     seed: u64,
 ) -> anyhow::Result<Vec<Case>> {
+    run_cases_on(name, vol, geom, None, noise, opts, seed)
+}
+
+/// [`run_cases`], the acquisition made on cone-beam `system` when given
+/// (issue #28: the firmware rebins it to slice-wise sinograms in `geom`).
+pub fn run_cases_on(
+    name: String,
+    vol: &LabelVolume,
+    geom: &Geometry,
+    system: Option<&dbt_geometry::ConeSystem>,
+    noise: NoiseLevel,
+    opts: &[PipelineOptions],
+    seed: u64,
+) -> anyhow::Result<Vec<Case>> {
     let _span = tracing::info_span!("case", %name).entered();
     let t0 = std::time::Instant::now();
     let tech = Technique::default();
-    let acq = simulate_acquisition(
-        vol,
-        geom,
-        noise,
-        seed,
-        tech,
-        28.0,
-        "EVAL",
-        "1.2.826.0.1.3680043.10.543.3",
-    )?;
+    let root = "1.2.826.0.1.3680043.10.543.3";
+    let acq = match system {
+        None => simulate_acquisition(vol, geom, noise, seed, tech, 28.0, "EVAL", root)?,
+        Some(sys) => host_sim::simulate_cone_acquisition(
+            vol, geom, sys, noise, seed, tech, 28.0, "EVAL", root,
+        )?,
+    };
     let acquired = t0.elapsed().as_secs_f64();
     let mut truth_mgd_per_kerma = None;
     let mut cases = Vec::with_capacity(opts.len());

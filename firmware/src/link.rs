@@ -489,6 +489,7 @@ pub fn domain_header(
         laterality: h.laterality.clone(),
         compression_force_n: None,
         exposure_ms_per_view: None,
+        system: None,
         patient: Patient {
             name: h.patient_name.clone(),
             id: h.patient_id.clone(),

@@ -83,6 +83,12 @@ struct AcquireArgs {
     /// dbtor-x4t3 was trained on) or `anatomical` (issue #26) or `mixed` (both: index % 3 == 2 procedural).
     #[arg(long, default_value = "procedural")]
     population: PopulationKind,
+    /// Acquire on a cone-beam system (issue #28): `paper-cone` (the paper's
+    /// rotating detector), `siemens-victre` (stationary detector) or a system
+    /// TOML; binned like the geometry. Without it, every coronal slice is
+    /// its own fan beam (the paper's simplification).
+    #[arg(long)]
+    system: Option<String>,
 }
 
 /// The options of `host-sim stream`.
@@ -265,6 +271,7 @@ fn run_acquire(args: AcquireArgs) -> Result<()> {
         geometry,
         noise,
         population,
+        system,
     } = args;
     let g = geometry.load()?;
     let vol = population
@@ -272,16 +279,46 @@ fn run_acquire(args: AcquireArgs) -> Result<()> {
         .generate()?;
     let noise = NoiseLevel::parse(&noise)?;
     let kvp = dbt_dose::xray::paper_technique(vol.thickness_mm()).0 as f64;
-    let acq = host_sim::simulate_acquisition(
-        &vol,
-        &g,
-        noise,
-        host_sim::mix_seed(Population::TEST_SEED, &[index, 1]),
-        host_sim::Technique::default(),
-        kvp,
-        &format!("TEST{index:03}"),
-        "1.2.826.0.1.3680043.10.543.2",
-    )?;
+    let seed = host_sim::mix_seed(Population::TEST_SEED, &[index, 1]);
+    let patient = format!("TEST{index:03}");
+    let root = "1.2.826.0.1.3680043.10.543.2";
+    let acq = match system {
+        None => host_sim::simulate_acquisition(
+            &vol,
+            &g,
+            noise,
+            seed,
+            host_sim::Technique::default(),
+            kvp,
+            &patient,
+            root,
+        )?,
+        Some(name) => {
+            let sys = match dbt_geometry::ConeSystem::builtin(&name) {
+                Some(s) => s,
+                None => {
+                    let text = std::fs::read_to_string(&name).with_context(|| {
+                        format!("--system {name}: not a built-in system (paper-cone, siemens-victre) nor a readable file")
+                    })?;
+                    dbt_geometry::ConeSystem::from_toml_str(&text)
+                        .with_context(|| format!("--system {name}"))?
+                }
+            }
+            .binned(geometry.binning)
+            .with_context(|| format!("--system {name} binned {}", geometry.binning))?;
+            host_sim::simulate_cone_acquisition(
+                &vol,
+                &g,
+                &sys,
+                noise,
+                seed,
+                host_sim::Technique::default(),
+                kvp,
+                &patient,
+                root,
+            )?
+        }
+    };
     dbt_store::acquisition::write_acquisition(&out, &acq)?;
     println!(
         "{}: test phantom {index}, {} slices, thickness {:.1} mm, glandularity {:.3}, {}",

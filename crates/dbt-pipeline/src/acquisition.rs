@@ -84,6 +84,14 @@ pub struct AcquisitionHeader {
     /// Exposure time of each view, ms, where the acquisition gave it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub exposure_ms_per_view: Option<f64>,
+    /// The cone-beam system the counts come from (issue #28): then the
+    /// counts are its detector's frames, `[detector row][view * column]`
+    /// (`slices` = detector rows), rebinned to coronal slices
+    /// `slice_spacing_mm` apart in `geometry` before anything else
+    /// (`rebin::fan_acquisition`). Absent: the counts are already coronal
+    /// fan-beam sinograms.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub system: Option<dbt_geometry::ConeSystem>,
     /// Patient.
     pub patient: Patient,
     /// Study.
@@ -92,6 +100,18 @@ pub struct AcquisitionHeader {
     /// processing never reads it).
     #[serde(default)]
     pub truth: Option<serde_json::Value>,
+}
+
+impl AcquisitionHeader {
+    /// Counts per entry of `counts`: a coronal slice's sinogram (views x
+    /// elements), or for a cone-beam acquisition a detector row across the
+    /// views (views x columns).
+    pub fn rays_per_slice(&self) -> usize {
+        match &self.system {
+            Some(s) => s.n_views() * s.detector.columns,
+            None => self.geometry.n_rays(),
+        }
+    }
 }
 
 /// A loaded acquisition.
@@ -428,14 +448,14 @@ pub fn counts_bytes(h: &AcquisitionHeader) -> Result<usize, HeaderError> {
             format!(
                 "{} slices of {} rays exceed the {} MiB an acquisition may hold",
                 h.slices,
-                h.geometry.n_rays(),
+                h.rays_per_slice(),
                 limits::COUNTS_BYTES_MAX >> 20
             ),
         )
     };
     let bytes = h
         .slices
-        .checked_mul(h.geometry.n_rays())
+        .checked_mul(h.rays_per_slice())
         .and_then(|n| n.checked_mul(4))
         .ok_or_else(too_big)?;
     if bytes > limits::COUNTS_BYTES_MAX {

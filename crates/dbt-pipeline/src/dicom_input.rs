@@ -174,6 +174,7 @@ pub fn acquisition_from_projections(
         .into(),
         compression_force_n: p.compression_force_n,
         exposure_ms_per_view: p.exposure_ms_per_view,
+        system: None,
         patient: Patient {
             name: h.patient_name.clone(),
             id: h.patient_id.clone(),

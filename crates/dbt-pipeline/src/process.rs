@@ -62,6 +62,9 @@ pub enum PipelineError {
     /// Report building failed.
     #[error("report: {0}")]
     Report(#[from] dbt_dicom::DicomError),
+    /// Cone-beam projections could not be rebinned.
+    #[error("cone-beam rebinning: {0}")]
+    Rebin(#[from] crate::rebin::RebinError),
 }
 
 /// Options of the processing.
@@ -364,6 +367,14 @@ pub fn process_with_progress(
     opts: &PipelineOptions,
     progress: &mut dyn FnMut(Stage),
 ) -> Result<ProcessResult, PipelineError> {
+    // A cone-beam acquisition is first made the slice-wise fan-beam one.
+    let rebinned;
+    let acq = if acq.header.system.is_some() {
+        rebinned = crate::rebin::fan_acquisition(acq)?;
+        &rebinned
+    } else {
+        acq
+    };
     let h = &acq.header;
     let g = &h.geometry;
     let _span =

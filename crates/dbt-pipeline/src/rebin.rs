@@ -29,6 +29,7 @@
 //! where in depth tissue lies. `depth_blur_mm` states it; the tests measure
 //! it.
 
+use crate::acquisition::Acquisition;
 use dbt_geometry::cone::Point3;
 use dbt_geometry::{ConeSystem, DetectorMotion, Geometry};
 use thiserror::Error;
@@ -202,4 +203,67 @@ pub fn rebin(
         counts: out,
         off_detector,
     })
+}
+
+/// Mean line integral below which a trailing rebinned slice is air (beyond
+/// the nipple): a 1 mm skin-and-fat edge already gives about 0.04.
+const AIR_MEAN_LINE_INTEGRAL: f64 = 0.005;
+
+/// The slice-wise fan-beam acquisition of a cone-beam one: every coronal
+/// slice the detector covers at mid-breast, `slice_spacing_mm` apart,
+/// rebinned ([`rebin`]) at mid-breast height; trailing slices of air
+/// (beyond the nipple) dropped. The fan geometry's image must rest on the
+/// system's support (the breast sits there in both).
+pub fn fan_acquisition(acq: &Acquisition) -> Result<Acquisition, RebinError> {
+    let h = &acq.header;
+    let Some(sys) = &h.system else {
+        return Ok(acq.clone());
+    };
+    let fan = &h.geometry;
+    let bottom = sys.axis_height_mm - fan.image.rows as f64 * fan.image.pixel_mm / 2.0;
+    if (bottom - sys.support_height_mm).abs() > 1e-6 {
+        return Err(RebinError::Geometry {
+            system: sys.name.clone(),
+            what: format!(
+                "the fan image's bottom row is {bottom} mm above the detector, the support {} mm",
+                sys.support_height_mm
+            ),
+        });
+    }
+    if h.slices != sys.detector.rows || acq.counts.len() != sys.detector.rows {
+        return Err(RebinError::Shape(format!(
+            "header says {} rows, {} rows of counts, the detector has {}",
+            h.slices,
+            acq.counts.len(),
+            sys.detector.rows
+        )));
+    }
+    let z_ref = sys.support_height_mm + h.thickness_mm / 2.0;
+    let z_s = sys.axis_height_mm + sys.arc_radius_mm;
+    // The depth the detector covers at mid-breast (the rays converge
+    // towards the source).
+    let covered = sys.detector.rows as f64 * sys.detector.pitch_mm * (z_s - z_ref) / z_s;
+    let n = (covered / h.slice_spacing_mm).floor() as usize;
+    let out = rebin(sys, fan, &acq.counts, h.flux, n, h.slice_spacing_mm, z_ref)?;
+    if out.off_detector > 0 {
+        tracing::warn!(
+            rays = out.off_detector,
+            "rays through the image box beyond the detector's edge: edge counts used"
+        );
+    }
+    let mut counts = out.counts;
+    while counts.last().is_some_and(|s| {
+        let mean = s
+            .iter()
+            .map(|&c| (h.flux / f64::from(c).max(0.5)).ln())
+            .sum::<f64>()
+            / s.len().max(1) as f64;
+        mean < AIR_MEAN_LINE_INTEGRAL
+    }) {
+        counts.pop();
+    }
+    let mut header = h.clone();
+    header.system = None;
+    header.slices = counts.len();
+    Ok(Acquisition { header, counts })
 }

@@ -33,6 +33,7 @@ fn header(slices: usize, thickness: f64) -> AcquisitionHeader {
         laterality: "L".into(),
         compression_force_n: None,
         exposure_ms_per_view: None,
+        system: None,
         patient: Patient {
             name: "Doe^Jane".into(),
             id: "P-0001".into(),

@@ -25,13 +25,13 @@ fn bad(path: &Path, reason: impl Into<String>) -> StoreError {
 /// Write an acquisition to `dir` (created).
 pub fn write_acquisition(dir: &Path, acq: &Acquisition) -> Result<(), StoreError> {
     std::fs::create_dir_all(dir).map_err(io_err(dir))?;
-    let n = acq.header.geometry.n_rays();
+    let n = acq.header.rays_per_slice();
     let mut bytes = Vec::with_capacity(acq.counts.len() * n * 4);
     for (i, s) in acq.counts.iter().enumerate() {
         if s.len() != n {
             return Err(bad(
                 dir,
-                format!("slice {i} has {} counts, geometry needs {n}", s.len()),
+                format!("slice {i} has {} counts, the header needs {n}", s.len()),
             ));
         }
         bytes.extend(s.iter().flat_map(|v| v.to_le_bytes()));
@@ -59,7 +59,7 @@ pub fn read_acquisition(dir: &Path) -> Result<Acquisition, StoreError> {
             format!(
                 "{len} bytes, {} slices of {} rays need {want}",
                 header.slices,
-                header.geometry.n_rays()
+                header.rays_per_slice()
             ),
         ));
     }
@@ -82,14 +82,14 @@ pub fn decode_acquisition(header_json: &[u8], counts: &[u8]) -> Result<Acquisiti
             "{} bytes, {} slices of {} rays need {want}",
             counts.len(),
             header.slices,
-            header.geometry.n_rays()
+            header.rays_per_slice()
         ));
     }
     decode_counts(header, counts)
 }
 
 fn decode_counts(header: AcquisitionHeader, bytes: &[u8]) -> Result<Acquisition, String> {
-    let n = header.geometry.n_rays();
+    let n = header.rays_per_slice();
     let counts: Vec<Vec<f32>> = bytes
         .chunks_exact(n * 4)
         .map(|s| {

@@ -228,6 +228,12 @@ struct AccuracyArgs {
     /// The DBToR model (needed for the fp32 and int8 reconstructors).
     #[arg(long)]
     model: Option<PathBuf>,
+    /// Acquire on this cone-beam system (issue #28: `paper-cone`,
+    /// `siemens-victre` or a system TOML), binned as the geometry is
+    /// (its pixel over 0.2 mm); the firmware rebins to slices. Default: every
+    /// coronal slice its own fan beam.
+    #[arg(long)]
+    system: Option<String>,
     /// The skin rule of the classification (as `classification
     /// --skin`); default: the firmware's.
     #[arg(long)]
@@ -774,12 +780,13 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
         no_calibration,
         reconstructors,
         runtime,
+        system,
     } = args;
     let skin = match skin {
         Some(v) => parse_skin_variant(&v)?,
         None => dbt_tissue::ClassifyOptions::default(),
     };
-    use dbt_eval::accuracy::{run_cases, summarise, Case, QUANTITIES};
+    use dbt_eval::accuracy::{run_cases_on, summarise, Case, QUANTITIES};
     let noise = NoiseLevel::parse(&noise)?;
     let list =
         reconstructors.unwrap_or_else(|| if model.is_some() { "fp32" } else { "mltr" }.to_string());
@@ -841,6 +848,20 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
         }
         None => Geometry::paper().binned(binning.unwrap_or(dbt_cli::DEFAULT_BINNING))?,
     };
+    let system = match &system {
+        None => None,
+        Some(name) => {
+            let s = match dbt_geometry::ConeSystem::builtin(name) {
+                Some(s) => s,
+                None => dbt_geometry::ConeSystem::from_toml_str(
+                    &std::fs::read_to_string(name)
+                        .with_context(|| format!("--system {name}: not built in, not a file"))?,
+                )?,
+            };
+            let factor = (g.image.pixel_mm / 0.2).round() as usize;
+            Some(s.binned(factor)?)
+        }
+    };
     let population = split.population;
     let split = split.resolve(recs.iter().find_map(|(_, _, o)| o.dbtor.as_deref()))?;
     let opts: Vec<_> = recs.iter().map(|(_, _, o)| o.clone()).collect();
@@ -850,7 +871,15 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
     for (k, item) in inputs.into_iter().enumerate() {
         let (name, vol) = item?;
         bar.message(name.clone());
-        let cs = run_cases(name, &vol, &g, noise, &opts, 1000 + k as u64)?;
+        let cs = run_cases_on(
+            name,
+            &vol,
+            &g,
+            system.as_ref(),
+            noise,
+            &opts,
+            1000 + k as u64,
+        )?;
         bar.inc(1);
         for ((label, _, _), (c, all)) in recs.iter().zip(cs.into_iter().zip(cases.iter_mut())) {
             bar.line(format!(
@@ -897,6 +926,7 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
     let json = serde_json::json!({
         "noise": noise.name(),
         "geometry": g.describe(),
+        "system": system.as_ref().map(|s| s.name.clone()),
         "phantoms": match &phantom {
             Some(p) => p.display().to_string(),
             None => split.describe(),
