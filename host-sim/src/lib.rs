@@ -246,7 +246,8 @@ pub fn simulate_cone_acquisition(
     patient_id: &str,
     uid_root: &str,
 ) -> Result<AcqFile, SimError> {
-    let _span = tracing::info_span!("cone_acquisition", patient_id, system = %system.name).entered();
+    let _span =
+        tracing::info_span!("cone_acquisition", patient_id, system = %system.name).entered();
     let (cols, rows) = (geom.image.columns, geom.image.rows);
     let grid = dbt_cone::VolumeGrid {
         lateral: cols,
@@ -263,9 +264,11 @@ pub fn simulate_cone_acquisition(
             }
         }
     }
-    let proj = dbt_cone::ConeProjector::new(system, grid)
+    let proj =
+        dbt_cone::ConeProjector::new(system, grid).map_err(|e| SimError::Cone(e.to_string()))?;
+    let p = proj
+        .forward(&mu)
         .map_err(|e| SimError::Cone(e.to_string()))?;
-    let p = proj.forward(&mu).map_err(|e| SimError::Cone(e.to_string()))?;
     let (drows, dcols, views) = (
         system.detector.rows,
         system.detector.columns,
@@ -281,7 +284,8 @@ pub fn simulate_cone_acquisition(
         }
     }
     let a = simulate_from_line_integrals(&frames_li, noise, mix_seed(seed, &[u64::MAX]));
-    let mut file = simulate_acquisition_header(vol, geom, noise, seed, technique, kvp, patient_id, uid_root);
+    let mut file =
+        simulate_acquisition_header(vol, geom, noise, seed, technique, kvp, patient_id, uid_root);
     file.header.system = Some(system.clone());
     file.header.slices = drows;
     file.header.flux = a.flux;

@@ -101,9 +101,9 @@ pub fn depth_blur_mm(sys: &ConeSystem, y_c: f64, thickness_mm: f64) -> f64 {
 pub struct Rebinned {
     /// Counts `[slice][view * element + element]` in the fan geometry.
     pub counts: Vec<Vec<f32>>,
-    /// Rays through the image box that reached beyond the detector's edge
-    /// (given the edge element's count).
-    pub off_detector: usize,
+    /// Per slice, the rays through the image box that reached beyond the
+    /// detector's edge (given the edge element's count).
+    pub off_detector: Vec<usize>,
 }
 
 /// The rebinned sinograms of coronal slices `0..slices` (`slice_mm` apart,
@@ -135,7 +135,7 @@ pub fn rebin(
     let image_half_mm = fan.image.columns as f64 * fan.image.pixel_mm / 2.0;
     let image_top = sys.support_height_mm + fan.image.rows as f64 * fan.image.pixel_mm;
     let mut out = vec![vec![0.0f32; views * det]; slices];
-    let mut off_detector = 0usize;
+    let mut off_detector = vec![0usize; slices];
     for v in 0..views {
         let s = sys.source(v);
         let t = sys.angle_deg(v).to_radians();
@@ -180,7 +180,7 @@ pub fn rebin(
                     // Through the image box but beyond the detector's edge
                     // (its corners at the widest angles): the edge element's
                     // count, and counted for the caller to judge.
-                    off_detector += 1;
+                    off_detector[c] += 1;
                 }
                 let (ri, ci) = (
                     ri.clamp(0.0, rows as f64 - 1.0),
@@ -245,12 +245,6 @@ pub fn fan_acquisition(acq: &Acquisition) -> Result<Acquisition, RebinError> {
     let covered = sys.detector.rows as f64 * sys.detector.pitch_mm * (z_s - z_ref) / z_s;
     let n = (covered / h.slice_spacing_mm).floor() as usize;
     let out = rebin(sys, fan, &acq.counts, h.flux, n, h.slice_spacing_mm, z_ref)?;
-    if out.off_detector > 0 {
-        tracing::warn!(
-            rays = out.off_detector,
-            "rays through the image box beyond the detector's edge: edge counts used"
-        );
-    }
     let mut counts = out.counts;
     while counts.last().is_some_and(|s| {
         let mean = s
@@ -261,6 +255,15 @@ pub fn fan_acquisition(acq: &Acquisition) -> Result<Acquisition, RebinError> {
         mean < AIR_MEAN_LINE_INTEGRAL
     }) {
         counts.pop();
+    }
+    // The detector's far edge is met only by slices beyond the breast (air,
+    // dropped above); a kept slice that needed it is worth a warning.
+    let off: usize = out.off_detector.iter().take(counts.len()).sum();
+    if off > 0 {
+        tracing::warn!(
+            rays = off,
+            "rays through the image box beyond the detector's edge: edge counts used"
+        );
     }
     let mut header = h.clone();
     header.system = None;

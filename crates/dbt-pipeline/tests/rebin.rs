@@ -187,7 +187,7 @@ fn stationary_detector_rebins_within_the_nearest_element_bound() {
         .flat_map(|v| (0..fan.n_det()).map(move |k| (v, k)))
         .filter(|&(v, k)| beyond(v, k))
         .count();
-    assert!(rebinned.off_detector <= skipped * out.len());
+    assert!(rebinned.off_detector.iter().all(|&n| n <= skipped));
     let want = fan_sinogram(&fan, &img);
     let det = fan.n_det();
     for (c, s) in out.iter().enumerate() {

@@ -11,7 +11,7 @@ use dbt_geometry::Geometry;
 use dbt_phantom::PopulationKind;
 use dbt_projector::Projector;
 use dbt_recon::{mltr, Fbp, MltrOptions};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 #[derive(Parser)]
@@ -101,6 +101,11 @@ enum Cmd {
     /// (simulated acquisition -> firmware processing), Bland-Altman
     /// statistics, JSON and PNG plots.
     Accuracy(AccuracyArgs),
+    /// Two `accuracy` runs of the same phantoms and reconstructor compared
+    /// case by case (issue #28: cone-beam against the idealised fan-beam
+    /// acquisition): the differences of the reported glandularity (pp) and
+    /// MGD (%), and the second run's errors against the truth.
+    Paired(PairedArgs),
     /// The classifier against the phantom truth, voxel by voxel: each
     /// phantom reconstructed once and classified with each skin-depth bound,
     /// glandularity errors and confusion matrices (no dose). Tune here on the
@@ -118,6 +123,18 @@ enum Cmd {
     Anatomy(AnatomyArgs),
     /// PNG of a test slice: phantom, sinogram, MLTR, FBP.
     Picture(PictureArgs),
+}
+
+/// The options of `dbt-eval paired`.
+#[derive(Args)]
+struct PairedArgs {
+    /// The reference run's accuracy.json (e.g. the fan-beam one).
+    reference: PathBuf,
+    /// The compared run's accuracy.json (e.g. the cone-beam one).
+    compared: PathBuf,
+    /// Write the table and the cases here as JSON.
+    #[arg(long)]
+    out: Option<PathBuf>,
 }
 
 /// The options of `dbt-eval baselines`.
@@ -567,6 +584,7 @@ fn main() -> Result<()> {
         Cmd::Baselines(args) => run_baselines(args),
         Cmd::Mgd(args) => run_mgd(args),
         Cmd::Accuracy(args) => run_accuracy(args),
+        Cmd::Paired(args) => run_paired(args),
         Cmd::Classification(args) => run_classification(args),
         Cmd::Calibrate(args) => run_calibrate(args),
         Cmd::Anatomy(args) => run_anatomy(args),
@@ -1313,5 +1331,82 @@ fn run_picture(args: PictureArgs) -> Result<()> {
         s.depth,
         level.name()
     );
+    Ok(())
+}
+
+/// `dbt-eval paired`.
+fn run_paired(args: PairedArgs) -> Result<()> {
+    let read = |p: &Path| -> Result<serde_json::Value> {
+        let text =
+            std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
+        Ok(serde_json::from_str(&text).with_context(|| format!("parsing {}", p.display()))?)
+    };
+    let (a, b) = (read(&args.reference)?, read(&args.compared)?);
+    let cases = |v: &serde_json::Value, which: &Path| -> Result<Vec<serde_json::Value>> {
+        v["reconstructors"][0]["cases"]
+            .as_array()
+            .cloned()
+            .with_context(|| format!("{}: no cases", which.display()))
+    };
+    let (ca, cb) = (cases(&a, &args.reference)?, cases(&b, &args.compared)?);
+    anyhow::ensure!(
+        a["reconstructors"][0]["reconstructor"] == b["reconstructors"][0]["reconstructor"],
+        "the two runs used different reconstructors"
+    );
+    let num = |c: &serde_json::Value, k: &str| -> Result<f64> {
+        c[k].as_f64().with_context(|| format!("case without {k}"))
+    };
+    let mut rows = Vec::new();
+    for x in &ca {
+        let name = x["phantom"].as_str().unwrap_or_default();
+        let Some(y) = cb.iter().find(|y| y["phantom"].as_str() == Some(name)) else {
+            anyhow::bail!("phantom {name} is not in {}", args.compared.display());
+        };
+        let dg = 100.0 * (num(y, "g_reported")? - num(x, "g_reported")?);
+        let dm = 100.0 * (num(y, "mgd_est")? / num(x, "mgd_est")? - 1.0);
+        let eg = 100.0 * (num(y, "g_reported")? - num(y, "g_true")?);
+        let em = 100.0 * (num(y, "mgd_est")? / num(y, "mgd_true")? - 1.0);
+        rows.push((name.to_string(), num(y, "thickness_mm")?, dg, dm, eg, em));
+    }
+    anyhow::ensure!(!rows.is_empty(), "no case to compare");
+    let stat = |f: &dyn Fn(&(String, f64, f64, f64, f64, f64)) -> f64| {
+        let v: Vec<f64> = rows.iter().map(f).collect();
+        let n = v.len() as f64;
+        let mean = v.iter().sum::<f64>() / n;
+        let sd = (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0).max(1.0)).sqrt();
+        let max = v.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+        (mean, sd, max)
+    };
+    println!(
+        "{} cases: {} against {}",
+        rows.len(),
+        args.compared.display(),
+        args.reference.display()
+    );
+    println!("| quantity | mean | sd | max abs |\n|---|---|---|---|");
+    let table = [
+        (
+            "glandularity reported, compared - reference (pp)",
+            stat(&|r| r.2),
+        ),
+        ("MGD, compared / reference - 1 (%)", stat(&|r| r.3)),
+        (
+            "glandularity reported, compared - truth (pp)",
+            stat(&|r| r.4),
+        ),
+        ("MGD, compared / truth - 1 (%)", stat(&|r| r.5)),
+    ];
+    for (q, (m, s, x)) in &table {
+        println!("| {q} | {m:+.2} | {s:.2} | {x:.2} |");
+    }
+    if let Some(out) = args.out {
+        let json = serde_json::json!({
+            "reference": args.reference.display().to_string(),
+            "compared": args.compared.display().to_string(),
+            "table": table.iter().map(|(q, (m, s, x))| serde_json::json!({"quantity": q, "mean": m, "sd": s, "max_abs": x})).collect::<Vec<_>>(),
+            "cases": rows.iter().map(|r| serde_json::json!({"phantom": r.0, "thickness_mm": r.1, "dg_pp": r.2, "dmgd_pct": r.3, "g_error_pp": r.4, "mgd_error_pct": r.5})).collect::<Vec<_>>(),
+        });
+        write_json(&out, &json)?;
+    }
     Ok(())
 }
