@@ -1334,12 +1334,16 @@ fn run_picture(args: PictureArgs) -> Result<()> {
     Ok(())
 }
 
+/// One phantom of `dbt-eval paired`: name, thickness, glandularity and MGD
+/// differences (compared - reference), the compared run's errors.
+type Row = (String, f64, f64, f64, f64, f64);
+
 /// `dbt-eval paired`.
 fn run_paired(args: PairedArgs) -> Result<()> {
     let read = |p: &Path| -> Result<serde_json::Value> {
         let text =
             std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
-        Ok(serde_json::from_str(&text).with_context(|| format!("parsing {}", p.display()))?)
+        serde_json::from_str(&text).with_context(|| format!("parsing {}", p.display()))
     };
     let (a, b) = (read(&args.reference)?, read(&args.compared)?);
     let cases = |v: &serde_json::Value, which: &Path| -> Result<Vec<serde_json::Value>> {
@@ -1356,7 +1360,7 @@ fn run_paired(args: PairedArgs) -> Result<()> {
     let num = |c: &serde_json::Value, k: &str| -> Result<f64> {
         c[k].as_f64().with_context(|| format!("case without {k}"))
     };
-    let mut rows = Vec::new();
+    let mut rows: Vec<Row> = Vec::new();
     for x in &ca {
         let name = x["phantom"].as_str().unwrap_or_default();
         let Some(y) = cb.iter().find(|y| y["phantom"].as_str() == Some(name)) else {
@@ -1369,7 +1373,7 @@ fn run_paired(args: PairedArgs) -> Result<()> {
         rows.push((name.to_string(), num(y, "thickness_mm")?, dg, dm, eg, em));
     }
     anyhow::ensure!(!rows.is_empty(), "no case to compare");
-    let stat = |f: &dyn Fn(&(String, f64, f64, f64, f64, f64)) -> f64| {
+    let stat = |f: &dyn Fn(&Row) -> f64| {
         let v: Vec<f64> = rows.iter().map(f).collect();
         let n = v.len() as f64;
         let mean = v.iter().sum::<f64>() / n;
