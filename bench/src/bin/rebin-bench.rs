@@ -1,0 +1,138 @@
+//! What the cone-beam rebinning (issue #28) adds to the firmware's time per
+//! coronal slice: `dbt_pipeline::rebin::rebin` of one acquisition's frames,
+//! per slice, against the DBToR slice it feeds (the shipped model, measured
+//! in the same run, same machine). Goal: at most 10 %. Prints a table;
+//! writes `bench/results/rebin.json`.
+//!
+//! `cargo run --release -p dbt-bench --bin rebin-bench -- [--model models/dbtor-x4t3]
+//!  [--precision int8] [--reps 5]`
+//!
+//! The rebinning's cost does not depend on the counts' values, so the
+//! frames are random counts of the right size (no cone-beam projection is
+//! needed to time it).
+
+use anyhow::{Context, Result};
+use clap::Parser;
+use dbt_bench::{at_least_one, median, median_ms};
+use dbt_dbtor::{Dbtor, Engine, Precision};
+use dbt_geometry::ConeSystem;
+use rand::{Rng, SeedableRng};
+use serde_json::json;
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// Cone-beam rebinning per slice against a DBToR slice.
+#[derive(Parser)]
+#[command(name = "rebin-bench")]
+struct Args {
+    /// The DBToR model whose geometry and slice time set the scale.
+    #[arg(long, default_value = "models/dbtor-x4t3")]
+    model: PathBuf,
+    /// Its precision (`fp32` or `int8`; the firmware ships int8 where the
+    /// CPU has VNNI).
+    #[arg(long, default_value = "int8")]
+    precision: String,
+    /// The cone-beam system (binned to the model's pixel).
+    #[arg(long, default_value = "paper-cone")]
+    system: String,
+    /// Runs of each (the median is reported).
+    #[arg(long, default_value_t = 5, value_parser = at_least_one)]
+    reps: usize,
+}
+
+fn main() -> Result<()> {
+    let a = Args::parse();
+    let precision = match a.precision.as_str() {
+        "fp32" => Precision::Fp32,
+        "int8" => Precision::Int8,
+        p => anyhow::bail!("--precision {p:?}: fp32 or int8"),
+    };
+    let d = Dbtor::load_with(&a.model, precision, Engine::Fast)
+        .with_context(|| format!("loading {}", a.model.display()))?;
+    let fan = d.geometry().clone();
+    let sys = ConeSystem::builtin(&a.system)
+        .with_context(|| format!("--system {}: not a built-in system", a.system))?;
+    let factor = (fan.image.pixel_mm / 0.2).round() as usize;
+    let sys = sys.binned(factor)?;
+    let (rows, cols, views) = (sys.detector.rows, sys.detector.columns, sys.n_views());
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+    let flux = 16_000.0;
+    let frames: Vec<Vec<f32>> = (0..rows)
+        .map(|_| {
+            (0..views * cols)
+                .map(|_| rng.random_range(1_000.0..16_000.0))
+                .collect()
+        })
+        .collect();
+    // As `fan_acquisition`: every slice the detector covers at mid-breast
+    // of a 60 mm breast.
+    let thickness = 60.0;
+    let z_ref = sys.support_height_mm + thickness / 2.0;
+    let z_s = sys.axis_height_mm + sys.arc_radius_mm;
+    let slices =
+        (rows as f64 * sys.detector.pitch_mm * (z_s - z_ref) / z_s / fan.image.pixel_mm) as usize;
+    let rebin_ms = median_ms(1, a.reps, || {
+        let _ = dbt_pipeline::rebin::rebin(
+            &sys,
+            &fan,
+            &frames,
+            flux,
+            slices,
+            fan.image.pixel_mm,
+            z_ref,
+        );
+    });
+    let per_slice_rebin = rebin_ms / slices as f64;
+    // The DBToR slice, same machine, same run.
+    let sino: Vec<f32> = (0..fan.n_rays())
+        .map(|_| rng.random_range(0.5..4.0))
+        .collect();
+    let _ = d.reconstruct(&sino, thickness)?; // warm-up
+    let mut times = Vec::new();
+    for _ in 0..a.reps {
+        let t = Instant::now();
+        let _ = d.reconstruct(&sino, thickness)?;
+        times.push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    let slice_ms = median(times);
+    let ratio = per_slice_rebin / slice_ms;
+    println!("cpu: {}", dbt_cli::cpu_summary());
+    println!(
+        "system {} binned x{factor}: {rows} x {cols} detector, {views} views; fan {}; {slices} slices",
+        sys.name,
+        fan.describe()
+    );
+    println!("| what | median ms | per slice ms | share of the DBToR slice |");
+    println!("|---|---|---|---|");
+    println!(
+        "| rebin, whole acquisition ({slices} slices) | {rebin_ms:.2} | {per_slice_rebin:.3} | {:.2} % |",
+        100.0 * ratio
+    );
+    println!(
+        "| DBToR slice ({}, {} engine) | {slice_ms:.1} | {slice_ms:.1} | 100 % |",
+        a.precision,
+        Engine::Fast
+    );
+    println!(
+        "goal: at most 10 % -> {}",
+        if ratio <= 0.10 { "met" } else { "missed" }
+    );
+    let out = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/results"));
+    std::fs::create_dir_all(&out)?;
+    std::fs::write(
+        out.join("rebin.json"),
+        serde_json::to_vec_pretty(&json!({
+            "cpu": dbt_cli::cpu_summary(),
+            "system": sys.name,
+            "binning": factor,
+            "slices": slices,
+            "rebin_ms_median": rebin_ms,
+            "rebin_ms_per_slice": per_slice_rebin,
+            "dbtor_slice_ms_median": slice_ms,
+            "precision": a.precision,
+            "share": ratio,
+            "reps": a.reps,
+        }))?,
+    )?;
+    Ok(())
+}
