@@ -189,10 +189,7 @@ impl DicomInput {
             .groups
             .values()
             .map(|g| WaitingSweep {
-                laterality: match g.first.header.laterality {
-                    dbt_dicom::Laterality::Left => "L".into(),
-                    dbt_dicom::Laterality::Right => "R".into(),
-                },
+                laterality: g.first.header.laterality.letter().into(),
                 view: g.first.view.clone(),
                 views_received: g.views.len(),
                 views_expected: expected,

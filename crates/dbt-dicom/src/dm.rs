@@ -40,12 +40,13 @@ pub fn view_objects(
     let h = p.header;
     let series = uids.next_uid();
     let frame_of_reference = uids.next_uid();
-    let (lat, orientation) = match h.laterality {
+    let lat = h.laterality.letter();
+    let orientation = match h.laterality {
         // Patient Orientation (PS3.3 C.7.6.1.1.1): along a row the columns
         // run across the breast, down a column the rows (coronal slices)
         // run from the chest wall to the nipple (A).
-        Laterality::Left => ("L", "R\\A"),
-        Laterality::Right => ("R", "L\\A"),
+        Laterality::Left => "R\\A",
+        Laterality::Right => "L\\A",
     };
     let start = format!("{}{}", h.study_date, h.study_time);
     let plane = p.rows * p.columns;

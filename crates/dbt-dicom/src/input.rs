@@ -322,11 +322,10 @@ fn first(o: &InMemDicomObject, t: Tag, name: &'static str) -> Result<InMemDicomO
 }
 
 fn laterality(v: Option<String>, name: &'static str) -> Result<Laterality, InputError> {
-    match v.as_deref() {
-        Some("L") => Ok(Laterality::Left),
-        Some("R") => Ok(Laterality::Right),
-        other => Err(attr(name, format!("{other:?}, expected L or R"))),
-    }
+    [Laterality::Left, Laterality::Right]
+        .into_iter()
+        .find(|l| v.as_deref() == Some(l.letter()))
+        .ok_or_else(|| attr(name, format!("{v:?}, expected L or R")))
 }
 
 /// Read a received object: a Breast Projection X-Ray or Digital Mammography

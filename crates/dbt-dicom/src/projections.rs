@@ -8,7 +8,7 @@
 //! functional groups, the technique in the shared X-Ray Exposure Control
 //! Sensing Regions / Acquisition Dose / Generation / Filtration ones.
 
-use crate::reports::{Equipment, Header, Laterality, Report};
+use crate::reports::{Equipment, Header, Report};
 use crate::{DicomError, UidSource};
 use dicom_core::value::PrimitiveValue;
 use dicom_core::{DataElement, VR};
@@ -249,10 +249,7 @@ pub fn projection_object(
     let sop_instance = uids.next_uid();
     let series = uids.next_uid();
     let frame_of_reference = uids.next_uid();
-    let lat = match h.laterality {
-        Laterality::Left => "L",
-        Laterality::Right => "R",
-    };
+    let lat = h.laterality.letter();
     let s = |t, vr, v: &str| DataElement::new(t, vr, v.to_string());
     let mut o = InMemDicomObject::new_empty();
     for e in common_elements(p) {

@@ -31,6 +31,15 @@ pub enum Laterality {
 }
 
 impl Laterality {
+    /// The DICOM code string of the side (Image / Frame Laterality): `L` or
+    /// `R`.
+    pub fn letter(self) -> &'static str {
+        match self {
+            Laterality::Left => "L",
+            Laterality::Right => "R",
+        }
+    }
+
     /// CID 244 "Laterality": the image's side (the density report, the
     /// irradiation event's target region).
     fn code(self) -> Code {

@@ -12,7 +12,6 @@ use crate::acquisition::{
 };
 use dbt_dicom::input::Layout;
 use dbt_dicom::projections::{ProjectionSet, ReceivedProjections};
-use dbt_dicom::Laterality;
 use dbt_geometry::Geometry;
 
 /// The configured system the objects must come from.
@@ -167,11 +166,7 @@ pub fn acquisition_from_projections(
         kvp: p.kvp,
         mas_total: p.exposure_mas,
         tube_output_mgy_per_mas: system.tube_output_mgy_per_mas,
-        laterality: match h.laterality {
-            Laterality::Left => "L",
-            Laterality::Right => "R",
-        }
-        .into(),
+        laterality: h.laterality.letter().into(),
         compression_force_n: p.compression_force_n,
         exposure_ms_per_view: p.exposure_ms_per_view,
         system: None,
@@ -200,11 +195,12 @@ pub fn acquisition_from_projections(
 /// The group a view object belongs to: one acquisition per study,
 /// laterality and view (`study|L|cranio-caudal`).
 pub fn group_key(p: &ReceivedProjections) -> String {
-    let lat = match p.header.laterality {
-        Laterality::Left => "L",
-        Laterality::Right => "R",
-    };
-    format!("{}|{lat}|{}", p.header.study_uid, p.view)
+    format!(
+        "{}|{}|{}",
+        p.header.study_uid,
+        p.header.laterality.letter(),
+        p.view
+    )
 }
 
 /// The configured view a one-view object is, by its angle; refused naming
