@@ -220,21 +220,26 @@ impl ConeSystem {
         let y = (row as f64 + 0.5) * p;
         match self.detector_motion {
             DetectorMotion::Stationary => [x, y, 0.0],
-            DetectorMotion::Rotating => {
-                // (x, 0) turned about the axis (0, h) in the x-z plane as
-                // the source is: (0, R) relative to the axis goes to
-                // (R sin t, R cos t), so (dx, dz) goes to
-                // (dx cos t + dz sin t, -dx sin t + dz cos t).
-                let t = self.angle_deg(v).to_radians();
-                let h = self.axis_height_mm;
-                let (dx, dz) = (x, -h);
-                [
-                    dx * t.cos() + dz * t.sin(),
-                    y,
-                    h - dx * t.sin() + dz * t.cos(),
-                ]
-            }
+            DetectorMotion::Rotating => self.rotating_point(v, x, y),
         }
+    }
+
+    /// The point at `(x_mm, y_mm)` of a detector that turns with the source
+    /// (in the plane `z = 0` at 0 degrees), at view `v`: the rotating
+    /// detector's elements, and the fan geometry's elements that the
+    /// rebinning reads a stationary detector for.
+    pub fn rotating_point(&self, v: usize, x_mm: f64, y_mm: f64) -> Point3 {
+        // (x, 0) turned about the axis (0, h) in the x-z plane as the source
+        // is: (0, R) relative to the axis goes to (R sin t, R cos t), so
+        // (dx, dz) goes to (dx cos t + dz sin t, -dx sin t + dz cos t).
+        let t = self.angle_deg(v).to_radians();
+        let h = self.axis_height_mm;
+        let (dx, dz) = (x_mm, -h);
+        [
+            dx * t.cos() + dz * t.sin(),
+            y_mm,
+            h - dx * t.sin() + dz * t.cos(),
+        ]
     }
 
     /// The 2-D fan-beam geometry of the plane `y = source_depth_mm` of a

@@ -30,7 +30,6 @@
 //! it.
 
 use crate::acquisition::Acquisition;
-use dbt_geometry::cone::Point3;
 use dbt_geometry::{ConeSystem, DetectorMotion, Geometry};
 use thiserror::Error;
 
@@ -131,22 +130,16 @@ pub fn rebin(
         )));
     }
     let (det, pitch) = (fan.n_det(), sys.detector.pitch_mm);
-    let h = sys.axis_height_mm;
     let image_half_mm = fan.image.columns as f64 * fan.image.pixel_mm / 2.0;
     let image_top = sys.support_height_mm + fan.image.rows as f64 * fan.image.pixel_mm;
     let mut out = vec![vec![0.0f32; views * det]; slices];
     let mut off_detector = vec![0usize; slices];
     for v in 0..views {
         let s = sys.source(v);
-        let t = sys.angle_deg(v).to_radians();
         for k in 0..det {
             // The fan element's centre (the virtual rotating detector).
             let u = (k as f64 - (det as f64 - 1.0) / 2.0) * fan.detector.pitch_mm;
-            let p: Point3 = [
-                u * t.cos() - h * t.sin(),
-                0.0,
-                h - u * t.sin() - h * t.cos(),
-            ];
+            let p = sys.rotating_point(v, u, 0.0);
             let (dx, dz) = (p[0] - s[0], p[2] - s[2]);
             let t_ref = (z_ref_mm - s[2]) / dz;
             // Does this fan ray cross the image? (Else it sees air.)

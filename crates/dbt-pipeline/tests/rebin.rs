@@ -176,11 +176,9 @@ fn stationary_detector_rebins_within_the_nearest_element_bound() {
     // element's count: counted by rebin, not held to the bound.
     let beyond = |v: usize, k: usize| {
         let s = sys.source(v);
-        let t = sys.angle_deg(v).to_radians();
-        let h = sys.axis_height_mm;
         let u = (k as f64 - (fan.n_det() as f64 - 1.0) / 2.0) * fan.detector.pitch_mm;
-        let (px, pz) = (u * t.cos() - h * t.sin(), h - u * t.sin() - h * t.cos());
-        let x0 = s[0] + (px - s[0]) * (-s[2]) / (pz - s[2]);
+        let p = sys.rotating_point(v, u, 0.0);
+        let x0 = s[0] + (p[0] - s[0]) * (-s[2]) / (p[2] - s[2]);
         x0.abs() > sys.detector.columns as f64 * sys.detector.pitch_mm / 2.0 - sys.detector.pitch_mm
     };
     let skipped = (0..fan.n_views())
