@@ -424,6 +424,18 @@ impl Daemon {
         self.publish(&state, current.as_deref());
     }
 
+    /// While the daemon waits for the frame link: if the DICOM input changed
+    /// something, show it (publish the status); whether it spooled entries
+    /// to process.
+    fn dicom_spooled(&mut self) -> bool {
+        if !self.wake.swap(false, Ordering::SeqCst) {
+            return false;
+        }
+        let state = self.status.state.clone();
+        self.publish(&state, None);
+        !self.new_entries().is_empty()
+    }
+
     /// `incoming/` entries not yet tried in this run.
     fn new_entries(&self) -> Vec<String> {
         self.incoming()
@@ -568,12 +580,8 @@ impl Daemon {
             // DICOM input only: wait for it (or SIGTERM), sending what waits
             // in the outbox meanwhile.
             while !self.stop.load(Ordering::SeqCst) {
-                if self.wake.swap(false, Ordering::SeqCst) {
-                    let state = self.status.state.clone();
-                    self.publish(&state, None);
-                    if !self.new_entries().is_empty() {
-                        break;
-                    }
+                if self.dicom_spooled() {
+                    break;
                 }
                 self.flush_outbox();
                 std::thread::sleep(Duration::from_millis(100));
@@ -592,14 +600,8 @@ impl Daemon {
                         break s;
                     }
                     Err(e) => {
-                        // The DICOM input changed something: show it, and
-                        // process what it spooled.
-                        if self.wake.swap(false, Ordering::SeqCst) {
-                            let state = self.status.state.clone();
-                            self.publish(&state, None);
-                            if !self.new_entries().is_empty() {
-                                return Ok(None);
-                            }
+                        if self.dicom_spooled() {
+                            return Ok(None);
                         }
                         self.flush_outbox();
                         // Quiet while the gantry is off; a fault once the
