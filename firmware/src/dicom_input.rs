@@ -238,26 +238,23 @@ fn accept_loop(listener: TcpListener, shared: Arc<Shared>, stop: Arc<AtomicBool>
     }
 }
 
-/// FNV-1a over the counts.
+/// FNV-1a (64 bits) over `bytes`.
+fn fnv1a(bytes: impl IntoIterator<Item = u8>) -> u64 {
+    bytes.into_iter().fold(0xcbf2_9ce4_8422_2325, |h, b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3)
+    })
+}
+
+/// FNV-1a over the counts (little-endian bytes).
 pub fn counts_digest(counts: &[u16]) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for c in counts {
-        for b in c.to_le_bytes() {
-            h ^= u64::from(b);
-            h = h.wrapping_mul(0x0000_0100_0000_01b3);
-        }
-    }
-    h
+    fnv1a(counts.iter().flat_map(|c| c.to_le_bytes()))
 }
 
 /// The folder of a waiting sweep: a digest of its key.
 fn group_dir(spool: &Path, key: &str) -> PathBuf {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for b in key.bytes() {
-        h ^= u64::from(b);
-        h = h.wrapping_mul(0x0000_0100_0000_01b3);
-    }
-    spool.join("views").join(format!("{h:016x}"))
+    spool
+        .join("views")
+        .join(format!("{:016x}", fnv1a(key.bytes())))
 }
 
 /// What became of one object.
