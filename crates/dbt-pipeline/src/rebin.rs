@@ -15,7 +15,9 @@
 //! are kept), corrected for the ray's obliquity: a ray tilted out of the
 //! `x-z` plane runs `s = |ray| / |its x-z projection|` times longer through
 //! everything, so its line integral is divided by `s`
-//! (`count' = flux (count / flux)^(1 / s)`).
+//! (`count' = flux (count / flux)^(1 / s)`, for counts a breast can give,
+//! `0 < count <= flux`; any other value passes unchanged, so that the counts
+//! check names it: a dead, saturated or hot element stays what it read).
 //!
 //! # Its error
 //! For a breast uniform in depth the rebinned sinogram is the fan-beam one
@@ -184,10 +186,14 @@ pub fn rebin(
                 // depth at the detector, not the ideal one's).
                 let dy = ((ri + 0.5) * pitch - s[1]) / t_det;
                 let obliquity = (dx * dx + dy * dy + dz * dz).sqrt() / (dx * dx + dz * dz).sqrt();
-                *idx = if count > 0.0 {
+                // Only a count a breast can give (0 < c <= b) is corrected;
+                // any other (zero, negative, not a number, above the flat
+                // field, a saturated 65535) passes as read, for the counts
+                // check to name it.
+                *idx = if count > 0.0 && count <= flux {
                     (flux * (count / flux).powf(1.0 / obliquity)) as f32
                 } else {
-                    0.0
+                    count as f32
                 };
             }
         }

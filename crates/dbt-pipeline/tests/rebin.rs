@@ -257,3 +257,46 @@ fn a_depth_step_is_blurred_no_more_than_stated() {
     }
     assert!(partial > 0, "no slice saw the step blurred");
 }
+
+/// Impossible counts pass the rebinning as read, for the counts check to
+/// name them: at the N8 flat field (16000), a view of saturated elements
+/// (65535), one of dead ones (0), one not a number, one above the flat
+/// field.
+#[test]
+fn impossible_counts_pass_unchanged() {
+    let (sys, fan) = paper();
+    let img = vec![0.02f32; IMG.0 * IMG.1];
+    let (grid, vol) = volume(&img, 100, |_| true);
+    let mut f = frames(&sys, grid, &vol);
+    let cols = sys.detector.columns;
+    let flux = 16_000.0;
+    let bad = [65535.0f32, 0.0, f32::NAN, 20_000.0];
+    for row in f.iter_mut() {
+        for (v, b) in bad.iter().enumerate() {
+            row[v * cols..(v + 1) * cols].fill(*b);
+        }
+    }
+    let out = rebin(
+        &sys,
+        &fan,
+        &f,
+        flux,
+        60,
+        IMG.2,
+        sys.support_height_mm + 30.0,
+    )
+    .unwrap()
+    .counts;
+    let det = fan.n_det();
+    for s in &out {
+        for (v, b) in bad.iter().enumerate() {
+            for c in &s[v * det..(v + 1) * det] {
+                assert!(
+                    // (or the flat field: a ray beside the image, air)
+                    c.to_bits() == b.to_bits() || *c == flux as f32,
+                    "view {v}: {c} for {b}"
+                );
+            }
+        }
+    }
+}
