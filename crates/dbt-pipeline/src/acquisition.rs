@@ -340,6 +340,12 @@ pub fn validate_header(h: &AcquisitionHeader) -> Result<(), HeaderError> {
     let g = &h.geometry;
     g.validate()
         .map_err(|e| refuse("geometry", g.describe(), e.to_string()))?;
+    // A cone-beam system read from a file is checked as one loaded from
+    // TOML is (deserialising does not validate).
+    if let Some(s) = &h.system {
+        s.validate()
+            .map_err(|e| refuse("system", &s.name, e.to_string()))?;
+    }
     in_range(
         "thickness_mm",
         h.thickness_mm,

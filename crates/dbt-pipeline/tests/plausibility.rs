@@ -513,3 +513,20 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
     other_angle[2].angles_deg[0] += 0.7;
     named(&other_angle, "no configured view is at this angle");
 }
+
+/// A recorded cone-beam header's system is validated like a loaded one:
+/// an impossible one (a negative element pitch) is refused, naming it.
+#[test]
+fn an_impossible_cone_beam_system_is_refused_by_name() {
+    let mut h = header(6, 45.0);
+    let mut sys = dbt_geometry::ConeSystem::builtin("paper-cone").unwrap();
+    h.system = Some(sys.clone());
+    dbt_pipeline::validate_header(&h).unwrap();
+    sys.detector.pitch_mm = -0.2;
+    h.system = Some(sys);
+    let e = dbt_pipeline::validate_header(&h).unwrap_err().to_string();
+    assert!(
+        e.contains("system") && e.contains("detector.pitch_mm"),
+        "{e}"
+    );
+}
