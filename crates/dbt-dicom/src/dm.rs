@@ -14,7 +14,8 @@
 //! configured one (see `docs/conformance.md`).
 
 use crate::projections::{
-    bad, check, code, common_elements, distance_elements, ds, frame_datetime, sq, ProjectionSet,
+    bad, check, code, common_elements, distance_elements, ds, frame_datetime, sq,
+    view_dose_elements, ProjectionSet,
 };
 use crate::reports::{Laterality, Report};
 use crate::{DicomError, UidSource};
@@ -102,17 +103,10 @@ pub fn view_objects(
             s(tags::PIXEL_INTENSITY_RELATIONSHIP, VR::CS, "LIN"),
             s(tags::ORGAN_EXPOSED, VR::CS, "BREAST"),
             s(tags::PARTIAL_VIEW, VR::CS, "NO"),
-            s(
-                tags::ORGAN_DOSE,
-                VR::DS,
-                &ds(p.modality_agd_mgy / 100.0 / frames as f64),
-            ),
-            s(
-                tags::ENTRANCE_DOSE_INM_GY,
-                VR::DS,
-                &ds(p.entrance_dose_mgy / frames as f64),
-            ),
-        ] {
+        ]
+        .into_iter()
+        .chain(view_dose_elements(p))
+        {
             o.put(e);
         }
         o.put(DataElement::new(

@@ -218,6 +218,24 @@ pub(crate) fn common_elements(p: &ProjectionSet<'_>) -> Vec<DataElement<InMemDic
     ]
 }
 
+/// One view's share of the modality's dose estimates: Organ Dose (dGy) and
+/// Entrance Dose (mGy), the sweep's divided equally over its views.
+pub(crate) fn view_dose_elements(p: &ProjectionSet<'_>) -> [DataElement<InMemDicomObject>; 2] {
+    let frames = p.angles_deg.len().max(1) as f64;
+    [
+        DataElement::new(
+            tags::ORGAN_DOSE,
+            VR::DS,
+            ds(p.modality_agd_mgy / 100.0 / frames),
+        ),
+        DataElement::new(
+            tags::ENTRANCE_DOSE_INM_GY,
+            VR::DS,
+            ds(p.entrance_dose_mgy / frames),
+        ),
+    ]
+}
+
 /// Source to detector and to the breast's upper surface, and the
 /// magnification at the breast support: the X-Ray geometry both classes
 /// state.
@@ -461,20 +479,15 @@ pub fn projection_object(
         ),
         seq(
             tags::X_RAY_ACQUISITION_DOSE_SEQUENCE,
-            vec![item(vec![
-                fd(tags::EXPOSURE_TIME_INMS, p.exposure_ms_per_view),
-                fd(tags::EXPOSURE_INM_AS, p.exposure_uas_per_view / 1000.0),
-                s(
-                    tags::ORGAN_DOSE,
-                    VR::DS,
-                    &ds(p.modality_agd_mgy / 100.0 / frames as f64),
-                ),
-                s(
-                    tags::ENTRANCE_DOSE_INM_GY,
-                    VR::DS,
-                    &ds(p.entrance_dose_mgy / frames as f64),
-                ),
-            ])],
+            vec![item(
+                [
+                    fd(tags::EXPOSURE_TIME_INMS, p.exposure_ms_per_view),
+                    fd(tags::EXPOSURE_INM_AS, p.exposure_uas_per_view / 1000.0),
+                ]
+                .into_iter()
+                .chain(view_dose_elements(p))
+                .collect(),
+            )],
         ),
     ]);
     o.put(DataElement::new(
