@@ -290,6 +290,12 @@ impl State {
                         }
                     }
                 }
+                // Entries spooled by the previous version (one object each).
+                if let (Some(sop), Some(d)) =
+                    (v["sop_instance"].as_str(), v["counts_digest"].as_u64())
+                {
+                    seen.insert(sop.to_string(), d);
+                }
             }
         }
         let views = spool.join("views");
