@@ -39,6 +39,57 @@ pub struct Case {
     /// What the firmware's plausibility checks measured (a case they
     /// refuse fails the run, naming the reason).
     pub plausibility: dbt_pipeline::Plausibility,
+    /// Glandular fraction by depth from the chest wall (bands of
+    /// [`DEPTH_BAND_MM`]), truth against the classified reconstruction.
+    pub by_depth: Vec<DepthBand>,
+}
+
+/// Width of the depth bands of [`Case::by_depth`], mm.
+pub const DEPTH_BAND_MM: f64 = 20.0;
+
+/// One band of depth from the chest wall: the fibroglandular share of the
+/// breast's adipose and fibroglandular voxels (skin excluded; Cooper's
+/// ligaments count as fibroglandular, as in the phantom's glandularity),
+/// in the truth's labels and in the classified reconstruction's.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct DepthBand {
+    /// Band start, mm from the chest wall.
+    pub from_mm: f64,
+    /// Band end, mm.
+    pub to_mm: f64,
+    /// True fibroglandular volume fraction (`None`: no breast there).
+    pub g_true: Option<f64>,
+    /// Reconstructed fibroglandular volume fraction.
+    pub g_recon: Option<f64>,
+}
+
+/// The fibroglandular volume fraction of `labels` (dims `[lateral,
+/// vertical, depth]`, voxels `voxel_mm` deep) in bands of `band_mm` from the
+/// chest wall (depth index 0), `bands` of them.
+pub fn gland_by_depth(
+    labels: &[u8],
+    dims: [usize; 3],
+    voxel_mm: f64,
+    band_mm: f64,
+    bands: usize,
+) -> Vec<Option<f64>> {
+    let plane = dims[0] * dims[1];
+    let mut counts = vec![(0usize, 0usize); bands];
+    for d in 0..dims[2] {
+        let b = (((d as f64 + 0.5) * voxel_mm) / band_mm) as usize;
+        let Some(c) = counts.get_mut(b) else { break };
+        for &l in labels.get(d * plane..(d + 1) * plane).unwrap_or(&[]) {
+            match l {
+                1 => c.1 += 1,
+                3 | 4 => c.0 += 1,
+                _ => {}
+            }
+        }
+    }
+    counts
+        .into_iter()
+        .map(|(g, a)| (g + a > 0).then(|| g as f64 / (g + a) as f64))
+        .collect()
 }
 
 /// Bland-Altman summary of differences.
@@ -252,6 +303,34 @@ pub fn run_cases_on(
             mgd_model: res.model_mgd_mgy,
             seconds: acquired + t.elapsed().as_secs_f64(),
             plausibility: res.plausibility.clone(),
+            by_depth: {
+                let depth_mm = vol.n_coronal() as f64 * vol.voxel_mm();
+                let bands = (depth_mm / DEPTH_BAND_MM).ceil() as usize;
+                let t = gland_by_depth(
+                    vol.labels(),
+                    vol.dims(),
+                    vol.voxel_mm(),
+                    DEPTH_BAND_MM,
+                    bands,
+                );
+                let r = gland_by_depth(
+                    &res.classification.labels,
+                    res.dims,
+                    res.voxel_mm,
+                    DEPTH_BAND_MM,
+                    bands,
+                );
+                t.into_iter()
+                    .zip(r)
+                    .enumerate()
+                    .map(|(k, (g_true, g_recon))| DepthBand {
+                        from_mm: k as f64 * DEPTH_BAND_MM,
+                        to_mm: (k + 1) as f64 * DEPTH_BAND_MM,
+                        g_true,
+                        g_recon,
+                    })
+                    .collect()
+            },
         });
     }
     Ok(cases)
@@ -476,6 +555,21 @@ pub fn summarise(cases: &[Case]) -> AccuracySummary {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Depth bands: slices fall in the band of their centre; skin and air
+    /// do not count; a band without breast is `None`; slices beyond the
+    /// last band are ignored.
+    #[test]
+    fn gland_by_depth_counts_per_band() {
+        // 2 x 1 voxels per slice, 5 slices of 10 mm, bands of 20 mm.
+        let labels = [3, 1, 4, 2, 0, 2, 0, 0, 3, 1];
+        let g = gland_by_depth(&labels, [2, 1, 5], 10.0, 20.0, 2);
+        assert_eq!(g, vec![Some(2.0 / 3.0), None]);
+        let g = gland_by_depth(&labels, [2, 1, 5], 10.0, 20.0, 3);
+        assert_eq!(g, vec![Some(2.0 / 3.0), None, Some(0.5)]);
+        let g = gland_by_depth(&labels, [2, 1, 5], 10.0, 30.0, 2);
+        assert_eq!(g, vec![Some(2.0 / 3.0), Some(0.5)]);
+    }
 
     #[test]
     fn p_values_match_tables() {

@@ -256,14 +256,43 @@ pub struct Plane {
 /// them ([`dbt_phantom::LabelVolume::mu_at`]).
 pub fn mid_planes(vol: &dbt_phantom::LabelVolume) -> Option<[Plane; 3]> {
     let b = vol.tissue_bounds()?;
-    let h = vol.voxel_mm();
+    Some(planes_at(b, vol.voxel_mm(), |l, v, d| vol.mu_at(l, v, d)))
+}
+
+/// The planes of [`mid_planes`] of `truth`, taken from a reconstruction of
+/// it: attenuation `mu` of dims `[columns, rows within the thickness,
+/// slices]` (vertical index 0 on the support, `dbt_pipeline::ProcessResult`),
+/// whose column `c` holds the truth's lateral index `c + nx / 2 - columns / 2`
+/// (`dbt_phantom::coronal_slice`); 0 outside it.
+pub fn recon_planes(
+    truth: &dbt_phantom::LabelVolume,
+    mu: &[f32],
+    dims: [usize; 3],
+) -> Option<[Plane; 3]> {
+    let b = truth.tissue_bounds()?;
+    let shift = truth.dims()[0] as isize / 2 - dims[0] as isize / 2;
+    Some(planes_at(b, truth.voxel_mm(), |l, v, d| {
+        let c = l as isize - shift;
+        if c < 0 || c as usize >= dims[0] || v >= dims[1] || d >= dims[2] {
+            return 0.0;
+        }
+        mu.get((d * dims[1] + v) * dims[0] + c as usize)
+            .copied()
+            .unwrap_or(0.0)
+    }))
+}
+
+/// The axial, sagittal and coronal planes of [`mid_planes`] within the
+/// bounds `b` (`[lateral, vertical, depth]` index ranges), voxels `h` mm,
+/// attenuation from `at(lateral, vertical, depth)`.
+fn planes_at(b: [[usize; 2]; 3], h: f64, at: impl Fn(usize, usize, usize) -> f32) -> [Plane; 3] {
     let ([l0, l1], [v0, v1], [d0, d1]) = (b[0], b[1], b[2]);
     let (lm, vm, dm) = ((l0 + l1) / 2, (v0 + v1) / 2, d0 + (d1 - d0) / 3);
     let axial = Plane {
         title: format!("axial, {:.0} mm above the support", (vm - v0) as f64 * h),
         data: (d0..d1)
             .flat_map(|d| (l0..l1).map(move |l| (l, d)))
-            .map(|(l, d)| vol.mu_at(l, vm, d))
+            .map(|(l, d)| at(l, vm, d))
             .collect(),
         rows: d1 - d0,
         cols: l1 - l0,
@@ -277,7 +306,7 @@ pub fn mid_planes(vol: &dbt_phantom::LabelVolume) -> Option<[Plane; 3]> {
         data: (v0..v1)
             .rev()
             .flat_map(|v| (d0..d1).map(move |d| (v, d)))
-            .map(|(v, d)| vol.mu_at(lm, v, d))
+            .map(|(v, d)| at(lm, v, d))
             .collect(),
         rows: v1 - v0,
         cols: d1 - d0,
@@ -294,7 +323,7 @@ pub fn mid_planes(vol: &dbt_phantom::LabelVolume) -> Option<[Plane; 3]> {
         data: (v0..v1)
             .rev()
             .flat_map(|v| (l0..l1).map(move |l| (l, v)))
-            .map(|(l, v)| vol.mu_at(l, v, dm))
+            .map(|(l, v)| at(l, v, dm))
             .collect(),
         rows: v1 - v0,
         cols: l1 - l0,
@@ -303,7 +332,7 @@ pub fn mid_planes(vol: &dbt_phantom::LabelVolume) -> Option<[Plane; 3]> {
         y_label: "height (mm)",
         y_up: true,
     };
-    Some([axial, sagittal, coronal])
+    [axial, sagittal, coronal]
 }
 
 /// A grid of planes: one row per volume (its name in each panel's title),

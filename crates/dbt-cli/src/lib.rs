@@ -37,6 +37,16 @@ impl GeometryArgs {
     pub fn load(&self) -> Result<dbt_geometry::Geometry, dbt_store::StoreError> {
         dbt_store::load_geometry(&self.geometry, self.binning)
     }
+
+    /// The cone-beam system `spec` (a built-in name or a TOML file), binned
+    /// as the geometry; `None` without one.
+    pub fn load_system(
+        &self,
+        spec: Option<&str>,
+    ) -> Result<Option<dbt_geometry::ConeSystem>, dbt_store::StoreError> {
+        spec.map(|s| dbt_store::load_system(s, self.binning))
+            .transpose()
+    }
 }
 
 /// A DBToR model to run, and how.

@@ -242,6 +242,26 @@ impl ConeSystem {
         ]
     }
 
+    /// The fan geometry this system's projections are rebinned to for a
+    /// reconstruction on `template`'s detector elements and image: the
+    /// source arc's radius, the detector at the distance it has at 0
+    /// degrees (turning with the source: a virtual detector for a stationary
+    /// one), the system's views. It is `template` itself when the template
+    /// was made for this system (`paper-cone` and the paper's geometries).
+    pub fn rebinning_fan(
+        &self,
+        template: &crate::Geometry,
+    ) -> Result<crate::Geometry, GeometryError> {
+        let g = crate::Geometry {
+            source_to_center_mm: self.arc_radius_mm,
+            source_to_detector_mm: self.arc_radius_mm + self.axis_height_mm,
+            views: self.views.clone(),
+            ..template.clone()
+        };
+        g.validate()?;
+        Ok(g)
+    }
+
     /// The 2-D fan-beam geometry of the plane `y = source_depth_mm` of a
     /// rotating system, with an image of `columns x rows` pixels of
     /// `pixel_mm` centred across and resting on the support (the image's
@@ -355,5 +375,25 @@ mod tests {
         );
         bad("last_deg = 24.0", "last_deg = -30.0", "views.last_deg");
         bad("columns = 1280", "columns = 0", "detector.columns");
+    }
+
+    /// The paper's geometries are `paper-cone`'s rebinning fan; the
+    /// stationary system's has its own source radius, distance and views.
+    #[test]
+    fn rebinning_fans() {
+        let tall = crate::Geometry::builtin("paper-tall").unwrap();
+        let p = ConeSystem::builtin("paper-cone").unwrap();
+        assert_eq!(p.rebinning_fan(&tall).unwrap(), tall);
+        let v = ConeSystem::builtin("siemens-victre").unwrap();
+        let f = v.rebinning_fan(&tall).unwrap();
+        assert_eq!(
+            (f.source_to_center_mm, f.source_to_detector_mm),
+            (600.0, 650.0)
+        );
+        assert_eq!(f.views, v.views);
+        assert_eq!(
+            (f.detector.clone(), f.image.clone()),
+            (tall.detector.clone(), tall.image.clone())
+        );
     }
 }

@@ -7,7 +7,7 @@ pub mod acquisition;
 pub mod dataset;
 pub mod operator;
 
-use dbt_geometry::{Geometry, BUILTIN_GEOMETRIES};
+use dbt_geometry::{ConeSystem, Geometry, BUILTIN_GEOMETRIES};
 use dbt_phantom::{ExternalSidecar, LabelVolume, PhantomError};
 use std::io::Read;
 use std::path::{Path, PathBuf};
@@ -96,6 +96,43 @@ pub fn load_geometry(spec: &str, binning: usize) -> Result<Geometry, StoreError>
         }
     };
     g.binned(binning)
+        .map_err(|e| format(format!("binning {binning}: {e}")))
+}
+
+/// A cone-beam system named on a command line or in a configuration file:
+/// a built-in name (`paper-cone`, `siemens-victre`:
+/// [`dbt_geometry::cone::BUILTIN_SYSTEMS`]) or the path of a system TOML;
+/// then binned by `binning` (elements `binning` times larger).
+pub fn load_system(spec: &str, binning: usize) -> Result<ConeSystem, StoreError> {
+    let path = Path::new(spec);
+    let format = |reason: String| StoreError::Format {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let s = match ConeSystem::builtin(spec) {
+        Some(s) => s,
+        None => {
+            let text = std::fs::read_to_string(path).map_err(|source| {
+                if source.kind() == std::io::ErrorKind::NotFound {
+                    let names: Vec<&str> = dbt_geometry::cone::BUILTIN_SYSTEMS
+                        .iter()
+                        .map(|(n, _)| *n)
+                        .collect();
+                    format(format!(
+                        "no such system file, and not a built-in cone-beam system ({})",
+                        names.join(", ")
+                    ))
+                } else {
+                    StoreError::Io {
+                        path: path.to_path_buf(),
+                        cause: source,
+                    }
+                }
+            })?;
+            ConeSystem::from_toml_str(&text).map_err(|e| format(e.to_string()))?
+        }
+    };
+    s.binned(binning)
         .map_err(|e| format(format!("binning {binning}: {e}")))
 }
 
@@ -238,6 +275,32 @@ mod tests {
         std::fs::write(&f, "rows = 3").unwrap();
         let e = load_geometry(s, 1).unwrap_err().to_string();
         assert!(e.contains("g.toml"), "{e}");
+    }
+
+    #[test]
+    fn system_by_name_or_file() {
+        let p = load_system("paper-cone", 4).unwrap();
+        assert_eq!((p.detector.rows, p.detector.columns), (250, 320));
+        assert!((p.detector.pitch_mm - 0.8).abs() < 1e-12);
+        let dir = tempfile::tempdir().unwrap();
+        let f = dir.path().join("s.toml");
+        std::fs::write(&f, dbt_geometry::cone::SIEMENS_VICTRE_TOML).unwrap();
+        let s = f.to_str().unwrap();
+        assert_eq!(
+            load_system(s, 1).unwrap(),
+            ConeSystem::builtin("siemens-victre").unwrap()
+        );
+        let e = load_system(s, 0).unwrap_err().to_string();
+        assert!(e.contains("binning 0") && e.contains("s.toml"), "{e}");
+        let e = load_system("paper_cone", 4).unwrap_err().to_string();
+        assert!(
+            e.contains("paper_cone") && e.contains("paper-cone, siemens-victre"),
+            "{e}"
+        );
+        // A fan geometry is not a system.
+        std::fs::write(&f, dbt_geometry::PAPER_TOML).unwrap();
+        let e = load_system(s, 1).unwrap_err().to_string();
+        assert!(e.contains("s.toml"), "{e}");
     }
 
     #[test]

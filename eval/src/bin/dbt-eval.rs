@@ -123,6 +123,33 @@ enum Cmd {
     Anatomy(AnatomyArgs),
     /// PNG of a test slice: phantom, sinogram, MLTR, FBP.
     Picture(PictureArgs),
+    /// PNG of one test phantom's truth beside its reconstructions from the
+    /// slice-wise fan-beam acquisition and from cone-beam systems' (issue
+    /// #28): axial, sagittal and coronal planes, one scale.
+    ConeViews(ConeViewsArgs),
+}
+
+/// The options of `dbt-eval cone-views`.
+#[derive(Args)]
+struct ConeViewsArgs {
+    /// Output PNG.
+    #[arg(long, default_value = "docs/figures/cone-beam.png")]
+    out: PathBuf,
+    /// The test phantom (index of the test population).
+    #[arg(long, default_value_t = 0)]
+    index: u64,
+    /// The cone-beam systems, comma separated (built-in names or TOML files).
+    #[arg(long, default_value = "paper-cone,siemens-victre")]
+    systems: String,
+    /// The DBToR model folder.
+    #[arg(long, default_value = "models/dbtor-x4t3")]
+    model: PathBuf,
+    /// Its precision (fp32, int8).
+    #[arg(long, default_value = "int8")]
+    precision: String,
+    /// Noise level of the acquisitions.
+    #[arg(long, default_value = "N8")]
+    noise: String,
 }
 
 /// The options of `dbt-eval paired`.
@@ -435,6 +462,86 @@ fn parse_levels(s: &str) -> Result<Vec<NoiseLevel>> {
         .collect::<Result<_, _>>()?)
 }
 
+/// `dbt-eval cone-views`.
+fn run_cone_views(args: ConeViewsArgs) -> Result<()> {
+    let ConeViewsArgs {
+        out,
+        index,
+        systems,
+        model,
+        precision,
+        noise,
+    } = args;
+    let noise = NoiseLevel::parse(&noise)?;
+    let rt = Runtime::default();
+    let load = |g: Option<&Geometry>| -> Result<Dbtor> {
+        load_models_on(Some(&model), &precision, &rt, g)?
+            .pop()
+            .map(|(_, m)| m)
+            .context("no model loaded")
+    };
+    let m = load(None)?;
+    let g = m.geometry().clone();
+    let vol = PopulationKind::Procedural
+        .draw(&g, dbt_phantom::Population::TEST_SEED, index)
+        .generate()?;
+    let truth = dbt_eval::picture::mid_planes(&vol).context("the phantom holds no tissue")?;
+    let mut rows = vec![(
+        format!(
+            "test phantom {index} (T {:.0} mm, G {:.0} %)",
+            vol.thickness_mm(),
+            100.0 * vol.glandularity().unwrap_or(0.0)
+        ),
+        truth,
+    )];
+    let calibration = dbt_model::load_calibration(&m, &dbt_tissue::ClassifyOptions::default())?;
+    let opts = |m: Dbtor| dbt_pipeline::PipelineOptions {
+        dbtor: Some(std::sync::Arc::new(m)),
+        calibration,
+        ..Default::default()
+    };
+    let tech = host_sim::Technique::default();
+    let root = "1.2.826.0.1.3680043.10.543.3";
+    let seed = 1000 + index;
+    let mut runs: Vec<(String, dbt_pipeline::acquisition::Acquisition, Dbtor)> = Vec::new();
+    let fan = host_sim::simulate_acquisition(&vol, &g, noise, seed, tech, 28.0, "EVAL", root)?;
+    runs.push(("slice-wise fan beam".into(), fan, m));
+    for name in systems.split(',').map(str::trim).filter(|s| !s.is_empty()) {
+        let s = dbt_store::load_system(name, 1)?;
+        let factor = (g.detector.pitch_mm / s.detector.pitch_mm).round().max(1.0) as usize;
+        let s = s.binned(factor)?;
+        let g_acq = s.rebinning_fan(&g)?;
+        let a = host_sim::simulate_cone_acquisition(
+            &vol, &g_acq, &s, noise, seed, tech, 28.0, "EVAL", root,
+        )?;
+        let model = load((g_acq != g).then_some(&g_acq))?;
+        runs.push((format!("cone beam, {}", s.name), a, model));
+    }
+    for (name, acq, m) in runs {
+        let res = dbt_pipeline::process(&acq, &opts(m))?;
+        println!(
+            "{name}: G reported {:.3} (truth {:.3}), MGD {:.3} mGy",
+            res.glandularity,
+            vol.glandularity().unwrap_or(0.0),
+            res.mgd_mgy
+        );
+        let planes = dbt_eval::picture::recon_planes(&vol, &res.mu, res.dims)
+            .context("the phantom holds no tissue")?;
+        rows.push((
+            format!("{name} (G {:.0} %)", 100.0 * res.glandularity),
+            planes,
+        ));
+    }
+    let window = (
+        dbt_materials::Tissue::Adipose.mu_per_mm() * 0.9,
+        dbt_materials::Tissue::Fibroglandular.mu_per_mm() * 1.05,
+    );
+    let (px, w, h) = dbt_eval::picture::render_planes(&rows, window)?;
+    write_png_rgb(&out, &px, w, h)?;
+    println!("wrote {}", out.display());
+    Ok(())
+}
+
 /// `dbt-eval anatomy`: the mid-planes of drawn and external phantoms.
 fn anatomy_cmd(
     out: &PathBuf,
@@ -524,6 +631,18 @@ fn load_models(
     precisions: &str,
     rt: &Runtime,
 ) -> Result<Vec<(String, Dbtor)>> {
+    load_models_on(dir, precisions, rt, None)
+}
+
+/// [`load_models`], the (fully convolutional) blocks run with the operator
+/// of `geometry` when given (same sinogram and image grids as the model's):
+/// a model on a system it was not trained for, for evaluation only.
+fn load_models_on(
+    dir: Option<&std::path::Path>,
+    precisions: &str,
+    rt: &Runtime,
+    geometry: Option<&Geometry>,
+) -> Result<Vec<(String, Dbtor)>> {
     let Some(dir) = dir else { return Ok(vec![]) };
     let engine: dbt_dbtor::Engine = rt.engine.parse().map_err(anyhow::Error::msg)?;
     let mut out = Vec::new();
@@ -535,9 +654,12 @@ fn load_models(
             ),
             p => (p.parse().map_err(anyhow::Error::msg)?, Vec::new()),
         };
-        let m = Dbtor::load_mixed(dir, p, &fp32_blocks, engine)
-            .with_context(|| format!("loading {} ({token}, {engine})", dir.display()))?
-            .with_crop(rt.crop_margin)?;
+        let m = match geometry {
+            None => Dbtor::load_mixed(dir, p, &fp32_blocks, engine),
+            Some(g) => Dbtor::load_for_geometry(dir, p, &fp32_blocks, engine, g),
+        }
+        .with_context(|| format!("loading {} ({token}, {engine})", dir.display()))?
+        .with_crop(rt.crop_margin)?;
         // The model's default constraints (support: DBToR on, LPD off;
         // non-negativity on), or none.
         let (m, raw) = if rt.raw {
@@ -589,6 +711,7 @@ fn main() -> Result<()> {
         Cmd::Calibrate(args) => run_calibrate(args),
         Cmd::Anatomy(args) => run_anatomy(args),
         Cmd::Picture(args) => run_picture(args),
+        Cmd::ConeViews(args) => run_cone_views(args),
     }
 }
 
@@ -869,17 +992,38 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
     let system = match &system {
         None => None,
         Some(name) => {
-            let s = match dbt_geometry::ConeSystem::builtin(name) {
-                Some(s) => s,
-                None => dbt_geometry::ConeSystem::from_toml_str(
-                    &std::fs::read_to_string(name)
-                        .with_context(|| format!("--system {name}: not built in, not a file"))?,
-                )?,
-            };
-            let factor = (g.image.pixel_mm / 0.2).round() as usize;
+            let s = dbt_store::load_system(name, 1).with_context(|| format!("--system {name}"))?;
+            // Detector elements as near the model's as binning makes them.
+            let factor = (g.detector.pitch_mm / s.detector.pitch_mm).round().max(1.0) as usize;
             Some(s.binned(factor)?)
         }
     };
+    // A system whose rebinning fan is not the model's geometry (another
+    // source radius or other views: `siemens-victre`): the model's blocks
+    // run with that fan's operator, an evaluation the firmware does not
+    // make (it refuses a model on another geometry).
+    let g_acq = match &system {
+        Some(s) => s.rebinning_fan(&g)?,
+        None => g.clone(),
+    };
+    if g_acq != g {
+        eprintln!(
+            "the model's blocks run on {} (the rebinning fan of {}), not on {}, the geometry they were trained for",
+            g_acq.describe(),
+            system.as_ref().map(|s| s.name.as_str()).unwrap_or_default(),
+            g.describe()
+        );
+        for (_, tag, o) in recs.iter_mut() {
+            if o.dbtor.is_some() {
+                let token = tag.trim_start_matches("dbtor-");
+                let m = load_models_on(model.as_deref(), token, &runtime, Some(&g_acq))?
+                    .pop()
+                    .map(|(_, m)| m)
+                    .context("no model loaded")?;
+                o.dbtor = Some(std::sync::Arc::new(m));
+            }
+        }
+    }
     let population = split.population;
     let split = split.resolve(recs.iter().find_map(|(_, _, o)| o.dbtor.as_deref()))?;
     let opts: Vec<_> = recs.iter().map(|(_, _, o)| o.clone()).collect();
@@ -892,7 +1036,7 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
         let cs = run_cases_on(
             name,
             &vol,
-            &g,
+            &g_acq,
             system.as_ref(),
             noise,
             &opts,
@@ -943,7 +1087,7 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
     }
     let json = serde_json::json!({
         "noise": noise.name(),
-        "geometry": g.describe(),
+        "geometry": g_acq.describe(),
         "system": system.as_ref().map(|s| s.name.clone()),
         "phantoms": match &phantom {
             Some(p) => p.display().to_string(),
@@ -1403,8 +1547,71 @@ fn run_paired(args: PairedArgs) -> Result<()> {
     for (q, (m, s, x)) in &table {
         println!("| {q} | {m:+.2} | {s:.2} | {x:.2} |");
     }
+    // The error by depth from the chest wall (runs that recorded it).
+    // Per band: its range (mm) and each case's (reference, compared) error.
+    type Band = (f64, f64, Vec<(f64, f64)>);
+    let mut bands: Vec<Band> = Vec::new();
+    for x in &ca {
+        let name = x["phantom"].as_str().unwrap_or_default();
+        let Some(y) = cb.iter().find(|y| y["phantom"].as_str() == Some(name)) else {
+            continue;
+        };
+        let empty = Vec::new();
+        let (bx, by) = (
+            x["by_depth"].as_array().unwrap_or(&empty),
+            y["by_depth"].as_array().unwrap_or(&empty),
+        );
+        for (k, (p, q)) in bx.iter().zip(by).enumerate() {
+            let f = |v: &serde_json::Value, key: &str| v[key].as_f64();
+            if let (Some(tp), Some(rp), Some(tq), Some(rq), Some(a), Some(b)) = (
+                f(p, "g_true"),
+                f(p, "g_recon"),
+                f(q, "g_true"),
+                f(q, "g_recon"),
+                f(p, "from_mm"),
+                f(p, "to_mm"),
+            ) {
+                if bands.len() <= k {
+                    bands.resize(k + 1, (0.0, 0.0, Vec::new()));
+                }
+                bands[k].0 = a;
+                bands[k].1 = b;
+                bands[k].2.push((100.0 * (rp - tp), 100.0 * (rq - tq)));
+            }
+        }
+    }
+    let depth: Vec<serde_json::Value> = bands
+        .iter()
+        .filter(|b| !b.2.is_empty())
+        .map(|(a, b, v)| {
+            let n = v.len() as f64;
+            let mean = |f: &dyn Fn(&(f64, f64)) -> f64| v.iter().map(f).sum::<f64>() / n;
+            let max = v.iter().fold(0.0f64, |m, d| m.max((d.1 - d.0).abs()));
+            serde_json::json!({"from_mm": a, "to_mm": b, "n": v.len(),
+                "reference_error_pp": mean(&|d| d.0), "compared_error_pp": mean(&|d| d.1),
+                "difference_pp": mean(&|d| d.1 - d.0), "max_abs_difference_pp": max})
+        })
+        .collect();
+    if !depth.is_empty() {
+        println!("\nFibroglandular volume fraction by depth from the chest wall, classified reconstruction - truth (pp):");
+        println!("| depth (mm) | cases | reference | compared | compared - reference | max abs |\n|---|---|---|---|---|---|");
+        for d in &depth {
+            let f = |k: &str| d[k].as_f64().unwrap_or(f64::NAN);
+            println!(
+                "| {:.0}-{:.0} | {} | {:+.2} | {:+.2} | {:+.2} | {:.2} |",
+                f("from_mm"),
+                f("to_mm"),
+                d["n"],
+                f("reference_error_pp"),
+                f("compared_error_pp"),
+                f("difference_pp"),
+                f("max_abs_difference_pp")
+            );
+        }
+    }
     if let Some(out) = args.out {
         let json = serde_json::json!({
+            "by_depth": depth,
             "reference": args.reference.display().to_string(),
             "compared": args.compared.display().to_string(),
             "table": table.iter().map(|(q, (m, s, x))| serde_json::json!({"quantity": q, "mean": m, "sd": s, "max_abs": x})).collect::<Vec<_>>(),
