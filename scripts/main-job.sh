@@ -3,14 +3,19 @@
 # validated DICOM output.
 #  1. dbtor-diag selftest: the shipped geometry and projector at the paper's
 #     full geometry (adjointness, analytic slab line integrals, norm bound).
-#  2. host-sim acquire: test-set phantom 0 (never trained on), every coronal
-#     slice simulated at N = 8 (Poisson), on the gantry geometry that
-#     firmware/config/dbtor.toml names (frames.geometry, frames.binning),
-#     written as a recorded acquisition (acquisition.json + counts.f32).
+#  2. host-sim acquire: test-set phantom 0 (never trained on), acquired at
+#     N = 8 (Poisson) on the gantry that firmware/config/dbtor.toml names: the
+#     cone-beam system frames.system (the whole breast volume through the
+#     exact 3-D projector, 2-D detector frames), binned by frames.binning,
+#     for the reconstruction geometry frames.geometry (without a system:
+#     every coronal slice its own fan beam); written as a recorded
+#     acquisition (acquisition.json + counts.f32).
 #  3. host-sim stream | dbtor-receive: the gantry's projection stream
-#     (GANTRY_INTERFACE.md) over loopback TCP, two processes; the firmware
-#     acknowledges every frame and spools the acquisition atomically.
-#  4. dbtor-process: per-slice DBToR reconstruction with the shipped model
+#     (GANTRY_INTERFACE.md; its header names the system) over loopback TCP,
+#     two processes; the firmware checks the system, acknowledges every
+#     frame and spools the acquisition atomically.
+#  4. dbtor-process: the cone-beam frames rebinned to slice-wise sinograms
+#     (dbt_pipeline::rebin), per-slice DBToR reconstruction with the shipped model
 #     (the repository's copy of the model and precision that the shipped
 #     firmware/config/dbtor.toml names, trained for that geometry; checksums
 #     verified at load; DBTOR_PRECISION=fp32|int8 overrides the precision),
@@ -31,17 +36,19 @@ rm -rf "$OUT"
 mkdir -p "$OUT"
 # The shipped configuration is the one place that names the model and the
 # gantry geometry it is paired with.
-read -r MODEL PRECISION DIGEST GEOMETRY BINNING < <(python3 -c '
+read -r MODEL PRECISION DIGEST GEOMETRY BINNING SYSTEM < <(python3 -c '
 import pathlib, sys, tomllib
 c = tomllib.load(open(sys.argv[1], "rb"))
 r, f = c["recon"], c["frames"]
 print("models/" + pathlib.PurePosixPath(r["model"]).name, r["precision"], r["model_digest"],
-      f["geometry"], f.get("binning", 1))' firmware/config/dbtor.toml)
-./target/release/host-sim acquire --out "$OUT/gantry-acquisition" --index 0 --geometry "$GEOMETRY" --binning "$BINNING" --noise N8 2>/dev/null
+      f["geometry"], f.get("binning", 1), f.get("system", "-"))' firmware/config/dbtor.toml)
+SYSTEM_ARGS=()
+[ "$SYSTEM" = "-" ] || SYSTEM_ARGS=(--system "$SYSTEM")
+./target/release/host-sim acquire --out "$OUT/gantry-acquisition" --index 0 --geometry "$GEOMETRY" --binning "$BINNING" "${SYSTEM_ARGS[@]}" --noise N8 2>/dev/null
 PORT=$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
 ./target/release/host-sim stream --acq "$OUT/gantry-acquisition" --listen "127.0.0.1:$PORT" 2>/dev/null &
 SIM=$!
-./target/release/dbtor-receive --connect "127.0.0.1:$PORT" --geometry "$GEOMETRY" --binning "$BINNING" --out "$OUT/spool/acquisition-1"
+./target/release/dbtor-receive --connect "127.0.0.1:$PORT" --geometry "$GEOMETRY" --binning "$BINNING" "${SYSTEM_ARGS[@]}" --out "$OUT/spool/acquisition-1"
 wait "$SIM"
 ./target/release/dbtor-process "$OUT/spool/acquisition-1" --out "$OUT/reports" \
     --model "$MODEL" --model-digest "$DIGEST" --precision "${DBTOR_PRECISION:-$PRECISION}" "$@" > "$OUT/summary.json"

@@ -103,6 +103,15 @@ pub struct FramesConfig {
     /// Binning of that geometry (detector elements and image pixels).
     #[serde(default = "default_binning")]
     pub binning: usize,
+    /// The gantry's cone-beam system (GANTRY_INTERFACE.md section 2):
+    /// `paper-cone`, `siemens-victre` or a system TOML (relative to the
+    /// configuration file's folder), binned by `binning`; its projections
+    /// are rebinned to slice-wise sinograms in `geometry`, which must be its
+    /// rebinning fan (checked when the configuration is loaded). Absent:
+    /// the slice-wise fan-beam stream. A stream from another system is
+    /// refused, naming both.
+    #[serde(default)]
+    pub system: Option<String>,
 }
 
 fn default_geometry() -> String {
@@ -458,6 +467,13 @@ impl Config {
             abs(&mut g);
             c.frames.geometry = g.to_string_lossy().into_owned();
         }
+        if let Some(s) = c.frames.system.as_mut() {
+            if dbt_geometry::ConeSystem::builtin(s).is_none() {
+                let mut p = PathBuf::from(&*s);
+                abs(&mut p);
+                *s = p.to_string_lossy().into_owned();
+            }
+        }
         abs(&mut c.paths.spool);
         abs(&mut c.paths.output);
         abs(&mut c.paths.status);
@@ -665,6 +681,17 @@ impl Config {
             ));
         }
         let gantry = self.gantry_geometry(path)?;
+        if let Some(sys) = self.gantry_system(path)? {
+            dbt_pipeline::rebin::check_site(&sys, &gantry).map_err(|e| {
+                bad(
+                    "frames.system",
+                    format!(
+                        "{e} (frames.geometry = {:?}, binning {}: the geometry must be the system's rebinning fan)",
+                        self.frames.geometry, self.frames.binning
+                    ),
+                )
+            })?;
+        }
         match self.modbus.transport {
             ModbusTransport::Tcp | ModbusTransport::Rtu => {
                 self.modbus_endpoint(path)?;
@@ -812,6 +839,34 @@ impl Config {
                 key: "frames.geometry",
                 reason: e.to_string(),
             }
+        })
+    }
+
+    /// The gantry's cone-beam system (`frames.system`, binned by
+    /// `frames.binning`), if any.
+    pub fn gantry_system(
+        &self,
+        path: &Path,
+    ) -> Result<Option<dbt_geometry::ConeSystem>, ConfigError> {
+        self.frames
+            .system
+            .as_deref()
+            .map(|s| dbt_store::load_system(s, self.frames.binning))
+            .transpose()
+            .map_err(|e| ConfigError::Invalid {
+                path: path.to_path_buf(),
+                key: "frames.system",
+                reason: e.to_string(),
+            })
+    }
+
+    /// What the frame link receives for: the gantry's geometry and system
+    /// and the site's tube output.
+    pub fn site(&self, path: &Path) -> Result<crate::link::Site, ConfigError> {
+        Ok(crate::link::Site {
+            geometry: self.gantry_geometry(path)?,
+            system: self.gantry_system(path)?,
+            tube_output_mgy_per_mas: self.report.tube_output_mgy_per_mas,
         })
     }
 
@@ -1145,8 +1200,11 @@ mod tests {
         let p = Path::new("dbtor.toml");
         assert_eq!(c.frames.geometry, "paper-tall");
         assert_eq!(c.gantry_geometry(p).unwrap().image.rows, 100);
-        // With MLTR, any geometry goes (a DBToR model must match it: below).
-        let mltr = |t: &str| t.replace("reconstructor = \"dbtor\"", "reconstructor = \"mltr\"");
+        // With MLTR and the slice-wise stream, any geometry goes (a DBToR
+        // model must match it: below; a cone-beam system too: its test).
+        let mltr = |t: &str| {
+            without(t, "system").replace("reconstructor = \"dbtor\"", "reconstructor = \"mltr\"")
+        };
         let c = example(|t| mltr(&t).replace("geometry = \"paper-tall\"", "geometry = \"paper\""))
             .unwrap();
         assert_eq!(
@@ -1164,7 +1222,7 @@ mod tests {
             "{e}"
         );
         // The model must be trained for the configured geometry.
-        let e = example(|t| t.replace("\"paper-tall\"", "\"paper\""))
+        let e = example(|t| without(&t, "system").replace("\"paper-tall\"", "\"paper\""))
             .unwrap_err()
             .to_string();
         assert!(
@@ -1178,5 +1236,62 @@ mod tests {
             e.contains("frames.geometry") && e.contains("no-such.toml"),
             "{e}"
         );
+    }
+
+    /// The cone-beam system: the shipped one, none (the slice-wise stream),
+    /// a file relative to the configuration; a system whose rebinning fan
+    /// is not the geometry, or an unknown one, is refused naming the key.
+    #[test]
+    fn gantry_system_by_name_or_file() {
+        let p = Path::new("dbtor.toml");
+        let c = example(|t| t).unwrap();
+        let s = c.gantry_system(p).unwrap().unwrap();
+        assert_eq!((s.name.as_str(), s.detector.columns), ("paper-cone", 320));
+        assert_eq!(c.site(p).unwrap().system, Some(s));
+        let c = example(|t| without(&t, "system")).unwrap();
+        assert_eq!(c.gantry_system(p).unwrap(), None);
+        // The stationary system's fan has another source radius and views.
+        let e = example(|t| t.replace("\"paper-cone\"", "\"siemens-victre\""))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("frames.system") && e.contains("siemens-victre") && e.contains("650"),
+            "{e}"
+        );
+        let e = example(|t| t.replace("\"paper-cone\"", "\"paper-cone-2\""))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("frames.system")
+                && e.contains("paper-cone-2")
+                && e.contains("paper-cone, siemens-victre"),
+            "{e}"
+        );
+        // A file beside the configuration (its own name travels in the
+        // stream's header).
+        let t = tempfile::tempdir().unwrap();
+        std::fs::write(
+            t.path().join("site.toml"),
+            dbt_geometry::cone::PAPER_CONE_TOML
+                .replace("name = \"paper-cone\"", "name = \"site-7\""),
+        )
+        .unwrap();
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        let text = std::fs::read_to_string(root.join("config/dbtor.toml"))
+            .unwrap()
+            .replace("\"paper-cone\"", "\"site.toml\"");
+        let shipped: toml::Value = toml::from_str(&text).unwrap();
+        let installed = shipped["recon"]["model"].as_str().unwrap().to_string();
+        let model = root
+            .join("../models")
+            .join(Path::new(&installed).file_name().unwrap());
+        let text = text.replace(
+            &format!("{installed:?}"),
+            &format!("{:?}", model.display().to_string()),
+        );
+        let cfg = t.path().join("dbtor.toml");
+        std::fs::write(&cfg, text).unwrap();
+        let c = Config::load(&cfg).unwrap();
+        assert_eq!(c.gantry_system(&cfg).unwrap().unwrap().name, "site-7");
     }
 }

@@ -22,7 +22,6 @@ use crate::link::{data_fault, receive, receive_from, to_acquisition, LinkError, 
 use crate::modbus::{read_registers, ModbusLink};
 use crate::status_page::{StateReader, StatusServer, PICTURE_FILE};
 use dbt_dicom::{Equipment, UidSource};
-use dbt_geometry::Geometry;
 use dbt_pipeline::acquisition::Acquisition;
 use dbt_pipeline::{process, reports, PipelineOptions};
 use dbt_status::{AcquisitionRecord, FaultRecord, Status};
@@ -104,6 +103,20 @@ pub fn preflight(cfg: &Config, config_path: &Path) -> Result<Vec<String>, Daemon
     let mut done = Vec::new();
     let geom = cfg.gantry_geometry(config_path)?;
     done.push(format!("geometry: {}", geom.describe()));
+    if let Some(s) = cfg.gantry_system(config_path)? {
+        done.push(format!(
+            "cone-beam system: {} ({} views, {} x {} elements of {} mm, {} detector), rebinned to the geometry above",
+            s.name,
+            s.n_views(),
+            s.detector.columns,
+            s.detector.rows,
+            s.detector.pitch_mm,
+            match s.detector_motion {
+                dbt_geometry::DetectorMotion::Rotating => "rotating",
+                dbt_geometry::DetectorMotion::Stationary => "stationary",
+            }
+        ));
+    }
     if cfg.recon.reconstructor == Reconstructor::Dbtor {
         let signed = load_model(cfg, &PipelineOptions::default().classify)?;
         done.push(format!(
@@ -235,7 +248,8 @@ pub fn entry_id(patient_id: &str) -> String {
 pub struct Daemon {
     cfg: Config,
     config_path: PathBuf,
-    geom: Geometry,
+    /// The gantry's geometry and system, and the tube output.
+    site: crate::link::Site,
     opts: PipelineOptions,
     stop: Arc<AtomicBool>,
     status: Status,
@@ -284,7 +298,7 @@ impl Daemon {
         config_path: PathBuf,
         stop: Arc<AtomicBool>,
     ) -> Result<Self, DaemonError> {
-        let geom = cfg.gantry_geometry(&config_path)?;
+        let site = cfg.site(&config_path)?;
         let mut opts = PipelineOptions {
             mltr_iterations: cfg.recon.mltr_iterations,
             dose_uncertainty: cfg.recon.dose_uncertainty,
@@ -342,7 +356,7 @@ impl Daemon {
         let mut d = Self {
             cfg,
             config_path,
-            geom,
+            site,
             opts,
             stop,
             status,
@@ -359,7 +373,8 @@ impl Daemon {
                 ae_title: di.ae_title.clone(),
                 spool: d.cfg.paths.spool.clone(),
                 system: dbt_pipeline::dicom_input::System {
-                    geometry: d.geom.clone(),
+                    geometry: d.site.geometry.clone(),
+                    cone: d.site.system.clone(),
                     flux: di.flat_field_counts,
                     tube_output_mgy_per_mas: d.cfg.report.tube_output_mgy_per_mas,
                 },
@@ -573,8 +588,7 @@ impl Daemon {
             stop: Some(Arc::clone(&self.stop)),
             // Before the first byte, the DICOM input's work goes first.
             yield_to: self.dicom.as_ref().map(|_| Arc::clone(&self.wake)),
-            ..LinkOptions::new(self.cfg.idle_timeout())
-                .for_site(&self.geom, self.cfg.report.tube_output_mgy_per_mas)
+            ..LinkOptions::new(self.cfg.idle_timeout()).for_site(&self.site)
         };
         if self.cfg.frames.transport == FrameTransport::Off {
             // DICOM input only: wait for it (or SIGTERM), sending what waits
@@ -661,7 +675,7 @@ impl Daemon {
                 return Err(ReceiveFault::link(format!("acquisition not received: {e} (nothing spooled; the gantry keeps it for a resend)")));
             }
         };
-        let acq = to_acquisition(&rx, &self.geom, self.cfg.report.tube_output_mgy_per_mas)
+        let acq = to_acquisition(&rx, &self.site)
             .map_err(|e| ReceiveFault::link(format!("acquisition rejected: {e}")))?;
         let id = entry_id(&acq.header.patient.id);
         let gantry_json = serde_json::json!({

@@ -184,7 +184,7 @@ impl DicomInput {
         let mut st = lock(&self.shared.counters).clone();
         st.associations_open = self.shared.open.load(Ordering::SeqCst);
         let state = lock(&self.shared.state);
-        let expected = state.settings.system.geometry.n_views();
+        let expected = state.settings.system.n_views();
         st.waiting = state
             .groups
             .values()
@@ -329,7 +329,7 @@ impl State {
                     read_input_object(&b, &self.settings.private).map_err(|e| e.to_string())
                 })
                 .and_then(|p| {
-                    view_index(&p, &self.settings.system.geometry)
+                    view_index(&p, &self.settings.system)
                         .map(|k| (k, p))
                         .map_err(|e| e.to_string())
                 });
@@ -442,7 +442,7 @@ impl State {
         }
         // One view of a sweep.
         check_object(&p, system).map_err(|e| refuse(e.to_string()))?;
-        let k = view_index(&p, &system.geometry).map_err(|e| refuse(e.to_string()))?;
+        let k = view_index(&p, system).map_err(|e| refuse(e.to_string()))?;
         let key = group_key(&p);
         if let Some(g) = self.groups.get(&key) {
             check_same_sweep(&g.first, &p).map_err(|e| refuse(e.to_string()))?;
@@ -453,7 +453,7 @@ impl State {
                 return Err(refuse(format!(
                     "a second copy of view {} ({} deg) with other pixels than SOP instance {sop}",
                     k + 1,
-                    system.geometry.angle_deg(k)
+                    system.angle_deg(k)
                 )));
             }
         }
@@ -485,11 +485,11 @@ impl State {
         tracing::info!(
             view = k + 1,
             views = g.views.len(),
-            of = system.geometry.n_views(),
+            of = system.n_views(),
             %instance,
             "view kept"
         );
-        if g.views.len() == system.geometry.n_views() {
+        if g.views.len() == system.n_views() {
             self.complete(&key, faults);
         }
         Ok(Outcome::Stored)
@@ -539,9 +539,7 @@ impl State {
                     })
             })
             .collect::<Result<Vec<_>, String>>()
-            .and_then(|views| {
-                assemble(&views, &self.settings.system.geometry).map_err(|e| e.to_string())
-            })
+            .and_then(|views| assemble(&views, &self.settings.system).map_err(|e| e.to_string()))
             .and_then(|sweep| {
                 acquisition_from_projections(&sweep, &self.settings.system)
                     .map_err(|e| e.to_string())
@@ -609,7 +607,7 @@ impl State {
     /// Sweeps whose last view came longer ago than the quiet time.
     fn expire(&mut self, faults: &mut Vec<FaultRecord>) -> bool {
         let quiet = self.settings.quiet_time;
-        let geometry = self.settings.system.geometry.clone();
+        let geometry = self.settings.system.clone();
         let stale: Vec<String> = self
             .groups
             .iter()
@@ -694,7 +692,7 @@ impl Shared {
 
     fn complete_ready(&self) {
         self.with_state(|s, f| {
-            let n = s.settings.system.geometry.n_views();
+            let n = s.settings.system.n_views();
             let ready: Vec<String> = s
                 .groups
                 .iter()

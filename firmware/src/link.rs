@@ -5,8 +5,10 @@
 //! serial line carries the same bytes.
 
 use dbt_gantry::assemble::{Assembler, Budget, Received, Reply};
-use dbt_gantry::frame::{encode, AcquisitionHeader as GantryHeader, Decoder, Frame, FrameError};
-use dbt_geometry::Geometry;
+use dbt_gantry::frame::{
+    encode, system_name, AcquisitionHeader as GantryHeader, Decoder, Frame, FrameError,
+};
+use dbt_geometry::{ConeSystem, Geometry};
 use dbt_pipeline::acquisition::{Acquisition, AcquisitionHeader, Patient, Study, ACQ_FORMAT};
 use std::io::{Read, Write};
 use std::net::TcpStream;
@@ -68,6 +70,52 @@ pub enum LinkError {
     /// The acquisition does not fit the configured geometry.
     #[error("acquisition does not fit the configured geometry: {0}")]
     Geometry(String),
+    /// The stream comes from another acquisition system than the configured
+    /// one: refused at its header, before any projection is kept (the
+    /// gantry keeps the acquisition: its end frame is never acknowledged).
+    #[error("acquisition refused at its header: the stream is from {stream}, this firmware is configured for {configured} (frames.system)")]
+    System {
+        /// What the header says, in words.
+        stream: String,
+        /// What the configuration says, in words.
+        configured: String,
+    },
+}
+
+/// What a receiver is configured for: the reconstruction geometry, the
+/// cone-beam system the gantry streams from (`None`: the slice-wise
+/// fan-beam stream), and the site's tube output.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Site {
+    /// The (fan-beam) reconstruction geometry, the model's.
+    pub geometry: Geometry,
+    /// The gantry's cone-beam system (binned as the geometry), if any.
+    pub system: Option<ConeSystem>,
+    /// Incident air kerma per mAs at the reference point, mGy/mAs.
+    pub tube_output_mgy_per_mas: f64,
+}
+
+impl Site {
+    /// The slice-wise fan-beam stream on `geometry`.
+    pub fn fan(geometry: &Geometry, tube_output_mgy_per_mas: f64) -> Self {
+        Self {
+            geometry: geometry.clone(),
+            system: None,
+            tube_output_mgy_per_mas,
+        }
+    }
+
+    /// Refuse a header from another system than this site's, naming both.
+    pub fn check_system(&self, h: &GantryHeader) -> Result<(), LinkError> {
+        let want = self.system.as_ref().map(|s| s.name.as_str());
+        if h.system.as_deref() == want {
+            return Ok(());
+        }
+        Err(LinkError::System {
+            stream: system_name(h.system.as_deref()),
+            configured: system_name(want),
+        })
+    }
 }
 
 /// What a reception did (for the logs and the status file).
@@ -120,9 +168,10 @@ pub struct LinkOptions {
     /// arrived, a read that finds the line idle returns
     /// [`LinkError::NoHeader`] with no byte.
     pub yield_to: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
-    /// The configured geometry and tube output: the header is validated as
-    /// soon as it arrives ([`dbt_pipeline::validate_header`]).
-    pub site: Option<(Geometry, f64)>,
+    /// The configured geometry, system and tube output: the header is
+    /// checked against the system and validated as soon as it arrives
+    /// ([`Site::check_system`], [`dbt_pipeline::validate_header`]).
+    pub site: Option<Site>,
 }
 
 impl LinkOptions {
@@ -140,23 +189,35 @@ impl LinkOptions {
         }
     }
 
-    /// With the memory budget of `geom`, and the header validated against it
-    /// and the site's tube output (mGy/mAs) on arrival.
-    pub fn for_site(mut self, geom: &Geometry, tube_output_mgy_per_mas: f64) -> Self {
-        self.budget = Some(budget_for(geom));
-        self.site = Some((geom.clone(), tube_output_mgy_per_mas));
+    /// With the memory budget of `site`, and the header checked against it
+    /// on arrival.
+    pub fn for_site(mut self, site: &Site) -> Self {
+        self.budget = Some(budget_for(site));
+        self.site = Some(site.clone());
         self
     }
 }
 
-/// The receiver's budget for `geom`: its views and detector elements, and
-/// at most `DEPTH_MAX_MM / pixel` detector rows (coronal slices).
-pub fn budget_for(geom: &Geometry) -> Budget {
-    let rows = (dbt_pipeline::acquisition::limits::DEPTH_MAX_MM / geom.image.pixel_mm).floor();
-    Budget {
-        projections: geom.n_views().min(u16::MAX as usize) as u16,
-        columns: geom.n_det().min(u16::MAX as usize) as u16,
-        max_rows: rows.clamp(1.0, u16::MAX as f64) as u16,
+/// The receiver's budget for `site`: the fan-beam stream's views and
+/// detector elements and at most `DEPTH_MAX_MM / pixel` detector rows
+/// (coronal slices); a cone-beam system's views, columns and rows.
+pub fn budget_for(site: &Site) -> Budget {
+    let to16 = |n: usize| n.min(u16::MAX as usize) as u16;
+    match &site.system {
+        Some(s) => Budget {
+            projections: to16(s.n_views()),
+            columns: to16(s.detector.columns),
+            max_rows: to16(s.detector.rows),
+        },
+        None => {
+            let g = &site.geometry;
+            let rows = (dbt_pipeline::acquisition::limits::DEPTH_MAX_MM / g.image.pixel_mm).floor();
+            Budget {
+                projections: to16(g.n_views()),
+                columns: to16(g.n_det()),
+                max_rows: rows.clamp(1.0, u16::MAX as f64) as u16,
+            }
+        }
     }
 }
 
@@ -321,15 +382,15 @@ pub fn receive_from<S: Read + Write>(
                     let before = asm.progress();
                     let had_header = asm.has_header();
                     let (reply, done) = asm.accept(seq, frame)?;
-                    if let (false, Some(h), Some((g, out))) = (had_header, asm.header(), &opts.site)
-                    {
+                    if let (false, Some(h), Some(site)) = (had_header, asm.header(), &opts.site) {
+                        site.check_system(h)?;
                         // The domain's validation, before any projection is
                         // kept. The flat field comes with the projections
                         // (`to_acquisition` checks it is positive and uniform,
                         // the spool's reader validates its value); the lowest
                         // plausible one stands in for it here.
                         let flux = dbt_pipeline::acquisition::limits::FLUX_MIN;
-                        dbt_pipeline::validate_header(&domain_header(h, g, *out, flux))?;
+                        dbt_pipeline::validate_header(&domain_header(h, site, flux))?;
                     }
                     if asm.progress() != before {
                         last_frame = std::time::Instant::now();
@@ -396,27 +457,45 @@ pub fn data_fault(r: &Received) -> Option<String> {
     ))
 }
 
-/// `tube_output_mgy_per_mas` is the site's calibration (configuration).
-pub fn to_acquisition(
-    r: &Received,
-    geom: &Geometry,
-    tube_output_mgy_per_mas: f64,
-) -> Result<Acquisition, LinkError> {
+/// The site's tube output is its calibration (configuration). A cone-beam
+/// system's frames stay detector rows (`[row][view * column]`), the header
+/// carrying the system: the processing rebins them.
+pub fn to_acquisition(r: &Received, site: &Site) -> Result<Acquisition, LinkError> {
     let h = &r.header;
+    let geom = &site.geometry;
     let bad = |m: String| LinkError::Geometry(m);
-    if h.projections as usize != geom.n_views() {
+    site.check_system(h)?;
+    let (views, columns, what) = match &site.system {
+        Some(s) => (
+            s.n_views(),
+            s.detector.columns,
+            format!("system {}", s.name),
+        ),
+        None => (geom.n_views(), geom.n_det(), "geometry".to_string()),
+    };
+    let angle = |v: usize| match &site.system {
+        Some(s) => s.angle_deg(v),
+        None => geom.angle_deg(v),
+    };
+    if h.projections as usize != views {
         return Err(bad(format!(
-            "{} projections, the geometry has {} views",
-            h.projections,
-            geom.n_views()
+            "{} projections, the {what} has {views} views",
+            h.projections
         )));
     }
-    if h.columns as usize != geom.n_det() {
+    if h.columns as usize != columns {
         return Err(bad(format!(
-            "{} columns, the detector has {} elements",
-            h.columns,
-            geom.n_det()
+            "{} columns, the {what}'s detector has {columns}",
+            h.columns
         )));
+    }
+    if let Some(s) = &site.system {
+        if h.rows as usize != s.detector.rows {
+            return Err(bad(format!(
+                "{} rows, the {what}'s detector has {}",
+                h.rows, s.detector.rows
+            )));
+        }
     }
     for p in &r.projections {
         if let Some((k, f)) = p
@@ -441,15 +520,15 @@ pub fn to_acquisition(
         ));
     }
     for p in &r.projections {
-        let want = geom.angle_deg(p.view as usize);
+        let want = angle(p.view as usize);
         if (p.angle_deg as f64 - want).abs() > 0.05 {
             return Err(bad(format!(
-                "view {} at {} deg, the geometry says {want:.2}",
+                "view {} at {} deg, the {what} says {want:.2}",
                 p.view, p.angle_deg
             )));
         }
     }
-    let (rows, nd, nv) = (h.rows as usize, geom.n_det(), geom.n_views());
+    let (rows, nd, nv) = (h.rows as usize, columns, views);
     let counts = (0..rows)
         .map(|s| {
             let mut v = vec![0f32; nv * nd];
@@ -463,19 +542,16 @@ pub fn to_acquisition(
         })
         .collect();
     Ok(Acquisition {
-        header: domain_header(h, geom, tube_output_mgy_per_mas, flux as f64),
+        header: domain_header(h, site, flux as f64),
         counts,
     })
 }
 
 /// The domain's acquisition header from the gantry's header frame: detector
-/// rows are coronal slices one pixel apart.
-pub fn domain_header(
-    h: &GantryHeader,
-    geom: &Geometry,
-    tube_output_mgy_per_mas: f64,
-    flux: f64,
-) -> AcquisitionHeader {
+/// rows are coronal slices one pixel apart (the slice-wise stream), or the
+/// rows of the site's cone-beam system.
+pub fn domain_header(h: &GantryHeader, site: &Site, flux: f64) -> AcquisitionHeader {
+    let geom = &site.geometry;
     AcquisitionHeader {
         format: ACQ_FORMAT.into(),
         geometry: geom.clone(),
@@ -485,11 +561,11 @@ pub fn domain_header(
         slice_spacing_mm: geom.image.pixel_mm,
         kvp: h.kvp,
         mas_total: h.mas_total,
-        tube_output_mgy_per_mas,
+        tube_output_mgy_per_mas: site.tube_output_mgy_per_mas,
         laterality: h.laterality.clone(),
         compression_force_n: None,
         exposure_ms_per_view: None,
-        system: None,
+        system: site.system.clone(),
         patient: Patient {
             name: h.patient_name.clone(),
             id: h.patient_id.clone(),
@@ -568,6 +644,7 @@ mod tests {
             rows: 186,
             columns: 320,
             laterality: "L".into(),
+            system: None,
         }
     }
 
@@ -579,7 +656,7 @@ mod tests {
         let g = Geometry::builtin("paper").unwrap().binned(4).unwrap();
         let mut o = LinkOptions::new(Duration::from_millis(300));
         if site {
-            o = o.for_site(&g, 0.11);
+            o = o.for_site(&Site::fan(&g, 0.11));
         }
         receive_from(&mut p, &o).unwrap_err()
     }
@@ -657,6 +734,60 @@ mod tests {
             matches!(e, LinkError::Incomplete(ref v) if v.len() == 25),
             "{e}"
         );
+    }
+
+    /// A stream from another system than the configured one is refused at
+    /// its header, naming both; the configured system's budget (its
+    /// detector) applies.
+    #[test]
+    fn a_stream_from_another_system_is_refused_naming_both() {
+        let g = Geometry::builtin("paper-tall").unwrap().binned(4).unwrap();
+        let fan = Site::fan(&g, 0.11);
+        let cone = Site {
+            system: Some(
+                ConeSystem::builtin("paper-cone")
+                    .unwrap()
+                    .binned(4)
+                    .unwrap(),
+            ),
+            ..fan.clone()
+        };
+        let go = |h: H, site: &Site| {
+            run_with(
+                encode(&Frame::Header(h), 0),
+                &LinkOptions::new(Duration::from_millis(300)).for_site(site),
+            )
+        };
+        let mut h = header();
+        h.system = Some("paper-cone".into());
+        let e = go(h.clone(), &fan).to_string();
+        assert!(
+            e.contains("cone-beam system `paper-cone`") && e.contains("slice-wise fan-beam"),
+            "{e}"
+        );
+        let e = go(header(), &cone).to_string();
+        assert!(
+            e.contains("is from the slice-wise fan-beam")
+                && e.contains("configured for cone-beam system `paper-cone`"),
+            "{e}"
+        );
+        let mut other = h.clone();
+        other.system = Some("siemens-victre".into());
+        let e = go(other, &cone).to_string();
+        assert!(
+            e.contains("`siemens-victre`") && e.contains("`paper-cone`"),
+            "{e}"
+        );
+        // The right system: its detector's rows and columns are the budget.
+        h.rows = 250;
+        let e = go(h.clone(), &cone);
+        assert!(
+            matches!(e, LinkError::Incomplete(ref v) if v.len() == 25),
+            "{e}"
+        );
+        h.rows = 251;
+        let e = go(h, &cone).to_string();
+        assert!(e.contains("announces 251 rows") && e.contains("250"), "{e}");
     }
 
     /// One CRC error per frame must not write one log line each: at most one

@@ -44,7 +44,20 @@ pub fn acquire(dir: &std::path::Path, index: u32) -> std::path::PathBuf {
 /// As [`acquire`], on another geometry (`host-sim acquire --geometry`):
 /// `paper-tall` is the shipped configuration's.
 pub fn acquire_on(dir: &std::path::Path, index: u32, geometry: &str) -> std::path::PathBuf {
-    let acq = dir.join("acq");
+    acquire_with(dir, "acq", index, geometry, None)
+}
+
+/// As [`acquire_on`], into `dir/name`, on the cone-beam `system` when given
+/// (`host-sim acquire --system`: 2-D detector frames, the header naming the
+/// system).
+pub fn acquire_with(
+    dir: &std::path::Path,
+    name: &str,
+    index: u32,
+    geometry: &str,
+    system: Option<&str>,
+) -> std::path::PathBuf {
+    let acq = dir.join(name);
     let st = std::process::Command::new(workspace_bin("host-sim"))
         .args([
             "acquire",
@@ -56,8 +69,9 @@ pub fn acquire_on(dir: &std::path::Path, index: u32, geometry: &str) -> std::pat
             "4",
             "--noise",
             "N8",
-            "--out",
         ])
+        .args(system.iter().flat_map(|s| ["--system", s]))
+        .arg("--out")
         .arg(&acq)
         .output()
         .expect("running host-sim acquire");

@@ -17,9 +17,15 @@ fn acquire(dir: &Path) -> (PathBuf, f64) {
 
 fn acquire_on(dir: &Path, geometry: &str) -> (PathBuf, f64) {
     let acq = hil_tests::acquire_on(dir, 1, geometry);
+    let t = thickness_of(&acq);
+    (acq, t)
+}
+
+/// A recorded acquisition's compressed thickness.
+fn thickness_of(acq: &Path) -> f64 {
     let h: serde_json::Value =
         serde_json::from_slice(&std::fs::read(acq.join("acquisition.json")).unwrap()).unwrap();
-    (acq, h["thickness_mm"].as_f64().unwrap())
+    h["thickness_mm"].as_f64().unwrap()
 }
 
 struct Gantry {
@@ -77,9 +83,10 @@ fn gantry_with(acq: &Path, thickness_mm: f64, faults: &[&str]) -> Gantry {
 /// The repository's copy of the model the shipped configuration names
 /// (`firmware/config/dbtor.toml`, `recon.model = ".../<name>"` ->
 /// `models/<name>`): switching the shipped model is one edit of that file.
-/// Returns the folder, its signed-off digest (`recon.model_digest`) and the
-/// gantry geometry the configuration pairs it with (`frames.geometry`).
-fn shipped_model() -> (PathBuf, String, String) {
+/// Returns the folder, its signed-off digest (`recon.model_digest`), the
+/// gantry geometry the configuration pairs it with (`frames.geometry`) and
+/// the gantry's cone-beam system (`frames.system`, if any).
+fn shipped_model() -> (PathBuf, String, String, Option<String>) {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let text = std::fs::read_to_string(root.join("firmware/config/dbtor.toml")).unwrap();
     let shipped: toml::Value = toml::from_str(&text).unwrap();
@@ -92,7 +99,11 @@ fn shipped_model() -> (PathBuf, String, String) {
         .unwrap()
         .to_string();
     let geometry = shipped["frames"]["geometry"].as_str().unwrap().to_string();
-    (model, digest, geometry)
+    let system = shipped["frames"]
+        .get("system")
+        .and_then(|s| s.as_str())
+        .map(String::from);
+    (model, digest, geometry, system)
 }
 
 /// A daemon configuration in `dir` from its frames, Modbus and recon
@@ -371,10 +382,12 @@ fn bad_configuration_is_refused_naming_the_key() {
 #[test]
 fn clean_acquisition_over_serial_lines() {
     let dir = tempfile::tempdir().unwrap();
-    // The shipped model on the fast engine and its geometry: the gantry PC's
-    // configuration.
-    let (model, digest, geometry) = shipped_model();
-    let (acq, thickness) = acquire_on(dir.path(), &geometry);
+    // The shipped model on the fast engine, its geometry and the gantry's
+    // cone-beam system: the gantry PC's configuration (2-D detector frames
+    // over the serial line, rebinned by the firmware).
+    let (model, digest, geometry, system) = shipped_model();
+    let acq = hil_tests::acquire_with(dir.path(), "acq", 1, &geometry, system.as_deref());
+    let thickness = thickness_of(&acq);
     let frames = pty_pair(dir.path(), "frames");
     let regs = pty_pair(dir.path(), "modbus");
     let (frames_gantry, frames_pc) = (&frames.a, &frames.b);
@@ -389,8 +402,12 @@ fn clean_acquisition_over_serial_lines() {
     let cfg = write_config(
         dir.path(),
         &format!(
-            "transport = \"serial\"\nport = \"{}\"\ngeometry = \"{geometry}\"",
-            frames_pc.display()
+            "transport = \"serial\"\nport = \"{}\"\ngeometry = \"{geometry}\"\n{}",
+            frames_pc.display(),
+            system
+                .as_ref()
+                .map(|s| format!("system = {s:?}"))
+                .unwrap_or_default()
         ),
         &format!(
             "transport = \"rtu\"\nport = \"{}\"\nbaud = 19200\ntimeout_ms = 1000",
@@ -603,7 +620,7 @@ fn check_config_checks_the_model_the_spool_and_the_devices() {
     };
     let dir = tempfile::tempdir().unwrap();
     // A copy of the shipped model: first as signed off, then tampered.
-    let (model, digest, geometry) = shipped_model();
+    let (model, digest, geometry, _) = shipped_model();
     let copy = dir.path().join("model");
     let cp = Command::new("cp")
         .arg("-r")
@@ -699,4 +716,116 @@ fn an_unreachable_gantry_is_a_fault_in_the_status() {
         "{s}"
     );
     assert!(sigterm(&mut d).success());
+}
+
+/// A gantry streaming from another system than the configured one (issue
+/// #28): refused at the stream's header, naming both systems; nothing is
+/// spooled or reported, the gantry is never told the acquisition arrived
+/// (host-sim exits 3: it keeps it), and the daemon goes on: the configured
+/// system's cone-beam stream that follows is received, rebinned and
+/// reported.
+#[test]
+fn a_stream_from_another_system_is_refused_and_the_next_one_reported() {
+    let dir = tempfile::tempdir().unwrap();
+    let fan = hil_tests::acquire_with(dir.path(), "fan", 1, "paper-tall", None);
+    let cone = hil_tests::acquire_with(dir.path(), "cone", 1, "paper-tall", Some("paper-cone"));
+    let thickness = thickness_of(&cone);
+    let g = gantry(&fan, thickness);
+    let cfg = write_config(
+        dir.path(),
+        &format!(
+            "transport = \"tcp\"\naddress = \"{}\"\ngeometry = \"paper-tall\"\nsystem = \"paper-cone\"",
+            g.frames
+        ),
+        &format!(
+            "transport = \"tcp\"\naddress = \"{}\"\ntimeout_ms = 500\nattempts = 3\nthickness_tolerance_mm = 1.0",
+            g.registers
+        ),
+        "reconstructor = \"mltr\"\nmltr_iterations = 3",
+    );
+    let mut d = Daemon(daemon(&cfg, &[]));
+    let s = wait_for(dir.path(), "the refusal", Duration::from_secs(60), |s| {
+        s["faults"].as_array().is_some_and(|f| !f.is_empty())
+    });
+    let f = &s["faults"][0];
+    let m = f["message"].as_str().unwrap();
+    assert_eq!(f["kind"], "link", "{s}");
+    assert!(
+        m.contains("slice-wise fan-beam stream")
+            && m.contains("configured for cone-beam system `paper-cone`"),
+        "{m}"
+    );
+    // The gantry was not told it arrived: it keeps the acquisition.
+    let mut g = g;
+    let t0 = Instant::now();
+    let st = loop {
+        if let Some(st) = g.stream.try_wait().unwrap() {
+            break st;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "host-sim still streaming"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert_eq!(st.code(), Some(3), "host-sim: not delivered");
+    for sub in ["incoming", "done", "faulted"] {
+        assert!(
+            entries(&dir.path().join("spool").join(sub)).is_empty(),
+            "{sub}"
+        );
+    }
+    // The configured system's stream, on the same address: reported.
+    let frames_port = g.frames.clone();
+    g.stream = Command::new(workspace_bin("host-sim"))
+        .args(["stream", "--acq"])
+        .arg(&cone)
+        .args(["--listen", &frames_port])
+        .stderr(Stdio::null())
+        .stdout(Stdio::null())
+        .spawn()
+        .unwrap();
+    let s = wait_for(
+        dir.path(),
+        "the cone-beam report",
+        Duration::from_secs(240),
+        |s| s["processed"] == 1,
+    );
+    assert_eq!(s["faults"].as_array().unwrap().len(), 1, "{s}");
+    let st = g.stream.wait().unwrap();
+    assert_eq!(st.code(), Some(0), "host-sim: delivered");
+    sigterm(&mut d.0);
+    let done = entries(&dir.path().join("spool/done"));
+    assert_eq!(done.len(), 1);
+    let acq: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(
+            dir.path()
+                .join("spool/done")
+                .join(&done[0])
+                .join("acquisition.json"),
+        )
+        .unwrap(),
+    )
+    .unwrap();
+    assert_eq!(
+        acq["system"]["name"], "paper-cone",
+        "the spool keeps the frames as sent"
+    );
+    assert_eq!(
+        entries(&dir.path().join("output"))
+            .iter()
+            .filter(|n| n.ends_with(".dcm"))
+            .count(),
+        2
+    );
+}
+
+/// A daemon killed when the test ends, whatever happens.
+struct Daemon(Child);
+
+impl Drop for Daemon {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
 }

@@ -30,7 +30,9 @@ enum Cmd {
     /// (`dbtor-acquisition/1`: acquisition.json + counts.f32).
     Acquire(AcquireArgs),
     /// Serve a recorded acquisition as the gantry's projection stream on TCP
-    /// (one connection), with optional fault injection.
+    /// (one connection), with optional fault injection. Exit 0 when the
+    /// receiver acknowledged the end frame (delivered), 3 when it did not
+    /// (the acquisition stays with the gantry).
     Stream(StreamArgs),
     /// Serve the gantry controller's Modbus registers on TCP until killed.
     Modbus(ModbusArgs),
@@ -294,21 +296,20 @@ fn run_acquire(args: AcquireArgs) -> Result<()> {
             root,
         )?,
         Some(name) => {
-            let sys = match dbt_geometry::ConeSystem::builtin(&name) {
-                Some(s) => s,
-                None => {
-                    let text = std::fs::read_to_string(&name).with_context(|| {
-                        format!("--system {name}: not a built-in system (paper-cone, siemens-victre) nor a readable file")
-                    })?;
-                    dbt_geometry::ConeSystem::from_toml_str(&text)
-                        .with_context(|| format!("--system {name}"))?
-                }
-            }
-            .binned(geometry.binning)
-            .with_context(|| format!("--system {name} binned {}", geometry.binning))?;
+            let sys = geometry
+                .load_system(Some(&name))
+                .with_context(|| format!("--system {name}"))?
+                .context("no system")?;
+            // The reconstruction geometry the firmware rebins to: the
+            // system's fan on the geometry's detector elements and image
+            // (the geometry itself for `paper-cone` and the paper's).
+            let fan = sys.rebinning_fan(&g)?;
+            dbt_pipeline::rebin::check_site(&sys, &fan).with_context(|| {
+                format!("--system {name} with --geometry {}", geometry.geometry)
+            })?;
             host_sim::simulate_cone_acquisition(
                 &vol,
-                &g,
+                &fan,
                 &sys,
                 noise,
                 seed,
@@ -321,9 +322,13 @@ fn run_acquire(args: AcquireArgs) -> Result<()> {
     };
     dbt_store::acquisition::write_acquisition(&out, &acq)?;
     println!(
-        "{}: test phantom {index}, {} slices, thickness {:.1} mm, glandularity {:.3}, {}",
+        "{}: test phantom {index}, {} {}, thickness {:.1} mm, glandularity {:.3}, {}",
         out.display(),
         acq.header.slices,
+        match &acq.header.system {
+            Some(s) => format!("detector rows of {}", s.name),
+            None => "slices".to_string(),
+        },
         acq.header.thickness_mm,
         vol.glandularity().unwrap_or(0.0),
         noise.name()
@@ -347,7 +352,7 @@ fn run_stream(args: StreamArgs) -> Result<()> {
         .map_err(anyhow::Error::msg)?;
     let a = dbt_store::acquisition::read_acquisition(&acq)?;
     let frames = host_sim::stream::frames_of(&a).map_err(anyhow::Error::msg)?;
-    let resent = match (listen, serial) {
+    let served = match (listen, serial) {
         (Some(listen), None) => {
             let l = std::net::TcpListener::bind(&listen)
                 .with_context(|| format!("listening on {listen}"))?;
@@ -372,7 +377,19 @@ fn run_stream(args: StreamArgs) -> Result<()> {
         }
         _ => bail!("give --listen HOST:PORT or --serial PATH"),
     };
-    println!("streamed {} frames, {resent} retransmitted", frames.len());
+    let resent = served.resent;
+    if !served.delivered {
+        // The gantry keeps what the receiver did not acknowledge.
+        println!(
+            "streamed {} frames, {resent} retransmitted; NOT delivered: the receiver did not acknowledge the end frame, the acquisition stays with the gantry",
+            frames.len()
+        );
+        std::process::exit(3);
+    }
+    println!(
+        "streamed {} frames, {resent} retransmitted; delivered",
+        frames.len()
+    );
     Ok(())
 }
 

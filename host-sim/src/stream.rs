@@ -76,14 +76,30 @@ impl Fault {
 }
 
 /// The frames of an acquisition: header (seq 0), one projection per view
-/// (seq 1 + view: rows = coronal slices, columns = detector elements, counts
+/// (seq 1 + view: rows = coronal slices, or a cone-beam system's detector
+/// rows, which the header then names; columns = detector elements; counts
 /// saturated at 65535), end (seq 1 + views).
 pub fn frames_of(acq: &Acquisition) -> Result<Vec<Frame>, String> {
     let h = &acq.header;
     let g = &h.geometry;
-    let (nv, nd, rows) = (g.n_views(), g.n_det(), acq.counts.len());
-    if rows > u16::MAX as usize || nd > u16::MAX as usize {
-        return Err("too many rows or columns for the frame format".into());
+    let (nv, nd) = match &h.system {
+        Some(s) => (s.n_views(), s.detector.columns),
+        None => (g.n_views(), g.n_det()),
+    };
+    let angle = |v: usize| match &h.system {
+        Some(s) => s.angle_deg(v),
+        None => g.angle_deg(v),
+    };
+    let rows = acq.counts.len();
+    if rows > u16::MAX as usize || nd > u16::MAX as usize || nv > u16::MAX as usize {
+        return Err("too many rows, columns or views for the frame format".into());
+    }
+    if let Some(bad) = acq.counts.iter().position(|r| r.len() != nv * nd) {
+        return Err(format!(
+            "row {bad} has {} counts, {nv} views of {nd} elements need {}",
+            acq.counts[bad].len(),
+            nv * nd
+        ));
     }
     let mut frames = vec![Frame::Header(AcquisitionHeader {
         patient_id: h.patient.id.clone(),
@@ -99,6 +115,7 @@ pub fn frames_of(acq: &Acquisition) -> Result<Vec<Frame>, String> {
         rows: rows as u16,
         columns: nd as u16,
         laterality: h.laterality.clone(),
+        system: h.system.as_ref().map(|s| s.name.clone()),
     })];
     for v in 0..nv {
         let mut counts = Vec::with_capacity(rows * nd);
@@ -111,7 +128,7 @@ pub fn frames_of(acq: &Acquisition) -> Result<Vec<Frame>, String> {
         }
         frames.push(Frame::Projection(Projection {
             view: v as u16,
-            angle_deg: g.angle_deg(v) as f32,
+            angle_deg: angle(v) as f32,
             rows: rows as u16,
             columns: nd as u16,
             counts,
@@ -124,14 +141,24 @@ pub fn frames_of(acq: &Acquisition) -> Result<Vec<Frame>, String> {
     Ok(frames)
 }
 
+/// How a stream ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Served {
+    /// Frames sent again on request.
+    pub resent: usize,
+    /// Whether the receiver acknowledged the end frame: the only receipt
+    /// (GANTRY_INTERFACE.md); without it the acquisition stays with the
+    /// gantry for a resend.
+    pub delivered: bool,
+}
+
 /// Serve one connection on `listener`: stream `frames` with `faults`, then
 /// answer naks until the end frame is acknowledged or the peer closes.
-/// Returns the number of retransmissions.
 pub fn serve_one(
     listener: &TcpListener,
     frames: &[Frame],
     faults: &[Fault],
-) -> std::io::Result<usize> {
+) -> std::io::Result<Served> {
     let (mut s, _) = listener.accept()?;
     s.set_read_timeout(Some(Duration::from_millis(200)))?;
     let cut = faults.iter().any(|f| matches!(f, Fault::Cut(_)));
@@ -144,13 +171,17 @@ pub fn serve_one(
 
 /// Stream `frames` over any byte stream (TCP, a serial line), then answer
 /// naks until the end frame is acknowledged, the peer closes, or nothing
-/// arrives for `idle_timeout`. Returns the number of retransmissions.
+/// arrives for `idle_timeout`.
 pub fn serve_stream<S: Read + Write>(
     s: &mut S,
     frames: &[Frame],
     faults: &[Fault],
     idle_timeout: Duration,
-) -> std::io::Result<usize> {
+) -> std::io::Result<Served> {
+    let undelivered = |resent| Served {
+        resent,
+        delivered: false,
+    };
     // Data faults: the frames themselves are wrong (valid CRC), resends too.
     let mut owned: Vec<Frame> = frames.to_vec();
     for f in faults {
@@ -233,7 +264,20 @@ pub fn serve_stream<S: Read + Write>(
             bytes[16] ^= 0x01;
             corrupted.push(q);
         }
-        s.write_all(&bytes)?;
+        match s.write_all(&bytes) {
+            Ok(()) => {}
+            // The receiver closed (it refused the acquisition, or went
+            // away): not delivered, the gantry keeps it.
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::BrokenPipe | std::io::ErrorKind::ConnectionReset
+                ) =>
+            {
+                return Ok(undelivered(0))
+            }
+            Err(e) => return Err(e),
+        }
         if faults.contains(&Fault::Freeze(q)) {
             // Never read again: resend the header (each one acknowledged)
             // until the receiver gives up and closes, or `idle_timeout`.
@@ -241,15 +285,15 @@ pub fn serve_stream<S: Read + Write>(
             let t0 = std::time::Instant::now();
             while t0.elapsed() < idle_timeout {
                 if s.write_all(&header).is_err() {
-                    return Ok(0);
+                    return Ok(undelivered(0));
                 }
             }
-            return Ok(0);
+            return Ok(undelivered(0));
         }
     }
     s.flush()?;
     if cut {
-        return Ok(0);
+        return Ok(undelivered(0));
     }
     let end_seq = frames.len() as u32 - 1;
     let mut dec = Decoder::new();
@@ -258,7 +302,7 @@ pub fn serve_stream<S: Read + Write>(
     let mut last = std::time::Instant::now();
     loop {
         let n = match s.read(&mut buf) {
-            Ok(0) => return Ok(resent),
+            Ok(0) => return Ok(undelivered(resent)),
             Ok(n) => n,
             Err(e)
                 if matches!(
@@ -268,7 +312,7 @@ pub fn serve_stream<S: Read + Write>(
                         | std::io::ErrorKind::UnexpectedEof
                 ) =>
             {
-                return Ok(resent)
+                return Ok(undelivered(resent))
             }
             Err(e)
                 if matches!(
@@ -277,7 +321,7 @@ pub fn serve_stream<S: Read + Write>(
                 ) =>
             {
                 if last.elapsed() > idle_timeout {
-                    return Ok(resent);
+                    return Ok(undelivered(resent));
                 }
                 continue;
             }
@@ -296,12 +340,17 @@ pub fn serve_stream<S: Read + Write>(
                             .and_then(|_| s.flush())
                             .is_err()
                         {
-                            return Ok(resent);
+                            return Ok(undelivered(resent));
                         }
                         resent += 1;
                     }
                 }
-                Ok((_, Frame::Ack { seq })) if seq == end_seq => return Ok(resent),
+                Ok((_, Frame::Ack { seq })) if seq == end_seq => {
+                    return Ok(Served {
+                        resent,
+                        delivered: true,
+                    })
+                }
                 _ => {}
             }
         }

@@ -324,6 +324,7 @@ mod tests {
             rows: 2,
             columns: 2,
             laterality: "R".into(),
+            system: None,
         }
     }
 

@@ -107,6 +107,26 @@ pub struct AcquisitionHeader {
     pub columns: u16,
     /// `L` or `R`.
     pub laterality: String,
+    /// The acquisition system the projections come from (GANTRY_INTERFACE.md
+    /// section 2): a cone-beam system's name (`paper-cone`, or the `name` of
+    /// the site's system TOML): rows are the detector's rows from the chest
+    /// wall. Absent: the slice-wise fan-beam stream, each row one coronal
+    /// slice (the simulated gantry of the DBToR paper). The receiver refuses
+    /// a stream from another system than the one it is configured for.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub system: Option<String>,
+}
+
+/// How the gantry interface names the slice-wise fan-beam stream (no
+/// `system` in the header), in messages.
+pub const FAN_STREAM: &str = "the slice-wise fan-beam stream (no system)";
+
+/// The stream's system in words: its name, or [`FAN_STREAM`].
+pub fn system_name(system: Option<&str>) -> String {
+    match system {
+        Some(s) => format!("cone-beam system `{s}`"),
+        None => FAN_STREAM.to_string(),
+    }
 }
 
 impl AcquisitionHeader {
@@ -155,6 +175,13 @@ impl AcquisitionHeader {
         }
         if self.laterality != "L" && self.laterality != "R" {
             return Err(format!("laterality `{}` must be L or R", self.laterality));
+        }
+        if let Some(s) = &self.system {
+            if s.is_empty() || s.len() > 64 || s.chars().any(char::is_control) {
+                return Err(format!(
+                    "system {s:?} must have 1-64 characters, none a control character"
+                ));
+            }
         }
         Ok(())
     }
@@ -520,6 +547,7 @@ mod tests {
             rows: 3,
             columns: 4,
             laterality: "L".into(),
+            system: None,
         }
     }
 
@@ -568,6 +596,33 @@ mod tests {
             .collect();
         assert_eq!(got, want);
         assert_eq!(d.pending(), 0);
+    }
+
+    /// The system travels in the header; a header without one (a version-1
+    /// gantry of the slice-wise stream) still reads, and one is named.
+    #[test]
+    fn the_header_carries_the_system() {
+        let mut h = header();
+        let plain = encode(&Frame::Header(h.clone()), 0);
+        assert!(!String::from_utf8_lossy(&plain).contains("system"));
+        h.system = Some("paper-cone".into());
+        let mut d = Decoder::new();
+        d.push(&encode(&Frame::Header(h.clone()), 0));
+        assert_eq!(
+            d.next_frame().unwrap().unwrap(),
+            (0, Frame::Header(h.clone()))
+        );
+        assert_eq!(h.validate(), Ok(()));
+        for bad in ["", "a\nb", &"x".repeat(65)] {
+            h.system = Some(bad.into());
+            let e = h.validate().unwrap_err();
+            assert!(e.contains("system"), "{e}");
+        }
+        assert_eq!(
+            system_name(Some("paper-cone")),
+            "cone-beam system `paper-cone`"
+        );
+        assert_eq!(system_name(None), FAN_STREAM);
     }
 
     #[test]

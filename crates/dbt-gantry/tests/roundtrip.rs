@@ -16,10 +16,27 @@ fn header() -> impl Strategy<Value = AcquisitionHeader> {
         (0u32..24, 0u32..60, 0u32..60),
         (100u32..1500, 200u32..490, 1u32..5000),
         (1u16..64, 1u16..64, 1u16..64),
-        prop_oneof![Just("L".to_string()), Just("R".to_string())],
+        (
+            prop_oneof![Just("L".to_string()), Just("R".to_string())],
+            prop_oneof![
+                Just(None),
+                Just(Some("paper-cone".to_string())),
+                "[a-z0-9-]{1,64}".prop_map(Some)
+            ],
+        ),
     )
         .prop_map(
-            |(id, name, uid, acc, (y, m, d), (hh, mm, ss), (t, kv, mas), (p, r, c), lat)| {
+            |(
+                id,
+                name,
+                uid,
+                acc,
+                (y, m, d),
+                (hh, mm, ss),
+                (t, kv, mas),
+                (p, r, c),
+                (lat, system),
+            )| {
                 AcquisitionHeader {
                     patient_id: id,
                     patient_name: name,
@@ -35,6 +52,7 @@ fn header() -> impl Strategy<Value = AcquisitionHeader> {
                     rows: r,
                     columns: c,
                     laterality: lat,
+                    system,
                 }
             },
         )

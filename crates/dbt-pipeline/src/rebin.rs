@@ -89,6 +89,24 @@ pub fn check_fan(sys: &ConeSystem, fan: &Geometry) -> Result<(), RebinError> {
     Ok(())
 }
 
+/// [`check_fan`], and the fan image resting on the system's support (the
+/// breast lies there in both): what a site's configuration of a system and a
+/// reconstruction geometry must satisfy.
+pub fn check_site(sys: &ConeSystem, fan: &Geometry) -> Result<(), RebinError> {
+    check_fan(sys, fan)?;
+    let bottom = sys.axis_height_mm - fan.image.rows as f64 * fan.image.pixel_mm / 2.0;
+    if (bottom - sys.support_height_mm).abs() > 1e-6 {
+        return Err(RebinError::Geometry {
+            system: sys.name.clone(),
+            what: format!(
+                "the fan image's bottom row is {bottom} mm above the detector, the support {} mm",
+                sys.support_height_mm
+            ),
+        });
+    }
+    Ok(())
+}
+
 /// The depth range (half width, mm) a rebinned slice at depth `y_c` averages
 /// over, for a breast `thickness_mm` thick read at mid-breast (`z_ref`).
 pub fn depth_blur_mm(sys: &ConeSystem, y_c: f64, thickness_mm: f64) -> f64 {
@@ -219,16 +237,7 @@ pub fn fan_acquisition(acq: &Acquisition) -> Result<Acquisition, RebinError> {
         return Ok(acq.clone());
     };
     let fan = &h.geometry;
-    let bottom = sys.axis_height_mm - fan.image.rows as f64 * fan.image.pixel_mm / 2.0;
-    if (bottom - sys.support_height_mm).abs() > 1e-6 {
-        return Err(RebinError::Geometry {
-            system: sys.name.clone(),
-            what: format!(
-                "the fan image's bottom row is {bottom} mm above the detector, the support {} mm",
-                sys.support_height_mm
-            ),
-        });
-    }
+    check_site(sys, fan)?;
     if h.slices != sys.detector.rows || acq.counts.len() != sys.detector.rows {
         return Err(RebinError::Shape(format!(
             "header says {} rows, {} rows of counts, the detector has {}",

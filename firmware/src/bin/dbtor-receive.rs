@@ -5,15 +5,16 @@
 //! on bad usage.
 //!
 //! `dbtor-receive (--connect HOST:PORT | --serial PATH [--baud 921600]) --out DIR
-//!  [--geometry paper|paper-tall|FILE.toml] [--binning N] [--timeout-s 30]
-//!  [--tube-output 0.11]`: the geometry is the gantry's (as the daemon's
-//! `[frames] geometry` and `binning`); it also sets the receiver's memory
-//! budget.
+//!  [--geometry paper|paper-tall|FILE.toml] [--binning N]
+//!  [--system paper-cone|FILE.toml] [--timeout-s 30] [--tube-output 0.11]`:
+//! the geometry and system are the gantry's (as the daemon's `[frames]
+//! geometry`, `binning` and `system`); they also set the receiver's memory
+//! budget. A stream from another system is refused naming both.
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
 use dbtor_firmware::cli::error_chain;
-use dbtor_firmware::link::{receive, receive_from, to_acquisition, LinkOptions};
+use dbtor_firmware::link::{receive, receive_from, to_acquisition, LinkOptions, Site};
 use std::net::TcpStream;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -40,6 +41,11 @@ struct Cli {
     /// The gantry's geometry (as the daemon's `[frames] geometry` and `binning`).
     #[command(flatten)]
     geometry: dbt_cli::GeometryArgs,
+    /// The gantry's cone-beam system (`paper-cone`, `siemens-victre` or a
+    /// system TOML, binned as the geometry), as the daemon's `[frames]
+    /// system`; without it, the slice-wise fan-beam stream.
+    #[arg(long)]
+    system: Option<String>,
     /// Idle and write timeout, s.
     #[arg(long, default_value_t = 30)]
     timeout_s: u64,
@@ -65,8 +71,22 @@ fn connect(addr: &str, timeout: Duration) -> Result<TcpStream> {
 
 fn run(cli: Cli) -> Result<bool> {
     let geom = cli.geometry.load()?;
+    let system = cli.geometry.load_system(cli.system.as_deref())?;
+    if let Some(s) = &system {
+        dbt_pipeline::rebin::check_site(s, &geom).with_context(|| {
+            format!(
+                "--system {} with --geometry {}",
+                s.name, cli.geometry.geometry
+            )
+        })?;
+    }
+    let site = Site {
+        geometry: geom,
+        system,
+        tube_output_mgy_per_mas: cli.tube_output,
+    };
     let timeout = Duration::from_secs(cli.timeout_s);
-    let link = LinkOptions::new(timeout).for_site(&geom, cli.tube_output);
+    let link = LinkOptions::new(timeout).for_site(&site);
     let result = match (&cli.connect, &cli.serial) {
         (Some(addr), None) => receive(&mut connect(addr, timeout)?, &link),
         (None, Some(path)) => {
@@ -85,7 +105,7 @@ fn run(cli: Cli) -> Result<bool> {
             return Ok(false);
         }
     };
-    let acq = match to_acquisition(&received, &geom, cli.tube_output) {
+    let acq = match to_acquisition(&received, &site) {
         Ok(a) => a,
         Err(e) => {
             eprintln!("dbtor-receive: FAULT: {e}");
