@@ -399,14 +399,20 @@ pub fn validate_header(h: &AcquisitionHeader) -> Result<(), HeaderError> {
     if h.slices == 0 {
         return Err(refuse("slices", 0, "no slice"));
     }
-    let depth = h.slices as f64 * h.slice_spacing_mm;
+    // The slice-wise stream's rows are slices; a cone-beam system's are its
+    // detector's rows.
+    let (row_mm, rows) = match &h.system {
+        Some(s) => (s.detector.pitch_mm, "detector rows"),
+        None => (h.slice_spacing_mm, "slices"),
+    };
+    let depth = h.slices as f64 * row_mm;
     if depth > DEPTH_MAX_MM {
         return Err(refuse(
             "slices",
             h.slices,
             format!(
-                "{} slices of {} mm span {depth:.0} mm, more than the {DEPTH_MAX_MM} mm any DBT detector covers",
-                h.slices, h.slice_spacing_mm
+                "{} {rows} of {row_mm} mm span {depth:.0} mm, more than the {DEPTH_MAX_MM} mm any DBT detector covers",
+                h.slices
             ),
         ));
     }

@@ -12,18 +12,63 @@ use crate::acquisition::{
 };
 use dbt_dicom::input::Layout;
 use dbt_dicom::projections::{ProjectionSet, ReceivedProjections};
-use dbt_geometry::Geometry;
+use dbt_geometry::{ConeSystem, Geometry};
 
 /// The configured system the objects must come from.
 #[derive(Debug, Clone)]
 pub struct System {
-    /// The gantry's geometry, as configured (`frames.geometry`, `binning`).
+    /// The gantry's geometry, as configured (`frames.geometry`, `binning`):
+    /// the reconstruction's.
     pub geometry: Geometry,
+    /// The gantry's cone-beam system (`frames.system`): the objects' frames
+    /// are its detector's (rows from the chest wall), rebinned by the
+    /// processing. `None`: each frame row is one coronal slice of
+    /// `geometry`'s fan beam.
+    pub cone: Option<ConeSystem>,
     /// Photons per detector element without the breast (the flat field the
     /// For Processing counts are relative to), from the system's calibration.
     pub flux: f64,
     /// Incident air kerma at the reference point per mAs, mGy/mAs.
     pub tube_output_mgy_per_mas: f64,
+}
+
+impl System {
+    /// Views of the sweep.
+    pub fn n_views(&self) -> usize {
+        match &self.cone {
+            Some(c) => c.n_views(),
+            None => self.geometry.n_views(),
+        }
+    }
+
+    /// Angle of view `v`, degrees.
+    pub fn angle_deg(&self, v: usize) -> f64 {
+        match &self.cone {
+            Some(c) => c.angle_deg(v),
+            None => self.geometry.angle_deg(v),
+        }
+    }
+
+    /// Detector columns and their pitch, mm.
+    fn columns(&self) -> (usize, f64) {
+        match &self.cone {
+            Some(c) => (c.detector.columns, c.detector.pitch_mm),
+            None => (self.geometry.n_det(), self.geometry.detector.pitch_mm),
+        }
+    }
+
+    /// Source to detector (at 0 degrees for a cone-beam system: a
+    /// stationary detector's distance along the central ray changes with
+    /// the view) and source to rotation axis, mm.
+    fn distances(&self) -> (f64, f64) {
+        match &self.cone {
+            Some(c) => (c.arc_radius_mm + c.axis_height_mm, c.arc_radius_mm),
+            None => (
+                self.geometry.source_to_detector_mm,
+                self.geometry.source_to_center_mm,
+            ),
+        }
+    }
 }
 
 /// Angles and distances of an object may differ from the configuration's by
@@ -57,8 +102,7 @@ fn refuse(field: &'static str, value: impl ToString, reason: impl Into<String>) 
 /// depend on how many views it holds: detector columns and pitch, source
 /// distances, anode and filter.
 pub fn check_object(p: &ReceivedProjections, system: &System) -> Result<(), HeaderError> {
-    let g = &system.geometry;
-    let det = g.n_det();
+    let (det, pitch) = system.columns();
     if p.columns != det {
         return Err(refuse(
             "Columns",
@@ -66,24 +110,45 @@ pub fn check_object(p: &ReceivedProjections, system: &System) -> Result<(), Head
             format!("the configured detector has {det} elements"),
         ));
     }
-    if (p.pixel_spacing_mm[1] / g.detector.pitch_mm - 1.0).abs() > SPACING_TOL {
+    if (p.pixel_spacing_mm[1] / pitch - 1.0).abs() > SPACING_TOL {
         return Err(refuse(
             "ImagerPixelSpacing",
             p.pixel_spacing_mm[1],
-            format!("the configured element pitch is {} mm", g.detector.pitch_mm),
+            format!("the configured element pitch is {pitch} mm"),
         ));
     }
+    if let Some(c) = &system.cone {
+        // A cone-beam detector's rows are its own: their number and pitch
+        // are the system's.
+        if p.rows != c.detector.rows {
+            return Err(refuse(
+                "Rows",
+                p.rows,
+                format!(
+                    "the configured system {} has {} detector rows",
+                    c.name, c.detector.rows
+                ),
+            ));
+        }
+        if (p.pixel_spacing_mm[0] / c.detector.pitch_mm - 1.0).abs() > SPACING_TOL {
+            return Err(refuse(
+                "ImagerPixelSpacing",
+                p.pixel_spacing_mm[0],
+                format!(
+                    "the configured system {}'s row pitch is {} mm",
+                    c.name, c.detector.pitch_mm
+                ),
+            ));
+        }
+    }
+    let (sdd, sid) = system.distances();
     for (field, got, want) in [
         (
             "DistanceSourceToDetector",
             Some(p.source_to_detector_mm),
-            g.source_to_detector_mm,
+            sdd,
         ),
-        (
-            "DistanceSourceToIsocenter",
-            p.source_to_isocenter_mm,
-            g.source_to_center_mm,
-        ),
+        ("DistanceSourceToIsocenter", p.source_to_isocenter_mm, sid),
     ] {
         // An object without the isocentre distance (the DM IOD has none)
         // is taken on the configured one.
@@ -125,7 +190,7 @@ pub fn acquisition_from_projections(
     system: &System,
 ) -> Result<Acquisition, HeaderError> {
     let g = &system.geometry;
-    let (views, det) = (g.n_views(), g.n_det());
+    let (views, (det, _)) = (system.n_views(), system.columns());
     if p.angles_deg.len() != views {
         return Err(refuse(
             "NumberOfFrames",
@@ -134,16 +199,21 @@ pub fn acquisition_from_projections(
         ));
     }
     for (v, a) in p.angles_deg.iter().enumerate() {
-        if (a - g.angle_deg(v)).abs() > ANGLE_TOL_DEG {
+        if (a - system.angle_deg(v)).abs() > ANGLE_TOL_DEG {
             return Err(refuse(
                 "XRaySourceIsocenterPrimaryAngle",
                 format!("{a} (frame {})", v + 1),
-                format!("the configured view {} is at {} deg", v + 1, g.angle_deg(v)),
+                format!(
+                    "the configured view {} is at {} deg",
+                    v + 1,
+                    system.angle_deg(v)
+                ),
             ));
         }
     }
     check_object(p, system)?;
-    // Frames are views of (rows = coronal slices) x (columns = elements).
+    // Frames are views of rows (coronal slices, or a cone-beam detector's
+    // rows) x columns (elements).
     let (rows, frame) = (p.rows, p.rows * p.columns);
     let counts: Vec<Vec<f32>> = (0..rows)
         .map(|s| {
@@ -162,14 +232,18 @@ pub fn acquisition_from_projections(
         thickness_mm: p.thickness_mm,
         flux: system.flux,
         slices: rows,
-        slice_spacing_mm: p.pixel_spacing_mm[0],
+        // A cone-beam system's rows are rebinned to slices one pixel apart.
+        slice_spacing_mm: match &system.cone {
+            Some(_) => g.image.pixel_mm,
+            None => p.pixel_spacing_mm[0],
+        },
         kvp: p.kvp,
         mas_total: p.exposure_mas,
         tube_output_mgy_per_mas: system.tube_output_mgy_per_mas,
         laterality: h.laterality.letter().into(),
         compression_force_n: p.compression_force_n,
         exposure_ms_per_view: p.exposure_ms_per_view,
-        system: None,
+        system: system.cone.clone(),
         patient: Patient {
             name: h.patient_name.clone(),
             id: h.patient_id.clone(),
@@ -205,7 +279,7 @@ pub fn group_key(p: &ReceivedProjections) -> String {
 
 /// The configured view a one-view object is, by its angle; refused naming
 /// the angle when no configured view is within the tolerance.
-pub fn view_index(p: &ReceivedProjections, geometry: &Geometry) -> Result<usize, HeaderError> {
+pub fn view_index(p: &ReceivedProjections, system: &System) -> Result<usize, HeaderError> {
     let [a] = p.angles_deg[..] else {
         return Err(refuse(
             "NumberOfFrames",
@@ -213,17 +287,17 @@ pub fn view_index(p: &ReceivedProjections, geometry: &Geometry) -> Result<usize,
             "a one-view object has one frame",
         ));
     };
-    (0..geometry.n_views())
-        .find(|&v| (geometry.angle_deg(v) - a).abs() <= ANGLE_TOL_DEG)
+    let n = system.n_views();
+    (0..n)
+        .find(|&v| (system.angle_deg(v) - a).abs() <= ANGLE_TOL_DEG)
         .ok_or_else(|| {
             refuse(
                 "PositionerPrimaryAngle",
                 a,
                 format!(
-                    "no configured view is at this angle (the gantry's {} views run from {} to {} deg)",
-                    geometry.n_views(),
-                    geometry.angle_deg(0),
-                    geometry.angle_deg(geometry.n_views().saturating_sub(1))
+                    "no configured view is at this angle (the gantry's {n} views run from {} to {} deg)",
+                    system.angle_deg(0),
+                    system.angle_deg(n.saturating_sub(1))
                 ),
             )
         })
@@ -236,12 +310,12 @@ pub fn view_index(p: &ReceivedProjections, geometry: &Geometry) -> Result<usize,
 /// or twice.
 pub fn assemble(
     views: &[ReceivedProjections],
-    geometry: &Geometry,
+    system: &System,
 ) -> Result<ReceivedProjections, HeaderError> {
-    let n = geometry.n_views();
+    let n = system.n_views();
     let mut slots: Vec<Option<&ReceivedProjections>> = vec![None; n];
     for p in views {
-        let k = view_index(p, geometry)?;
+        let k = view_index(p, system)?;
         if slots[k].is_some() {
             return Err(refuse(
                 "PositionerPrimaryAngle",
@@ -255,7 +329,7 @@ pub fn assemble(
     if placed.len() != n {
         let missing: Vec<String> = (0..n)
             .filter(|&k| slots[k].is_none())
-            .map(|k| format!("{} deg", geometry.angle_deg(k)))
+            .map(|k| format!("{} deg", system.angle_deg(k)))
             .collect();
         return Err(refuse(
             "views",
@@ -367,8 +441,11 @@ pub struct Sweep<'a> {
 /// rows = coronal slices, columns = elements; refused where a count does
 /// not fit 16 bits.
 pub fn frames_of(acq: &Acquisition) -> Result<Vec<u16>, HeaderError> {
-    let g = &acq.header.geometry;
-    let (views, det) = (g.n_views(), g.n_det());
+    let h = &acq.header;
+    let (views, det) = match &h.system {
+        Some(c) => (c.n_views(), c.detector.columns),
+        None => (h.geometry.n_views(), h.geometry.n_det()),
+    };
     let mut out = Vec::with_capacity(views * acq.counts.len() * det);
     for v in 0..views {
         for (s, slice) in acq.counts.iter().enumerate() {
@@ -404,19 +481,39 @@ pub fn projection_set<'a>(
 ) -> ProjectionSet<'a> {
     let h = &acq.header;
     let g = &h.geometry;
-    let views = g.n_views();
+    // A cone-beam system's detector (square elements; distances at 0
+    // degrees; the breast support above the detector), or the fan stream's
+    // rows of slices.
+    let (views, columns, spacing, sdd, sid, support) = match &h.system {
+        Some(c) => (
+            c.n_views(),
+            c.detector.columns,
+            [c.detector.pitch_mm; 2],
+            c.arc_radius_mm + c.axis_height_mm,
+            c.arc_radius_mm,
+            c.support_height_mm,
+        ),
+        None => (
+            g.n_views(),
+            g.n_det(),
+            [h.slice_spacing_mm, g.detector.pitch_mm],
+            g.source_to_detector_mm,
+            g.source_to_center_mm,
+            0.0,
+        ),
+    };
     ProjectionSet {
         header,
         equipment,
         rows: h.slices,
-        columns: g.n_det(),
-        pixel_spacing_mm: [h.slice_spacing_mm, g.detector.pitch_mm],
+        columns,
+        pixel_spacing_mm: spacing,
         angles_deg,
-        source_to_detector_mm: g.source_to_detector_mm,
-        source_to_isocenter_mm: g.source_to_center_mm,
+        source_to_detector_mm: sdd,
+        source_to_isocenter_mm: sid,
         thickness_mm: h.thickness_mm,
         compression_force_n: sweep.compression_force_n,
-        support_to_detector_mm: 0.0,
+        support_to_detector_mm: support,
         exposure_ms_per_view: sweep.exposure_ms_per_view,
         view_interval_ms: sweep.view_interval_ms,
         modality_agd_mgy: sweep.modality_agd_mgy,

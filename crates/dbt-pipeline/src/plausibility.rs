@@ -194,16 +194,95 @@ fn hot_bound(flux: f64) -> f64 {
     flux + NOISE_Z * flux.sqrt() + 1.0
 }
 
-/// The per-ray count below which a ray is darker than the thickness allows.
-fn dark_bounds(h: &AcquisitionHeader) -> Vec<f64> {
-    let mu = mu_max_per_mm();
-    box_chords(&h.geometry, h.thickness_mm)
-        .into_iter()
-        .map(|l| {
-            let lam = h.flux * (-mu * l).exp();
-            lam - NOISE_Z * lam.sqrt()
+/// The chord (mm) of the segment from `s` to `e` through the box
+/// `[lo, hi]` (slab method; 0 when it misses).
+pub fn chord_in_box(s: [f64; 3], e: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> f64 {
+    let (mut t0, mut t1) = (0.0f64, 1.0f64);
+    for a in 0..3 {
+        let d = e[a] - s[a];
+        if d.abs() < 1e-12 {
+            if s[a] < lo[a] || s[a] > hi[a] {
+                return 0.0;
+            }
+            continue;
+        }
+        let (u, w) = ((lo[a] - s[a]) / d, (hi[a] - s[a]) / d);
+        t0 = t0.max(u.min(w));
+        t1 = t1.min(u.max(w));
+    }
+    let len = (0..3).map(|a| (e[a] - s[a]).powi(2)).sum::<f64>().sqrt();
+    (t1 - t0).max(0.0) * len
+}
+
+/// The chord (mm) of each cone-beam ray `[row][view * column + column]`
+/// of `sys` (the half-line from the source through the element) through
+/// the compression box: thickness `t` on the support, the
+/// fan image's width `width_mm` across, the detector's depth.
+pub fn cone_box_chords(sys: &dbt_geometry::ConeSystem, width_mm: f64, t: f64) -> Vec<Vec<f64>> {
+    let d = &sys.detector;
+    let lo = [-width_mm / 2.0, 0.0, sys.support_height_mm];
+    let hi = [
+        width_mm / 2.0,
+        d.rows as f64 * d.pitch_mm,
+        sys.support_height_mm + t,
+    ];
+    (0..d.rows)
+        .map(|r| {
+            (0..sys.n_views())
+                .flat_map(|v| {
+                    let src = sys.source(v);
+                    (0..d.columns).map(move |c| {
+                        // The half-line from the source through the element
+                        // (as the projector takes it: a rotating detector's
+                        // edge rises into the box at the widest angles).
+                        let e = sys.element(v, r, c);
+                        let far = [0, 1, 2].map(|a| src[a] + 10.0 * (e[a] - src[a]));
+                        chord_in_box(src, far, lo, hi)
+                    })
+                })
+                .collect()
         })
         .collect()
+}
+
+/// The per-ray count below which a ray is darker than the thickness
+/// allows: one bound per ray of a slice (the slice-wise stream), or per
+/// ray of each detector row (a cone-beam system's frames, whose rows cross
+/// the breast at other angles).
+enum DarkBounds {
+    Shared(Vec<f64>),
+    PerRow(Vec<Vec<f64>>),
+}
+
+impl DarkBounds {
+    fn row(&self, r: usize) -> &[f64] {
+        match self {
+            DarkBounds::Shared(v) => v,
+            DarkBounds::PerRow(v) => v.get(r).map_or(&[], Vec::as_slice),
+        }
+    }
+}
+
+fn dark_bounds(h: &AcquisitionHeader) -> DarkBounds {
+    let mu = mu_max_per_mm();
+    let bound = |l: f64| {
+        let lam = h.flux * (-mu * l).exp();
+        lam - NOISE_Z * lam.sqrt()
+    };
+    match &h.system {
+        None => DarkBounds::Shared(
+            box_chords(&h.geometry, h.thickness_mm)
+                .into_iter()
+                .map(bound)
+                .collect(),
+        ),
+        Some(sys) => DarkBounds::PerRow(
+            cone_box_chords(sys, h.geometry.width_mm(), h.thickness_mm)
+                .into_iter()
+                .map(|r| r.into_iter().map(bound).collect())
+                .collect(),
+        ),
+    }
 }
 
 /// The defective counts that [`check_counts`] found, to be corrected.
@@ -269,10 +348,16 @@ impl Defects {
 /// Check every count against the flat field and the thickness: up to
 /// [`DEFECT_FRACTION_MAX`] defective counts are returned for
 /// [`Defects::correct`], more are refused. The header must have passed
-/// [`crate::acquisition::validate_header`].
+/// [`crate::acquisition::validate_header`]. A cone-beam acquisition's
+/// counts are its detector's frames (rows of views of columns): checked as
+/// read, before the rebinning spreads a defect over slices and views.
 pub fn check_counts(h: &AcquisitionHeader, counts: &[Vec<f32>]) -> Result<Defects, Implausible> {
     let g = &h.geometry;
-    let (nv, nd, nr) = (g.n_views(), g.n_det(), g.n_rays());
+    let (nv, nd) = match &h.system {
+        Some(s) => (s.n_views(), s.detector.columns),
+        None => (g.n_views(), g.n_det()),
+    };
+    let nr = nv * nd;
     if counts.len() != h.slices {
         return Err(Implausible::Shape {
             got: counts.len(),
@@ -302,7 +387,7 @@ pub fn check_counts(h: &AcquisitionHeader, counts: &[Vec<f32>]) -> Result<Defect
     let mut defects: Vec<(usize, Vec<bool>)> = Vec::new();
     for (si, s) in counts.iter().enumerate() {
         let mut any = false;
-        for (r, (&c, &dark)) in s.iter().zip(&dark_below).enumerate() {
+        for (r, (&c, &dark)) in s.iter().zip(dark_below.row(si)).enumerate() {
             let c64 = c as f64;
             let d = if !c64.is_finite() || c64 < 0.0 {
                 chk.dead += 1;

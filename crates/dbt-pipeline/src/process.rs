@@ -367,10 +367,28 @@ pub fn process_with_progress(
     opts: &PipelineOptions,
     progress: &mut dyn FnMut(Stage),
 ) -> Result<ProcessResult, PipelineError> {
-    // A cone-beam acquisition is first made the slice-wise fan-beam one.
+    // A cone-beam acquisition is first made the slice-wise fan-beam one:
+    // its header validated and its detector frames checked as read (a
+    // stuck or dead element is one element there, spread over slices and
+    // views once rebinned), defects corrected, then rebinned.
     let rebinned;
+    let mut raw_check = None;
     let acq = if acq.header.system.is_some() {
-        rebinned = crate::rebin::fan_acquisition(acq)?;
+        validate_header(&acq.header)?;
+        let defects = check_counts(&acq.header, &acq.counts)?;
+        rebinned = if defects.is_empty() {
+            raw_check = Some(defects.check);
+            crate::rebin::fan_acquisition(acq)?
+        } else {
+            let mut fixed = acq.clone();
+            let chk = defects.correct(&mut fixed.counts)?;
+            tracing::warn!(
+                corrected = chk.corrected,
+                "defective detector counts corrected in the cone-beam frames"
+            );
+            raw_check = Some(chk);
+            crate::rebin::fan_acquisition(&fixed)?
+        };
         &rebinned
     } else {
         acq
@@ -387,6 +405,20 @@ pub fn process_with_progress(
         footprint_mm,
         ..
     } = reconstruct_volume(acq, opts, progress)?;
+    // The record of a cone-beam acquisition is its frames' check, with what
+    // the rebinned sinograms' check still corrected.
+    let counts_check = match raw_check {
+        Some(raw) => CountsCheck {
+            dead: raw.dead + counts_check.dead,
+            dark: raw.dark + counts_check.dark,
+            hot: raw.hot + counts_check.hot,
+            saturated: raw.saturated + counts_check.saturated,
+            stuck: raw.stuck + counts_check.stuck,
+            corrected: raw.corrected + counts_check.corrected,
+            rays: raw.rays,
+        },
+        None => counts_check,
+    };
     progress(Stage::Classification);
     let classification = classify(&mu, dims, g.image.pixel_mm, &opts.classify)?;
     let volume_check = check_volume(

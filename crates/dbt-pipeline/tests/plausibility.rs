@@ -439,6 +439,7 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
     let received = read_projection_object(&bytes).unwrap();
     let system = System {
         geometry: g.clone(),
+        cone: None,
         flux: h.flux,
         tube_output_mgy_per_mas: h.tube_output_mgy_per_mas,
     };
@@ -462,7 +463,7 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
 
     let other = System {
         geometry: g.clone().binned(2).unwrap(),
-        ..system
+        ..system.clone()
     };
     let e = acquisition_from_projections(&received, &other)
         .unwrap_err()
@@ -482,8 +483,8 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
     views.swap(3, 11);
     let keys: std::collections::BTreeSet<String> = views.iter().map(group_key).collect();
     assert_eq!(keys.len(), 1, "{keys:?}");
-    assert_eq!(view_index(&views[0], g).unwrap(), g.n_views() - 1);
-    let swept = assemble(&views, g).unwrap();
+    assert_eq!(view_index(&views[0], &system).unwrap(), g.n_views() - 1);
+    let swept = assemble(&views, &system).unwrap();
     let from_views = acquisition_from_projections(&swept, &system).unwrap();
     assert_eq!(from_views.counts, back.counts);
     let mut want_views = back.header.clone();
@@ -499,7 +500,7 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
 
     // A view missing, a view twice, a view of another thickness: named.
     let named = |v: &[dbt_dicom::projections::ReceivedProjections], want: &str| {
-        let e = assemble(v, g).unwrap_err().to_string();
+        let e = assemble(v, &system).unwrap_err().to_string();
         assert!(e.contains(want), "{want}: {e}");
     };
     named(&views[1..], "missing the views at");
@@ -512,6 +513,124 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
     let mut other_angle = views.clone();
     other_angle[2].angles_deg[0] += 0.7;
     named(&other_angle, "no configured view is at this angle");
+}
+
+/// A cone-beam sweep (issue #28) written as Breast Projection X-Ray and as
+/// per-view Digital Mammography objects reads back, on the configured
+/// cone-beam system, as the same acquisition (the detector's frames, the
+/// system in the header); on another system's configuration it is refused
+/// naming the attribute.
+#[test]
+fn a_cone_beam_projection_object_reads_back_on_its_system() {
+    use dbt_dicom::projections::{projection_object, read_projection_object};
+    use dbt_pipeline::dicom_input::{acquisition_from_projections, assemble, System};
+    let sys = dbt_geometry::ConeSystem::builtin("paper-cone")
+        .unwrap()
+        .binned(8)
+        .unwrap();
+    let g = Geometry::builtin("paper-tall").unwrap().binned(8).unwrap();
+    dbt_pipeline::rebin::check_site(&sys, &g).unwrap();
+    let (rows, cols, views) = (sys.detector.rows, sys.detector.columns, sys.n_views());
+    let mut h = header(rows, 45.0);
+    h.slice_spacing_mm = g.image.pixel_mm;
+    h.geometry = g.clone();
+    h.system = Some(sys.clone());
+    validate_header(&h).unwrap();
+    let counts: Vec<Vec<f32>> = (0..rows)
+        .map(|r| {
+            (0..views * cols)
+                .map(|i| (1000 + (r * 7 + i * 13) % 15000) as f32)
+                .collect()
+        })
+        .collect();
+    let acq = Acquisition {
+        header: h.clone(),
+        counts,
+    };
+    let frames = dbt_pipeline::dicom_input::frames_of(&acq).unwrap();
+    assert_eq!(frames.len(), rows * cols * views);
+    let angles: Vec<f64> = (0..views).map(|v| sys.angle_deg(v)).collect();
+    let header = dbt_pipeline::dicom_header(&acq);
+    let equipment = dbt_dicom::Equipment {
+        manufacturer: "test".into(),
+        model: "test gantry".into(),
+        serial: "1".into(),
+        software_version: "0".into(),
+        device_uid: "1.2.826.0.1.3680043.10.543.9".into(),
+    };
+    let set = dbt_pipeline::dicom_input::projection_set(
+        &acq,
+        &header,
+        &equipment,
+        &angles,
+        &frames,
+        dbt_pipeline::dicom_input::Sweep {
+            compression_force_n: 110.0,
+            exposure_ms_per_view: 60.0,
+            view_interval_ms: 150.0,
+            modality_agd_mgy: 1.5,
+            filter_rh_mm: 0.05,
+            content_date: "20261124",
+            content_time: "101500",
+        },
+    );
+    assert_eq!((set.rows, set.columns), (rows, cols));
+    assert_eq!(set.pixel_spacing_mm, [sys.detector.pitch_mm; 2]);
+    let mut uids = dbt_dicom::UidSource::new("1.2.826.0.1.3680043.10.543", 3).unwrap();
+    let bytes = projection_object(&set, &mut uids)
+        .unwrap()
+        .to_bytes()
+        .unwrap();
+    let received = read_projection_object(&bytes).unwrap();
+    let system = System {
+        geometry: g.clone(),
+        cone: Some(sys.clone()),
+        flux: h.flux,
+        tube_output_mgy_per_mas: h.tube_output_mgy_per_mas,
+    };
+    let back = acquisition_from_projections(&received, &system).unwrap();
+    assert_eq!(back.counts, acq.counts);
+    assert_eq!(back.header.system.as_ref(), Some(&sys));
+    assert_eq!(back.header.slices, rows);
+    assert_eq!(back.header.slice_spacing_mm, g.image.pixel_mm);
+    // Per view, any order: the same frames.
+    let objects = dbt_dicom::dm::view_objects(&set, &mut uids).unwrap();
+    let mut per_view: Vec<_> = objects
+        .iter()
+        .map(|o| read_projection_object(&o.to_bytes().unwrap()).unwrap())
+        .collect();
+    per_view.reverse();
+    let swept = assemble(&per_view, &system).unwrap();
+    assert_eq!(
+        acquisition_from_projections(&swept, &system)
+            .unwrap()
+            .counts,
+        acq.counts
+    );
+    // Another system's configuration: the stationary one (other angles),
+    // a detector of other rows.
+    let victre = dbt_geometry::ConeSystem::builtin("siemens-victre")
+        .unwrap()
+        .binned(8)
+        .unwrap();
+    let other = System {
+        cone: Some(victre),
+        ..system.clone()
+    };
+    let e = acquisition_from_projections(&received, &other)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("XRaySourceIsocenterPrimaryAngle"), "{e}");
+    let mut fewer_rows = sys.clone();
+    fewer_rows.detector.rows -= 1;
+    let other = System {
+        cone: Some(fewer_rows),
+        ..system
+    };
+    let e = acquisition_from_projections(&received, &other)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("Rows") && e.contains("paper-cone"), "{e}");
 }
 
 /// A recorded cone-beam header's system is validated like a loaded one:
@@ -529,4 +648,100 @@ fn an_impossible_cone_beam_system_is_refused_by_name() {
         e.contains("system") && e.contains("detector.pitch_mm"),
         "{e}"
     );
+}
+
+/// Cone-beam frames (issue #28) are checked as read, per detector row
+/// against the chords of its own rays through the compression box: a clean
+/// Poisson acquisition of the densest tissue filling the box passes without
+/// a flag; a stuck element (one value in every view) and a dead one are
+/// found in the frames and corrected.
+#[test]
+fn cone_beam_frames_are_checked_as_read() {
+    use dbt_cone::{ConeProjector, VolumeGrid};
+    let sys = dbt_geometry::ConeSystem::builtin("paper-cone")
+        .unwrap()
+        .binned(8)
+        .unwrap();
+    let g = Geometry::builtin("paper-tall").unwrap().binned(8).unwrap();
+    let t = 45.0;
+    let (width, depth_mm) = (120.0, 100.0);
+    let grid = VolumeGrid {
+        lateral: g.image.columns,
+        vertical: g.image.rows,
+        depth: (depth_mm / g.image.pixel_mm) as usize,
+        voxel_mm: g.image.pixel_mm,
+    };
+    let mu = Tissue::Fibroglandular.mu_per_mm();
+    let mut vol = vec![0.0f32; grid.len()];
+    let half = g.image.columns as f64 * g.image.pixel_mm / 2.0;
+    for d in 0..grid.depth {
+        for v in 0..grid.vertical {
+            for l in 0..grid.lateral {
+                let x = (l as f64 + 0.5) * grid.voxel_mm - half;
+                let z = (v as f64 + 0.5) * grid.voxel_mm;
+                if x.abs() < width / 2.0 && z < t {
+                    vol[grid.index(l, v, d)] = mu;
+                }
+            }
+        }
+    }
+    let p = ConeProjector::new(&sys, grid)
+        .unwrap()
+        .forward(&vol)
+        .unwrap();
+    let (rows, cols, views) = (sys.detector.rows, sys.detector.columns, sys.n_views());
+    let counts: Vec<Vec<f32>> = (0..rows)
+        .map(|r| {
+            let expected: Vec<f32> = (0..views)
+                .flat_map(|v| {
+                    let at = (v * rows + r) * cols;
+                    p[at..at + cols]
+                        .iter()
+                        .map(|x| (FLUX * (-f64::from(*x)).exp()) as f32)
+                        .collect::<Vec<_>>()
+                })
+                .collect();
+            dbt_acquisition::poisson_counts(&expected, 77 + r as u64)
+        })
+        .collect();
+    let mut h = header(rows, t);
+    h.geometry = g.clone();
+    h.slice_spacing_mm = g.image.pixel_mm;
+    h.system = Some(sys.clone());
+    validate_header(&h).unwrap();
+    let clean = check_counts(&h, &counts).unwrap();
+    assert!(clean.is_empty(), "{:?}", clean.check);
+    assert_eq!(clean.check.rays, rows * views * cols);
+    // A stuck element and a dead one, in the frames.
+    let mut bad = counts.clone();
+    let (r, c) = (40, 70);
+    for v in 0..views {
+        bad[r][v * cols + c] = 9000.0;
+    }
+    bad[20][3 * cols + 90] = 0.0;
+    let d = check_counts(&h, &bad).unwrap();
+    assert_eq!((d.check.stuck, d.check.dead), (views, 1), "{:?}", d.check);
+    let fixed = d.correct(&mut bad).unwrap();
+    assert_eq!(fixed.corrected, views + 1);
+    assert!(bad[r][5 * cols + c] != 9000.0 && bad[20][3 * cols + 90] > 0.0);
+    assert!(check_counts(&h, &bad).unwrap().is_empty());
+    // Through the whole processing: host-sim/tests/cone.rs.
+}
+
+/// The chord of a segment through a box: along an axis, diagonal, grazing
+/// the box, and missing it.
+#[test]
+fn chords_in_a_box() {
+    use dbt_pipeline::plausibility::chord_in_box;
+    let (lo, hi) = ([0.0, 0.0, 0.0], [2.0, 3.0, 4.0]);
+    assert!((chord_in_box([1.0, 1.0, -5.0], [1.0, 1.0, 10.0], lo, hi) - 4.0).abs() < 1e-12);
+    let diag = chord_in_box([-1.0, -1.5, -2.0], [3.0, 4.5, 6.0], lo, hi);
+    assert!(
+        (diag - (4.0f64 + 9.0 + 16.0).sqrt()).abs() < 1e-12,
+        "{diag}"
+    );
+    // Ends inside the box: only the part within.
+    assert!((chord_in_box([1.0, 1.0, 1.0], [1.0, 1.0, 9.0], lo, hi) - 3.0).abs() < 1e-12);
+    assert_eq!(chord_in_box([5.0, 1.0, -1.0], [5.0, 1.0, 9.0], lo, hi), 0.0);
+    assert_eq!(chord_in_box([-1.0, 1.0, 5.0], [3.0, 1.0, 5.0], lo, hi), 0.0);
 }
