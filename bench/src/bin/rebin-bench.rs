@@ -1,8 +1,10 @@
-//! What the cone-beam rebinning (issue #28) adds to the firmware's time per
-//! coronal slice: `dbt_pipeline::rebin::rebin` of one acquisition's frames,
-//! per slice, against the DBToR slice it feeds (the shipped model, measured
-//! in the same run, same machine). Goal: at most 10 %. Prints a table;
-//! writes `bench/results/rebin.json`.
+//! What a cone-beam acquisition (issue #28) adds to the firmware's time per
+//! coronal slice: the frames' counts check (`check_counts` on the detector
+//! rows), the rebinning (`dbt_pipeline::rebin::rebin`) and the resampling
+//! of the reconstructed stack (`resample_depth`), per slice, against the
+//! DBToR slice they feed (the shipped model, measured in the same run, same
+//! machine). Goal: at most 10 %. Prints a table; writes
+//! `bench/results/rebin.json`.
 //!
 //! `cargo run --release -p dbt-bench --bin rebin-bench -- [--model models/dbtor-x4t3]
 //!  [--precision int8] [--reps 5]`
@@ -15,7 +17,6 @@ use anyhow::{Context, Result};
 use clap::Parser;
 use dbt_bench::{at_least_one, median, median_ms};
 use dbt_dbtor::{Dbtor, Engine, Precision};
-use dbt_geometry::ConeSystem;
 use rand::{Rng, SeedableRng};
 use serde_json::json;
 use std::path::PathBuf;
@@ -49,11 +50,19 @@ fn main() -> Result<()> {
     };
     let d = Dbtor::load_with(&a.model, precision, Engine::Fast)
         .with_context(|| format!("loading {}", a.model.display()))?;
-    let fan = d.geometry().clone();
-    let sys = ConeSystem::builtin(&a.system)
-        .with_context(|| format!("--system {}: not a built-in system", a.system))?;
-    let factor = (fan.image.pixel_mm / 0.2).round() as usize;
+    let sys = dbt_store::load_system(&a.system, 1)?;
+    // Detector elements as near the model's as binning makes them, and the
+    // fan they are rebinned to (the model's blocks on its operator).
+    let factor = (d.geometry().detector.pitch_mm / sys.detector.pitch_mm)
+        .round()
+        .max(1.0) as usize;
     let sys = sys.binned(factor)?;
+    let fan = sys.rebinning_fan(d.geometry())?;
+    let d = if &fan == d.geometry() {
+        d
+    } else {
+        Dbtor::load_for_geometry(&a.model, precision, &[], Engine::Fast, &fan)?
+    };
     let (rows, cols, views) = (sys.detector.rows, sys.detector.columns, sys.n_views());
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
     let flux = 16_000.0;
@@ -83,6 +92,45 @@ fn main() -> Result<()> {
         );
     });
     let per_slice_rebin = rebin_ms / slices as f64;
+    // The frames' counts check, as `process` runs it on a cone-beam header.
+    let header = dbt_pipeline::acquisition::AcquisitionHeader {
+        format: dbt_pipeline::acquisition::ACQ_FORMAT.into(),
+        geometry: fan.clone(),
+        thickness_mm: thickness,
+        flux,
+        slices: rows,
+        slice_spacing_mm: fan.image.pixel_mm,
+        kvp: 28.0,
+        mas_total: 60.0,
+        tube_output_mgy_per_mas: 0.11,
+        laterality: "L".into(),
+        compression_force_n: None,
+        exposure_ms_per_view: None,
+        system: Some(sys.clone()),
+        patient: Default::default(),
+        study: Default::default(),
+        truth: None,
+    };
+    let check_ms = median_ms(1, a.reps, || {
+        let _ = dbt_pipeline::plausibility::check_counts(&header, &frames);
+    });
+    // The resampling of the reconstructed stack (the rows a 60 mm breast
+    // fills).
+    let nz = fan.rows_within_thickness(thickness);
+    let stack: Vec<f32> = (0..fan.image.columns * nz * slices)
+        .map(|_| rng.random_range(0.04..0.09))
+        .collect();
+    let resample_ms = median_ms(1, a.reps, || {
+        let _ = dbt_pipeline::rebin::resample_depth(
+            &sys,
+            thickness,
+            fan.image.pixel_mm,
+            &stack,
+            [fan.image.columns, nz, slices],
+        );
+    });
+    let all_ms = check_ms + rebin_ms + resample_ms;
+    let per_slice_all = all_ms / slices as f64;
     // The DBToR slice, same machine, same run.
     let sino: Vec<f32> = (0..fan.n_rays())
         .map(|_| rng.random_range(0.5..4.0))
@@ -95,7 +143,8 @@ fn main() -> Result<()> {
         times.push(t.elapsed().as_secs_f64() * 1e3);
     }
     let slice_ms = median(times);
-    let ratio = per_slice_rebin / slice_ms;
+    let ratio = per_slice_all / slice_ms;
+    let share = |ms: f64| 100.0 * ms / slices as f64 / slice_ms;
     println!("cpu: {}", dbt_cli::cpu_summary());
     println!(
         "system {} binned x{factor}: {rows} x {cols} detector, {views} views; fan {}; {slices} slices",
@@ -104,8 +153,19 @@ fn main() -> Result<()> {
     );
     println!("| what | median ms | per slice ms | share of the DBToR slice |");
     println!("|---|---|---|---|");
+    for (what, ms) in [
+        ("counts check of the frames", check_ms),
+        ("rebin", rebin_ms),
+        ("resample the stack", resample_ms),
+    ] {
+        println!(
+            "| {what}, whole acquisition ({slices} slices) | {ms:.2} | {:.3} | {:.2} % |",
+            ms / slices as f64,
+            share(ms)
+        );
+    }
     println!(
-        "| rebin, whole acquisition ({slices} slices) | {rebin_ms:.2} | {per_slice_rebin:.3} | {:.2} % |",
+        "| **all three** | {all_ms:.2} | {per_slice_all:.3} | **{:.2} %** |",
         100.0 * ratio
     );
     println!(
@@ -128,6 +188,9 @@ fn main() -> Result<()> {
             "slices": slices,
             "rebin_ms_median": rebin_ms,
             "rebin_ms_per_slice": per_slice_rebin,
+            "check_ms_median": check_ms,
+            "resample_ms_median": resample_ms,
+            "all_ms_per_slice": per_slice_all,
             "dbtor_slice_ms_median": slice_ms,
             "precision": a.precision,
             "share": ratio,

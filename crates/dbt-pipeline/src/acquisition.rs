@@ -16,7 +16,7 @@ use thiserror::Error;
 pub const ACQ_FORMAT: &str = "dbtor-acquisition/1";
 
 /// Patient attributes.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Patient {
     /// `Family^Given`.
@@ -30,7 +30,7 @@ pub struct Patient {
 }
 
 /// Study attributes.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Study {
     /// Study Instance UID.

@@ -373,6 +373,7 @@ pub fn process_with_progress(
     // views once rebinned), defects corrected, then rebinned.
     let rebinned;
     let mut raw_check = None;
+    let cone = acq.header.system.clone();
     let acq = if acq.header.system.is_some() {
         validate_header(&acq.header)?;
         let defects = check_counts(&acq.header, &acq.counts)?;
@@ -405,6 +406,12 @@ pub fn process_with_progress(
         footprint_mm,
         ..
     } = reconstruct_volume(acq, opts, progress)?;
+    // A cone-beam stack is the breast sheared in depth: resampled to a
+    // regular volume (lateral x vertical x depth).
+    let (mu, dims) = match &cone {
+        Some(sys) => crate::rebin::resample_depth(sys, h.thickness_mm, g.image.pixel_mm, &mu, dims),
+        None => (mu, dims),
+    };
     // The record of a cone-beam acquisition is its frames' check, with what
     // the rebinned sinograms' check still corrected.
     let counts_check = match raw_check {

@@ -300,3 +300,102 @@ fn impossible_counts_pass_unchanged() {
         }
     }
 }
+
+/// The rebinned stack is the breast sheared in depth (what
+/// `resample_depth` undoes): the central view's central ray of slice `c`
+/// crosses depth `y k(z)` at height `z`, `k(z) = (z_s - z) / (z_s - z_ref)`,
+/// where `y` is its depth at `z_ref`: `y_c`, or rather the depth of the
+/// nearest detector row's ray there. Through a step at depth 80 mm its
+/// obliquity-corrected line integral is the attenuation times the heights
+/// where `y k(z) < 80` (exact: the step lies on voxel faces).
+#[test]
+fn the_rebinned_stack_is_the_breast_sheared_in_depth() {
+    let (sys, fan) = paper();
+    let mu = 0.02f32;
+    let img = vec![mu; IMG.0 * IMG.1];
+    let step = 80.0;
+    let (grid, vol) = volume(&img, 100, |y| y < step);
+    let f = frames(&sys, grid, &vol);
+    let thickness = IMG.1 as f64 * IMG.2;
+    let (bottom, top) = (sys.support_height_mm, sys.support_height_mm + thickness);
+    let z_ref = bottom + thickness / 2.0;
+    let out = rebin(&sys, &fan, &f, FLUX, 90, IMG.2, z_ref)
+        .unwrap()
+        .counts;
+    let v = fan.n_views() / 2;
+    let z_s = sys.source(v)[2];
+    let centre = v * fan.n_det() + fan.n_det() / 2;
+    let mut sheared = 0;
+    let pitch = sys.detector.pitch_mm;
+    for (c, s) in out.iter().enumerate() {
+        let y_c = (c as f64 + 0.5) * IMG.2;
+        // The nearest detector row to the ideal ray's, and its ray's depth
+        // at z_ref.
+        let row = (y_c * z_s / (z_s - z_ref) / pitch - 0.5).round();
+        let y = (row + 0.5) * pitch * (z_s - z_ref) / z_s;
+        assert!((y - y_c).abs() <= pitch / 2.0);
+        // y k(z) < step  <=>  z > z_s - step (z_s - z_ref) / y.
+        let z_cut = (z_s - step * (z_s - z_ref) / y).clamp(bottom, top);
+        let want = f64::from(mu) * (top - z_cut);
+        let got = line_integrals(s)[centre];
+        // The central element's ray passes 0.4 mm beside the axis (even
+        // element count): its x-z length differs by (0.4 / 700)^2.
+        assert!(
+            (got - want).abs() < 1e-4,
+            "slice {c} ({y_c} mm): {got} vs {want}"
+        );
+        if want > 1e-6 && (want - f64::from(mu) * thickness).abs() > 1e-6 {
+            sheared += 1;
+        }
+    }
+    assert!(sheared > 3, "no slice crossed the step obliquely");
+}
+
+/// `resample_depth` undoes the shear: a stack holding a step at depth
+/// `Y / k(z)` in row `z` (partial volumes in the slice it falls in: the
+/// rebinned reconstruction of a breast ending at depth `Y` at every
+/// height) becomes the step at `Y` in every row, to a tenth of a slice
+/// (linear interpolation of the edge's partial volume).
+#[test]
+fn resampling_undoes_the_shear() {
+    use dbt_pipeline::rebin::resample_depth;
+    let (sys, _) = paper();
+    let px = IMG.2;
+    let (nx, nz, nd) = (3, IMG.1, 80);
+    let thickness = nz as f64 * px;
+    let z_ref = sys.support_height_mm + thickness / 2.0;
+    let z_s = (0..sys.n_views()).map(|v| sys.source(v)[2]).sum::<f64>() / sys.n_views() as f64;
+    let k = |r: usize| {
+        let z = sys.support_height_mm + (r as f64 + 0.5) * px;
+        (z_s - z) / (z_s - z_ref)
+    };
+    let step = 100.0;
+    let mut mu = vec![0.0f32; nx * nz * nd];
+    for d in 0..nd {
+        for r in 0..nz {
+            let fill = ((step / k(r) - d as f64 * px) / px).clamp(0.0, 1.0);
+            for x in 0..nx {
+                mu[(d * nz + r) * nx + x] = fill as f32;
+            }
+        }
+    }
+    let (out, dims) = resample_depth(&sys, thickness, px, &mu, [nx, nz, nd]);
+    assert_eq!(dims[..2], [nx, nz]);
+    assert!(dims[2] >= nd);
+    let edge = |vol: &[f32], r: usize, n: usize| {
+        (0..n)
+            .map(|d| f64::from(vol[(d * nz + r) * nx + 1]) * px)
+            .sum::<f64>()
+    };
+    let spread = |vol: &[f32], n: usize| {
+        let e: Vec<f64> = (0..nz).map(|r| edge(vol, r, n)).collect();
+        e.iter().cloned().fold(f64::MIN, f64::max) - e.iter().cloned().fold(f64::MAX, f64::min)
+    };
+    // Before: the step's depth changes with the height by the shear.
+    assert!(spread(&mu, nd) > 5.0, "{}", spread(&mu, nd));
+    // After: at the same depth in every row.
+    for r in 0..nz {
+        let e = edge(&out, r, dims[2]);
+        assert!((e - step).abs() <= 0.1 * px, "row {r}: step at {e} mm");
+    }
+}
