@@ -1,5 +1,6 @@
-//! The daemon with both inputs (issue #31): the same simulated acquisition
-//! arrives once over the frame link (host-sim stream) and once over DICOM
+//! The daemon with both inputs (issue #31): the same simulated acquisition,
+//! cone-beam on the shipped system (`paper-cone`, issue #28: the detector's
+//! 2-D frames), arrives once over the frame link (host-sim stream) and once over DICOM
 //! (host-sim dicom-send, a For Processing object, C-STORE), then once more
 //! from dcmtk's storescu; all are reported with the same glandularity (MGD
 //! within the Monte Carlo uncertainty) and their SRs reach Orthanc. An object from another
@@ -37,7 +38,7 @@ fn dicom_send(acq: &Path, port: u16) -> std::process::Output {
 #[test]
 fn both_inputs_report_the_same_acquisition_alike() {
     let dir = tempfile::tempdir().unwrap();
-    let acq = hil_tests::acquire(dir.path(), 2);
+    let acq = hil_tests::acquire_with(dir.path(), "acq", 2, "paper-tall", Some("paper-cone"));
     let h: serde_json::Value =
         serde_json::from_slice(&std::fs::read(acq.join("acquisition.json")).unwrap()).unwrap();
     let flux = h["flux"].as_f64().unwrap();
@@ -56,7 +57,9 @@ fn both_inputs_report_the_same_acquisition_alike() {
 transport = "tcp"
 address = "{frames}"
 idle_timeout_s = 20
+geometry = "paper-tall"
 binning = 4
+system = "paper-cone"
 
 [modbus]
 transport = "off"

@@ -577,9 +577,18 @@ fn run_dicom_send(args: DicomSendArgs) -> Result<()> {
     let a = dbt_store::acquisition::read_acquisition(&acq)?;
     let h = &a.header;
     let g = &h.geometry;
-    let (views, det) = (g.n_views(), g.n_det());
+    // A cone-beam acquisition's frames are its system's detector's.
+    let (views, det) = match &h.system {
+        Some(s) => (s.n_views(), s.detector.columns),
+        None => (g.n_views(), g.n_det()),
+    };
     let counts = dbt_pipeline::dicom_input::frames_of(&a)?;
-    let angles: Vec<f64> = (0..views).map(|v| g.angle_deg(v)).collect();
+    let angles: Vec<f64> = (0..views)
+        .map(|v| match &h.system {
+            Some(s) => s.angle_deg(v),
+            None => g.angle_deg(v),
+        })
+        .collect();
     let kerma = h.mas_total * h.tube_output_mgy_per_mas;
     let header = dbt_pipeline::dicom_header(&a);
     let equipment = dbt_dicom::Equipment {
