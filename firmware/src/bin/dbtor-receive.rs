@@ -129,7 +129,9 @@ fn run(cli: Cli) -> Result<bool> {
         serde_json::json!({
             "spooled": out.display().to_string(),
             "patient_id": acq.header.patient.id,
+            // Coronal slices, or a cone-beam system's detector rows.
             "slices": acq.header.slices,
+            "system": acq.header.system.as_ref().map(|s| s.name.clone()),
             "link": stats,
             "frames": stats.frames,
             "crc_errors": stats.crc_errors,
