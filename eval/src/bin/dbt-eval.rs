@@ -619,14 +619,13 @@ fn write_png_as(
     // A picture whose every RGB pixel is grey is written as grey (a third
     // of the bytes: the figures live in the repository).
     let grey;
-    let (pixels, color) = if color == png::ColorType::Rgb
-        && pixels.chunks(3).all(|p| p[0] == p[1] && p[1] == p[2])
-    {
-        grey = pixels.chunks(3).map(|p| p[0]).collect::<Vec<u8>>();
-        (&grey[..], png::ColorType::Grayscale)
-    } else {
-        (pixels, color)
-    };
+    let (pixels, color) =
+        if color == png::ColorType::Rgb && pixels.chunks(3).all(|p| p[0] == p[1] && p[1] == p[2]) {
+            grey = pixels.chunks(3).map(|p| p[0]).collect::<Vec<u8>>();
+            (&grey[..], png::ColorType::Grayscale)
+        } else {
+            (pixels, color)
+        };
     let f = std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
     let mut enc = png::Encoder::new(std::io::BufWriter::new(f), w as u32, h as u32);
     enc.set_color(color);
