@@ -92,6 +92,7 @@ fn main() -> Result<()> {
                 seed: 1,
                 classify: ClassifyOptions::default(),
                 calibration: None,
+                linearise: None,
             };
             let v = reconstruct_volume(&acq, &opts, &mut |_| {})?;
             ensure!(v.dims == dims, "volume {:?} against {:?}", v.dims, dims);

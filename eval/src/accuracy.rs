@@ -9,7 +9,7 @@ use dbt_dose::patient::{dbt_views, mgd_to_uncertainty, Breast, Model};
 use dbt_geometry::Geometry;
 use dbt_phantom::{LabelVolume, Population, PopulationKind};
 use dbt_pipeline::{process, PipelineOptions};
-use host_sim::{simulate_acquisition, Technique};
+use host_sim::Technique;
 use serde::Serialize;
 
 /// One case.
@@ -231,16 +231,28 @@ pub fn run_cases(
     opts: &[PipelineOptions],
     seed: u64,
 ) -> anyhow::Result<Vec<Case>> {
-    run_cases_on(name, vol, geom, None, noise, opts, seed)
+    run_cases_on(
+        name,
+        vol,
+        geom,
+        None,
+        host_sim::Physics::Mono,
+        noise,
+        opts,
+        seed,
+    )
 }
 
 /// [`run_cases`], the acquisition made on cone-beam `system` when given
-/// (issue #28: the firmware rebins it to slice-wise sinograms in `geom`).
+/// (issue #28: the firmware rebins it to slice-wise sinograms in `geom`),
+/// with `physics` (issue #27).
+#[allow(clippy::too_many_arguments)]
 pub fn run_cases_on(
     name: String,
     vol: &LabelVolume,
     geom: &Geometry,
     system: Option<&dbt_geometry::ConeSystem>,
+    physics: host_sim::Physics,
     noise: NoiseLevel,
     opts: &[PipelineOptions],
     seed: u64,
@@ -250,9 +262,11 @@ pub fn run_cases_on(
     let tech = Technique::default();
     let root = "1.2.826.0.1.3680043.10.543.3";
     let acq = match system {
-        None => simulate_acquisition(vol, geom, noise, seed, tech, 28.0, "EVAL", root)?,
-        Some(sys) => host_sim::simulate_cone_acquisition(
-            vol, geom, sys, noise, seed, tech, 28.0, "EVAL", root,
+        None => host_sim::simulate_acquisition_with(
+            vol, geom, noise, physics, seed, tech, 28.0, "EVAL", root,
+        )?,
+        Some(sys) => host_sim::simulate_cone_acquisition_with(
+            vol, geom, sys, noise, physics, seed, tech, 28.0, "EVAL", root,
         )?,
     };
     let acquired = t0.elapsed().as_secs_f64();

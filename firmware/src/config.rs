@@ -208,6 +208,30 @@ pub struct ReconConfig {
     /// Target relative uncertainty of the Monte Carlo MGD.
     #[serde(default = "default_unc")]
     pub dose_uncertainty: f64,
+    /// The detector's physics (issue #27): `off` (counts taken as
+    /// mono-energetic: the paper's simulated photon-counting detector) or
+    /// `csi` (an energy-integrating CsI flat panel: the beam hardening
+    /// linearised before the reconstruction, `dbt_pipeline::linearise`).
+    #[serde(default)]
+    pub beam_hardening: BeamHardeningMode,
+    /// The CsI scintillator's thickness, um (with `beam_hardening = "csi"`).
+    #[serde(default = "default_csi_um")]
+    pub csi_um: f64,
+}
+
+/// How the counts' beam hardening is handled.
+#[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum BeamHardeningMode {
+    /// Counts taken as mono-energetic.
+    #[default]
+    Off,
+    /// Linearised for a CsI energy-integrating detector.
+    Csi,
+}
+
+fn default_csi_um() -> f64 {
+    200.0
 }
 
 fn default_precision() -> dbt_dbtor::Precision {
@@ -711,6 +735,12 @@ impl Config {
                 "must be in (0, 20) mm".into(),
             ));
         }
+        if !(self.recon.csi_um.is_finite() && (50.0..=1000.0).contains(&self.recon.csi_um)) {
+            return Err(bad(
+                "recon.csi_um",
+                format!("{} um: a CsI layer is 50-1000 um thick", self.recon.csi_um),
+            ));
+        }
         match self.recon.reconstructor {
             Reconstructor::Dbtor => {
                 let m = self.recon.model.as_ref().ok_or_else(|| {
@@ -867,6 +897,18 @@ impl Config {
             geometry: self.gantry_geometry(path)?,
             system: self.gantry_system(path)?,
             tube_output_mgy_per_mas: self.report.tube_output_mgy_per_mas,
+        })
+    }
+
+    /// The beam-hardening correction the configuration asks for, if any.
+    pub fn linearise(&self) -> Option<dbt_pipeline::linearise::BeamHardening> {
+        (self.recon.beam_hardening == BeamHardeningMode::Csi).then(|| {
+            dbt_pipeline::linearise::BeamHardening {
+                detector: dbt_acquisition::clinical::Detector {
+                    csi_um: self.recon.csi_um,
+                    ..Default::default()
+                },
+            }
         })
     }
 
@@ -1234,6 +1276,28 @@ mod tests {
         let e = c.unwrap_err().to_string();
         assert!(
             e.contains("frames.geometry") && e.contains("no-such.toml"),
+            "{e}"
+        );
+    }
+
+    /// The beam-hardening correction: off as shipped, a CsI detector's on
+    /// request; an impossible scintillator is refused naming the key.
+    #[test]
+    fn beam_hardening_is_configured() {
+        let c = example(|t| t).unwrap();
+        assert_eq!(c.linearise(), None);
+        let c =
+            example(|t| t.replace("beam_hardening = \"off\"", "beam_hardening = \"csi\"")).unwrap();
+        assert_eq!(c.linearise().unwrap().detector.csi_um, 200.0);
+        let e = example(|t| t.replace("csi_um = 200.0", "csi_um = 5.0"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("recon.csi_um") && e.contains("5 um"), "{e}");
+        let e = example(|t| t.replace("beam_hardening = \"off\"", "beam_hardening = \"selenium\""))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("beam_hardening") && e.contains("selenium"),
             "{e}"
         );
     }

@@ -302,6 +302,7 @@ impl Daemon {
         let mut opts = PipelineOptions {
             mltr_iterations: cfg.recon.mltr_iterations,
             dose_uncertainty: cfg.recon.dose_uncertainty,
+            linearise: cfg.linearise(),
             ..PipelineOptions::default()
         };
         if cfg.recon.reconstructor == Reconstructor::Dbtor {

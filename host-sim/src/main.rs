@@ -91,6 +91,12 @@ struct AcquireArgs {
     /// its own fan beam (the paper's simplification).
     #[arg(long)]
     system: Option<String>,
+    /// The physics (issue #27): `mono` (the paper's: one energy, photon
+    /// counting) or `clinical` (the Table 3 spectrum for the thickness, an
+    /// energy-integrating CsI detector, quantum and electronic noise; the
+    /// noise level's photons per element; no scatter yet).
+    #[arg(long, default_value = "mono")]
+    physics: String,
 }
 
 /// The options of `host-sim stream`.
@@ -274,7 +280,9 @@ fn run_acquire(args: AcquireArgs) -> Result<()> {
         noise,
         population,
         system,
+        physics,
     } = args;
+    let physics = host_sim::Physics::parse(&physics)?;
     let g = geometry.load()?;
     let vol = population
         .draw(&g, Population::TEST_SEED, index)
@@ -285,10 +293,11 @@ fn run_acquire(args: AcquireArgs) -> Result<()> {
     let patient = format!("TEST{index:03}");
     let root = "1.2.826.0.1.3680043.10.543.2";
     let acq = match system {
-        None => host_sim::simulate_acquisition(
+        None => host_sim::simulate_acquisition_with(
             &vol,
             &g,
             noise,
+            physics,
             seed,
             host_sim::Technique::default(),
             kvp,
@@ -307,11 +316,12 @@ fn run_acquire(args: AcquireArgs) -> Result<()> {
             dbt_pipeline::rebin::check_site(&sys, &fan).with_context(|| {
                 format!("--system {name} with --geometry {}", geometry.geometry)
             })?;
-            host_sim::simulate_cone_acquisition(
+            host_sim::simulate_cone_acquisition_with(
                 &vol,
                 &fan,
                 &sys,
                 noise,
+                physics,
                 seed,
                 host_sim::Technique::default(),
                 kvp,
@@ -322,7 +332,7 @@ fn run_acquire(args: AcquireArgs) -> Result<()> {
     };
     dbt_store::acquisition::write_acquisition(&out, &acq)?;
     println!(
-        "{}: test phantom {index}, {} {}, thickness {:.1} mm, glandularity {:.3}, {}",
+        "{}: test phantom {index}, {} {}, thickness {:.1} mm, glandularity {:.3}, {}, {} physics",
         out.display(),
         acq.header.slices,
         match &acq.header.system {
@@ -331,7 +341,8 @@ fn run_acquire(args: AcquireArgs) -> Result<()> {
         },
         acq.header.thickness_mm,
         vol.glandularity().unwrap_or(0.0),
-        noise.name()
+        noise.name(),
+        physics.name()
     );
     Ok(())
 }

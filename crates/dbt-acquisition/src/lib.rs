@@ -8,6 +8,12 @@
 //! `g_i = ln(b / max(y_i, 0.5))`. The floor of half a count keeps a ray that
 //! counted zero photons finite (it happens at N = 4 behind the thickest
 //! tissue); it is the usual half-count correction.
+//!
+//! [`clinical`]: the clinical physics model (issue #27): a polychromatic
+//! beam through the tissues' own attenuation, an energy-integrating CsI
+//! detector, quantum and electronic noise.
+
+pub mod clinical;
 
 use dbt_projector::{Projector, ProjectorError};
 use rand::SeedableRng;
@@ -29,6 +35,9 @@ pub enum AcquisitionError {
     /// Counts and flux disagree in size or value.
     #[error("counts: {0}")]
     BadCounts(String),
+    /// The clinical physics model cannot be built or used as asked.
+    #[error("clinical physics: {0}")]
+    Physics(String),
 }
 
 /// Photon flux of a noise-free acquisition. The noise-free log transform is

@@ -496,6 +496,10 @@ pub struct Slice {
     /// Attenuation from the partial volumes (the mean of the fine samples'),
     /// image layout, for a volume that has them.
     pub partial_mu: Option<Vec<f32>>,
+    /// Each label's share of the fine samples (air, adipose, skin,
+    /// fibroglandular, ligament), image layout, for a volume that has
+    /// partial volumes.
+    pub partial_shares: Option<Vec<[f32; 5]>>,
 }
 
 impl Slice {
@@ -506,6 +510,33 @@ impl Slice {
             Some(mu) => mu.clone(),
             None => labels_to_mu(&self.labels),
         }
+    }
+
+    /// The share of each pixel that is adipose, fibroglandular (Cooper's
+    /// ligaments included: the same composition) and skin tissue, image
+    /// layout (the partial volumes' where the volume has them, else 0 or 1
+    /// from the labels): what a polychromatic acquisition projects per
+    /// material.
+    pub fn material_shares(&self) -> [Vec<f32>; 3] {
+        let n = self.labels.len();
+        let mut out = [vec![0f32; n], vec![0f32; n], vec![0f32; n]];
+        for i in 0..n {
+            let f = match &self.partial_shares {
+                Some(p) => p[i],
+                None => {
+                    let mut f = [0f32; 5];
+                    if let Some(x) = f.get_mut(self.labels[i] as usize) {
+                        *x = 1.0;
+                    }
+                    f
+                }
+            };
+            out[0][i] = f[Tissue::Adipose.label() as usize];
+            out[1][i] =
+                f[Tissue::Fibroglandular.label() as usize] + f[Tissue::Ligament.label() as usize];
+            out[2][i] = f[Tissue::Skin.label() as usize];
+        }
+        out
     }
 
     /// The breast-thickness mask of the paper: 1 on every image row whose
@@ -586,6 +617,7 @@ pub fn coronal_slice(vol: &LabelVolume, d: usize, geom: &Geometry) -> Result<Sli
         (&pv.counts[d * n..(d + 1) * n], (pv.sub as f32).powi(3))
     });
     let mut partial_mu = pv.map(|_| vec![0f32; rows * cols]);
+    let mut partial_shares = pv.map(|_| vec![[0f32; 5]; rows * cols]);
     // Column c of the image holds lateral index c + shift.
     let shift = nx as isize / 2 - cols as isize / 2;
     for v in 0..top {
@@ -602,6 +634,9 @@ pub fn coronal_slice(vol: &LabelVolume, d: usize, geom: &Geometry) -> Result<Sli
                         .map(|(&k, m)| k as f32 * m)
                         .sum::<f32>()
                         / n;
+                    if let Some(sh) = partial_shares.as_mut() {
+                        sh[row * cols + c] = k.map(|k| k as f32 / n);
+                    }
                 }
             }
         }
@@ -610,6 +645,7 @@ pub fn coronal_slice(vol: &LabelVolume, d: usize, geom: &Geometry) -> Result<Sli
         labels,
         thickness_mm: vol.thickness_mm(),
         partial_mu,
+        partial_shares,
     })
 }
 
@@ -624,6 +660,40 @@ mod tests {
         data[4 + 2] = 3; // (2,1,0)
         data[12 + 1] = 2; // (1,0,1)
         LabelVolume::new([4, 3, 2], 0.5, data).unwrap()
+    }
+
+    /// The material shares a polychromatic acquisition projects: from the
+    /// labels (0 or 1) or the partial volumes; weighted by the tissues'
+    /// attenuation they give the slice's attenuation image.
+    #[test]
+    fn material_shares_add_up_to_the_attenuation() {
+        let g = Geometry::builtin("paper").unwrap().binned(4).unwrap();
+        // 2 lateral x 1 vertical x 1 depth: adipose | fine mixture.
+        let v = LabelVolume::new([2, 1, 1], g.image.pixel_mm, vec![1, 3]).unwrap();
+        let s = coronal_slice(&v, 0, &g).unwrap();
+        let [a, f, k] = s.material_shares();
+        let mu = s.mu();
+        for i in 0..mu.len() {
+            let want = a[i] * Tissue::Adipose.mu_per_mm()
+                + f[i] * Tissue::Fibroglandular.mu_per_mm()
+                + k[i] * Tissue::Skin.mu_per_mm();
+            assert!((want - mu[i]).abs() < 1e-7, "pixel {i}");
+        }
+        assert_eq!(a.iter().sum::<f32>(), 1.0);
+        // 8 fine samples: 4 adipose, 1 skin, 2 fibroglandular, 1 ligament.
+        let pv = v
+            .clone()
+            .with_partial_volumes(2, vec![[8, 0, 0, 0, 0], [0, 4, 1, 2, 1]])
+            .unwrap();
+        let s = coronal_slice(&pv, 0, &g).unwrap();
+        let [a, f, k] = s.material_shares();
+        let mu = s.mu();
+        let c = mu.iter().position(|&m| m > 0.0).unwrap();
+        assert_eq!((a[c], f[c], k[c]), (0.5, 0.375, 0.125));
+        let want = 0.5 * Tissue::Adipose.mu_per_mm()
+            + 0.375 * Tissue::Fibroglandular.mu_per_mm()
+            + 0.125 * Tissue::Skin.mu_per_mm();
+        assert!((mu[c] - want).abs() < 1e-7);
     }
 
     #[test]

@@ -12,6 +12,7 @@
 
 pub mod acquisition;
 pub mod dicom_input;
+pub mod linearise;
 pub mod plausibility;
 pub mod process;
 pub mod rebin;

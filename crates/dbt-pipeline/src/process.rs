@@ -86,6 +86,11 @@ pub struct PipelineOptions {
     /// this reconstructor on validation phantoms
     /// (`dbt_model::load_calibration` reads it from the model folder).
     pub calibration: Option<GlandularityCalibration>,
+    /// Beam-hardening linearisation of a polychromatic detector's counts
+    /// before anything reads them (issue #27); `None`: the counts are
+    /// taken as mono-energetic.
+    #[serde(skip)]
+    pub linearise: Option<crate::linearise::BeamHardening>,
 }
 
 impl Default for PipelineOptions {
@@ -97,6 +102,7 @@ impl Default for PipelineOptions {
             seed: 1,
             classify: ClassifyOptions::default(),
             calibration: None,
+            linearise: None,
         }
     }
 }
@@ -371,6 +377,22 @@ pub fn process_with_progress(
     // its header validated and its detector frames checked as read (a
     // stuck or dead element is one element there, spread over slices and
     // views once rebinned), defects corrected, then rebinned.
+    // A polychromatic detector's counts, linearised first (every check and
+    // the reconstruction read mono-energetic counts).
+    let linearised;
+    let acq = match &opts.linearise {
+        Some(bh) => {
+            validate_header(&acq.header)?;
+            let mut a = acq.clone();
+            let n = bh
+                .apply(&a.header, &mut a.counts)
+                .map_err(|e| PipelineError::Input(e.to_string()))?;
+            tracing::debug!(counts = n, "beam hardening linearised");
+            linearised = a;
+            &linearised
+        }
+        None => acq,
+    };
     let rebinned;
     let mut raw_check = None;
     let cone = acq.header.system.clone();

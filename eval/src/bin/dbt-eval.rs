@@ -272,6 +272,16 @@ struct AccuracyArgs {
     /// The DBToR model (needed for the fp32 and int8 reconstructors).
     #[arg(long)]
     model: Option<PathBuf>,
+    /// The acquisition's physics (issue #27): `mono` (the paper's: one
+    /// energy, photon counting) or `clinical` (polychromatic, CsI
+    /// energy-integrating detector, quantum and electronic noise; no
+    /// scatter yet).
+    #[arg(long, default_value = "mono")]
+    physics: String,
+    /// Linearise the beam hardening before the reconstruction
+    /// (`dbt_pipeline::linearise`, the clinical physics' CsI detector).
+    #[arg(long)]
+    linearise: bool,
     /// Acquire on this cone-beam system (issue #28: `paper-cone`,
     /// `siemens-victre` or a system TOML), binned as the geometry is
     /// (its pixel over 0.2 mm); the firmware rebins to slices. Default: every
@@ -933,7 +943,10 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
         reconstructors,
         runtime,
         system,
+        physics,
+        linearise,
     } = args;
+    let physics = host_sim::Physics::parse(&physics)?;
     let skin = match skin {
         Some(v) => parse_skin_variant(&v)?,
         None => dbt_tissue::ClassifyOptions::default(),
@@ -974,6 +987,9 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
             seed: 1,
             classify: skin,
             calibration,
+            linearise: linearise.then(|| dbt_pipeline::linearise::BeamHardening {
+                detector: Default::default(),
+            }),
         };
         let label = dbt_pipeline::reconstructor_name(&opts);
         let label = match calibration {
@@ -1049,6 +1065,7 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
             &vol,
             &g_acq,
             system.as_ref(),
+            physics,
             noise,
             &opts,
             1000 + k as u64,
@@ -1100,6 +1117,8 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
         "noise": noise.name(),
         "geometry": g_acq.describe(),
         "system": system.as_ref().map(|s| s.name.clone()),
+        "physics": physics.name(),
+        "linearised": linearise,
         "phantoms": match &phantom {
             Some(p) => p.display().to_string(),
             None => split.describe(),

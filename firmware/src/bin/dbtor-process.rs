@@ -53,6 +53,11 @@ struct Cli {
     /// Relative statistical uncertainty the Monte Carlo dose runs to.
     #[arg(long, default_value_t = 0.01)]
     dose_uncertainty: f64,
+    /// Linearise the beam hardening of an energy-integrating CsI detector
+    /// this many um thick (the daemon's `recon.beam_hardening = "csi"`,
+    /// `csi_um`); without it the counts are taken as mono-energetic.
+    #[arg(long)]
+    csi_um: Option<f64>,
 }
 
 fn main() -> ExitCode {
@@ -79,9 +84,23 @@ fn run(cli: Cli) -> Result<()> {
         .map(dbt_pacs::PacsConfig::parse)
         .transpose()?;
     let (acq_dir, out, uid_root) = (cli.acquisition, cli.out, cli.uid_root);
+    if let Some(um) = cli.csi_um {
+        anyhow::ensure!(
+            um.is_finite() && (50.0..=1000.0).contains(&um),
+            "--csi-um {um}: a CsI layer is 50-1000 um thick"
+        );
+    }
     let mut opts = PipelineOptions {
         mltr_iterations: cli.iterations,
         dose_uncertainty: cli.dose_uncertainty,
+        linearise: cli
+            .csi_um
+            .map(|csi_um| dbt_pipeline::linearise::BeamHardening {
+                detector: dbt_acquisition::clinical::Detector {
+                    csi_um,
+                    ..Default::default()
+                },
+            }),
         ..PipelineOptions::default()
     };
     let dbt_cli::ModelArgs {
