@@ -393,21 +393,20 @@ fn the_reconstructed_breast_must_fit_its_tissues_and_its_box() {
     assert!(check_volume(&a.header, &fp, &mu, &vec![0u8; labels.len()], px).is_err());
 }
 
-/// The DICOM input's conversion (issue #31): an acquisition written as a
-/// Breast Projection X-Ray For Processing object and read back is the same
-/// acquisition on the same configured system (counts exactly: integers);
-/// an object from another gantry is refused naming the attribute.
-#[test]
-fn a_projection_object_reads_back_as_the_same_acquisition() {
+/// `acq` as the simulated modality writes it (its views at `angles`): one
+/// Breast Projection X-Ray For Processing object and one Digital
+/// Mammography For Processing object per view, each read back (the
+/// per-view ones with their SOP instance UIDs).
+fn written_and_read(
+    acq: &Acquisition,
+    angles: &[f64],
+) -> (
+    dbt_dicom::projections::ReceivedProjections,
+    Vec<(String, dbt_dicom::projections::ReceivedProjections)>,
+) {
     use dbt_dicom::projections::{projection_object, read_projection_object};
-    use dbt_pipeline::dicom_input::{acquisition_from_projections, System};
-    let acq = acquisition(6, 45.0, 120.0, 45.0, 5);
-    let h = &acq.header;
-    let g = &h.geometry;
-    let views = g.n_views();
-    let counts = dbt_pipeline::dicom_input::frames_of(&acq).unwrap();
-    let angles: Vec<f64> = (0..views).map(|v| g.angle_deg(v)).collect();
-    let header = dbt_pipeline::dicom_header(&acq);
+    let counts = dbt_pipeline::dicom_input::frames_of(acq).unwrap();
+    let header = dbt_pipeline::dicom_header(acq);
     let equipment = dbt_dicom::Equipment {
         manufacturer: "test".into(),
         model: "test gantry".into(),
@@ -416,10 +415,10 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
         device_uid: "1.2.826.0.1.3680043.10.543.9".into(),
     };
     let set = dbt_pipeline::dicom_input::projection_set(
-        &acq,
+        acq,
         &header,
         &equipment,
-        &angles,
+        angles,
         &counts,
         dbt_pipeline::dicom_input::Sweep {
             compression_force_n: 110.0,
@@ -436,7 +435,31 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
         .unwrap()
         .to_bytes()
         .unwrap();
-    let received = read_projection_object(&bytes).unwrap();
+    let views = dbt_dicom::dm::view_objects(&set, &mut uids)
+        .unwrap()
+        .iter()
+        .map(|o| {
+            (
+                o.sop_instance.clone(),
+                read_projection_object(&o.to_bytes().unwrap()).unwrap(),
+            )
+        })
+        .collect();
+    (read_projection_object(&bytes).unwrap(), views)
+}
+
+/// The DICOM input's conversion (issue #31): an acquisition written as a
+/// Breast Projection X-Ray For Processing object and read back is the same
+/// acquisition on the same configured system (counts exactly: integers);
+/// an object from another gantry is refused naming the attribute.
+#[test]
+fn a_projection_object_reads_back_as_the_same_acquisition() {
+    use dbt_pipeline::dicom_input::{acquisition_from_projections, System};
+    let acq = acquisition(6, 45.0, 120.0, 45.0, 5);
+    let h = &acq.header;
+    let g = &h.geometry;
+    let angles: Vec<f64> = (0..g.n_views()).map(|v| g.angle_deg(v)).collect();
+    let (received, objects) = written_and_read(&acq, &angles);
     let system = System {
         geometry: g.clone(),
         cone: None,
@@ -474,11 +497,7 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
     // view, received in any order: assembled, the same acquisition (but
     // the evidence: the views' own class and instances).
     use dbt_pipeline::dicom_input::{assemble, group_key, view_index};
-    let objects = dbt_dicom::dm::view_objects(&set, &mut uids).unwrap();
-    let mut views: Vec<_> = objects
-        .iter()
-        .map(|o| read_projection_object(&o.to_bytes().unwrap()).unwrap())
-        .collect();
+    let mut views: Vec<_> = objects.iter().map(|(_, o)| o.clone()).collect();
     views.reverse();
     views.swap(3, 11);
     let keys: std::collections::BTreeSet<String> = views.iter().map(group_key).collect();
@@ -489,7 +508,7 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
     assert_eq!(from_views.counts, back.counts);
     let mut want_views = back.header.clone();
     want_views.study.series_uid = views[0].header.source_series_uid.clone();
-    want_views.study.instance_uids = objects.iter().map(|o| o.sop_instance.clone()).collect();
+    want_views.study.instance_uids = objects.iter().map(|(uid, _)| uid.clone()).collect();
     want_views.study.source_class = Some(dbt_dicom::dm::DM_FOR_PROCESSING_CLASS.into());
     // The per-view exposures are whole uAs: their sum within 0.5 uAs each.
     assert!(
@@ -522,7 +541,6 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
 /// naming the attribute.
 #[test]
 fn a_cone_beam_projection_object_reads_back_on_its_system() {
-    use dbt_dicom::projections::{projection_object, read_projection_object};
     use dbt_pipeline::dicom_input::{acquisition_from_projections, assemble, System};
     let sys = dbt_geometry::ConeSystem::builtin("paper-cone")
         .unwrap()
@@ -550,38 +568,10 @@ fn a_cone_beam_projection_object_reads_back_on_its_system() {
     let frames = dbt_pipeline::dicom_input::frames_of(&acq).unwrap();
     assert_eq!(frames.len(), rows * cols * views);
     let angles: Vec<f64> = (0..views).map(|v| sys.angle_deg(v)).collect();
-    let header = dbt_pipeline::dicom_header(&acq);
-    let equipment = dbt_dicom::Equipment {
-        manufacturer: "test".into(),
-        model: "test gantry".into(),
-        serial: "1".into(),
-        software_version: "0".into(),
-        device_uid: "1.2.826.0.1.3680043.10.543.9".into(),
-    };
-    let set = dbt_pipeline::dicom_input::projection_set(
-        &acq,
-        &header,
-        &equipment,
-        &angles,
-        &frames,
-        dbt_pipeline::dicom_input::Sweep {
-            compression_force_n: 110.0,
-            exposure_ms_per_view: 60.0,
-            view_interval_ms: 150.0,
-            modality_agd_mgy: 1.5,
-            filter_rh_mm: 0.05,
-            content_date: "20261124",
-            content_time: "101500",
-        },
-    );
-    assert_eq!((set.rows, set.columns), (rows, cols));
-    assert_eq!(set.pixel_spacing_mm, [sys.detector.pitch_mm; 2]);
-    let mut uids = dbt_dicom::UidSource::new("1.2.826.0.1.3680043.10.543", 3).unwrap();
-    let bytes = projection_object(&set, &mut uids)
-        .unwrap()
-        .to_bytes()
-        .unwrap();
-    let received = read_projection_object(&bytes).unwrap();
+    let (received, objects) = written_and_read(&acq, &angles);
+    // The detector's frames, its square elements.
+    assert_eq!((received.rows, received.columns), (rows, cols));
+    assert_eq!(received.pixel_spacing_mm, [sys.detector.pitch_mm; 2]);
     let system = System {
         geometry: g.clone(),
         cone: Some(sys.clone()),
@@ -594,11 +584,7 @@ fn a_cone_beam_projection_object_reads_back_on_its_system() {
     assert_eq!(back.header.slices, rows);
     assert_eq!(back.header.slice_spacing_mm, g.image.pixel_mm);
     // Per view, any order: the same frames.
-    let objects = dbt_dicom::dm::view_objects(&set, &mut uids).unwrap();
-    let mut per_view: Vec<_> = objects
-        .iter()
-        .map(|o| read_projection_object(&o.to_bytes().unwrap()).unwrap())
-        .collect();
+    let mut per_view: Vec<_> = objects.into_iter().map(|(_, o)| o).collect();
     per_view.reverse();
     let swept = assemble(&per_view, &system).unwrap();
     assert_eq!(

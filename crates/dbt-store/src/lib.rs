@@ -66,35 +66,47 @@ pub fn read_maybe_gz(path: &Path) -> Result<Vec<u8>, StoreError> {
     }
 }
 
+/// The text of a built-in named `spec`, or of the file `spec`; a missing
+/// file that is no built-in name is refused naming the built-ins (`what`:
+/// "geometry", "cone-beam system").
+fn builtin_or_file(
+    spec: &str,
+    builtins: &[(&str, &str)],
+    what: &str,
+) -> Result<String, StoreError> {
+    if let Some((_, text)) = builtins.iter().find(|(n, _)| *n == spec) {
+        return Ok(text.to_string());
+    }
+    let path = Path::new(spec);
+    std::fs::read_to_string(path).map_err(|source| {
+        if source.kind() == std::io::ErrorKind::NotFound {
+            let names: Vec<&str> = builtins.iter().map(|(n, _)| *n).collect();
+            StoreError::Format {
+                path: path.to_path_buf(),
+                reason: format!(
+                    "no such {what} file, and not a built-in {what} ({})",
+                    names.join(", ")
+                ),
+            }
+        } else {
+            StoreError::Io {
+                path: path.to_path_buf(),
+                cause: source,
+            }
+        }
+    })
+}
+
 /// A geometry named on a command line or in a configuration file: a
 /// built-in name (`paper`, `paper-tall`, `paper-104`: [`dbt_geometry::BUILTIN_GEOMETRIES`])
 /// or the path of a geometry TOML; then binned by `binning`.
 pub fn load_geometry(spec: &str, binning: usize) -> Result<Geometry, StoreError> {
-    let path = Path::new(spec);
     let format = |reason: String| StoreError::Format {
-        path: path.to_path_buf(),
+        path: PathBuf::from(spec),
         reason,
     };
-    let g = match Geometry::builtin(spec) {
-        Some(g) => g,
-        None => {
-            let text = std::fs::read_to_string(path).map_err(|source| {
-                if source.kind() == std::io::ErrorKind::NotFound {
-                    let names: Vec<&str> = BUILTIN_GEOMETRIES.iter().map(|(n, _)| *n).collect();
-                    format(format!(
-                        "no such geometry file, and not a built-in geometry ({})",
-                        names.join(", ")
-                    ))
-                } else {
-                    StoreError::Io {
-                        path: path.to_path_buf(),
-                        cause: source,
-                    }
-                }
-            })?;
-            Geometry::from_toml_str(&text).map_err(|e| format(e.to_string()))?
-        }
-    };
+    let text = builtin_or_file(spec, &BUILTIN_GEOMETRIES, "geometry")?;
+    let g = Geometry::from_toml_str(&text).map_err(|e| format(e.to_string()))?;
     g.binned(binning)
         .map_err(|e| format(format!("binning {binning}: {e}")))
 }
@@ -104,34 +116,16 @@ pub fn load_geometry(spec: &str, binning: usize) -> Result<Geometry, StoreError>
 /// [`dbt_geometry::cone::BUILTIN_SYSTEMS`]) or the path of a system TOML;
 /// then binned by `binning` (elements `binning` times larger).
 pub fn load_system(spec: &str, binning: usize) -> Result<ConeSystem, StoreError> {
-    let path = Path::new(spec);
     let format = |reason: String| StoreError::Format {
-        path: path.to_path_buf(),
+        path: PathBuf::from(spec),
         reason,
     };
-    let s = match ConeSystem::builtin(spec) {
-        Some(s) => s,
-        None => {
-            let text = std::fs::read_to_string(path).map_err(|source| {
-                if source.kind() == std::io::ErrorKind::NotFound {
-                    let names: Vec<&str> = dbt_geometry::cone::BUILTIN_SYSTEMS
-                        .iter()
-                        .map(|(n, _)| *n)
-                        .collect();
-                    format(format!(
-                        "no such system file, and not a built-in cone-beam system ({})",
-                        names.join(", ")
-                    ))
-                } else {
-                    StoreError::Io {
-                        path: path.to_path_buf(),
-                        cause: source,
-                    }
-                }
-            })?;
-            ConeSystem::from_toml_str(&text).map_err(|e| format(e.to_string()))?
-        }
-    };
+    let text = builtin_or_file(
+        spec,
+        &dbt_geometry::cone::BUILTIN_SYSTEMS,
+        "cone-beam system",
+    )?;
+    let s = ConeSystem::from_toml_str(&text).map_err(|e| format(e.to_string()))?;
     s.binned(binning)
         .map_err(|e| format(format!("binning {binning}: {e}")))
 }
