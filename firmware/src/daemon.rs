@@ -804,6 +804,24 @@ impl Daemon {
                 self.reject(id, "thickness", msg);
                 return;
             }
+            // The dose model's spectra are tungsten filtered by rhodium: an
+            // exposure with another anode or filter would be reported with
+            // the wrong dose (issue #27; the DICOM input checks its objects'
+            // Anode Target Material and Filter Material the same way).
+            let af = gantry["modbus"]["anode_filter"]
+                .as_str()
+                .unwrap_or("missing");
+            if af != dbt_pipeline::dicom_input::ANODE_FILTER {
+                self.reject(
+                    id,
+                    "technique",
+                    format!(
+                        "anode/filter {af} (Modbus register 6): the dose model's spectra are {} only; not reported",
+                        dbt_pipeline::dicom_input::ANODE_FILTER
+                    ),
+                );
+                return;
+            }
         }
         // The compression force the gantry reported at exposure time goes
         // into the dose SR (a DICOM object carries its own).

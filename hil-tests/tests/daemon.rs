@@ -50,6 +50,11 @@ fn gantry(acq: &Path, thickness_mm: f64) -> Gantry {
 
 /// As [`gantry`], the stream with host-sim `--fault`s.
 fn gantry_with(acq: &Path, thickness_mm: f64, faults: &[&str]) -> Gantry {
+    gantry_full(acq, thickness_mm, faults, &[])
+}
+
+/// As [`gantry_with`], the Modbus server with extra options.
+fn gantry_full(acq: &Path, thickness_mm: f64, faults: &[&str], modbus_args: &[&str]) -> Gantry {
     let (fp, mp) = (free_port(), free_port());
     let frames = format!("127.0.0.1:{fp}");
     let registers = format!("127.0.0.1:{mp}");
@@ -61,6 +66,7 @@ fn gantry_with(acq: &Path, thickness_mm: f64, faults: &[&str]) -> Gantry {
             "--thickness-mm",
             &format!("{thickness_mm:.1}"),
         ])
+        .args(modbus_args)
         .stderr(Stdio::null())
         .spawn()
         .unwrap();
@@ -328,6 +334,28 @@ fn thickness_disagreement_is_a_fault_not_a_report() {
         String::from_utf8_lossy(&out.stdout)
     );
     assert!(String::from_utf8_lossy(&out.stdout).contains("thickness"));
+}
+
+/// An exposure with another anode/filter than the dose model's (W/Rh) is a
+/// `technique` fault naming it, kept in faulted/, never a report (issue
+/// #27).
+#[test]
+fn another_anode_filter_is_a_fault_not_a_report() {
+    let dir = tempfile::tempdir().unwrap();
+    let (acq, thickness) = acquire(dir.path());
+    let g = gantry_full(&acq, thickness, &[], &["--anode-filter", "W/Al"]);
+    let cfg = config(dir.path(), &g, 2);
+    let st = daemon(&cfg, &["--once"]).wait().unwrap();
+    assert_eq!(st.code(), Some(1), "--once after a fault exits 1");
+    let s = status(dir.path());
+    let f = &s["faults"][0];
+    assert_eq!(f["kind"], "technique", "{s}");
+    let m = f["message"].as_str().unwrap();
+    assert!(m.contains("W/Al") && m.contains("W/Rh"), "{m}");
+    assert_eq!(entries(&dir.path().join("spool/faulted")).len(), 1);
+    assert!(entries(&dir.path().join("output"))
+        .iter()
+        .all(|n| !n.ends_with(".dcm")));
 }
 
 /// Start the daemon on `cfg`, expect exit 2 (refused at start), return its

@@ -147,6 +147,9 @@ struct ModbusArgs {
     /// the compression changed during the sweep.
     #[arg(long)]
     thickness_then_mm: Option<f64>,
+    /// Anode/filter register: W/Rh, W/Al, W/Ag, Mo/Mo or Mo/Rh.
+    #[arg(long, default_value = "W/Rh")]
+    anode_filter: String,
 }
 
 /// The options of `host-sim dataset`.
@@ -415,8 +418,19 @@ fn run_modbus(args: ModbusArgs) -> Result<()> {
         base,
         fault,
         thickness_then_mm,
+        anode_filter,
     } = args;
-    use dbt_gantry::registers::{encode, Registers, State};
+    use dbt_gantry::registers::{encode, Registers, State, ANODES};
+    let anode_filter = ANODES
+        .iter()
+        .copied()
+        .find(|a| *a == anode_filter)
+        .with_context(|| {
+            format!(
+                "--anode-filter `{anode_filter}`: one of {}",
+                ANODES.join(", ")
+            )
+        })?;
     use host_sim::modbus::{serve, GantryService, ModbusFault};
     let state = match state.as_str() {
         "idle" => State::Idle,
@@ -441,7 +455,7 @@ fn run_modbus(args: ModbusArgs) -> Result<()> {
         force_n: 110.0,
         kvp,
         mas_per_projection: 2.4,
-        anode_filter: "W/Rh",
+        anode_filter,
         projections: 25,
         angles_deg: [-24.0, 24.0],
         current: 12,

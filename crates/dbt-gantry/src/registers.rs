@@ -103,7 +103,8 @@ const NAMES: [&str; COUNT] = [
     "laterality/view",
     "fault code",
 ];
-const ANODES: [&str; 5] = ["W/Rh", "W/Al", "W/Ag", "Mo/Mo", "Mo/Rh"];
+/// The anode/filter combinations of register 6, by code (1 = `W/Rh`).
+pub const ANODES: [&str; 5] = ["W/Rh", "W/Al", "W/Ag", "Mo/Mo", "Mo/Rh"];
 const VIEWS: [&str; 4] = ["CC", "MLO", "ML", "LM"];
 
 fn err(address: usize, value: u16, reason: impl Into<String>) -> RegisterError {

@@ -89,6 +89,9 @@ pub const ANODE: &str = "TUNGSTEN";
 /// The filter the dose model's spectra are for (rhodium), as DICOM's Filter
 /// Material names it.
 pub const FILTER: &str = "RHODIUM";
+/// The same, as the gantry's anode/filter register names it
+/// (GANTRY_INTERFACE.md section 1).
+pub const ANODE_FILTER: &str = "W/Rh";
 
 fn refuse(field: &'static str, value: impl ToString, reason: impl Into<String>) -> HeaderError {
     HeaderError {
