@@ -373,10 +373,6 @@ pub fn process_with_progress(
     opts: &PipelineOptions,
     progress: &mut dyn FnMut(Stage),
 ) -> Result<ProcessResult, PipelineError> {
-    // A cone-beam acquisition is first made the slice-wise fan-beam one:
-    // its header validated and its detector frames checked as read (a
-    // stuck or dead element is one element there, spread over slices and
-    // views once rebinned), defects corrected, then rebinned.
     // A polychromatic detector's counts, linearised first (every check and
     // the reconstruction read mono-energetic counts).
     let linearised;
@@ -393,6 +389,10 @@ pub fn process_with_progress(
         }
         None => acq,
     };
+    // A cone-beam acquisition is then made the slice-wise fan-beam one: its
+    // header validated and its detector frames checked as read (a stuck or
+    // dead element is one element there, spread over slices and views once
+    // rebinned), defects corrected, then rebinned.
     let rebinned;
     let mut raw_check = None;
     let cone = acq.header.system.clone();
