@@ -80,6 +80,12 @@ pub enum LinkError {
         /// What the configuration says, in words.
         configured: String,
     },
+    /// The header states an exposure the dose model has no spectra for.
+    #[error("acquisition refused at its header: anode/filter {stated}: the dose model's spectra are {} only", dbt_pipeline::dicom_input::ANODE_FILTER)]
+    Technique {
+        /// The anode/filter the header states.
+        stated: String,
+    },
 }
 
 /// What a receiver is configured for: the reconstruction geometry, the
@@ -105,8 +111,19 @@ impl Site {
         }
     }
 
-    /// Refuse a header from another system than this site's, naming both.
+    /// Refuse a header from another system than this site's, naming both,
+    /// or of an exposure the dose model has no spectra for (an anode/filter
+    /// other than W/Rh), naming it.
     pub fn check_system(&self, h: &GantryHeader) -> Result<(), LinkError> {
+        if let Some(a) = h
+            .anode_filter
+            .as_deref()
+            .filter(|a| *a != dbt_pipeline::dicom_input::ANODE_FILTER)
+        {
+            return Err(LinkError::Technique {
+                stated: a.to_string(),
+            });
+        }
         let want = self.system.as_ref().map(|s| s.name.as_str());
         if h.system.as_deref() == want {
             return Ok(());
@@ -645,6 +662,7 @@ mod tests {
             columns: 320,
             laterality: "L".into(),
             system: None,
+            anode_filter: None,
         }
     }
 
@@ -788,6 +806,16 @@ mod tests {
         h.rows = 251;
         let e = go(h, &cone).to_string();
         assert!(e.contains("announces 251 rows") && e.contains("250"), "{e}");
+        // An exposure the dose model has no spectra for, stated in the header.
+        let mut h = header();
+        h.anode_filter = Some("Mo/Mo".into());
+        let e = go(h.clone(), &fan).to_string();
+        assert!(
+            e.contains("anode/filter Mo/Mo") && e.contains("W/Rh"),
+            "{e}"
+        );
+        h.anode_filter = Some("W/Rh".into());
+        assert!(matches!(go(h, &fan), LinkError::Incomplete(_)));
     }
 
     /// One CRC error per frame must not write one log line each: at most one

@@ -38,6 +38,8 @@ pub enum Fault {
     Freeze(u32),
     /// The header's tube loading set to this many mAs (`mas:0`: no exposure).
     Mas(u32),
+    /// The header's anode/filter set to register 6's code (`anode:2`: W/Al).
+    Anode(u32),
 }
 
 impl Fault {
@@ -62,6 +64,7 @@ impl Fault {
             "announce" => Ok(Fault::Announce(n(v)?)),
             "freeze" => Ok(Fault::Freeze(n(v)?)),
             "mas" => Ok(Fault::Mas(n(v)?)),
+            "anode" => Ok(Fault::Anode(n(v)?)),
             "reorder" => {
                 let (a, b) = v
                     .split_once(',')
@@ -69,7 +72,7 @@ impl Fault {
                 Ok(Fault::Reorder(n(a)?, n(b)?))
             }
             _ => Err(format!(
-                "fault `{s}`: kind must be corrupt, drop, dup, reorder, cut, saturate, nanflat, zeros, announce, freeze or mas"
+                "fault `{s}`: kind must be corrupt, drop, dup, reorder, cut, saturate, nanflat, zeros, announce, freeze, mas or anode"
             )),
         }
     }
@@ -116,6 +119,8 @@ pub fn frames_of(acq: &Acquisition) -> Result<Vec<Frame>, String> {
         columns: nd as u16,
         laterality: h.laterality.clone(),
         system: h.system.as_ref().map(|s| s.name.clone()),
+        // The simulated tube: tungsten, rhodium (the dose model's spectra).
+        anode_filter: Some("W/Rh".into()),
     })];
     for v in 0..nv {
         let mut counts = Vec::with_capacity(rows * nd);
@@ -218,6 +223,13 @@ pub fn serve_stream<S: Read + Write>(
                     h.mas_total = n as f64;
                 }
             }
+            Fault::Anode(code) => {
+                if let Some(Frame::Header(h)) = owned.get_mut(0) {
+                    let a = dbt_gantry::registers::ANODES.get((code as usize).wrapping_sub(1));
+                    h.anode_filter =
+                        Some(a.map_or_else(|| format!("code {code}"), |a| a.to_string()));
+                }
+            }
             _ => {}
         }
     }
@@ -245,7 +257,8 @@ pub fn serve_stream<S: Read + Write>(
             | Fault::Zeros(_)
             | Fault::Announce(_)
             | Fault::Freeze(_)
-            | Fault::Mas(_) => {}
+            | Fault::Mas(_)
+            | Fault::Anode(_) => {}
             Fault::Cut(q) => {
                 if let Some(i) = order.iter().position(|&x| x == q) {
                     order.truncate(i);

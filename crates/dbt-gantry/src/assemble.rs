@@ -325,6 +325,7 @@ mod tests {
             columns: 2,
             laterality: "R".into(),
             system: None,
+            anode_filter: None,
         }
     }
 

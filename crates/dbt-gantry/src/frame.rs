@@ -115,6 +115,11 @@ pub struct AcquisitionHeader {
     /// a stream from another system than the one it is configured for.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub system: Option<String>,
+    /// The exposure's anode/filter as register 6 names them (`W/Rh`,
+    /// `W/Al`, `W/Ag`, `Mo/Mo`, `Mo/Rh`); absent: not stated (the Modbus
+    /// register then says it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub anode_filter: Option<String>,
 }
 
 /// How the gantry interface names the slice-wise fan-beam stream (no
@@ -175,6 +180,14 @@ impl AcquisitionHeader {
         }
         if self.laterality != "L" && self.laterality != "R" {
             return Err(format!("laterality `{}` must be L or R", self.laterality));
+        }
+        if let Some(a) = &self.anode_filter {
+            if !crate::registers::ANODES.contains(&a.as_str()) {
+                return Err(format!(
+                    "anode_filter `{a}` is not one of {}",
+                    crate::registers::ANODES.join(", ")
+                ));
+            }
         }
         if let Some(s) = &self.system {
             if s.is_empty() || s.len() > 64 || s.chars().any(char::is_control) {
@@ -548,6 +561,7 @@ mod tests {
             columns: 4,
             laterality: "L".into(),
             system: None,
+            anode_filter: None,
         }
     }
 
@@ -623,6 +637,16 @@ mod tests {
             "cone-beam system `paper-cone`"
         );
         assert_eq!(system_name(None), FAN_STREAM);
+        // The anode/filter, when stated, is one of register 6's.
+        let mut h = header();
+        h.anode_filter = Some("W/Al".into());
+        assert_eq!(h.validate(), Ok(()));
+        h.anode_filter = Some("W/Xx".into());
+        let e = h.validate().unwrap_err();
+        assert!(
+            e.contains("anode_filter `W/Xx`") && e.contains("W/Rh"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -53,6 +53,7 @@ fn header() -> impl Strategy<Value = AcquisitionHeader> {
                     columns: c,
                     laterality: lat,
                     system,
+                    anode_filter: Some("W/Rh".into()),
                 }
             },
         )
