@@ -261,14 +261,9 @@ pub fn run_cases_on(
     let t0 = std::time::Instant::now();
     let tech = Technique::default();
     let root = "1.2.826.0.1.3680043.10.543.3";
-    let acq = match system {
-        None => host_sim::simulate_acquisition_with(
-            vol, geom, noise, physics, seed, tech, 28.0, "EVAL", root,
-        )?,
-        Some(sys) => host_sim::simulate_cone_acquisition_with(
-            vol, geom, sys, noise, physics, seed, tech, 28.0, "EVAL", root,
-        )?,
-    };
+    let acq = host_sim::simulate_on(
+        vol, geom, system, noise, physics, seed, tech, 28.0, "EVAL", root,
+    )?;
     let acquired = t0.elapsed().as_secs_f64();
     let mut truth_mgd_per_kerma = None;
     let mut cases = Vec::with_capacity(opts.len());

@@ -114,7 +114,7 @@ impl Site {
     /// Refuse a header from another system than this site's, naming both,
     /// or of an exposure the dose model has no spectra for (an anode/filter
     /// other than W/Rh), naming it.
-    pub fn check_system(&self, h: &GantryHeader) -> Result<(), LinkError> {
+    pub fn check_header(&self, h: &GantryHeader) -> Result<(), LinkError> {
         if let Some(a) = h
             .anode_filter
             .as_deref()
@@ -187,7 +187,7 @@ pub struct LinkOptions {
     pub yield_to: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
     /// The configured geometry, system and tube output: the header is
     /// checked against the system and validated as soon as it arrives
-    /// ([`Site::check_system`], [`dbt_pipeline::validate_header`]).
+    /// ([`Site::check_header`], [`dbt_pipeline::validate_header`]).
     pub site: Option<Site>,
 }
 
@@ -400,7 +400,7 @@ pub fn receive_from<S: Read + Write>(
                     let had_header = asm.has_header();
                     let (reply, done) = asm.accept(seq, frame)?;
                     if let (false, Some(h), Some(site)) = (had_header, asm.header(), &opts.site) {
-                        site.check_system(h)?;
+                        site.check_header(h)?;
                         // The domain's validation, before any projection is
                         // kept. The flat field comes with the projections
                         // (`to_acquisition` checks it is positive and uniform,
@@ -481,7 +481,7 @@ pub fn to_acquisition(r: &Received, site: &Site) -> Result<Acquisition, LinkErro
     let h = &r.header;
     let geom = &site.geometry;
     let bad = |m: String| LinkError::Geometry(m);
-    site.check_system(h)?;
+    site.check_header(h)?;
     let (views, columns, what) = match &site.system {
         Some(s) => (
             s.n_views(),

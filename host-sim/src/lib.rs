@@ -339,6 +339,33 @@ fn simulate_acquisition_header(
     }
 }
 
+/// The acquisition of `vol` under `physics`: on the cone-beam `system` when
+/// given ([`simulate_cone_acquisition_with`]; `geom` its rebinning fan),
+/// else every coronal slice its own fan beam of `geom`
+/// ([`simulate_acquisition_with`]).
+#[allow(clippy::too_many_arguments)]
+pub fn simulate_on(
+    vol: &LabelVolume,
+    geom: &Geometry,
+    system: Option<&dbt_geometry::ConeSystem>,
+    noise: NoiseLevel,
+    physics: Physics,
+    seed: u64,
+    technique: Technique,
+    kvp: f64,
+    patient_id: &str,
+    uid_root: &str,
+) -> Result<AcqFile, SimError> {
+    match system {
+        None => simulate_acquisition_with(
+            vol, geom, noise, physics, seed, technique, kvp, patient_id, uid_root,
+        ),
+        Some(sys) => simulate_cone_acquisition_with(
+            vol, geom, sys, noise, physics, seed, technique, kvp, patient_id, uid_root,
+        ),
+    }
+}
+
 /// Simulate a phantom's acquisition on a cone-beam system (issue #28): the
 /// whole 3-D attenuation volume (the coronal slices as placed on `geom`'s
 /// image grid, resting on the support) projected by the exact cone-beam

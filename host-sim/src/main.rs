@@ -296,44 +296,44 @@ fn run_acquire(args: AcquireArgs) -> Result<()> {
     let seed = host_sim::mix_seed(Population::TEST_SEED, &[index, 1]);
     let patient = format!("TEST{index:03}");
     let root = "1.2.826.0.1.3680043.10.543.2";
-    let acq = match system {
-        None => host_sim::simulate_acquisition_with(
-            &vol,
-            &g,
-            noise,
-            physics,
-            seed,
-            host_sim::Technique::default(),
-            kvp,
-            &patient,
-            root,
-        )?,
-        Some(name) => {
-            let sys = geometry
-                .load_system(Some(&name))
+    let sys = match &system {
+        None => None,
+        Some(name) => Some(
+            geometry
+                .load_system(Some(name))
                 .with_context(|| format!("--system {name}"))?
-                .context("no system")?;
-            // The reconstruction geometry the firmware rebins to: the
-            // system's fan on the geometry's detector elements and image
-            // (the geometry itself for `paper-cone` and the paper's).
-            let fan = sys.rebinning_fan(&g)?;
-            dbt_pipeline::rebin::check_site(&sys, &fan).with_context(|| {
-                format!("--system {name} with --geometry {}", geometry.geometry)
+                .context("no system")?,
+        ),
+    };
+    // The reconstruction geometry the firmware rebins a cone-beam system's
+    // frames to: the system's fan on the geometry's detector elements and
+    // image (the geometry itself for `paper-cone` and the paper's).
+    let fan = match &sys {
+        None => g.clone(),
+        Some(s) => {
+            let fan = s.rebinning_fan(&g)?;
+            dbt_pipeline::rebin::check_site(s, &fan).with_context(|| {
+                format!(
+                    "--system {} with --geometry {}",
+                    system.as_deref().unwrap_or_default(),
+                    geometry.geometry
+                )
             })?;
-            host_sim::simulate_cone_acquisition_with(
-                &vol,
-                &fan,
-                &sys,
-                noise,
-                physics,
-                seed,
-                host_sim::Technique::default(),
-                kvp,
-                &patient,
-                root,
-            )?
+            fan
         }
     };
+    let acq = host_sim::simulate_on(
+        &vol,
+        &fan,
+        sys.as_ref(),
+        noise,
+        physics,
+        seed,
+        host_sim::Technique::default(),
+        kvp,
+        &patient,
+        root,
+    )?;
     dbt_store::acquisition::write_acquisition(&out, &acq)?;
     println!(
         "{}: test phantom {index}, {} {}, thickness {:.1} mm, glandularity {:.3}, {}, {} physics",

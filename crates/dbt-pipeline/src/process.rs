@@ -373,12 +373,14 @@ pub fn process_with_progress(
     opts: &PipelineOptions,
     progress: &mut dyn FnMut(Stage),
 ) -> Result<ProcessResult, PipelineError> {
+    // The header before anything reads the counts (the linearisation and
+    // the rebinning use its flux, thickness and system).
+    validate_header(&acq.header)?;
     // A polychromatic detector's counts, linearised first (every check and
     // the reconstruction read mono-energetic counts).
     let linearised;
     let acq = match &opts.linearise {
         Some(bh) => {
-            validate_header(&acq.header)?;
             let mut a = acq.clone();
             let n = bh
                 .apply(&a.header, &mut a.counts)
@@ -390,14 +392,13 @@ pub fn process_with_progress(
         None => acq,
     };
     // A cone-beam acquisition is then made the slice-wise fan-beam one: its
-    // header validated and its detector frames checked as read (a stuck or
+    // detector frames checked as read (a stuck or
     // dead element is one element there, spread over slices and views once
     // rebinned), defects corrected, then rebinned.
     let rebinned;
     let mut raw_check = None;
     let cone = acq.header.system.clone();
     let acq = if acq.header.system.is_some() {
-        validate_header(&acq.header)?;
         let defects = check_counts(&acq.header, &acq.counts)?;
         rebinned = if defects.is_empty() {
             raw_check = Some(defects.check);
