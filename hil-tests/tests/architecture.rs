@@ -30,6 +30,7 @@ const PURE: &[&str] = &[
     "dbt-recon",
     "dbt-metrics",
     "dbt-dose",
+    "dbt-scatter",
     "dbt-tissue",
     "dbt-gantry",
     "dbt-dicom",

@@ -34,25 +34,11 @@
 use crate::AcquisitionError;
 use dbt_dose::material::Material;
 use dbt_dose::spectrum::Spectrum;
-use dbt_materials::{ElementFraction, Tissue};
+use dbt_materials::{Tissue, CSI};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use rayon::prelude::*;
-
-/// CsI density, g/cm^3.
-pub const CSI_DENSITY: f64 = 4.51;
-/// CsI by mass: Cs 132.905 / 259.81, I 126.904 / 259.81.
-pub const CSI: [ElementFraction; 2] = [
-    ElementFraction {
-        z: 55,
-        fraction: 0.511_55,
-    },
-    ElementFraction {
-        z: 53,
-        fraction: 0.488_45,
-    },
-];
 
 /// The materials a ray's path lengths are given for, in order.
 pub const MATERIALS: [Tissue; 3] = [Tissue::Adipose, Tissue::Fibroglandular, Tissue::Skin];
@@ -120,8 +106,7 @@ impl ClinicalPhysics {
             )));
         }
         let tables = dbt_dose::tables::elements().map_err(|e| bad(e.to_string()))?;
-        let csi =
-            Material::new("CsI", CSI_DENSITY, &CSI, tables).map_err(|e| bad(e.to_string()))?;
+        let csi = Material::medium(&CSI, tables).map_err(|e| bad(e.to_string()))?;
         let tissues: Vec<Material> = MATERIALS
             .iter()
             .map(|&t| Material::tissue(t, tables))
@@ -192,6 +177,16 @@ impl ClinicalPhysics {
         noise: bool,
         seed: u64,
     ) -> Result<Vec<f32>, AcquisitionError> {
+        let (mean, var) = self.expected_all(paths)?;
+        Ok(draw(&mean, &var, noise, seed))
+    }
+
+    /// Expected signals (ADU) and variances of rays (`paths` as in
+    /// [`Self::simulate`]).
+    pub fn expected_all(
+        &self,
+        paths: &[Vec<f32>; 3],
+    ) -> Result<(Vec<f64>, Vec<f64>), AcquisitionError> {
         let n = paths[0].len();
         if paths.iter().any(|p| p.len() != n) {
             return Err(bad(format!(
@@ -201,26 +196,162 @@ impl ClinicalPhysics {
                 paths[2].len()
             )));
         }
-        let mut out = vec![0f32; n];
-        out.par_chunks_mut(4096).enumerate().for_each(|(blk, o)| {
-            let mut rng = ChaCha8Rng::seed_from_u64(seed);
-            rng.set_stream(blk as u64);
-            for (k, y) in o.iter_mut().enumerate() {
-                let i = blk * 4096 + k;
-                let l = [0, 1, 2].map(|m| f64::from(paths[m][i]));
-                let (s, v) = self.expected(l);
-                *y = if noise {
-                    match Normal::new(s, v.sqrt()) {
-                        Ok(d) => d.sample(&mut rng).max(0.0) as f32,
-                        Err(_) => s as f32,
+        Ok((0..n)
+            .into_par_iter()
+            .map(|i| self.expected([0, 1, 2].map(|m| f64::from(paths[m][i]))))
+            .unzip())
+    }
+
+    /// Variance per ADU of a signal made of this spectrum's photons (the
+    /// open field's `<E^2> / <E>` in ADU): the scatter's noise (its
+    /// softer spectrum neglected).
+    pub fn variance_per_adu(&self) -> f64 {
+        let (mut s, mut v) = (0.0, 0.0);
+        for (&e, &n) in self.energies.iter().zip(&self.detected) {
+            s += n * e;
+            v += n * e * e;
+        }
+        self.gain * v / s
+    }
+
+    /// [`Self::simulate`] with the scatter of the shipped kernel model
+    /// ([`dbt_scatter::ScatterTable`], fitted to our Monte Carlo engine)
+    /// added to each view's expected primary before the noise: the rays
+    /// form a stack of `layout.rows` detector rows (a coronal slice's rays
+    /// or a cone-beam detector row) of `layout.views` views of
+    /// `layout.cols` elements ([`StackLayout`]). The scatter is computed
+    /// on blocks of about 4 mm (it varies
+    /// over centimetres) and interpolated back to every element. Returns
+    /// the signals and the expected scatter (ADU) of every ray.
+    pub fn simulate_scattered(
+        &self,
+        paths: &[Vec<f32>; 3],
+        layout: &StackLayout,
+        table: &dbt_scatter::ScatterTable,
+        thickness_mm: f64,
+        noise: bool,
+        seed: u64,
+    ) -> Result<(Vec<f32>, Vec<f32>), AcquisitionError> {
+        let (mut mean, mut var) = self.expected_all(paths)?;
+        let scatter = layout.scatter(&mean, self.flat_adu, table, thickness_mm)?;
+        let vpa = self.variance_per_adu();
+        for ((m, v), s) in mean.iter_mut().zip(&mut var).zip(&scatter) {
+            *m += s;
+            *v += vpa * s;
+        }
+        Ok((
+            draw(&mean, &var, noise, seed),
+            scatter.iter().map(|&x| x as f32).collect(),
+        ))
+    }
+}
+
+/// How the rays of an acquisition form each view's detector image: `rows`
+/// detector rows (from the chest wall) of `views` views of `cols` elements
+/// (along the chest wall), ray `(r, v, c)` at `(r * views + v) * cols + c`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StackLayout {
+    /// Detector rows.
+    pub rows: usize,
+    /// Views.
+    pub views: usize,
+    /// Elements per row.
+    pub cols: usize,
+    /// Row pitch on the detector, mm.
+    pub row_mm: f64,
+    /// Element pitch, mm.
+    pub col_mm: f64,
+    /// `tan(theta)` of each view's angle.
+    pub tan_angles: Vec<f64>,
+}
+
+/// Block side of the scatter's computation, mm.
+pub const SCATTER_BLOCK_MM: f64 = 4.0;
+
+impl StackLayout {
+    fn check(&self, n: usize) -> Result<(), AcquisitionError> {
+        if self.rows * self.views * self.cols != n || self.tan_angles.len() != self.views {
+            return Err(bad(format!(
+                "a stack of {} rows x {} views x {} elements ({} angles) for {n} rays",
+                self.rows,
+                self.views,
+                self.cols,
+                self.tan_angles.len()
+            )));
+        }
+        Ok(())
+    }
+
+    /// The expected scatter (ADU) of every ray for the expected primary
+    /// `signal` (ADU) and the open field `flat` (ADU).
+    pub fn scatter(
+        &self,
+        signal: &[f64],
+        flat: f64,
+        table: &dbt_scatter::ScatterTable,
+        thickness_mm: f64,
+    ) -> Result<Vec<f64>, AcquisitionError> {
+        self.check(signal.len())?;
+        let fine = dbt_scatter::Grid {
+            rows: self.rows,
+            cols: self.cols,
+            row_mm: self.row_mm,
+            col_mm: self.col_mm,
+        };
+        let fr = (SCATTER_BLOCK_MM / self.row_mm).round().max(1.0) as usize;
+        let fc = (SCATTER_BLOCK_MM / self.col_mm).round().max(1.0) as usize;
+        let per_view: Vec<Vec<f64>> = (0..self.views)
+            .into_par_iter()
+            .map(|v| {
+                let mut t = vec![0.0; fine.len()];
+                for r in 0..self.rows {
+                    let from = (r * self.views + v) * self.cols;
+                    for c in 0..self.cols {
+                        t[r * self.cols + c] = signal[from + c] / flat;
                     }
-                } else {
-                    s as f32
-                };
+                }
+                let (tc, coarse) = dbt_scatter::block_mean(&t, &fine, fr, fc);
+                let s = table
+                    .scatter(&tc, &coarse, thickness_mm, self.tan_angles[v])
+                    .map_err(|e| bad(e.to_string()))?;
+                Ok(dbt_scatter::upsample(&s, &coarse, &fine))
+            })
+            .collect::<Result<_, AcquisitionError>>()?;
+        let mut out = vec![0.0; signal.len()];
+        for (v, s) in per_view.iter().enumerate() {
+            for r in 0..self.rows {
+                let to = (r * self.views + v) * self.cols;
+                for c in 0..self.cols {
+                    out[to + c] = flat * s[r * self.cols + c];
+                }
             }
-        });
+        }
         Ok(out)
     }
+}
+
+/// Noisy draws of normals of the given means and variances (blocks of 4096
+/// from their own streams of `seed`), clamped at zero; the means when
+/// `noise` is false.
+fn draw(mean: &[f64], var: &[f64], noise: bool, seed: u64) -> Vec<f32> {
+    let mut out = vec![0f32; mean.len()];
+    out.par_chunks_mut(4096).enumerate().for_each(|(blk, o)| {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        rng.set_stream(blk as u64);
+        for (k, y) in o.iter_mut().enumerate() {
+            let i = blk * 4096 + k;
+            let (s, v) = (mean[i], var[i]);
+            *y = if noise {
+                match Normal::new(s, v.sqrt()) {
+                    Ok(d) => d.sample(&mut rng).max(0.0) as f32,
+                    Err(_) => s as f32,
+                }
+            } else {
+                s as f32
+            };
+        }
+    });
+    out
 }
 
 #[cfg(test)]
@@ -248,7 +379,7 @@ mod tests {
             .spectrum
             .unwrap();
         let p = physics(&s);
-        let csi = Material::new("CsI", CSI_DENSITY, &CSI, tables).unwrap();
+        let csi = Material::medium(&CSI, tables).unwrap();
         let (la, lg) = (30.0, 20.0);
         let (mut num, mut den) = (0.0, 0.0);
         for (&e, &w) in s.energies.iter().zip(&s.weights) {

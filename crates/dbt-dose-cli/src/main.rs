@@ -20,6 +20,115 @@ enum Cmd {
     Spectra,
     /// AAPM TG-195 case 3: energy deposited in the breast and the 7 VOIs, as JSON.
     Tg195(Tg195Args),
+    /// Scatter-to-primary ratios at the detector of homogeneous half-cylinder
+    /// breasts (paper geometry, detector rotating with the source, no grid),
+    /// by thickness and view angle: a table, and JSON with --json.
+    Spr(SprArgs),
+    /// Fit the scatter model's kernels (dbt-scatter) to Monte Carlo views of
+    /// homogeneous half-cylinder breasts, by thickness; write the table.
+    ScatterFit(ScatterFitArgs),
+    /// Compare a scatter table with fresh Monte Carlo views (other seeds,
+    /// glandularity, radius, thicknesses and angles than the fit's): SPR at
+    /// the centre, the scatter under the breast, the primary after removal.
+    ScatterCheck(ScatterCheckArgs),
+}
+
+/// The Monte Carlo views of `dbt-dose scatter-fit` and `scatter-check`.
+#[derive(Args, Clone)]
+struct ViewsArgs {
+    /// Compressed thicknesses, mm.
+    #[arg(long, value_delimiter = ',', default_values_t = [20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0, 90.0])]
+    thickness: Vec<f64>,
+    /// View angles, degrees.
+    #[arg(long, value_delimiter = ',', default_values_t = [0.0, 12.0, 24.0])]
+    angle: Vec<f64>,
+    /// Glandularities by mass of the interior.
+    #[arg(long, value_delimiter = ',', default_values_t = [0.1, 0.45, 0.85])]
+    glandularity: Vec<f64>,
+    /// Radius of the half-cylinders, mm.
+    #[arg(long, default_value_t = 100.0)]
+    radius: f64,
+    /// CsI thickness of the detector, um.
+    #[arg(long, default_value_t = 200.0)]
+    csi_um: f64,
+    /// Detector pixel, mm.
+    #[arg(long, default_value_t = 4.0)]
+    pixel: f64,
+    /// Photons per view per mm of thickness (thicker breasts need more).
+    #[arg(long, default_value_t = 1_500_000)]
+    photons_per_mm: u64,
+    /// Photons of each open-field view.
+    #[arg(long, default_value_t = 40_000_000)]
+    open_photons: u64,
+    /// Seed.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+}
+
+/// The options of `dbt-dose scatter-fit`.
+#[derive(Args)]
+struct ScatterFitArgs {
+    #[command(flatten)]
+    views: ViewsArgs,
+    /// Knots of the amplitude per thickness.
+    #[arg(long, default_value_t = 5)]
+    knots: usize,
+    /// Where to write the table (JSON).
+    #[arg(long)]
+    out: PathBuf,
+}
+
+/// The options of `dbt-dose scatter-check`.
+#[derive(Args)]
+struct ScatterCheckArgs {
+    #[command(flatten)]
+    views: ViewsArgs,
+    /// The table (default: the shipped one).
+    #[arg(long)]
+    table: Option<PathBuf>,
+    /// Side of the centre's square region of interest, mm.
+    #[arg(long, default_value_t = 20.0)]
+    roi: f64,
+}
+
+/// The options of `dbt-dose spr`.
+#[derive(Args)]
+struct SprArgs {
+    /// Compressed thicknesses, mm.
+    #[arg(long, value_delimiter = ',', default_values_t = [20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0, 90.0])]
+    thickness: Vec<f64>,
+    /// View angles, degrees.
+    #[arg(long, value_delimiter = ',', default_values_t = [0.0, 12.0, 24.0])]
+    angle: Vec<f64>,
+    /// Glandularity by mass of the interior.
+    #[arg(long, default_value_t = 0.5)]
+    glandularity: f64,
+    /// Radius of the half-cylinder from the chest wall, mm.
+    #[arg(long, default_value_t = 100.0)]
+    radius: f64,
+    /// CsI thickness of the detector, um (0: an ideal detector scoring the
+    /// energy fluence).
+    #[arg(long, default_value_t = 200.0)]
+    csi_um: f64,
+    /// Monoenergetic source, keV, instead of the paper's Table 3 W/Rh
+    /// spectrum for each thickness.
+    #[arg(long)]
+    energy: Option<f64>,
+    /// Side of the square region of interest, mm.
+    #[arg(long, default_value_t = 10.0)]
+    roi: f64,
+    /// Detector pixel, mm.
+    #[arg(long, default_value_t = 2.0)]
+    pixel: f64,
+    /// Photons per configuration.
+    #[arg(long, default_value_t = 4_000_000)]
+    photons: u64,
+    /// Seed.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Print JSON instead of the table.
+    #[arg(long)]
+    json: bool,
 }
 
 /// The options of `dbt-dose tg195`.
@@ -52,6 +161,9 @@ fn main() -> Result<()> {
     match Cli::parse().cmd {
         Cmd::Spectra => run_spectra(),
         Cmd::Tg195(a) => run_tg195(a),
+        Cmd::Spr(a) => run_spr(a),
+        Cmd::ScatterFit(a) => run_scatter_fit(a),
+        Cmd::ScatterCheck(a) => run_scatter_check(a),
     }
 }
 
@@ -124,5 +236,291 @@ fn run_tg195(args: Tg195Args) -> Result<()> {
         },
     });
     println!("{}", serde_json::to_string_pretty(&out)?);
+    Ok(())
+}
+
+/// `dbt-dose spr`.
+fn run_spr(a: SprArgs) -> Result<()> {
+    let score = dbt_dose::scatter::paper_detector(a.csi_um, a.pixel)?;
+    let mut rows = Vec::new();
+    if !a.json {
+        println!(
+            "| thickness (mm) | spectrum | angle (deg) | SPR | standard error | paddle's share of the scatter | photons | seconds |"
+        );
+        println!("|---|---|---|---|---|---|---|---|");
+    }
+    for &t in &a.thickness {
+        let (spec, name) = match a.energy {
+            Some(e) => (Spectrum::mono(e)?, format!("{e} keV")),
+            None => {
+                let s = dbt_dose::xray::paper_spectrum(t)?;
+                let name = format!("W/Rh {} kV, HVL {:.3} mm Al", s.kv, s.hvl_mm_al);
+                (s.spectrum.context("paper spectrum")?, name)
+            }
+        };
+        for (k, &ang) in a.angle.iter().enumerate() {
+            let t0 = Instant::now();
+            let r = dbt_dose::scatter::slab_spr(
+                t,
+                a.radius,
+                a.glandularity,
+                &spec,
+                ang,
+                &score,
+                a.roi,
+                a.photons,
+                a.seed.wrapping_add(1000 * t as u64 + k as u64),
+            )?;
+            let secs = t0.elapsed().as_secs_f64();
+            if !a.json {
+                println!(
+                    "| {t:.0} | {name} | {ang:.0} | {:.3} | {:.3} | {:.3} | {} | {secs:.1} |",
+                    r.spr.value, r.spr.se, r.paddle_share, r.photons
+                );
+            }
+            rows.push(serde_json::json!({"spectrum": name, "seconds": secs, "result": r}));
+        }
+    }
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&rows)?);
+    }
+    Ok(())
+}
+
+/// One Monte Carlo view of a homogeneous half-cylinder.
+struct View {
+    thickness: f64,
+    angle: f64,
+    glandularity: f64,
+    grid: dbt_scatter::Grid,
+    fractions: dbt_dose::scatter::OpenFieldFractions,
+}
+
+/// The views of `a`, in order thickness, glandularity, angle.
+fn mc_views(a: &ViewsArgs) -> Result<Vec<View>> {
+    let score = dbt_dose::scatter::paper_detector(a.csi_um, a.pixel)?;
+    let mut out = Vec::new();
+    for &t in &a.thickness {
+        let spec = dbt_dose::xray::paper_spectrum(t)?
+            .spectrum
+            .context("paper spectrum")?;
+        let mut open: Vec<Option<dbt_dose::scatter::DetectorImages>> = vec![None; a.angle.len()];
+        for (gi, &g) in a.glandularity.iter().enumerate() {
+            let (dims, labels) = dbt_dose::scatter::half_cylinder(t, a.radius, g, 1.0)?;
+            let breast = dbt_dose::patient::Breast {
+                dims,
+                voxel_mm: 1.0,
+                labels: &labels,
+            };
+            for (ai, &ang) in a.angle.iter().enumerate() {
+                let t0 = Instant::now();
+                let seed = a
+                    .seed
+                    .wrapping_mul(1_000_003)
+                    .wrapping_add(10_000 * t as u64 + 100 * gi as u64 + ai as u64);
+                if open[ai].is_none() {
+                    open[ai] = Some(dbt_dose::scatter::open_field(
+                        &breast,
+                        &spec,
+                        ang,
+                        &score,
+                        a.open_photons,
+                        seed ^ 0x0FE4,
+                    )?);
+                }
+                let with = dbt_dose::scatter::detector_images(
+                    &breast,
+                    dbt_dose::patient::Model::Homogeneous,
+                    &spec,
+                    ang,
+                    &score,
+                    a.photons_per_mm * t.round() as u64,
+                    20,
+                    seed,
+                )?;
+                let f = dbt_dose::scatter::OpenFieldFractions::new(
+                    &with,
+                    open[ai].as_ref().context("open field")?,
+                )?;
+                eprintln!(
+                    "Monte Carlo: {t} mm, G {g}, {ang} degrees: {} + {} photons, {:.1} s",
+                    f.photons[0],
+                    f.photons[1],
+                    t0.elapsed().as_secs_f64()
+                );
+                out.push(View {
+                    thickness: t,
+                    angle: ang,
+                    glandularity: g,
+                    grid: dbt_scatter::Grid {
+                        rows: f.rows_cols[0],
+                        cols: f.rows_cols[1],
+                        row_mm: f.pixel_mm,
+                        col_mm: f.pixel_mm,
+                    },
+                    fractions: f,
+                });
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// `dbt-dose scatter-fit`.
+fn run_scatter_fit(a: ScatterFitArgs) -> Result<()> {
+    let t0 = Instant::now();
+    let views = mc_views(&a.views)?;
+    let candidates = dbt_scatter::fit::Candidates {
+        sigma_narrow: vec![3.0, 6.0, 10.0, 15.0, 20.0],
+        sigma_wide: vec![25.0, 35.0, 50.0, 70.0, 100.0],
+        wide_weight: vec![0.2, 0.35, 0.5, 0.65, 0.8],
+        shift: vec![-40.0, -20.0, 0.0, 20.0, 40.0],
+    };
+    let mut kernels = Vec::new();
+    println!("| thickness (mm) | sigma narrow, wide (mm) | wide weight | shift per tan (mm) | weighted RMS error |");
+    println!("|---|---|---|---|---|");
+    for &t in &a.views.thickness {
+        let samples: Vec<dbt_scatter::fit::Sample> = views
+            .iter()
+            .filter(|v| v.thickness == t)
+            .map(|v| dbt_scatter::fit::Sample {
+                grid: v.grid,
+                transmission: v.fractions.transmission.clone(),
+                scatter: v.fractions.scatter.clone(),
+                tan_angle: v.angle.to_radians().tan(),
+            })
+            .collect();
+        let f = dbt_scatter::fit::fit(t, &samples, &candidates, a.knots)?;
+        println!(
+            "| {t:.0} | {:.0}, {:.0} | {:.2} | {:.0} | {:.3} |",
+            f.kernels.sigma_mm[0],
+            f.kernels.sigma_mm[1],
+            f.kernels.wide_weight,
+            f.kernels.shift_mm,
+            f.rms
+        );
+        kernels.push(f.kernels);
+    }
+    let v = &a.views;
+    let table = dbt_scatter::ScatterTable {
+        spectrum: "the paper's Table 3 W/Rh technique for each thickness (dbt_dose::xray::paper_spectrum: TASMICS, rhodium solved for the HVL)".into(),
+        geometry: "the dose engine's paper geometry (dbt_dose::patient): source 700 mm above the detector, detector rotating with it, 3 mm PET paddle, 2 mm PMMA support 18 mm above the detector, no grid".into(),
+        detector: format!("{} um CsI, energy-integrating (absorbed energy, oblique incidence)", v.csi_um),
+        provenance: format!(
+            "dbt-dose scatter-fit --thickness {} --angle {} --glandularity {} --radius {} --csi-um {} --pixel {} --photons-per-mm {} --open-photons {} --seed {} --knots {} ({:.0} s); homogeneous half-cylinders with 2 mm skin",
+            join(&v.thickness), join(&v.angle), join(&v.glandularity), v.radius, v.csi_um, v.pixel,
+            v.photons_per_mm, v.open_photons, v.seed, a.knots, t0.elapsed().as_secs_f64()
+        ),
+        kernels,
+    };
+    table.check()?;
+    std::fs::write(&a.out, serde_json::to_string_pretty(&table)? + "\n")
+        .with_context(|| format!("writing {}", a.out.display()))?;
+    eprintln!("wrote {}", a.out.display());
+    Ok(())
+}
+
+fn join(v: &[f64]) -> String {
+    v.iter()
+        .map(|x| x.to_string())
+        .collect::<Vec<_>>()
+        .join(",")
+}
+
+/// `dbt-dose scatter-check`.
+fn run_scatter_check(a: ScatterCheckArgs) -> Result<()> {
+    let table = match &a.table {
+        Some(p) => dbt_scatter::ScatterTable::from_json(
+            &std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
+        )
+        .with_context(|| format!("scatter table {}", p.display()))?,
+        None => dbt_scatter::ScatterTable::shipped()?.clone(),
+    };
+    let views = mc_views(&a.views)?;
+    println!("| thickness (mm) | G | angle (deg) | SPR centre, MC | SPR centre, model | model / MC - 1 | scatter under the breast, model / MC - 1 | worst 16 mm block under the breast | primary under the breast after removal / true - 1 |");
+    println!("|---|---|---|---|---|---|---|---|---|");
+    for v in &views {
+        let g = v.grid;
+        let f = &v.fractions;
+        let tan = v.angle.to_radians().tan();
+        let model = table.scatter(&f.transmission, &g, v.thickness, tan)?;
+        // Centre ROI: where the ray through the breast's centre lands.
+        let src_row = (a.views.radius / 2.0 / g.row_mm) as isize;
+        let src_col = g.cols as isize / 2;
+        // The breast's centre moves along the columns with the view.
+        let centre_col = src_col
+            - ((dbt_dose::patient::SUPPORT_Z_MM + v.thickness / 2.0
+                - (dbt_dose::patient::SOURCE_TO_DETECTOR_MM
+                    - dbt_dose::patient::SOURCE_TO_AXIS_MM))
+                * v.angle.to_radians().sin()
+                * dbt_dose::patient::SOURCE_TO_DETECTOR_MM
+                / dbt_dose::patient::SOURCE_TO_AXIS_MM
+                / g.col_mm)
+                .round() as isize;
+        let half = (a.roi / 2.0 / g.row_mm).round() as isize;
+        let (mut p, mut smc, mut smod) = (0.0, 0.0, 0.0);
+        for r in (src_row - half).max(0)..(src_row + half).min(g.rows as isize) {
+            for c in (centre_col - half).max(0)..(centre_col + half).min(g.cols as isize) {
+                let k = r as usize * g.cols + c as usize;
+                p += f.transmission[k];
+                smc += f.scatter[k];
+                smod += model[k];
+            }
+        }
+        let zeros: Vec<usize> = (0..g.len()).filter(|&k| f.transmission[k] == 0.0).collect();
+        if !zeros.is_empty() {
+            eprintln!(
+                "{} pixels with zero transmission, first {:?}",
+                zeros.len(),
+                zeros
+                    .iter()
+                    .take(10)
+                    .map(|k| (k / g.cols, k % g.cols))
+                    .collect::<Vec<_>>()
+            );
+        }
+        let under: Vec<usize> = (0..g.len()).filter(|&k| f.transmission[k] < 0.95).collect();
+        let s_mc: f64 = under.iter().map(|&k| f.scatter[k]).sum();
+        let s_mod: f64 = under.iter().map(|&k| model[k]).sum();
+        // Worst block: 16 mm blocks wholly under the breast.
+        let b = (16.0 / g.row_mm).round().max(1.0) as usize;
+        let mut worst: f64 = 0.0;
+        for r0 in (0..g.rows.saturating_sub(b - 1)).step_by(b) {
+            for c0 in (0..g.cols.saturating_sub(b - 1)).step_by(b) {
+                let ks: Vec<usize> = (r0..r0 + b)
+                    .flat_map(|r| (c0..c0 + b).map(move |c| r * g.cols + c))
+                    .collect();
+                if ks.iter().all(|&k| f.transmission[k] < 0.95) {
+                    let m: f64 = ks.iter().map(|&k| f.scatter[k]).sum();
+                    let e: f64 = ks.iter().map(|&k| model[k]).sum();
+                    if (e / m - 1.0).abs() > worst.abs() {
+                        worst = e / m - 1.0;
+                    }
+                }
+            }
+        }
+        let measured: Vec<f64> = f
+            .transmission
+            .iter()
+            .zip(&f.scatter)
+            .map(|(t, s)| t + s)
+            .collect();
+        let (prim, _) = table.remove(&measured, &g, v.thickness, tan, 20)?;
+        let removed: f64 = under.iter().map(|&k| prim[k]).sum();
+        let truth: f64 = under.iter().map(|&k| f.transmission[k]).sum();
+        let bias = removed / truth - 1.0;
+        println!(
+            "| {:.0} | {:.2} | {:.0} | {:.3} | {:.3} | {:+.1} % | {:+.1} % | {:+.1} % | {:+.2} % |",
+            v.thickness,
+            v.glandularity,
+            v.angle,
+            smc / p,
+            smod / p,
+            100.0 * (smod / smc - 1.0),
+            100.0 * (s_mod / s_mc - 1.0),
+            100.0 * worst,
+            100.0 * bias
+        );
+    }
     Ok(())
 }

@@ -16,6 +16,7 @@
 pub mod material;
 pub mod patient;
 pub mod physics;
+pub mod scatter;
 pub mod scene;
 pub mod spectrum;
 pub mod tables;
@@ -28,7 +29,9 @@ use thiserror::Error;
 pub use material::Material;
 pub use scene::{HomogeneousBox, Scene, VoxelGrid};
 pub use spectrum::Spectrum;
-pub use transport::{run, run_observed, PointSource, RunResult, Tallies};
+pub use transport::{
+    run, run_observed, run_scored, DetectorScore, PointSource, RunResult, Tallies,
+};
 
 /// Errors of the dose engine; each says what was wrong.
 #[derive(Debug, Error)]

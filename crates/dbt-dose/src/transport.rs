@@ -5,7 +5,7 @@
 //! a seed whatever the number of threads, and the batch means give the
 //! statistical uncertainty (batch method).
 
-use crate::material::Mu;
+use crate::material::{Material, Mu};
 use crate::physics::{rotate, sample_compton, sample_rayleigh};
 use crate::scene::{ray_box, Region, Scene};
 use crate::spectrum::Spectrum;
@@ -124,6 +124,139 @@ impl PointSource {
     }
 }
 
+/// Scoring of the photons that reach the source's field rectangle, the
+/// detector (issue #27: primary and scattered signal). A photon crossing
+/// the rectangle from the source's side ends there (nothing lies behind
+/// the detector in our scenes, so the breast's dose is unchanged); its
+/// signal is `E (1 - exp(-mu(E) t / cos a))` for an absorber layer of
+/// thickness `t` met at incidence `a` (the energy of the photons the layer
+/// stops, which an energy-integrating detector records; K-fluorescence
+/// escape neglected as in `dbt_acquisition::clinical`), or `E` without
+/// one (the energy fluence: an ideal detector).
+#[derive(Debug, Clone)]
+pub struct DetectorScore {
+    /// Pixel side, mm.
+    pub pixel_mm: f64,
+    /// The absorber and its thickness, mm; `None`: every photon's energy.
+    pub absorber: Option<(Material, f64)>,
+    /// A virtual detector: photons are recorded where they cross the
+    /// horizontal plane `z = gate` downward (in the world material: the
+    /// underside of the breast support), at the point where their line
+    /// meets the detector plane, ahead or behind. For a geometry whose
+    /// detector rises into the breast (the paper's detector rotating with
+    /// the source: 24 degrees lifts a 256 mm detector's edge 52 mm, through
+    /// the support), the signal a detector under the support would see,
+    /// mapped onto the rotating detector's pixels along each photon's line,
+    /// as the projector maps each ray (air between the support and the
+    /// detector neglected). `None`: the detector plane itself.
+    pub gate_z_mm: Option<f64>,
+}
+
+impl DetectorScore {
+    /// Pixels `[n0, n1]` along the source's field axes 0 and 1; pixel
+    /// `(i, j)` is at index `j * n0 + i`, `i` counting from the rectangle's
+    /// `-field_half[0]` edge (likewise `j`).
+    pub fn dims(&self, source: &PointSource) -> [usize; 2] {
+        source
+            .field_half
+            .map(|h| ((2.0 * h / self.pixel_mm).round() as usize).max(1))
+    }
+
+    /// The signal of a photon of `e` keV arriving at incidence cosine `cos_a`.
+    pub fn response(&self, e: f64, cos_a: f64) -> f64 {
+        match &self.absorber {
+            None => e,
+            Some((m, t)) => e * (1.0 - (-m.mu(e).total() * t / cos_a.max(1e-6)).exp()),
+        }
+    }
+}
+
+/// A [`DetectorScore`] placed on a source's field rectangle.
+struct Scorer<'a> {
+    score: &'a DetectorScore,
+    centre: [f64; 3],
+    axes: [[f64; 3]; 2],
+    normal: [f64; 3],
+    half: [f64; 2],
+    dims: [usize; 2],
+    /// Sign of the source's side of the plane along `normal`.
+    side: f64,
+}
+
+impl<'a> Scorer<'a> {
+    fn new(score: &'a DetectorScore, source: &PointSource) -> Result<Self, DoseError> {
+        if !(score.pixel_mm.is_finite() && score.pixel_mm > 0.0) {
+            return Err(DoseError::Scene(format!(
+                "detector pixel {} mm must be a positive number",
+                score.pixel_mm
+            )));
+        }
+        if let Some((_, t)) = &score.absorber {
+            if !(t.is_finite() && *t > 0.0) {
+                return Err(DoseError::Scene(format!(
+                    "detector absorber {t} mm must be a positive number"
+                )));
+            }
+        }
+        let normal = source.normal();
+        let side = dot(sub(source.position, source.field_centre), normal).signum();
+        Ok(Self {
+            score,
+            centre: source.field_centre,
+            axes: source.field_axes,
+            normal,
+            half: source.field_half,
+            dims: score.dims(source),
+            side,
+        })
+    }
+
+    /// Where the flight from `p` along `d` is recorded: distance to the
+    /// recording (the gate or the detector), pixel and incidence cosine;
+    /// `None` if it is not (moving away, parallel, or outside the
+    /// rectangle).
+    #[inline]
+    fn hit(&self, p: [f64; 3], d: [f64; 3]) -> Option<(f64, usize, f64)> {
+        let h = dot(sub(p, self.centre), self.normal);
+        let dn = dot(d, self.normal);
+        let t = match self.score.gate_z_mm {
+            Some(z) => {
+                // A photon leaving a box whose underside is the gate
+                // starts a nudge below it.
+                if p[2] < z - 10.0 * NUDGE_MM || d[2] >= 0.0 || dn * self.side >= 0.0 {
+                    return None;
+                }
+                ((z - p[2]) / d[2]).max(0.0)
+            }
+            None => {
+                if h * self.side <= 0.0 || dn * self.side >= 0.0 {
+                    return None;
+                }
+                -h / dn
+            }
+        };
+        // The line's meeting with the detector plane (from p: -h / dn).
+        let q = sub(advance(p, d, -h / dn), self.centre);
+        let pix = self.score.pixel_mm;
+        let index = |k: usize| {
+            let a = dot(q, self.axes[k]);
+            (a.abs() < self.half[k])
+                .then(|| (((a + self.half[k]) / pix) as usize).min(self.dims[k] - 1))
+        };
+        let (i, j) = (index(0)?, index(1)?);
+        Some((t, j * self.dims[0] + i, dn.abs()))
+    }
+}
+
+/// Index of a region in [`Tallies::detector_scatter`].
+fn origin_index(r: Region) -> usize {
+    match r {
+        Region::Grid => 0,
+        Region::World => 1,
+        Region::Box(i) => 2 + i,
+    }
+}
+
 /// Energy bookkeeping of a run or a batch, keV.
 #[derive(Debug, Clone, Default, Serialize, PartialEq)]
 pub struct Tallies {
@@ -145,6 +278,14 @@ pub struct Tallies {
     /// Energy deposited in glandular tissue (per the materials' glandular
     /// weights).
     pub glandular_kev: f64,
+    /// With a [`DetectorScore`]: the signal (keV, per the score's response)
+    /// of photons reaching the detector without any interaction, per pixel
+    /// (see [`DetectorScore::dims`] for the layout); empty otherwise.
+    pub detector_primary: Vec<f64>,
+    /// As `detector_primary`, of photons that interacted at least once, by
+    /// the region of their first interaction: the image of region `o` at
+    /// `o * pixels`, regions in the order `[grid, world, box 0, box 1, ...]`.
+    pub detector_scatter: Vec<f64>,
 }
 
 impl Tallies {
@@ -154,6 +295,12 @@ impl Tallies {
             tally_kev: vec![0.0; nt],
             ..Default::default()
         }
+    }
+
+    fn with_detector(mut self, pixels: usize, origins: usize) -> Self {
+        self.detector_primary = vec![0.0; pixels];
+        self.detector_scatter = vec![0.0; pixels * origins];
+        self
     }
 
     fn add(&mut self, o: &Tallies) {
@@ -171,6 +318,14 @@ impl Tallies {
         }
         self.uncollided_escaped += o.uncollided_escaped;
         self.glandular_kev += o.glandular_kev;
+        for (a, b) in [
+            (&mut self.detector_primary, &o.detector_primary),
+            (&mut self.detector_scatter, &o.detector_scatter),
+        ] {
+            for (x, y) in a.iter_mut().zip(b) {
+                *x += y;
+            }
+        }
     }
 }
 
@@ -301,11 +456,14 @@ fn track<R: Rng>(
     mut e: f64,
     rng: &mut R,
     t: &mut Tallies,
+    scorer: Option<&Scorer<'_>>,
 ) {
     let g = &scene.grid;
     let (gmin, gmax) = (g.origin, g.max());
     let mut region = scene.region_of(p);
     let before = t.interactions.iter().sum::<u64>();
+    // Region of the first interaction (for the scatter's origin).
+    let mut first: Option<usize> = None;
     loop {
         cache.update(scene, grid_mats, e);
         match region {
@@ -325,8 +483,27 @@ fn track<R: Rng>(
                 let (_, t_exit) = ray_box(p, d, scene.world_min, scene.world_max);
                 let wm = scene.world_material as usize;
                 let s = exp_sample(rng, cache.total[wm]);
+                if let Some((t_hit, pix, cos_a)) = scorer.and_then(|sc| sc.hit(p, d)) {
+                    if t_hit < s.min(best.0).min(t_exit) {
+                        // The photon ends on the detector.
+                        let signal = scorer.map_or(0.0, |sc| sc.score.response(e, cos_a));
+                        t.escaped_kev += e;
+                        match first {
+                            None => {
+                                t.uncollided_escaped += 1;
+                                t.detector_primary[pix] += signal;
+                            }
+                            Some(o) => {
+                                let n = t.detector_primary.len();
+                                t.detector_scatter[o * n + pix] += signal;
+                            }
+                        }
+                        return;
+                    }
+                }
                 if s < best.0.min(t_exit) {
                     p = advance(p, d, s);
+                    first.get_or_insert(origin_index(Region::World));
                     if let After::Absorbed = interact(scene, cache, wm, 0, &mut e, &mut d, rng, t) {
                         return;
                     }
@@ -348,6 +525,7 @@ fn track<R: Rng>(
                 let s = exp_sample(rng, cache.total[m]);
                 if s < t_exit {
                     p = advance(p, d, s);
+                    first.get_or_insert(origin_index(Region::Box(i)));
                     if let After::Absorbed = interact(scene, cache, m, 0, &mut e, &mut d, rng, t) {
                         return;
                     }
@@ -374,6 +552,7 @@ fn track<R: Rng>(
                     let m = g.material[idx] as usize;
                     if rng.random::<f64>() * mu_max < cache.total[m] {
                         p = q;
+                        first.get_or_insert(origin_index(Region::Grid));
                         match interact(scene, cache, m, g.tally[idx], &mut e, &mut d, rng, t) {
                             After::Absorbed => return,
                             After::Scattered => break,
@@ -407,6 +586,35 @@ pub fn run_observed(
     seed: u64,
     on_batch: &(dyn Fn() + Sync),
 ) -> Result<RunResult, DoseError> {
+    run_inner(scene, source, photons, batches, seed, None, on_batch)
+}
+
+/// As [`run`], scoring the photons that reach the source's field rectangle
+/// (the detector) with `score`: [`Tallies::detector_primary`] and
+/// [`Tallies::detector_scatter`]. The
+/// photons that reach it end there, so the detector's scene must hold
+/// nothing behind the rectangle that could scatter back.
+pub fn run_scored(
+    scene: &Scene,
+    source: &PointSource,
+    photons: u64,
+    batches: usize,
+    seed: u64,
+    score: &DetectorScore,
+) -> Result<RunResult, DoseError> {
+    let scorer = Scorer::new(score, source)?;
+    run_inner(scene, source, photons, batches, seed, Some(&scorer), &|| {})
+}
+
+fn run_inner(
+    scene: &Scene,
+    source: &PointSource,
+    photons: u64,
+    batches: usize,
+    seed: u64,
+    scorer: Option<&Scorer<'_>>,
+    on_batch: &(dyn Fn() + Sync),
+) -> Result<RunResult, DoseError> {
     scene.validate()?;
     if photons == 0 || batches == 0 {
         return Err(DoseError::Scene(
@@ -421,6 +629,14 @@ pub fn run_observed(
     let grid_mats = scene.grid_summary().0.clone();
     let nm = scene.materials.len();
     let maxd = source.max_density();
+    let origins = 2 + scene.boxes.len();
+    let new_tallies = || {
+        let t = Tallies::new(nm, scene.n_tallies);
+        match scorer {
+            Some(sc) => t.with_detector(sc.dims[0] * sc.dims[1], origins),
+            None => t,
+        }
+    };
     let (h, _) = source.foot();
     let results: Vec<Tallies> = (0..batches)
         .into_par_iter()
@@ -429,7 +645,7 @@ pub fn run_observed(
             let mut rng = ChaCha8Rng::seed_from_u64(seed);
             rng.set_stream(b as u64);
             let n = photons / batches as u64 + u64::from((b as u64) < photons % batches as u64);
-            let mut t = Tallies::new(nm, scene.n_tallies);
+            let mut t = new_tallies();
             let mut cache = Cache {
                 e: f64::NAN,
                 mu: vec![Mu::default(); nm],
@@ -450,13 +666,14 @@ pub fn run_observed(
                     e,
                     &mut rng,
                     &mut t,
+                    scorer,
                 );
             }
             on_batch();
             t
         })
         .collect();
-    let mut total = Tallies::new(nm, scene.n_tallies);
+    let mut total = new_tallies();
     for r in &results {
         total.add(r);
     }

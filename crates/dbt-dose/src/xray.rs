@@ -166,10 +166,51 @@ pub fn paper_spectrum(thickness_mm: f64) -> Result<TubeSpectrum, DoseError> {
     w_rh_spectrum(kv, hvl)
 }
 
+/// The spectrum of an exposure at `kvp` of a breast `thickness_mm` thick:
+/// the one place the technique becomes a spectrum, for the acquisition's
+/// simulation, the beam-hardening correction and the dose (issue #27).
+/// The paper's Table 3 row for the thickness when the gantry used its kV
+/// ([`paper_spectrum`]: every figure made with the table's technique
+/// stands); another kV (the gantry's automatic exposure chose it) keeps
+/// the rhodium of the table's row nearest that kV (the filter does not
+/// change with the kV), TASMICS at the kV rounded to the table's 1 kV
+/// (0.05 keV of mean energy per 0.5 kV). Kilovolts outside TASMICS's
+/// 20-150 are refused naming the value; the caller's technique limits
+/// (`dbt_pipeline::acquisition::limits`) are narrower.
+pub fn technique_spectrum(kvp: f64, thickness_mm: f64) -> Result<TubeSpectrum, DoseError> {
+    if !kvp.is_finite() {
+        return Err(DoseError::Spectrum(format!("tube voltage {kvp} kV")));
+    }
+    let kv = kvp.round();
+    let (row_kv, _) = paper_technique(thickness_mm);
+    if kv == f64::from(row_kv) {
+        return paper_spectrum(thickness_mm);
+    }
+    if !(20.0..=150.0).contains(&kv) {
+        return Err(DoseError::Spectrum(format!(
+            "tube voltage {kvp} kV: TASMICS tabulates 20-150 kV"
+        )));
+    }
+    let kv = kv as u32;
+    let row = PAPER_TABLE3
+        .iter()
+        .min_by_key(|r| r.1.abs_diff(kv))
+        .unwrap_or(&PAPER_TABLE3[0]);
+    let f = Filters::new()?;
+    let rh = f.solve_rh(row.1, row.2)?;
+    w_rh_filtered(kv, rh)
+}
+
 /// W/Rh spectrum at `kv` with rhodium solved for `hvl_mm` of aluminium.
 pub fn w_rh_spectrum(kv: u32, hvl_mm: f64) -> Result<TubeSpectrum, DoseError> {
     let f = Filters::new()?;
     let rh = f.solve_rh(kv, hvl_mm)?;
+    w_rh_filtered(kv, rh)
+}
+
+/// W/Rh spectrum at `kv` through `rh` mm of rhodium.
+fn w_rh_filtered(kv: u32, rh: f64) -> Result<TubeSpectrum, DoseError> {
+    let f = Filters::new()?;
     let (e, w) = tasmics(kv)?;
     let wf = f.filter_rh(&e, &w, rh);
     let hvl = f.hvl_mm_al(&e, &wf);
@@ -213,6 +254,28 @@ mod tests {
         assert!(tasmics(19).is_err());
         assert_eq!(paper_spectrum(45.0).unwrap().kv, 28);
         assert_eq!(paper_spectrum(75.0).unwrap().kv, 31);
+    }
+
+    /// The received kV: the table's own for the thickness gives the
+    /// table's spectrum; another keeps the nearest row's rhodium, so the
+    /// beam hardens with the kV (a higher HVL and mean energy); nonsense is
+    /// refused naming it.
+    #[test]
+    fn the_received_kv_sets_the_spectrum() {
+        let p = paper_spectrum(55.0).unwrap();
+        let same = technique_spectrum(29.2, 55.0).unwrap();
+        assert_eq!((same.kv, same.rh_mm), (p.kv, p.rh_mm));
+        let hot = technique_spectrum(34.0, 55.0).unwrap();
+        let row31 = w_rh_spectrum(31, 0.557).unwrap();
+        assert_eq!(hot.kv, 34);
+        assert!((hot.rh_mm - row31.rh_mm).abs() < 1e-12);
+        assert!(hot.hvl_mm_al > row31.hvl_mm_al && hot.mean_kev > row31.mean_kev);
+        let cold = technique_spectrum(25.0, 55.0).unwrap();
+        assert!(cold.mean_kev < p.mean_kev);
+        for bad in [f64::NAN, 0.0, 200.0] {
+            let e = technique_spectrum(bad, 55.0).unwrap_err();
+            assert!(e.to_string().contains(&format!("{bad} kV")), "{e}");
+        }
     }
 
     #[test]

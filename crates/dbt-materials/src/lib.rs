@@ -123,6 +123,13 @@ pub const PET: Composition = Composition {
     density: 1.38,
     elements: &[ef(1, 4.1959), ef(6, 62.5017), ef(8, 33.3025)],
 };
+/// Caesium iodide, the scintillator of the detector (density 4.51 g/cm^3;
+/// by mass Cs 132.905 / 259.81, I 126.904 / 259.81).
+pub const CSI: Composition = Composition {
+    name: "CsI",
+    density: 4.51,
+    elements: &[ef(55, 51.155), ef(53, 48.845)],
+};
 /// Water (the body in the dose simulation).
 pub const WATER: Composition = Composition {
     name: "water",
