@@ -27,6 +27,12 @@
 #     dcmtk; .ci/run installs them).
 # Output: out/main-job/ (summary.json, reports/*.dcm). Options for step 3 can
 # be given as arguments, e.g. --pacs ORTHANC@127.0.0.1:4242.
+# PHYSICS=clinical (issue #27): the gantry's exposure is polychromatic (W/Rh),
+# recorded by an energy-integrating CsI detector with scatter and no grid
+# (host-sim acquire --physics clinical); dbtor-process then removes the
+# scatter and linearises the beam hardening (--descatter --csi-um 200: the
+# daemon's [recon] scatter = "kernel", beam_hardening = "csi"). Default mono
+# (the paper's simulated detector, the shipped model's training world).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=out/main-job
@@ -44,20 +50,27 @@ print("models/" + pathlib.PurePosixPath(r["model"]).name, r["precision"], r["mod
       f["geometry"], f.get("binning", 1), f.get("system", "-"))' firmware/config/dbtor.toml)
 SYSTEM_ARGS=()
 [ "$SYSTEM" = "-" ] || SYSTEM_ARGS=(--system "$SYSTEM")
-./target/release/host-sim acquire --out "$OUT/gantry-acquisition" --index 0 --geometry "$GEOMETRY" --binning "$BINNING" "${SYSTEM_ARGS[@]}" --noise N8 2>/dev/null
+PHYSICS=${PHYSICS:-mono}
+CORRECTIONS=()
+case "$PHYSICS" in
+    mono) ;;
+    clinical) CORRECTIONS=(--descatter --csi-um 200) ;;
+    *) echo "PHYSICS=$PHYSICS: expected mono or clinical" >&2; exit 2 ;;
+esac
+./target/release/host-sim acquire --out "$OUT/gantry-acquisition" --index 0 --geometry "$GEOMETRY" --binning "$BINNING" "${SYSTEM_ARGS[@]}" --noise N8 --physics "$PHYSICS" 2>/dev/null
 PORT=$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
 ./target/release/host-sim stream --acq "$OUT/gantry-acquisition" --listen "127.0.0.1:$PORT" 2>/dev/null &
 SIM=$!
 ./target/release/dbtor-receive --connect "127.0.0.1:$PORT" --geometry "$GEOMETRY" --binning "$BINNING" "${SYSTEM_ARGS[@]}" --out "$OUT/spool/acquisition-1"
 wait "$SIM"
 ./target/release/dbtor-process "$OUT/spool/acquisition-1" --out "$OUT/reports" \
-    --model "$MODEL" --model-digest "$DIGEST" --precision "${DBTOR_PRECISION:-$PRECISION}" "$@" > "$OUT/summary.json"
+    --model "$MODEL" --model-digest "$DIGEST" --precision "${DBTOR_PRECISION:-$PRECISION}" "${CORRECTIONS[@]}" "$@" > "$OUT/summary.json"
 python3 - "$OUT/summary.json" "$OUT/gantry-acquisition/acquisition.json" <<'PY' || cat "$OUT/summary.json"
 import json, sys
 d = json.load(open(sys.argv[1]))
 # The truth stays with the simulator: the gantry never sends it.
 r, t = d["result"], json.load(open(sys.argv[2])).get("truth") or {}
-print(f"processed {d['acquisition']} in {d['seconds']:.1f} s ({r['reconstructor']})")
+print(f"processed {d['acquisition']} in {d['seconds']:.1f} s ({r['reconstructor']}; {t.get('physics', 'mono')} physics)")
 print(f"glandularity: reported {r['glandularity']:.3f} ({'calibrated ' if r['calibrated'] else ''}partial volume), "
       f"labels {r['density']['glandularity_labels']:.3f}, partial volume "
       f"{r['density']['glandularity_partial_volume']:.3f}; phantom truth {t.get('glandularity', float('nan')):.3f}")

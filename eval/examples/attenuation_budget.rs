@@ -93,6 +93,7 @@ fn main() -> Result<()> {
                 classify: ClassifyOptions::default(),
                 calibration: None,
                 linearise: None,
+                descatter: None,
             };
             let v = reconstruct_volume(&acq, &opts, &mut |_| {})?;
             ensure!(v.dims == dims, "volume {:?} against {:?}", v.dims, dims);

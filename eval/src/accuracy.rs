@@ -261,8 +261,12 @@ pub fn run_cases_on(
     let t0 = std::time::Instant::now();
     let tech = Technique::default();
     let root = "1.2.826.0.1.3680043.10.543.3";
+    // The gantry's automatic exposure: the paper's Table 3 kV for the
+    // thickness (the spectrum the acquisition, the correction and the dose
+    // then take from the header).
+    let kvp = f64::from(dbt_dose::xray::paper_technique(vol.thickness_mm()).0);
     let acq = host_sim::simulate_on(
-        vol, geom, system, noise, physics, seed, tech, 28.0, "EVAL", root,
+        vol, geom, system, noise, physics, seed, tech, kvp, "EVAL", root,
     )?;
     let acquired = t0.elapsed().as_secs_f64();
     let mut truth_mgd_per_kerma = None;

@@ -155,7 +155,7 @@ pub fn run_phantom(
         noise,
         seed,
         Technique::default(),
-        28.0,
+        f64::from(dbt_dose::xray::paper_technique(vol.thickness_mm()).0),
         "EVAL",
         "1.2.826.0.1.3680043.10.543.3",
     )?;

@@ -303,6 +303,7 @@ impl Daemon {
             mltr_iterations: cfg.recon.mltr_iterations,
             dose_uncertainty: cfg.recon.dose_uncertainty,
             linearise: cfg.linearise(),
+            descatter: cfg.descatter(&config_path)?,
             ..PipelineOptions::default()
         };
         if cfg.recon.reconstructor == Reconstructor::Dbtor {

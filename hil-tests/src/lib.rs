@@ -57,6 +57,19 @@ pub fn acquire_with(
     geometry: &str,
     system: Option<&str>,
 ) -> std::path::PathBuf {
+    acquire_args(dir, name, index, geometry, system, &[])
+}
+
+/// As [`acquire_with`], with more `host-sim acquire` arguments (e.g.
+/// `--physics clinical`).
+pub fn acquire_args(
+    dir: &std::path::Path,
+    name: &str,
+    index: u32,
+    geometry: &str,
+    system: Option<&str>,
+    extra: &[&str],
+) -> std::path::PathBuf {
     let acq = dir.join(name);
     let st = std::process::Command::new(workspace_bin("host-sim"))
         .args([
@@ -71,6 +84,7 @@ pub fn acquire_with(
             "N8",
         ])
         .args(system.iter().flat_map(|s| ["--system", s]))
+        .args(extra)
         .arg("--out")
         .arg(&acq)
         .output()

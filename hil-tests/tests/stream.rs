@@ -126,7 +126,7 @@ fn serial_line_over_a_pty_pair() {
 
 /// A gantry that misbehaves cannot freeze or exhaust the receiver: an
 /// announcement beyond the configured geometry is refused at the header, a
-/// header without exposure (0 mAs) or of a molybdenum exposure (no spectra
+/// header without exposure (0 mAs, or 0 kV) or of a molybdenum exposure (no spectra
 /// of the dose model) likewise, a gantry that stops reading our
 /// acknowledgements is a named fault after the write timeout, not a hang.
 /// Nothing is spooled in any case.
@@ -141,6 +141,8 @@ fn a_misbehaving_gantry_is_refused_or_timed_out() {
             "announces 4096 projections, the receiver is configured for 25",
         ),
         (&["mas:0"][..], 20, "`mas_total` = 0"),
+        // No tube voltage: refused at the header, naming it.
+        (&["kvp:0"][..], 20, "kvp 0"),
         // A stated anode/filter the dose model has no spectra for.
         (&["anode:4"][..], 20, "anode/filter Mo/Mo"),
         // Acknowledgements of a flood of repeated headers that nobody reads:

@@ -127,23 +127,38 @@ pub enum Physics {
     /// noise at the noise level's photons per element.
     #[default]
     Mono,
-    /// A polychromatic beam (the paper's Table 3 technique for the
-    /// thickness: the spectrum the dose uses), an energy-integrating CsI
+    /// A polychromatic beam (the spectrum of the acquisition's kV,
+    /// `dbt_dose::xray::technique_spectrum`: the one the dose uses), an energy-integrating CsI
     /// detector, quantum and electronic noise
     /// (`dbt_acquisition::clinical`): the noise level's photons reach each
     /// element without the breast (an N8-equivalent dose at N8), and its
-    /// flat field reads that many ADU. No scatter yet.
-    Clinical(dbt_acquisition::clinical::Detector),
+    /// flat field reads that many ADU; with `scatter`, each view's scatter
+    /// from the shipped kernel model (`dbt_scatter`, fitted to our Monte
+    /// Carlo engine) added before the noise.
+    Clinical {
+        /// The detector.
+        detector: dbt_acquisition::clinical::Detector,
+        /// Whether the scatter reaches the detector (no grid).
+        scatter: bool,
+    },
 }
 
 impl Physics {
-    /// Parse `mono` or `clinical` (the default detector).
+    /// Parse `mono`, `clinical` (the default detector, with scatter) or
+    /// `clinical-primary` (without scatter: session 19's figures).
     pub fn parse(s: &str) -> Result<Self, SimError> {
         match s {
             "mono" => Ok(Physics::Mono),
-            "clinical" => Ok(Physics::Clinical(Default::default())),
+            "clinical" => Ok(Physics::Clinical {
+                detector: Default::default(),
+                scatter: true,
+            }),
+            "clinical-primary" => Ok(Physics::Clinical {
+                detector: Default::default(),
+                scatter: false,
+            }),
             other => Err(SimError::Options(format!(
-                "physics {other:?}: expected mono or clinical"
+                "physics {other:?}: expected mono, clinical or clinical-primary"
             ))),
         }
     }
@@ -152,17 +167,21 @@ impl Physics {
     pub fn name(&self) -> &'static str {
         match self {
             Physics::Mono => "mono",
-            Physics::Clinical(_) => "clinical",
+            Physics::Clinical { scatter: true, .. } => "clinical",
+            Physics::Clinical { scatter: false, .. } => "clinical-primary",
         }
     }
 
-    /// The clinical model for a breast `thickness_mm` thick at `noise`.
+    /// The clinical model of an exposure at `kvp` of a breast
+    /// `thickness_mm` thick at `noise` (the spectrum:
+    /// `dbt_dose::xray::technique_spectrum`, as the dose's).
     fn clinical(
         detector: &dbt_acquisition::clinical::Detector,
+        kvp: f64,
         thickness_mm: f64,
         noise: NoiseLevel,
     ) -> Result<dbt_acquisition::clinical::ClinicalPhysics, SimError> {
-        let tube = dbt_dose::xray::paper_spectrum(thickness_mm)
+        let tube = dbt_dose::xray::technique_spectrum(kvp, thickness_mm)
             .map_err(|e| SimError::Options(e.to_string()))?;
         let spectrum = tube
             .spectrum
@@ -174,16 +193,28 @@ impl Physics {
 }
 
 /// Signals of rays with per-material path lengths under `physics`'s
-/// clinical model (noise-free at `NoiseFree`).
+/// clinical model (noise-free at `NoiseFree`); with scatter, the rays
+/// form the stack `layout` of a breast `thickness_mm` thick.
 fn clinical_signals(
     model: &dbt_acquisition::clinical::ClinicalPhysics,
     paths: &[Vec<f32>; 3],
+    scatter: Option<(&dbt_acquisition::clinical::StackLayout, f64)>,
     noise: NoiseLevel,
     seed: u64,
 ) -> Result<Vec<f32>, SimError> {
-    model
-        .simulate(paths, noise != NoiseLevel::NoiseFree, seed)
-        .map_err(|e| SimError::Options(e.to_string()))
+    let err = |e: dbt_acquisition::AcquisitionError| SimError::Options(e.to_string());
+    let noisy = noise != NoiseLevel::NoiseFree;
+    match scatter {
+        None => model.simulate(paths, noisy, seed).map_err(err),
+        Some((layout, thickness)) => {
+            let table = dbt_scatter::ScatterTable::shipped()
+                .map_err(|e| SimError::Options(e.to_string()))?;
+            Ok(model
+                .simulate_scattered(paths, layout, table, thickness, noisy, seed)
+                .map_err(err)?
+                .0)
+        }
+    }
 }
 
 /// Technique of a simulated acquisition (plausible values, not a measured
@@ -250,13 +281,13 @@ pub fn simulate_acquisition_with(
     patient_id: &str,
     uid_root: &str,
 ) -> Result<AcqFile, SimError> {
-    let Physics::Clinical(detector) = physics else {
+    let Physics::Clinical { detector, scatter } = physics else {
         return simulate_acquisition(vol, geom, noise, seed, technique, kvp, patient_id, uid_root);
     };
-    let _span = tracing::info_span!("acquisition", patient_id, physics = "clinical").entered();
-    let model = Physics::clinical(&detector, vol.thickness_mm(), noise)?;
+    let _span = tracing::info_span!("acquisition", patient_id, physics = physics.name()).entered();
+    let model = Physics::clinical(&detector, kvp, vol.thickness_mm(), noise)?;
     let proj = Projector::new(geom);
-    let counts: Vec<Vec<f32>> = (0..vol.n_coronal())
+    let paths: Vec<[Vec<f32>; 3]> = (0..vol.n_coronal())
         .into_par_iter()
         .map(|d| {
             let s = coronal_slice(vol, d, geom)?;
@@ -266,15 +297,48 @@ pub fn simulate_acquisition_with(
                 *p = vec![0f32; proj.range_len()];
                 proj.forward(img, p)?;
             }
-            clinical_signals(&model, &paths, noise, mix_seed(seed, &[d as u64, 0]))
+            Ok(paths)
         })
         .collect::<Result<_, SimError>>()?;
+    let counts: Vec<Vec<f32>> = if scatter {
+        // One stack: the coronal slices are the detector's rows (each its
+        // own fan: no magnification along them).
+        let layout = dbt_acquisition::clinical::StackLayout {
+            rows: paths.len(),
+            views: geom.n_views(),
+            cols: geom.n_det(),
+            row_mm: vol.voxel_mm(),
+            col_mm: geom.detector.pitch_mm,
+            tan_angles: (0..geom.n_views())
+                .map(|v| geom.angle_rad(v).tan())
+                .collect(),
+        };
+        let all: [Vec<f32>; 3] =
+            std::array::from_fn(|m| paths.iter().flat_map(|p| p[m].iter().copied()).collect());
+        let signals = clinical_signals(
+            &model,
+            &all,
+            Some((&layout, vol.thickness_mm())),
+            noise,
+            mix_seed(seed, &[u64::MAX - 1]),
+        )?;
+        signals
+            .chunks(proj.range_len())
+            .map(<[f32]>::to_vec)
+            .collect()
+    } else {
+        paths
+            .par_iter()
+            .enumerate()
+            .map(|(d, p)| clinical_signals(&model, p, None, noise, mix_seed(seed, &[d as u64, 0])))
+            .collect::<Result<_, SimError>>()?
+    };
     let mut file =
         simulate_acquisition_header(vol, geom, noise, seed, technique, kvp, patient_id, uid_root);
     file.header.slices = counts.len();
     file.header.flux = model.flat_adu();
     if let Some(t) = file.header.truth.as_mut() {
-        t["physics"] = "clinical".into();
+        t["physics"] = physics.name().into();
     }
     file.counts = counts;
     Ok(file)
@@ -430,14 +494,14 @@ pub fn simulate_cone_acquisition_with(
     // share (clinical).
     let n_vol = match physics {
         Physics::Mono => 1,
-        Physics::Clinical(_) => 3,
+        Physics::Clinical { .. } => 3,
     };
     let mut vols = vec![vec![0.0f32; grid.len()]; n_vol];
     for d in 0..vol.n_coronal() {
         let s = coronal_slice(vol, d, geom)?;
         let images: Vec<Vec<f32>> = match physics {
             Physics::Mono => vec![s.mu()],
-            Physics::Clinical(_) => s.material_shares().to_vec(),
+            Physics::Clinical { .. } => s.material_shares().to_vec(),
         };
         for (dst, img) in vols.iter_mut().zip(&images) {
             for v in 0..rows {
@@ -476,14 +540,30 @@ pub fn simulate_cone_acquisition_with(
             let a = simulate_from_line_integrals(&projected[0], noise, mix_seed(seed, &[u64::MAX]));
             (a.counts, a.flux)
         }
-        Physics::Clinical(detector) => {
-            let model = Physics::clinical(&detector, vol.thickness_mm(), noise)?;
+        Physics::Clinical { detector, scatter } => {
+            let model = Physics::clinical(&detector, kvp, vol.thickness_mm(), noise)?;
             let paths: [Vec<f32>; 3] = [
                 projected[0].clone(),
                 projected[1].clone(),
                 projected[2].clone(),
             ];
-            let c = clinical_signals(&model, &paths, noise, mix_seed(seed, &[u64::MAX]))?;
+            let layout = dbt_acquisition::clinical::StackLayout {
+                rows: drows,
+                views,
+                cols: dcols,
+                row_mm: system.detector.pitch_mm,
+                col_mm: system.detector.pitch_mm,
+                tan_angles: (0..views)
+                    .map(|v| system.angle_deg(v).to_radians().tan())
+                    .collect(),
+            };
+            let c = clinical_signals(
+                &model,
+                &paths,
+                scatter.then_some((&layout, vol.thickness_mm())),
+                noise,
+                mix_seed(seed, &[u64::MAX]),
+            )?;
             (c, model.flat_adu())
         }
     };
@@ -492,8 +572,8 @@ pub fn simulate_cone_acquisition_with(
     file.header.system = Some(system.clone());
     file.header.slices = drows;
     file.header.flux = flux;
-    if let (Physics::Clinical(_), Some(t)) = (physics, file.header.truth.as_mut()) {
-        t["physics"] = "clinical".into();
+    if let (Physics::Clinical { .. }, Some(t)) = (physics, file.header.truth.as_mut()) {
+        t["physics"] = physics.name().into();
     }
     file.counts = counts.chunks(views * dcols).map(<[f32]>::to_vec).collect();
     Ok(file)

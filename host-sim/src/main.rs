@@ -92,9 +92,11 @@ struct AcquireArgs {
     #[arg(long)]
     system: Option<String>,
     /// The physics (issue #27): `mono` (the paper's: one energy, photon
-    /// counting) or `clinical` (the Table 3 spectrum for the thickness, an
-    /// energy-integrating CsI detector, quantum and electronic noise; the
-    /// noise level's photons per element; no scatter yet).
+    /// counting), `clinical` (the Table 3 spectrum for the thickness, an
+    /// energy-integrating CsI detector, quantum and electronic noise at the
+    /// noise level's photons per element, and each view's scatter without a
+    /// grid: dbt-scatter's kernels fitted to the Monte Carlo engine) or
+    /// `clinical-primary` (the same without scatter).
     #[arg(long, default_value = "mono")]
     physics: String,
 }

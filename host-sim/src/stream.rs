@@ -40,6 +40,8 @@ pub enum Fault {
     Mas(u32),
     /// The header's anode/filter set to register 6's code (`anode:2`: W/Al).
     Anode(u32),
+    /// The header's tube voltage set to this many kV (`kvp:0`: none).
+    Kvp(u32),
 }
 
 impl Fault {
@@ -65,6 +67,7 @@ impl Fault {
             "freeze" => Ok(Fault::Freeze(n(v)?)),
             "mas" => Ok(Fault::Mas(n(v)?)),
             "anode" => Ok(Fault::Anode(n(v)?)),
+            "kvp" => Ok(Fault::Kvp(n(v)?)),
             "reorder" => {
                 let (a, b) = v
                     .split_once(',')
@@ -72,7 +75,7 @@ impl Fault {
                 Ok(Fault::Reorder(n(a)?, n(b)?))
             }
             _ => Err(format!(
-                "fault `{s}`: kind must be corrupt, drop, dup, reorder, cut, saturate, nanflat, zeros, announce, freeze, mas or anode"
+                "fault `{s}`: kind must be corrupt, drop, dup, reorder, cut, saturate, nanflat, zeros, announce, freeze, mas, anode or kvp"
             )),
         }
     }
@@ -223,6 +226,11 @@ pub fn serve_stream<S: Read + Write>(
                     h.mas_total = n as f64;
                 }
             }
+            Fault::Kvp(n) => {
+                if let Some(Frame::Header(h)) = owned.get_mut(0) {
+                    h.kvp = n as f64;
+                }
+            }
             Fault::Anode(code) => {
                 if let Some(Frame::Header(h)) = owned.get_mut(0) {
                     let a = dbt_gantry::registers::ANODES.get((code as usize).wrapping_sub(1));
@@ -258,7 +266,8 @@ pub fn serve_stream<S: Read + Write>(
             | Fault::Announce(_)
             | Fault::Freeze(_)
             | Fault::Mas(_)
-            | Fault::Anode(_) => {}
+            | Fault::Anode(_)
+            | Fault::Kvp(_) => {}
             Fault::Cut(q) => {
                 if let Some(i) = order.iter().position(|&x| x == q) {
                     order.truncate(i);

@@ -11,6 +11,7 @@
 //! * [`rebin`]: cone-beam projections as slice-wise fan-beam sinograms.
 
 pub mod acquisition;
+pub mod descatter;
 pub mod dicom_input;
 pub mod linearise;
 pub mod plausibility;

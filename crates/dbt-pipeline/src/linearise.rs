@@ -4,9 +4,9 @@
 //! attenuation (`dbt_materials::Tissue::mu_per_mm`).
 //!
 //! # The correction
-//! For the acquisition's technique (the paper's Table 3 spectrum for its
-//! thickness: [`dbt_dose::xray::paper_spectrum`], the one the simulator and
-//! the dose use) and the site's detector
+//! For the acquisition's technique (the spectrum of the kV received for
+//! its thickness: [`dbt_dose::xray::technique_spectrum`], the one the
+//! simulator and the dose use) and the site's detector
 //! ([`dbt_acquisition::clinical::Detector`]), the polychromatic log signal
 //! `P(L) = -ln(S(L) / S(0))` of `L` mm of a reference tissue is computed
 //! from the material tables on a grid of `L`, and each measured count
@@ -66,13 +66,15 @@ pub struct Linearisation {
 }
 
 impl BeamHardening {
-    /// The table for an acquisition of `thickness_mm` (its technique).
-    pub fn table(&self, thickness_mm: f64) -> Result<Linearisation, LineariseError> {
+    /// The table for an exposure at `kvp` of a breast `thickness_mm`
+    /// thick (its spectrum: [`dbt_dose::xray::technique_spectrum`]).
+    pub fn table(&self, kvp: f64, thickness_mm: f64) -> Result<Linearisation, LineariseError> {
         let fail = |reason: String| LineariseError::Model {
             thickness_mm,
             reason,
         };
-        let tube = dbt_dose::xray::paper_spectrum(thickness_mm).map_err(|e| fail(e.to_string()))?;
+        let tube = dbt_dose::xray::technique_spectrum(kvp, thickness_mm)
+            .map_err(|e| fail(e.to_string()))?;
         let spectrum = tube.spectrum.ok_or_else(|| fail("no spectrum".into()))?;
         // The photon number scales the signal only: 1 photon, flat = 1.
         let model = ClinicalPhysics::new(&spectrum, 1.0, &self.detector, 1.0)
@@ -100,7 +102,7 @@ impl BeamHardening {
         h: &AcquisitionHeader,
         counts: &mut [Vec<f32>],
     ) -> Result<usize, LineariseError> {
-        let t = self.table(h.thickness_mm)?;
+        let t = self.table(h.kvp, h.thickness_mm)?;
         let b = h.flux;
         let mut n = 0;
         for c in counts.iter_mut().flat_map(|s| s.iter_mut()) {
@@ -154,7 +156,7 @@ mod tests {
     #[test]
     fn the_reference_tissue_is_linearised_exactly() {
         let b = bh();
-        let t = b.table(50.0).unwrap();
+        let t = b.table(29.0, 50.0).unwrap();
         let s = dbt_dose::xray::paper_spectrum(50.0)
             .unwrap()
             .spectrum
@@ -177,7 +179,7 @@ mod tests {
     /// dense tissue hardening the beam more).
     #[test]
     fn other_tissues_are_corrected_to_the_second_order() {
-        let t = bh().table(50.0).unwrap();
+        let t = bh().table(29.0, 50.0).unwrap();
         let s = dbt_dose::xray::paper_spectrum(50.0)
             .unwrap()
             .spectrum

@@ -91,6 +91,10 @@ pub struct PipelineOptions {
     /// taken as mono-energetic.
     #[serde(skip)]
     pub linearise: Option<crate::linearise::BeamHardening>,
+    /// Scatter removal before the linearisation (issue #27); `None`: the
+    /// counts are taken as primary.
+    #[serde(skip)]
+    pub descatter: Option<crate::descatter::ScatterRemoval>,
 }
 
 impl Default for PipelineOptions {
@@ -103,6 +107,7 @@ impl Default for PipelineOptions {
             classify: ClassifyOptions::default(),
             calibration: None,
             linearise: None,
+            descatter: None,
         }
     }
 }
@@ -376,20 +381,28 @@ pub fn process_with_progress(
     // The header before anything reads the counts (the linearisation and
     // the rebinning use its flux, thickness and system).
     validate_header(&acq.header)?;
-    // A polychromatic detector's counts, linearised first (every check and
-    // the reconstruction read mono-energetic counts).
-    let linearised;
-    let acq = match &opts.linearise {
-        Some(bh) => {
-            let mut a = acq.clone();
+    // A polychromatic detector's counts: the scatter removed, then
+    // linearised (every check and the reconstruction read mono-energetic
+    // primary counts).
+    let corrected;
+    let acq = if opts.descatter.is_some() || opts.linearise.is_some() {
+        let mut a = acq.clone();
+        if let Some(sr) = &opts.descatter {
+            let spr = sr
+                .apply(&a.header, &mut a.counts)
+                .map_err(|e| PipelineError::Input(e.to_string()))?;
+            tracing::debug!(spr, "scatter removed");
+        }
+        if let Some(bh) = &opts.linearise {
             let n = bh
                 .apply(&a.header, &mut a.counts)
                 .map_err(|e| PipelineError::Input(e.to_string()))?;
             tracing::debug!(counts = n, "beam hardening linearised");
-            linearised = a;
-            &linearised
         }
-        None => acq,
+        corrected = a;
+        &corrected
+    } else {
+        acq
     };
     // A cone-beam acquisition is then made the slice-wise fan-beam one: its
     // detector frames checked as read (a stuck or
@@ -460,7 +473,9 @@ pub fn process_with_progress(
     )?;
     let dens = density(&mu, &classification.labels, g.image.pixel_mm);
     progress(Stage::Dose);
-    let tube = dbt_dose::xray::paper_spectrum(h.thickness_mm)?;
+    // The exposure's spectrum from the kV received (the one place the
+    // technique becomes a spectrum: dbt_dose::xray::technique_spectrum).
+    let tube = dbt_dose::xray::technique_spectrum(h.kvp, h.thickness_mm)?;
     let spectrum = tube
         .spectrum
         .clone()

@@ -273,15 +273,19 @@ struct AccuracyArgs {
     #[arg(long)]
     model: Option<PathBuf>,
     /// The acquisition's physics (issue #27): `mono` (the paper's: one
-    /// energy, photon counting) or `clinical` (polychromatic, CsI
-    /// energy-integrating detector, quantum and electronic noise; no
-    /// scatter yet).
+    /// energy, photon counting), `clinical` (polychromatic, CsI
+    /// energy-integrating detector, quantum and electronic noise, scatter
+    /// without a grid) or `clinical-primary` (the same without scatter).
     #[arg(long, default_value = "mono")]
     physics: String,
     /// Linearise the beam hardening before the reconstruction
     /// (`dbt_pipeline::linearise`, the clinical physics' CsI detector).
     #[arg(long)]
     linearise: bool,
+    /// Remove the scatter before the linearisation
+    /// (`dbt_pipeline::descatter`, the shipped kernel model).
+    #[arg(long)]
+    descatter: bool,
     /// Acquire on this cone-beam system (issue #28: `paper-cone`,
     /// `siemens-victre` or a system TOML), binned as the geometry is
     /// (its pixel over 0.2 mm); the firmware rebins to slices. Default: every
@@ -514,7 +518,8 @@ fn run_cone_views(args: ConeViewsArgs) -> Result<()> {
     let root = "1.2.826.0.1.3680043.10.543.3";
     let seed = 1000 + index;
     let mut runs: Vec<(String, dbt_pipeline::acquisition::Acquisition, Dbtor)> = Vec::new();
-    let fan = host_sim::simulate_acquisition(&vol, &g, noise, seed, tech, 28.0, "EVAL", root)?;
+    let kvp = f64::from(dbt_dose::xray::paper_technique(vol.thickness_mm()).0);
+    let fan = host_sim::simulate_acquisition(&vol, &g, noise, seed, tech, kvp, "EVAL", root)?;
     runs.push(("slice-wise fan beam".into(), fan, m));
     for name in systems.split(',').map(str::trim).filter(|s| !s.is_empty()) {
         let s = dbt_store::load_system(name, 1)?;
@@ -522,7 +527,7 @@ fn run_cone_views(args: ConeViewsArgs) -> Result<()> {
         let s = s.binned(factor)?;
         let g_acq = s.rebinning_fan(&g)?;
         let a = host_sim::simulate_cone_acquisition(
-            &vol, &g_acq, &s, noise, seed, tech, 28.0, "EVAL", root,
+            &vol, &g_acq, &s, noise, seed, tech, kvp, "EVAL", root,
         )?;
         let model = load((g_acq != g).then_some(&g_acq))?;
         runs.push((format!("cone beam, {}", s.name), a, model));
@@ -945,8 +950,14 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
         system,
         physics,
         linearise,
+        descatter,
     } = args;
     let physics = host_sim::Physics::parse(&physics)?;
+    let descatter = if descatter {
+        Some(dbt_pipeline::descatter::ScatterRemoval::shipped()?)
+    } else {
+        None
+    };
     let skin = match skin {
         Some(v) => parse_skin_variant(&v)?,
         None => dbt_tissue::ClassifyOptions::default(),
@@ -990,6 +1001,7 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
             linearise: linearise.then(|| dbt_pipeline::linearise::BeamHardening {
                 detector: Default::default(),
             }),
+            descatter,
         };
         let label = dbt_pipeline::reconstructor_name(&opts);
         let label = match calibration {
@@ -1119,6 +1131,7 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
         "system": system.as_ref().map(|s| s.name.clone()),
         "physics": physics.name(),
         "linearised": linearise,
+        "descattered": descatter.is_some(),
         "phantoms": match &phantom {
             Some(p) => p.display().to_string(),
             None => split.describe(),

@@ -58,6 +58,10 @@ struct Cli {
     /// `csi_um`); without it the counts are taken as mono-energetic.
     #[arg(long)]
     csi_um: Option<f64>,
+    /// Remove the scatter with the shipped kernel model before the
+    /// linearisation (the daemon's `recon.scatter = "kernel"`).
+    #[arg(long)]
+    descatter: bool,
 }
 
 fn main() -> ExitCode {
@@ -101,6 +105,11 @@ fn run(cli: Cli) -> Result<()> {
                     ..Default::default()
                 },
             }),
+        descatter: if cli.descatter {
+            Some(dbt_pipeline::descatter::ScatterRemoval::shipped()?)
+        } else {
+            None
+        },
         ..PipelineOptions::default()
     };
     let dbt_cli::ModelArgs {

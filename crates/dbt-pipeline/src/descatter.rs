@@ -1,0 +1,162 @@
+//! Scatter removal (issue #27): the scatter an energy-integrating detector
+//! records without a grid, estimated by the kernel model fitted to our
+//! Monte Carlo engine ([`dbt_scatter::ScatterTable`], the one the
+//! simulator adds scatter with) and removed from each view's counts before
+//! the beam-hardening linearisation and everything else.
+//!
+//! # The correction
+//! For each view, the counts as fractions of the flat field (the open
+//! field's primary: GANTRY_INTERFACE.md) form the detector image
+//! `m = T + s(T)` (rows: coronal slices, or a cone-beam
+//! detector's rows; columns: detector elements). On blocks of about 4 mm
+//! ([`dbt_acquisition::clinical::SCATTER_BLOCK_MM`]: scatter varies over
+//! centimetres) the primary `T` is solved for by
+//! [`dbt_scatter::ScatterTable::remove`]; the blocks' scatter, interpolated
+//! back to every element, is subtracted from each count (at least
+//! [`MIN_PRIMARY`] of it kept). A difference rather than a scaling by the
+//! scatter fraction: the scatter is smooth in counts, its fraction is not
+//! (it jumps at the breast's edge, inside one block). Counts no exposure
+//! can give (`c <= 0`, `c >` [`MAX_SIGNAL`] `b`) pass as read, for the
+//! counts check to name them.
+
+use crate::acquisition::AcquisitionHeader;
+use dbt_acquisition::clinical::{StackLayout, SCATTER_BLOCK_MM};
+use dbt_scatter::{block_mean, upsample, Grid, ScatterTable};
+use thiserror::Error;
+
+/// Why the scatter cannot be removed.
+#[derive(Debug, Error, PartialEq)]
+pub enum DescatterError {
+    /// The model failed on this acquisition.
+    #[error("scatter removal: {0}")]
+    Model(String),
+}
+
+/// Fixed-point steps of [`ScatterTable::remove`] (a 90 mm breast's
+/// scatter-to-primary ratio of 1.5 converges to 1e-4 in about 15).
+pub const ITERATIONS: usize = 20;
+
+/// The least share of a count kept as primary (a 90 mm breast's scatter
+/// is about 1.5 times its primary: 40 % of the count is primary; noise can
+/// put a dark element's count under the estimated scatter).
+pub const MIN_PRIMARY: f64 = 0.05;
+
+/// The largest signal, as a multiple of the flat field, a count with
+/// scatter can hold: the open field's own scatter (paddle, support) is
+/// about 0.1 of it, a breast's beside it a little more; 1.5 bounds both.
+/// Counts above pass as read (the counts check names them).
+pub const MAX_SIGNAL: f64 = 1.5;
+
+/// The site's scatter removal: the shipped kernel table.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ScatterRemoval {
+    /// The kernels.
+    pub table: &'static ScatterTable,
+}
+
+impl ScatterRemoval {
+    /// The shipped table's removal.
+    pub fn shipped() -> Result<Self, DescatterError> {
+        Ok(Self {
+            table: ScatterTable::shipped().map_err(|e| DescatterError::Model(e.to_string()))?,
+        })
+    }
+
+    /// How the counts of `h` form the views' detector images.
+    pub fn layout(h: &AcquisitionHeader) -> StackLayout {
+        match &h.system {
+            Some(sys) => StackLayout {
+                rows: sys.detector.rows,
+                views: sys.n_views(),
+                cols: sys.detector.columns,
+                row_mm: sys.detector.pitch_mm,
+                col_mm: sys.detector.pitch_mm,
+                tan_angles: (0..sys.n_views())
+                    .map(|v| sys.angle_deg(v).to_radians().tan())
+                    .collect(),
+            },
+            None => {
+                let g = &h.geometry;
+                StackLayout {
+                    rows: h.slices,
+                    views: g.n_views(),
+                    cols: g.n_det(),
+                    row_mm: h.slice_spacing_mm,
+                    col_mm: g.detector.pitch_mm,
+                    tan_angles: (0..g.n_views()).map(|v| g.angle_rad(v).tan()).collect(),
+                }
+            }
+        }
+    }
+
+    /// Remove the scatter from an acquisition's counts in place
+    /// (`counts[row][view * cols + element]`, flat field `h.flux`; the
+    /// header already validated). Returns the mean scatter-to-primary
+    /// ratio removed under the breast (elements whose corrected counts
+    /// are below 95 % of the flat field).
+    pub fn apply(
+        &self,
+        h: &AcquisitionHeader,
+        counts: &mut [Vec<f32>],
+    ) -> Result<f64, DescatterError> {
+        let l = Self::layout(h);
+        let fail = |w: String| DescatterError::Model(w);
+        if counts.len() != l.rows || counts.iter().any(|r| r.len() != l.views * l.cols) {
+            return Err(fail(format!(
+                "{} rows of counts for a stack of {} rows x {} views x {} elements",
+                counts.len(),
+                l.rows,
+                l.views,
+                l.cols
+            )));
+        }
+        let fine = Grid {
+            rows: l.rows,
+            cols: l.cols,
+            row_mm: l.row_mm,
+            col_mm: l.col_mm,
+        };
+        let fr = (SCATTER_BLOCK_MM / l.row_mm).round().max(1.0) as usize;
+        let fc = (SCATTER_BLOCK_MM / l.col_mm).round().max(1.0) as usize;
+        // The flat field is the open field's primary (GANTRY_INTERFACE.md):
+        // the model's unit.
+        let b = h.flux;
+        let (mut s_sum, mut p_sum) = (0.0, 0.0);
+        for v in 0..l.views {
+            let _span = tracing::trace_span!("descatter_view", v).entered();
+            let mut m = vec![0.0; fine.len()];
+            for (r, row) in counts.iter().enumerate() {
+                for c in 0..l.cols {
+                    m[r * l.cols + c] =
+                        (f64::from(row[v * l.cols + c]) / b).clamp(1e-6, MAX_SIGNAL);
+                }
+            }
+            let (mc, coarse) = block_mean(&m, &fine, fr, fc);
+            let (_, s) = self
+                .table
+                .remove(&mc, &coarse, h.thickness_mm, l.tan_angles[v], ITERATIONS)
+                .map_err(|e| fail(e.to_string()))?;
+            // The scatter is smooth in counts (not as a fraction of them:
+            // at the breast's edge a block holds air and tissue), so it is
+            // interpolated and subtracted, each count keeping at least
+            // MIN_PRIMARY of itself (noise in a dark element).
+            let s = upsample(&s, &coarse, &fine);
+            for (r, row) in counts.iter_mut().enumerate() {
+                for c in 0..l.cols {
+                    let x = &mut row[v * l.cols + c];
+                    let val = f64::from(*x);
+                    if val > 0.0 && val <= MAX_SIGNAL * b {
+                        let sc = b * s[r * l.cols + c];
+                        let p = (val - sc).max(MIN_PRIMARY * val);
+                        *x = p as f32;
+                        if p < 0.95 * b {
+                            s_sum += val - p;
+                            p_sum += p;
+                        }
+                    }
+                }
+            }
+        }
+        Ok(if p_sum > 0.0 { s_sum / p_sum } else { 0.0 })
+    }
+}
