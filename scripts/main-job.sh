@@ -70,7 +70,9 @@ import json, sys
 d = json.load(open(sys.argv[1]))
 # The truth stays with the simulator: the gantry never sends it.
 r, t = d["result"], json.load(open(sys.argv[2])).get("truth") or {}
-print(f"processed {d['acquisition']} in {d['seconds']:.1f} s ({r['reconstructor']}; {t.get('physics', 'mono')} physics)")
+rss = d.get("peak_rss_mib")
+print(f"processed {d['acquisition']} in {d['seconds']:.1f} s ({r['reconstructor']}; {t.get('physics', 'mono')} physics); "
+      f"peak resident memory {'%.0f MiB' % rss if rss else 'not reported'}")
 print(f"glandularity: reported {r['glandularity']:.3f} ({'calibrated ' if r['calibrated'] else ''}partial volume), "
       f"labels {r['density']['glandularity_labels']:.3f}, partial volume "
       f"{r['density']['glandularity_partial_volume']:.3f}; phantom truth {t.get('glandularity', float('nan')):.3f}")

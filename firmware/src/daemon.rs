@@ -416,6 +416,7 @@ impl Daemon {
         self.status.state = state.into();
         self.status.current = current.map(String::from);
         self.status.updated_unix = now_unix();
+        self.status.peak_rss_mib = dbt_cli::peak_rss_mib();
         self.status.incoming = self.incoming().map(|v| v.len()).unwrap_or(0);
         let path = self.cfg.paths.status.clone();
         match serde_json::to_vec_pretty(&self.status) {

@@ -570,6 +570,10 @@ fn clinical_physics_is_reported_after_both_corrections() {
             assert!(s["faults"].as_array().unwrap().is_empty(), "{s}");
             let g = s["recent"][0]["glandularity_reported"].as_f64().unwrap();
             assert!((g - truth).abs() < 0.03, "reported {g}, truth {truth}");
+            // The daemon states its peak memory (issue #30).
+            let rss = s["peak_rss_mib"].as_f64().unwrap();
+            assert!(rss > 10.0, "{s}");
+            eprintln!("daemon peak resident memory {rss:.0} MiB");
         } else {
             assert_eq!(st.code(), Some(1), "--once after a fault exits 1: {s}");
             let m = s["faults"][0]["message"].as_str().unwrap();

@@ -120,6 +120,26 @@ pub fn cpu_summary() -> String {
     )
 }
 
+/// The process's peak resident memory so far, MiB (Linux: `VmHWM` of
+/// `/proc/self/status`); `None` where the kernel does not say.
+pub fn peak_rss_mib() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    parse_vm_hwm(&status)
+}
+
+/// `VmHWM:   123456 kB` as MiB.
+fn parse_vm_hwm(status: &str) -> Option<f64> {
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = line
+        .trim_start_matches("VmHWM:")
+        .trim()
+        .trim_end_matches("kB")
+        .trim()
+        .parse()
+        .ok()?;
+    Some(kb / 1024.0)
+}
+
 /// Whether a progress bar may be drawn: stderr is a terminal and the command
 /// does not print JSON.
 pub fn bars_wanted(json: bool) -> bool {
@@ -233,6 +253,16 @@ pub fn process_with_bar(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn peak_memory_is_read_from_the_kernel_status() {
+        let status = "Name:\tx\nVmPeak:\t  999 kB\nVmHWM:\t  204800 kB\nVmRSS:\t 1 kB\n";
+        assert_eq!(parse_vm_hwm(status), Some(200.0));
+        assert_eq!(parse_vm_hwm("VmRSS: 1 kB"), None);
+        if cfg!(target_os = "linux") {
+            assert!(peak_rss_mib().is_some_and(|m| m > 0.0));
+        }
+    }
     use clap::Parser;
 
     #[derive(Parser)]

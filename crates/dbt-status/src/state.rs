@@ -110,6 +110,10 @@ pub struct Status {
     /// The DICOM input, when it listens.
     #[serde(default)]
     pub dicom_input: Option<DicomInputStatus>,
+    /// The daemon's peak resident memory since start, MiB (where the
+    /// operating system says; issue #30).
+    #[serde(default)]
+    pub peak_rss_mib: Option<f64>,
 }
 
 /// The DICOM input's state (issue #31): where it listens, its associations
@@ -170,6 +174,7 @@ impl Status {
             pid,
             started_unix: now_unix,
             updated_unix: now_unix,
+            peak_rss_mib: None,
             state: "starting".into(),
             current: None,
             reconstructor,

@@ -174,6 +174,7 @@ fn run(cli: Cli) -> Result<()> {
     let summary = serde_json::json!({
         "acquisition": acq_dir.display().to_string(),
         "seconds": secs,
+        "peak_rss_mib": dbt_cli::peak_rss_mib(),
         "result": res,
         "truth": acq.header.truth,
         "output": out.display().to_string(),
