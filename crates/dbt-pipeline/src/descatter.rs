@@ -100,6 +100,13 @@ impl ScatterRemoval {
         counts: &mut [Vec<f32>],
     ) -> Result<f64, DescatterError> {
         let l = Self::layout(h);
+        let (lo, hi) = self.table.range_mm();
+        if !(lo..=hi).contains(&h.thickness_mm) {
+            tracing::warn!(
+                thickness_mm = h.thickness_mm,
+                "the scatter model is fitted for {lo}-{hi} mm: the nearest thickness's kernels are used"
+            );
+        }
         let fail = |w: String| DescatterError::Model(w);
         if counts.len() != l.rows || counts.iter().any(|r| r.len() != l.views * l.cols) {
             return Err(fail(format!(

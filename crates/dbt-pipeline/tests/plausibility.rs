@@ -731,3 +731,35 @@ fn chords_in_a_box() {
     assert_eq!(chord_in_box([5.0, 1.0, -1.0], [5.0, 1.0, 9.0], lo, hi), 0.0);
     assert_eq!(chord_in_box([-1.0, 1.0, 5.0], [3.0, 1.0, 5.0], lo, hi), 0.0);
 }
+
+/// The scatter removal (issue #27) refuses counts of another shape than the
+/// header's, naming both; counts no exposure can give (0, twice the flat
+/// field) pass as read for the counts check to name; the others lose
+/// scatter, never more than their count allows.
+#[test]
+fn scatter_removal_checks_its_input_and_keeps_impossible_counts() {
+    let removal = dbt_pipeline::descatter::ScatterRemoval::shipped().unwrap();
+    let a = acquisition(6, 50.0, 120.0, 50.0, 3);
+    let mut short = a.counts.clone();
+    short.pop();
+    let e = removal
+        .apply(&a.header, &mut short)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("5 rows of counts") && e.contains("6 rows"),
+        "{e}"
+    );
+    let mut c = a.counts.clone();
+    c[2][7] = 0.0;
+    c[3][11] = 2.0 * FLUX as f32;
+    removal.apply(&a.header, &mut c).unwrap();
+    assert_eq!((c[2][7], c[3][11]), (0.0, 2.0 * FLUX as f32));
+    for (r, (row, orig)) in c.iter().zip(&a.counts).enumerate() {
+        for (k, (got, was)) in row.iter().zip(orig).enumerate() {
+            if (r, k) != (2, 7) && (r, k) != (3, 11) && *was > 0.0 {
+                assert!(*got < *was && *got >= 0.05 * *was, "{got} from {was}");
+            }
+        }
+    }
+}
