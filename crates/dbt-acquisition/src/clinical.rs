@@ -269,6 +269,23 @@ pub struct StackLayout {
 pub const SCATTER_BLOCK_MM: f64 = 4.0;
 
 impl StackLayout {
+    /// One view's detector image: the rows by the elements.
+    pub fn grid(&self) -> dbt_scatter::Grid {
+        dbt_scatter::Grid {
+            rows: self.rows,
+            cols: self.cols,
+            row_mm: self.row_mm,
+            col_mm: self.col_mm,
+        }
+    }
+
+    /// Rows and elements per block of the scatter's computation (about
+    /// [`SCATTER_BLOCK_MM`] square): the simulator's and the firmware's.
+    pub fn block(&self) -> (usize, usize) {
+        let n = |pitch: f64| (SCATTER_BLOCK_MM / pitch).round().max(1.0) as usize;
+        (n(self.row_mm), n(self.col_mm))
+    }
+
     fn check(&self, n: usize) -> Result<(), AcquisitionError> {
         if self.rows * self.views * self.cols != n || self.tan_angles.len() != self.views {
             return Err(bad(format!(
@@ -292,14 +309,8 @@ impl StackLayout {
         thickness_mm: f64,
     ) -> Result<Vec<f64>, AcquisitionError> {
         self.check(signal.len())?;
-        let fine = dbt_scatter::Grid {
-            rows: self.rows,
-            cols: self.cols,
-            row_mm: self.row_mm,
-            col_mm: self.col_mm,
-        };
-        let fr = (SCATTER_BLOCK_MM / self.row_mm).round().max(1.0) as usize;
-        let fc = (SCATTER_BLOCK_MM / self.col_mm).round().max(1.0) as usize;
+        let fine = self.grid();
+        let (fr, fc) = self.block();
         let per_view: Vec<Vec<f64>> = (0..self.views)
             .into_par_iter()
             .map(|v| {

@@ -20,8 +20,8 @@
 //! counts check to name them.
 
 use crate::acquisition::AcquisitionHeader;
-use dbt_acquisition::clinical::{StackLayout, SCATTER_BLOCK_MM};
-use dbt_scatter::{block_mean, upsample, Grid, ScatterTable};
+use dbt_acquisition::clinical::StackLayout;
+use dbt_scatter::{block_mean, upsample, ScatterTable};
 use thiserror::Error;
 
 /// Why the scatter cannot be removed.
@@ -117,14 +117,8 @@ impl ScatterRemoval {
                 l.cols
             )));
         }
-        let fine = Grid {
-            rows: l.rows,
-            cols: l.cols,
-            row_mm: l.row_mm,
-            col_mm: l.col_mm,
-        };
-        let fr = (SCATTER_BLOCK_MM / l.row_mm).round().max(1.0) as usize;
-        let fc = (SCATTER_BLOCK_MM / l.col_mm).round().max(1.0) as usize;
+        let fine = l.grid();
+        let (fr, fc) = l.block();
         // The flat field is the open field's primary (GANTRY_INTERFACE.md):
         // the model's unit.
         let b = h.flux;

@@ -146,7 +146,11 @@ impl Kernels {
                 self.amplitude.len()
             ));
         }
-        if self.p_knots.windows(2).any(|w| w[1] <= w[0] || w[1].is_nan()) {
+        if self
+            .p_knots
+            .windows(2)
+            .any(|w| w[1] <= w[0] || w[1].is_nan())
+        {
             return bad(format!("knots {:?} do not increase", self.p_knots));
         }
         if let Some(a) = self
@@ -629,7 +633,10 @@ mod shipped_tests {
     fn half_disc(g: &Grid, p_max: f64) -> Vec<f64> {
         (0..g.len())
             .map(|i| {
-                let (r, c) = ((i / g.cols) as f64, (i % g.cols) as f64 - g.cols as f64 / 2.0);
+                let (r, c) = (
+                    (i / g.cols) as f64,
+                    (i % g.cols) as f64 - g.cols as f64 / 2.0,
+                );
                 let d = (r * r + c * c).sqrt() * g.row_mm / 90.0;
                 if d < 1.0 {
                     (-p_max * (1.0 - d * d).sqrt().min(1.0).max(0.3)).exp()
@@ -664,12 +671,11 @@ mod shipped_tests {
                     .zip(&back)
                     .map(|(a, b)| (b / a - 1.0).abs())
                     .fold(0.0, f64::max);
-                let spr = tr
-                    .iter()
-                    .zip(&s)
-                    .map(|(a, b)| b / a)
-                    .fold(0.0, f64::max);
-                assert!(worst < 1e-3, "{thickness} mm, tan {tan}: {worst} (SPR up to {spr})");
+                let spr = tr.iter().zip(&s).map(|(a, b)| b / a).fold(0.0, f64::max);
+                assert!(
+                    worst < 1e-3,
+                    "{thickness} mm, tan {tan}: {worst} (SPR up to {spr})"
+                );
             }
         }
     }
