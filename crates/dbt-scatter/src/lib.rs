@@ -639,7 +639,7 @@ mod shipped_tests {
                 );
                 let d = (r * r + c * c).sqrt() * g.row_mm / 90.0;
                 if d < 1.0 {
-                    (-p_max * (1.0 - d * d).sqrt().min(1.0).max(0.3)).exp()
+                    (-p_max * (1.0 - d * d).sqrt().clamp(0.3, 1.0)).exp()
                 } else {
                     1.0
                 }
