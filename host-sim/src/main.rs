@@ -117,7 +117,7 @@ struct StreamArgs {
     #[arg(long, default_value_t = 921_600)]
     baud: u32,
     /// Faults: corrupt:SEQ, drop:SEQ, dup:SEQ, reorder:A,B, cut:SEQ, saturate:SEQ, nanflat:SEQ,
-    /// zeros:SEQ, announce:N, freeze:SEQ, mas:N, anode:CODE (register 6's code) (repeatable).
+    /// zeros:SEQ, announce:N, freeze:SEQ, mas:N, anode:CODE (register 6's code), kvp:N (repeatable).
     #[arg(long)]
     fault: Vec<String>,
 }

@@ -1,7 +1,9 @@
 //! The clinical physics model of an acquisition (issue #27), beside the
 //! paper's mono-energetic one: a polychromatic beam hardening through the
 //! breast's tissues, recorded by an energy-integrating CsI detector, with
-//! quantum and electronic noise. Scatter is not modelled yet.
+//! quantum and electronic noise; with [`ClinicalPhysics::simulate_scattered`]
+//! each view's scatter (the kernel model of `dbt_scatter`, fitted to our
+//! Monte Carlo engine) added to the expected primary before the noise.
 //!
 //! # The model
 //! For a ray crossing `L_a`, `L_g`, `L_s` mm of adipose, fibroglandular
