@@ -63,6 +63,26 @@ struct ViewsArgs {
     /// Seed.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// Keep the Monte Carlo views in this JSON file: read from it when it
+    /// exists and was made with the same options (else refused, naming
+    /// them), written after the runs when it does not (a refit of the model
+    /// then costs seconds, not the runs; values read back to JSON's
+    /// decimal precision, the last bit may differ).
+    #[arg(long)]
+    views_file: Option<PathBuf>,
+}
+
+impl ViewsArgs {
+    /// The options that make the views (everything but the file).
+    fn key(&self) -> serde_json::Value {
+        serde_json::json!({
+            "thickness": self.thickness, "angle": self.angle,
+            "glandularity": self.glandularity, "radius": self.radius,
+            "csi_um": self.csi_um, "pixel": self.pixel,
+            "photons_per_mm": self.photons_per_mm, "open_photons": self.open_photons,
+            "seed": self.seed,
+        })
+    }
 }
 
 /// The options of `dbt-dose scatter-fit`.
@@ -288,6 +308,7 @@ fn run_spr(a: SprArgs) -> Result<()> {
 }
 
 /// One Monte Carlo view of a homogeneous half-cylinder.
+#[derive(serde::Serialize, serde::Deserialize)]
 struct View {
     thickness: f64,
     angle: f64,
@@ -296,8 +317,46 @@ struct View {
     fractions: dbt_dose::scatter::OpenFieldFractions,
 }
 
-/// The views of `a`, in order thickness, glandularity, angle.
+/// The views of `a` ([`run_views`]), or those kept in `a.views_file`.
 fn mc_views(a: &ViewsArgs) -> Result<Vec<View>> {
+    let Some(path) = &a.views_file else {
+        return run_views(a);
+    };
+    if path.exists() {
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let mut kept: serde_json::Value = serde_json::from_str(&text)
+            .with_context(|| format!("{}: not a file of Monte Carlo views", path.display()))?;
+        anyhow::ensure!(
+            kept["options"] == a.key(),
+            "{}: its views were made with {}, these options ask for {}",
+            path.display(),
+            kept["options"],
+            a.key()
+        );
+        let views: Vec<View> = serde_json::from_value(kept["views"].take())
+            .with_context(|| format!("{}: its views", path.display()))?;
+        eprintln!(
+            "{} Monte Carlo views read from {}",
+            views.len(),
+            path.display()
+        );
+        return Ok(views);
+    }
+    let views = run_views(a)?;
+    let doc = serde_json::json!({"options": a.key(), "views": views});
+    std::fs::write(path, serde_json::to_vec(&doc)?)
+        .with_context(|| format!("writing {}", path.display()))?;
+    eprintln!(
+        "{} Monte Carlo views kept in {}",
+        views.len(),
+        path.display()
+    );
+    Ok(views)
+}
+
+/// The Monte Carlo views of `a`, in order thickness, glandularity, angle.
+fn run_views(a: &ViewsArgs) -> Result<Vec<View>> {
     let score = dbt_dose::scatter::paper_detector(a.csi_um, a.pixel)?;
     let mut out = Vec::new();
     for &t in &a.thickness {
@@ -410,7 +469,7 @@ fn run_scatter_fit(a: ScatterFitArgs) -> Result<()> {
             "dbt-dose scatter-fit --thickness {} --angle {} --glandularity {} --radius {} --csi-um {} --pixel {} --photons-per-mm {} --open-photons {} --seed {} --knots {} ({:.0} s); homogeneous half-cylinders with 2 mm skin",
             join(&v.thickness), join(&v.angle), join(&v.glandularity), v.radius, v.csi_um, v.pixel,
             v.photons_per_mm, v.open_photons, v.seed, a.knots, t0.elapsed().as_secs_f64()
-        ),
+        ) + &v.views_file.as_ref().map(|f| format!(" (views kept in {})", f.display())).unwrap_or_default(),
         kernels,
     };
     table.check()?;

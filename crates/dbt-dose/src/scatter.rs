@@ -342,7 +342,7 @@ pub fn slab_spr(
 /// A view's primary and scatter as fractions of the open field (the same
 /// view without the breast: paddle and support in place), on the layout
 /// of `dbt_scatter::Grid`: rows from the chest wall, columns along it.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct OpenFieldFractions {
     /// Rows (along x, from the chest wall) and columns (along the chest wall).
     pub rows_cols: [usize; 2],
