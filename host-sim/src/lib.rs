@@ -301,18 +301,7 @@ pub fn simulate_acquisition_with(
         })
         .collect::<Result<_, SimError>>()?;
     let counts: Vec<Vec<f32>> = if scatter {
-        // One stack: the coronal slices are the detector's rows (each its
-        // own fan: no magnification along them).
-        let layout = dbt_acquisition::clinical::StackLayout {
-            rows: paths.len(),
-            views: geom.n_views(),
-            cols: geom.n_det(),
-            row_mm: vol.voxel_mm(),
-            col_mm: geom.detector.pitch_mm,
-            tan_angles: (0..geom.n_views())
-                .map(|v| geom.angle_rad(v).tan())
-                .collect(),
-        };
+        let layout = dbt_acquisition::clinical::StackLayout::fan(geom, paths.len(), vol.voxel_mm());
         let all: [Vec<f32>; 3] =
             std::array::from_fn(|m| paths.iter().flat_map(|p| p[m].iter().copied()).collect());
         let signals = clinical_signals(
@@ -547,16 +536,7 @@ pub fn simulate_cone_acquisition_with(
                 projected[1].clone(),
                 projected[2].clone(),
             ];
-            let layout = dbt_acquisition::clinical::StackLayout {
-                rows: drows,
-                views,
-                cols: dcols,
-                row_mm: system.detector.pitch_mm,
-                col_mm: system.detector.pitch_mm,
-                tan_angles: (0..views)
-                    .map(|v| system.angle_deg(v).to_radians().tan())
-                    .collect(),
-            };
+            let layout = dbt_acquisition::clinical::StackLayout::cone(system);
             let c = clinical_signals(
                 &model,
                 &paths,

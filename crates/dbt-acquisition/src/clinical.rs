@@ -271,6 +271,36 @@ pub struct StackLayout {
 pub const SCATTER_BLOCK_MM: f64 = 4.0;
 
 impl StackLayout {
+    /// The slice-wise fan-beam stack: `slices` coronal slices `spacing_mm`
+    /// apart are the detector's rows (each its own fan: no magnification
+    /// along them), the geometry's views and elements.
+    pub fn fan(geom: &dbt_geometry::Geometry, slices: usize, spacing_mm: f64) -> Self {
+        Self {
+            rows: slices,
+            views: geom.n_views(),
+            cols: geom.n_det(),
+            row_mm: spacing_mm,
+            col_mm: geom.detector.pitch_mm,
+            tan_angles: (0..geom.n_views())
+                .map(|v| geom.angle_rad(v).tan())
+                .collect(),
+        }
+    }
+
+    /// A cone-beam system's frames: its detector's rows, views and columns.
+    pub fn cone(system: &dbt_geometry::ConeSystem) -> Self {
+        Self {
+            rows: system.detector.rows,
+            views: system.n_views(),
+            cols: system.detector.columns,
+            row_mm: system.detector.pitch_mm,
+            col_mm: system.detector.pitch_mm,
+            tan_angles: (0..system.n_views())
+                .map(|v| system.angle_deg(v).to_radians().tan())
+                .collect(),
+        }
+    }
+
     /// One view's detector image: the rows by the elements.
     pub fn grid(&self) -> dbt_scatter::Grid {
         dbt_scatter::Grid {

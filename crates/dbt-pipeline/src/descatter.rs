@@ -65,27 +65,8 @@ impl ScatterRemoval {
     /// How the counts of `h` form the views' detector images.
     pub fn layout(h: &AcquisitionHeader) -> StackLayout {
         match &h.system {
-            Some(sys) => StackLayout {
-                rows: sys.detector.rows,
-                views: sys.n_views(),
-                cols: sys.detector.columns,
-                row_mm: sys.detector.pitch_mm,
-                col_mm: sys.detector.pitch_mm,
-                tan_angles: (0..sys.n_views())
-                    .map(|v| sys.angle_deg(v).to_radians().tan())
-                    .collect(),
-            },
-            None => {
-                let g = &h.geometry;
-                StackLayout {
-                    rows: h.slices,
-                    views: g.n_views(),
-                    cols: g.n_det(),
-                    row_mm: h.slice_spacing_mm,
-                    col_mm: g.detector.pitch_mm,
-                    tan_angles: (0..g.n_views()).map(|v| g.angle_rad(v).tan()).collect(),
-                }
-            }
+            Some(sys) => StackLayout::cone(sys),
+            None => StackLayout::fan(&h.geometry, h.slices, h.slice_spacing_mm),
         }
     }
 
