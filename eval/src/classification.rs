@@ -15,9 +15,9 @@ use dbt_acquisition::NoiseLevel;
 use dbt_dose::patient::{dbt_views, mgd_to_uncertainty, Breast, Model};
 use dbt_geometry::Geometry;
 use dbt_phantom::{coronal_slice, LabelVolume};
-use dbt_pipeline::{reconstruct_volume, PipelineOptions, Volume};
+use dbt_pipeline::{correct_counts, reconstruct_volume, PipelineOptions, Volume};
 use dbt_tissue::{classify, density, ClassifyOptions};
-use host_sim::{simulate_acquisition, Technique};
+use host_sim::{simulate_acquisition_with, Technique};
 use serde::Serialize;
 
 /// The tissue classes of the confusion matrix, in label order.
@@ -133,7 +133,7 @@ fn mgd_per_kerma(
     .mgd_per_kerma)
 }
 
-/// Acquire `vol` (noise `noise`, seed `seed`), reconstruct it with `opts`'
+/// Acquire `vol` (noise `noise`, physics `physics`, seed `seed`), reconstruct it with `opts`'
 /// reconstructor, and classify the volume with each of `variants`; with
 /// `dose` (a target relative uncertainty), also the patient-specific MGD of
 /// each classified volume against the phantom's own labels.
@@ -143,22 +143,25 @@ pub fn run_phantom(
     vol: &LabelVolume,
     geom: &Geometry,
     noise: NoiseLevel,
+    physics: host_sim::Physics,
     opts: &PipelineOptions,
     variants: &[ClassifyOptions],
     dose: Option<f64>,
     seed: u64,
 ) -> anyhow::Result<Vec<ClassCase>> {
     let _span = tracing::info_span!("classification case", %name).entered();
-    let acq = simulate_acquisition(
+    let acq = simulate_acquisition_with(
         vol,
         geom,
         noise,
+        physics,
         seed,
         Technique::default(),
         f64::from(dbt_dose::xray::paper_technique(vol.thickness_mm()).0),
         "EVAL",
         "1.2.826.0.1.3680043.10.543.3",
     )?;
+    let acq = correct_counts(&acq, opts)?;
     let Volume {
         dims, voxel_mm, mu, ..
     } = reconstruct_volume(&acq, opts, &mut |_| {})?;
@@ -280,7 +283,18 @@ mod tests {
         };
         let variants = [ClassifyOptions::paper(), ClassifyOptions::default()];
         let noise = NoiseLevel::parse("N8").unwrap();
-        let cs = run_phantom(&name, &vol, &g, noise, &opts, &variants, Some(0.05), 3).unwrap();
+        let cs = run_phantom(
+            &name,
+            &vol,
+            &g,
+            noise,
+            host_sim::Physics::Mono,
+            &opts,
+            &variants,
+            Some(0.05),
+            3,
+        )
+        .unwrap();
         assert_eq!(cs.len(), 2);
         let nv = g.rows_within_thickness(vol.thickness_mm());
         let voxels = (g.image.columns * nv * vol.n_coronal()) as u64;
@@ -293,7 +307,18 @@ mod tests {
             assert_eq!(truth_rows, first, "the variants share the truth");
             assert!(c.mgd_error_percent.is_some_and(f64::is_finite));
         }
-        let without = run_phantom(&name, &vol, &g, noise, &opts, &variants[..1], None, 3).unwrap();
+        let without = run_phantom(
+            &name,
+            &vol,
+            &g,
+            noise,
+            host_sim::Physics::Mono,
+            &opts,
+            &variants[..1],
+            None,
+            3,
+        )
+        .unwrap();
         assert_eq!(without[0].g_labels, cs[0].g_labels);
         assert!(without[0].mgd_error_percent.is_none());
     }

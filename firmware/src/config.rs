@@ -930,6 +930,16 @@ impl Config {
         })
     }
 
+    /// What the configured corrections do to the counts before the
+    /// network: the key of the glandularity calibration to load
+    /// (`dbt_model::pick_calibration`).
+    pub fn input_corrections(&self) -> dbt_model::InputCorrections {
+        dbt_model::InputCorrections {
+            scatter_removed: self.recon.scatter == ScatterMode::Kernel,
+            linearised: self.recon.beam_hardening == BeamHardeningMode::Csi,
+        }
+    }
+
     /// The scatter removal the configuration asks for, if any.
     pub fn descatter(
         &self,

@@ -90,6 +90,7 @@ fn load_model(
         &cfg.recon.fp32_blocks,
         engine,
         classify,
+        cfg.input_corrections(),
         cfg.recon.model_digest.as_deref(),
     )?)
 }

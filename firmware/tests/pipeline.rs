@@ -161,12 +161,19 @@ fn copy_model(to: &std::path::Path) -> std::path::PathBuf {
 
 /// The model folder's calibration: none without the file; applied for the
 /// running precision and classification; not for another precision or
-/// classification; a file fit for another manifest, or unreadable, is an
-/// error that names the file.
+/// classification; the one fit on corrected inputs where the counts are
+/// corrected the same way, else the uncorrected inputs' one; a file fit for
+/// another manifest, or unreadable, is an error that names the file.
 #[test]
 fn the_glandularity_calibration_is_bound_to_the_model() {
     use dbt_model::{
-        load_calibration, manifest_sha256, CalibrationFile, CALIBRATION_FILE, CALIBRATION_FORMAT,
+        load_calibration, manifest_sha256, CalibrationFile, InputCorrections, CALIBRATION_FILE,
+        CALIBRATION_FORMAT,
+    };
+    let plain = InputCorrections::default();
+    let corrected = InputCorrections {
+        scatter_removed: true,
+        linearised: true,
     };
     use dbt_tissue::{ClassifyOptions, GlandularityCalibration};
     let t = tempfile::tempdir().unwrap();
@@ -174,7 +181,7 @@ fn the_glandularity_calibration_is_bound_to_the_model() {
     let m = dbt_dbtor::Dbtor::load_with(&dir, dbt_dbtor::Precision::Fp32, dbt_dbtor::Engine::Fast)
         .unwrap();
     let classify = ClassifyOptions::default();
-    assert_eq!(load_calibration(&m, &classify).unwrap(), None);
+    assert_eq!(load_calibration(&m, &classify, plain).unwrap(), None);
     let cal = GlandularityCalibration {
         offset: -0.015,
         slope: 1.03,
@@ -195,7 +202,34 @@ fn the_glandularity_calibration_is_bound_to_the_model() {
         .unwrap()
     };
     write(&file);
-    assert_eq!(load_calibration(&m, &classify).unwrap(), Some(cal));
+    assert_eq!(load_calibration(&m, &classify, plain).unwrap(), Some(cal));
+    // No fit on corrected inputs yet: the uncorrected inputs' one.
+    assert_eq!(
+        load_calibration(&m, &classify, corrected).unwrap(),
+        Some(cal)
+    );
+    let clinical = GlandularityCalibration {
+        offset: -0.02,
+        slope: 1.05,
+    };
+    file.calibrations
+        .insert("fp32 | scatter removed + linearised".into(), clinical);
+    write(&file);
+    assert_eq!(corrected.key("fp32"), "fp32 | scatter removed + linearised");
+    assert_eq!(
+        load_calibration(&m, &classify, corrected).unwrap(),
+        Some(clinical)
+    );
+    assert_eq!(load_calibration(&m, &classify, plain).unwrap(), Some(cal));
+    // Only the scatter removed: neither key fits exactly, the plain one.
+    let descattered = InputCorrections {
+        scatter_removed: true,
+        linearised: false,
+    };
+    assert_eq!(
+        load_calibration(&m, &classify, descattered).unwrap(),
+        Some(cal)
+    );
     // The reconstructor's name says which model, precision and engine, and
     // that the estimate is calibrated.
     let named = |calibration| {
@@ -219,22 +253,26 @@ fn the_glandularity_calibration_is_bound_to_the_model() {
     );
     assert_eq!(named(None), format!("DBToR {name} (fp32, fast)"));
     assert_eq!(
-        load_calibration(&m, &ClassifyOptions::paper()).unwrap(),
+        load_calibration(&m, &ClassifyOptions::paper(), plain).unwrap(),
         None
     );
     let int8 =
         dbt_dbtor::Dbtor::load_with(&dir, dbt_dbtor::Precision::Int8, dbt_dbtor::Engine::Fast)
             .unwrap();
-    assert_eq!(load_calibration(&int8, &classify).unwrap(), None);
+    assert_eq!(load_calibration(&int8, &classify, plain).unwrap(), None);
     file.manifest_sha256 = "0".repeat(64);
     write(&file);
-    let e = load_calibration(&m, &classify).unwrap_err().to_string();
+    let e = load_calibration(&m, &classify, plain)
+        .unwrap_err()
+        .to_string();
     assert!(
         e.contains(CALIBRATION_FILE) && e.contains("another model"),
         "{e}"
     );
     std::fs::write(dir.join(CALIBRATION_FILE), "{ not json").unwrap();
-    let e = load_calibration(&m, &classify).unwrap_err().to_string();
+    let e = load_calibration(&m, &classify, plain)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains(CALIBRATION_FILE), "{e}");
 }
 

@@ -79,14 +79,78 @@ pub fn manifest_sha256(model: &dbt_dbtor::Dbtor) -> Result<String, dbt_dbtor::Db
     dbt_dbtor::sha256_file(&model.root().join("manifest.json"))
 }
 
-/// The calibration of `model` at its precision for `classify`, if its
-/// folder has one ([`CALIBRATION_FILE`]); `None` where there is no file, or
-/// no entry for this precision and classification (the estimate is then
-/// reported uncalibrated, and a warning logged). A file of another model is
-/// an error.
+/// What the counts went through before the network: the input a
+/// calibration was fit on, part of its key in [`CalibrationFile`]. The
+/// network's partial-volume estimate carries a bias that depends on it (the
+/// scatter removal's residual on clinical acquisitions, eval/README.md), so a
+/// firmware that corrects its counts reads the calibration fit on counts
+/// corrected the same way where the file has one.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct InputCorrections {
+    /// The scatter was removed (`dbt_pipeline::descatter`).
+    pub scatter_removed: bool,
+    /// The beam hardening was linearised (`dbt_pipeline::linearise`).
+    pub linearised: bool,
+}
+
+impl InputCorrections {
+    /// The corrections in words (`none`, `scatter removed`, `linearised`,
+    /// `scatter removed + linearised`).
+    pub fn describe(&self) -> &'static str {
+        match (self.scatter_removed, self.linearised) {
+            (false, false) => "none",
+            (true, false) => "scatter removed",
+            (false, true) => "linearised",
+            (true, true) => "scatter removed + linearised",
+        }
+    }
+
+    /// The key of a calibration for `precision_label` fit on inputs so
+    /// corrected: the label alone for uncorrected inputs (the files written
+    /// before issue #27 keep their meaning), else `label | corrections`.
+    pub fn key(&self, precision_label: &str) -> String {
+        if *self == Self::default() {
+            precision_label.to_string()
+        } else {
+            format!("{precision_label} | {}", self.describe())
+        }
+    }
+}
+
+/// The entry of `f` for `precision_label` and `input`: the one fit on inputs
+/// corrected as `input` where there is one, else the one fit on uncorrected
+/// inputs (logged as a warning naming both), else `None`. Returns the
+/// calibration and the key it was found under.
+pub fn pick_calibration(
+    f: &CalibrationFile,
+    precision_label: &str,
+    input: InputCorrections,
+) -> Option<(GlandularityCalibration, String)> {
+    let exact = input.key(precision_label);
+    if let Some(c) = f.calibrations.get(&exact) {
+        return Some((*c, exact));
+    }
+    let plain = InputCorrections::default().key(precision_label);
+    let c = f.calibrations.get(&plain)?;
+    if input != InputCorrections::default() {
+        tracing::warn!(
+            wanted = %exact,
+            using = %plain,
+            "no calibration fit on inputs with these corrections; using the one fit on uncorrected inputs (refit with `dbt-eval calibrate --physics clinical`)"
+        );
+    }
+    Some((*c, plain))
+}
+
+/// The calibration of `model` at its precision for `classify` and inputs
+/// corrected as `input` ([`pick_calibration`]), if its folder has one
+/// ([`CALIBRATION_FILE`]); `None` where there is no file, or no entry for
+/// this precision and classification (the estimate is then reported
+/// uncalibrated, and a warning logged). A file of another model is an error.
 pub fn load_calibration(
     model: &dbt_dbtor::Dbtor,
     classify: &ClassifyOptions,
+    input: InputCorrections,
 ) -> Result<Option<GlandularityCalibration>, CalibrationError> {
     let path = model.root().join(CALIBRATION_FILE);
     if !path.is_file() {
@@ -94,12 +158,12 @@ pub fn load_calibration(
     }
     let f = CalibrationFile::read(&path, model)?;
     let label = model.precision_label();
-    match f.calibrations.get(&label) {
-        Some(c) if &f.classification == classify => Ok(Some(*c)),
-        Some(_) => {
-            tracing::warn!(path = %path.display(), "the calibration was fit with another classification; glandularity reported uncalibrated");
-            Ok(None)
-        }
+    if &f.classification != classify {
+        tracing::warn!(path = %path.display(), "the calibration was fit with another classification; glandularity reported uncalibrated");
+        return Ok(None);
+    }
+    match pick_calibration(&f, &label, input) {
+        Some((c, _)) => Ok(Some(c)),
         None => {
             tracing::warn!(path = %path.display(), precision = %label, "no calibration for this precision; glandularity reported uncalibrated");
             Ok(None)

@@ -11,8 +11,8 @@ pub mod calibration;
 pub mod signoff;
 
 pub use calibration::{
-    load_calibration, manifest_sha256, CalibrationError, CalibrationFile, CALIBRATION_FILE,
-    CALIBRATION_FORMAT,
+    load_calibration, manifest_sha256, pick_calibration, CalibrationError, CalibrationFile,
+    InputCorrections, CALIBRATION_FILE, CALIBRATION_FORMAT,
 };
 pub use signoff::{sign_off, verify, Signoff, SIGNOFF_FILE, SIGNOFF_FORMAT};
 
@@ -75,7 +75,8 @@ pub struct SignedModel {
 
 /// Load `dir` as the firmware does: [`verify`] against its sign-off and the
 /// configured digest `pinned`, load the network (which verifies the ONNX
-/// checksums of its manifest), and read the calibration. A model signed off
+/// checksums of its manifest), and read the calibration for inputs corrected
+/// as `input` ([`pick_calibration`]). A model signed off
 /// with a calibration file must have a calibration for this precision and
 /// `classify`; a model signed off without one is reported uncalibrated (and
 /// logged as such).
@@ -85,6 +86,7 @@ pub fn load_signed(
     fp32_blocks: &[String],
     engine: Engine,
     classify: &ClassifyOptions,
+    input: InputCorrections,
     pinned: Option<&str>,
 ) -> Result<SignedModel, ModelError> {
     let signoff = verify(dir, pinned)?;
@@ -105,8 +107,11 @@ pub fn load_signed(
             }
             .into());
         }
-        match f.calibrations.get(&label) {
-            Some(c) => Some(*c),
+        match pick_calibration(&f, &label, input) {
+            Some((c, key)) => {
+                tracing::info!(model = %dir.display(), calibration = %key, offset = c.offset, slope = c.slope, "glandularity calibration");
+                Some(c)
+            }
             None => {
                 return Err(CalibrationError {
                     path,

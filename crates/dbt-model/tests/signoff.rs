@@ -4,7 +4,9 @@
 //! configured one; and the signed load's calibration rules.
 
 use dbt_dbtor::{Engine, Precision};
-use dbt_model::{load_signed, sign_off, verify, ModelError, CALIBRATION_FILE, SIGNOFF_FILE};
+use dbt_model::{
+    load_signed, sign_off, verify, InputCorrections, ModelError, CALIBRATION_FILE, SIGNOFF_FILE,
+};
 use dbt_tissue::ClassifyOptions;
 use std::path::{Path, PathBuf};
 
@@ -123,6 +125,7 @@ fn the_signed_load_requires_the_calibration_of_its_precision() {
         &[],
         Engine::Fast,
         &classify,
+        InputCorrections::default(),
         Some(&s.digest),
     )
     .unwrap();
@@ -136,6 +139,7 @@ fn the_signed_load_requires_the_calibration_of_its_precision() {
         &["primal09".to_string()],
         Engine::Fast,
         &classify,
+        InputCorrections::default(),
         None,
     )
     .err()
@@ -149,6 +153,7 @@ fn the_signed_load_requires_the_calibration_of_its_precision() {
         &[],
         Engine::Fast,
         &ClassifyOptions::paper(),
+        InputCorrections::default(),
         None,
     )
     .err()

@@ -263,8 +263,38 @@ pub fn algorithm_version(opts: &PipelineOptions) -> String {
     }
 }
 
+/// A polychromatic detector's counts as `opts` asks: the scatter removed,
+/// then the beam hardening linearised (every check and the reconstruction
+/// read mono-energetic primary counts); `acq` itself where `opts` asks for
+/// neither. The header is validated first (the corrections use its flux,
+/// thickness and technique).
+pub fn correct_counts<'a>(
+    acq: &'a Acquisition,
+    opts: &PipelineOptions,
+) -> Result<std::borrow::Cow<'a, Acquisition>, PipelineError> {
+    validate_header(&acq.header)?;
+    if opts.descatter.is_none() && opts.linearise.is_none() {
+        return Ok(std::borrow::Cow::Borrowed(acq));
+    }
+    let mut a = acq.clone();
+    if let Some(sr) = &opts.descatter {
+        let spr = sr
+            .apply(&a.header, &mut a.counts)
+            .map_err(|e| PipelineError::Input(e.to_string()))?;
+        tracing::debug!(spr, "scatter removed");
+    }
+    if let Some(bh) = &opts.linearise {
+        let n = bh
+            .apply(&a.header, &mut a.counts)
+            .map_err(|e| PipelineError::Input(e.to_string()))?;
+        tracing::debug!(counts = n, "beam hardening linearised");
+    }
+    Ok(std::borrow::Cow::Owned(a))
+}
+
 /// Reconstruct every coronal slice of `acq` with the reconstructor of
-/// `opts` and stack the rows within the compressed thickness into a volume,
+/// `opts` (its counts as received: [`correct_counts`] first for a
+/// polychromatic detector's) and stack the rows within the compressed thickness into a volume,
 /// calling `progress` after each slice.
 pub fn reconstruct_volume(
     acq: &Acquisition,
@@ -378,32 +408,8 @@ pub fn process_with_progress(
     opts: &PipelineOptions,
     progress: &mut dyn FnMut(Stage),
 ) -> Result<ProcessResult, PipelineError> {
-    // The header before anything reads the counts (the linearisation and
-    // the rebinning use its flux, thickness and system).
-    validate_header(&acq.header)?;
-    // A polychromatic detector's counts: the scatter removed, then
-    // linearised (every check and the reconstruction read mono-energetic
-    // primary counts).
-    let corrected;
-    let acq = if opts.descatter.is_some() || opts.linearise.is_some() {
-        let mut a = acq.clone();
-        if let Some(sr) = &opts.descatter {
-            let spr = sr
-                .apply(&a.header, &mut a.counts)
-                .map_err(|e| PipelineError::Input(e.to_string()))?;
-            tracing::debug!(spr, "scatter removed");
-        }
-        if let Some(bh) = &opts.linearise {
-            let n = bh
-                .apply(&a.header, &mut a.counts)
-                .map_err(|e| PipelineError::Input(e.to_string()))?;
-            tracing::debug!(counts = n, "beam hardening linearised");
-        }
-        corrected = a;
-        &corrected
-    } else {
-        acq
-    };
+    let corrected = correct_counts(acq, opts)?;
+    let acq = corrected.as_ref();
     // A cone-beam acquisition is then made the slice-wise fan-beam one: its
     // detector frames checked as read (a stuck or
     // dead element is one element there, spread over slices and views once

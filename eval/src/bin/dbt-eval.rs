@@ -373,6 +373,18 @@ struct CalibrateArgs {
     /// Noise level.
     #[arg(long, default_value = "N8")]
     noise: String,
+    /// The acquisitions' physics (as `accuracy --physics`): `mono`, or
+    /// `clinical` with the corrections below, for the calibration the
+    /// firmware reads when it corrects its counts the same way
+    /// (`dbt_model::InputCorrections`).
+    #[arg(long, default_value = "mono")]
+    physics: String,
+    /// Linearise the beam hardening before the reconstruction.
+    #[arg(long)]
+    linearise: bool,
+    /// Remove the scatter before the linearisation.
+    #[arg(long)]
+    descatter: bool,
     /// Write here instead of the model folder.
     #[arg(long)]
     out: Option<PathBuf>,
@@ -508,7 +520,11 @@ fn run_cone_views(args: ConeViewsArgs) -> Result<()> {
         ),
         truth,
     )];
-    let calibration = dbt_model::load_calibration(&m, &dbt_tissue::ClassifyOptions::default())?;
+    let calibration = dbt_model::load_calibration(
+        &m,
+        &dbt_tissue::ClassifyOptions::default(),
+        dbt_model::InputCorrections::default(),
+    )?;
     let opts = |m: Dbtor| dbt_pipeline::PipelineOptions {
         dbtor: Some(std::sync::Arc::new(m)),
         calibration,
@@ -988,7 +1004,14 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
         };
         // The model's calibration, as the firmware loads it.
         let calibration = match (&dbtor, no_calibration) {
-            (Some(m), false) => dbt_model::load_calibration(m, &skin)?,
+            (Some(m), false) => dbt_model::load_calibration(
+                m,
+                &skin,
+                dbt_model::InputCorrections {
+                    scatter_removed: descatter.is_some(),
+                    linearised: linearise,
+                },
+            )?,
             _ => None,
         };
         let opts = dbt_pipeline::PipelineOptions {
@@ -1216,6 +1239,7 @@ fn run_classification(args: ClassificationArgs) -> Result<()> {
             &vol,
             &g,
             noise,
+            host_sim::Physics::Mono,
             &opts,
             &variants,
             dose_uncertainty,
@@ -1289,10 +1313,18 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
         train_seed,
         population,
         noise,
+        physics,
+        linearise,
+        descatter,
         out,
         runtime,
     } = args;
     use dbt_model::{manifest_sha256, CalibrationFile, CALIBRATION_FILE, CALIBRATION_FORMAT};
+    let physics = host_sim::Physics::parse(&physics)?;
+    let input = dbt_model::InputCorrections {
+        scatter_removed: descatter,
+        linearised: linearise,
+    };
     let m = load_models(Some(&model), &precision, &runtime)?
         .pop()
         .map(|(_, m)| std::sync::Arc::new(m))
@@ -1309,6 +1341,14 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
     let opts = dbt_pipeline::PipelineOptions {
         dbtor: Some(m.clone()),
         classify,
+        linearise: linearise.then(|| dbt_pipeline::linearise::BeamHardening {
+            detector: Default::default(),
+        }),
+        descatter: if descatter {
+            Some(dbt_pipeline::descatter::ScatterRemoval::shipped()?)
+        } else {
+            None
+        },
         ..Default::default()
     };
     let t0 = Instant::now();
@@ -1323,6 +1363,7 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
             &vol,
             &g,
             noise,
+            physics,
             &opts,
             &[classify],
             None,
@@ -1350,12 +1391,13 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
         )
     };
     let (before, after) = (pp(&|e| e), pp(&|e| cal.apply(e)));
-    let label = m.precision_label();
+    let label = input.key(&m.precision_label());
     println!(
-        "Calibration of {} ({label}) on {phantoms} phantoms of the {} split, {} ({:.0} s): G = {:+.5} + {:.5} x partial volume",
+        "Calibration of {} ({label}) on {phantoms} phantoms of the {} split, {}, {} physics ({:.0} s): G = {:+.5} + {:.5} x partial volume",
         m.manifest().name,
         split.describe(),
         noise.name(),
+        physics.name(),
         t0.elapsed().as_secs_f64(),
         cal.offset,
         cal.slope
@@ -1387,6 +1429,8 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
             "population": population.name(),
             "phantoms": phantoms,
             "noise": noise.name(),
+            "physics": physics.name(),
+            "input_corrections": input.describe(),
             "estimator": "partial volume",
             "error_before_pp": before,
             "error_after_pp": after,

@@ -132,6 +132,10 @@ fn run(cli: Cli) -> Result<()> {
             &fp32_blocks,
             engine,
             &opts.classify,
+            dbt_model::InputCorrections {
+                scatter_removed: opts.descatter.is_some(),
+                linearised: opts.linearise.is_some(),
+            },
             cli.model_digest.as_deref(),
         )
         .with_context(|| format!("loading the DBToR model {}", dir.display()))?;
