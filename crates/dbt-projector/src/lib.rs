@@ -218,6 +218,11 @@ impl Projector {
                 // SAFETY: see `forward_rays`.
                 unsafe { avx512::adjoint_rows(&self.table, sino, i0, out) }
             }
+            #[cfg(target_arch = "x86_64")]
+            Kernel::Avx2 => {
+                // SAFETY: see `forward_rays`.
+                unsafe { avx2::adjoint_rows(&self.table, sino, i0, out) }
+            }
             _ => self.table.adjoint_rows_scalar(sino, i0, out),
         }
     }

@@ -111,6 +111,51 @@ impl InvMap {
     }
 }
 
+/// Per-task scratch of the pixel-driven adjoint: each ray's pixel index and its
+/// two weighted contributions for the current (view, row), padded with
+/// non-contributing entries on both sides; and the row's inverse map evaluated
+/// at every 16-pixel block (value, slope). Shared by the AVX-512 and AVX2
+/// adjoints (each thread keeps its own).
+pub(crate) struct RowRays {
+    pub j: Vec<i32>,
+    pub c0: Vec<f32>,
+    pub c1: Vec<f32>,
+    pub rb: Vec<f32>,
+    pub sb: Vec<f32>,
+    /// `floor(rb)` as an integer (the first candidate before `off1`).
+    pub r0: Vec<i32>,
+    /// Scratch index of each block's first candidate, `PAD + r0 - off1`
+    /// (separate from `r0` so that `r0` is broadcast straight from memory).
+    pub e: Vec<i32>,
+}
+
+impl RowRays {
+    pub const fn new() -> Self {
+        RowRays {
+            j: Vec::new(),
+            c0: Vec::new(),
+            c1: Vec::new(),
+            rb: Vec::new(),
+            sb: Vec::new(),
+            r0: Vec::new(),
+            e: Vec::new(),
+        }
+    }
+
+    pub fn reset(&mut self, n: usize, nb: usize) {
+        self.j.clear();
+        self.j.resize(n, NO_PIXEL);
+        self.c0.clear();
+        self.c0.resize(n, 0.0);
+        self.c1.clear();
+        self.c1.resize(n, 0.0);
+        self.rb.resize(nb, 0.0);
+        self.sb.resize(nb, 0.0);
+        self.r0.resize(nb, 0);
+        self.e.resize(nb, 0);
+    }
+}
+
 #[derive(Debug, Clone)]
 pub(crate) struct RayTable {
     pub nx: usize,
@@ -193,6 +238,41 @@ pub(crate) fn left_edge_c1(map: &InvMap, j: &[i32], c1: &[f32]) -> f32 {
         }
     }
     acc
+}
+
+/// Scratch indices of the candidates `start .. start + count` that are rays.
+#[inline(always)]
+fn candidates(start: i32, count: u32, n_det: usize) -> impl Iterator<Item = usize> {
+    let start = start as i64;
+    (start..start + count as i64)
+        .filter(move |&r| r >= 0 && r < n_det as i64)
+        .map(|r| PAD + r as usize)
+}
+
+/// Pixel `j` from the two-sided candidates: first contributions of the rays
+/// whose first pixel it is, second contributions of those one pixel left.
+#[inline(always)]
+pub(crate) fn pixel_scalar(map: &InvMap, s: &RowRays, n_det: usize, j: usize) -> f32 {
+    let mut acc = 0.0f32;
+    for e in candidates(map.start(j), map.count, n_det) {
+        if s.j[e] == j as i32 {
+            acc += s.c0[e];
+        }
+        if s.j[e].wrapping_add(1) == j as i32 {
+            acc += s.c1[e];
+        }
+    }
+    acc
+}
+
+/// The second contributions of the rays whose first pixel is `j` (one-sided
+/// candidates, `InvMap::start1`), for the pixel pass's carry into pixel `j + 1`.
+#[inline(always)]
+pub(crate) fn slot_c1_scalar(map: &InvMap, s: &RowRays, n_det: usize, j: usize) -> f32 {
+    candidates(map.start1(j), map.count1, n_det)
+        .filter(|&e| s.j[e] == j as i32)
+        .map(|e| s.c1[e])
+        .sum()
 }
 
 /// Row segment `(lo, hi)` of a ray in row `i`, in column units.
