@@ -282,9 +282,12 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
             load_s,
             buffers_mb: (engine == Engine::Fast).then(|| d.slice_buffer_bytes() as f64 / 1e6),
             note: match (d.kernel(), fp32_blocks.len()) {
-                (Some(k), 0) => format!("kernel {k}"),
-                (Some(k), n) => format!("kernels {k}; {n} blocks fp32 (rate and floor as fp32)"),
-                (None, _) => String::new(),
+                (Some(k), 0) => format!("kernel {k}, projector {}", d.projector_kernel().name()),
+                (Some(k), n) => format!(
+                    "kernels {k}, projector {}; {n} blocks fp32 (rate and floor as fp32)",
+                    d.projector_kernel().name()
+                ),
+                (None, _) => format!("projector {}", d.projector_kernel().name()),
             },
         });
         outputs.push((name, first));

@@ -289,8 +289,10 @@ pub struct Dbtor {
 }
 
 /// The environment variable that forces the fast engine down to a slower
-/// kernel (`portable`, `avx2`, `avx512`): to test and benchmark every path
-/// on a CPU that has a faster one. Unset: the fastest the CPU runs.
+/// kernel (`portable`, `avx2`, `avx512`), its convolutions and its fused
+/// projector (`portable` is the projector's scalar kernel): to test and
+/// benchmark every path on a CPU that has a faster one. Unset: the fastest
+/// the CPU runs.
 pub const KERNEL_ENV: &str = "DBTOR_KERNEL";
 
 /// The fastest kernel the fast engine may use: [`KERNEL_ENV`] if set (an
@@ -304,6 +306,16 @@ pub fn kernel_limit() -> Result<Kernel, DbtorError> {
                 Kernel::ALL.map(|k| k.name()).join(", ")
             ))
         }),
+    }
+}
+
+/// The fused projector's kernel level under the fast engine's `limit`
+/// (`portable` is the projector's scalar kernel).
+pub fn projector_limit(limit: Kernel) -> dbt_projector::Kernel {
+    match limit {
+        Kernel::Portable => dbt_projector::Kernel::Scalar,
+        Kernel::Avx2 => dbt_projector::Kernel::Avx2,
+        Kernel::Avx512 => dbt_projector::Kernel::Avx512,
     }
 }
 
@@ -520,7 +532,9 @@ impl Dbtor {
             nonnegative: true,
         };
         let s = Self {
-            projector: Projector::new(g),
+            // The fused projector follows the forced kernel too, so that a
+            // forced path is the whole slice of a CPU that has no faster one.
+            projector: Projector::new(g).up_to(projector_limit(limit)),
             manifest,
             root: dir.to_path_buf(),
             precision,
@@ -597,6 +611,11 @@ impl Dbtor {
     /// The executor.
     pub fn engine(&self) -> Engine {
         self.engine
+    }
+
+    /// The fused projector's kernel (either engine; `DBTOR_KERNEL` limits it).
+    pub fn projector_kernel(&self) -> dbt_projector::Kernel {
+        self.projector.kernel()
     }
 
     /// The fast path's kernel ("avx512", "avx2" or "portable"; the first

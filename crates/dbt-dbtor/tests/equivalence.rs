@@ -432,7 +432,8 @@ fn mixed_precision_runs_the_named_blocks_in_fp32() {
 /// Every fast-path kernel this CPU runs, forced in turn as `DBTOR_KERNEL`
 /// forces it (AVX-512, AVX2, portable for fp32; AVX-512 VNNI and portable
 /// for int8), passes the model's fixtures against PyTorch (fp32) and
-/// onnxruntime (int8), and reports the kernel it runs.
+/// onnxruntime (int8), and reports the kernel it runs; the fused projector
+/// is forced with it (its scalar kernel for `portable`).
 #[test]
 fn every_forced_kernel_matches_the_fixtures() {
     use dbt_dbtor::Kernel;
@@ -446,6 +447,11 @@ fn every_forced_kernel_matches_the_fixtures() {
                 Precision::Int8 => Kernel::best_int8_up_to(limit),
             };
             assert_eq!(m.kernel(), Some(want.name()), "{p} up to {limit:?}");
+            assert_eq!(
+                m.projector_kernel(),
+                dbt_projector::best_kernel().min(dbt_dbtor::projector_limit(limit)),
+                "{p} up to {limit:?}"
+            );
             for c in check_fixtures(&m, &dir).unwrap() {
                 assert!(c.pass, "{p} on {}: {c:?}", want.name());
             }

@@ -73,13 +73,14 @@ fn check_len(what: &'static str, got: usize, expected: usize) -> Result<(), Proj
     }
 }
 
-/// Which kernels [`Projector::forward`] and [`Projector::adjoint`] use.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// Which kernels [`Projector::forward`] and [`Projector::adjoint`] use,
+/// slowest first.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Kernel {
     /// Portable scalar code (the reference the others are tested against).
     Scalar,
-    /// AVX2 forward (masked gathers), scalar adjoint (x86-64 with AVX2
-    /// detected at run time).
+    /// AVX2 forward (gathers) and adjoint (the AVX-512 scheme in 8-lane
+    /// halves) (x86-64 with AVX2 detected at run time).
     Avx2,
     /// AVX-512F kernels (x86-64 with the feature detected at run time).
     Avx512,
@@ -93,6 +94,17 @@ pub struct Projector {
     geom: Geometry,
     table: RayTable,
     kernel: Kernel,
+}
+
+impl Kernel {
+    /// Name for tables and logs.
+    pub fn name(self) -> &'static str {
+        match self {
+            Kernel::Scalar => "scalar",
+            Kernel::Avx2 => "avx2",
+            Kernel::Avx512 => "avx512",
+        }
+    }
 }
 
 impl Projector {
@@ -116,6 +128,13 @@ impl Projector {
             Kernel::Avx2 if has_avx2() => Kernel::Avx2,
             _ => Kernel::Scalar,
         };
+        self
+    }
+
+    /// The same projector on the fastest kernel this CPU runs that is at
+    /// most `limit` (the firmware's forced lower path, `DBTOR_KERNEL`).
+    pub fn up_to(mut self, limit: Kernel) -> Self {
+        self.kernel = best_kernel().min(limit);
         self
     }
 

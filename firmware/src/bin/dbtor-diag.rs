@@ -204,14 +204,17 @@ fn run_cmd(cmd: Cmd) -> Result<bool> {
     }
 }
 
-/// The fast engine's kernels here: fp32 and int8, and whether
-/// `DBTOR_KERNEL` forces them down.
+/// The fast engine's kernels here: fp32, int8 and the fused projector's,
+/// and whether `DBTOR_KERNEL` forces them down.
 fn conv_kernels() -> Result<String> {
     let limit = dbt_dbtor::kernel_limit()?;
     Ok(format!(
-        "fp32 {}, int8 {}{}",
+        "fp32 {}, int8 {}, projector {}{}",
         dbt_conv::Kernel::best_fp32_up_to(limit).name(),
         dbt_conv::Kernel::best_int8_up_to(limit).name(),
+        dbt_projector::best_kernel()
+            .min(dbt_dbtor::projector_limit(limit))
+            .name(),
         match std::env::var(dbt_dbtor::KERNEL_ENV) {
             Ok(v) => format!(" ({}={v})", dbt_dbtor::KERNEL_ENV),
             Err(_) => String::new(),
