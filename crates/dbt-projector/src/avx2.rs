@@ -5,9 +5,10 @@
 //! * Forward: 8 neighbouring rays of one view per vector, walking down the
 //!   rows, the two pixels of each ray gathered. In a view whose rays are all
 //!   fast, 16-ray blocks as two halves: in the block's fast rows (the
-//!   AVX-512 kernel's, verified when the table was built) unmasked gathers
-//!   and one accumulator per pixel of a ray (the AVX-512 kernel's order of
-//!   summation); in its other rows, and in other views' 8-ray blocks of fast
+//!   AVX-512 kernel's, verified when the table was built) one unmasked
+//!   64-bit gather fetches both pixels of four rays, and each ray's two
+//!   pixels are summed apart and added at the end (the AVX-512 kernel's
+//!   order of summation); in its other rows, and in other views' 8-ray blocks of fast
 //!   rays, masked gathers summed as the scalar code does. Blocks with a slow
 //!   ray, and the tail of a view, go through the scalar code.
 //! * Adjoint: the AVX-512 kernel's pixel-driven scheme (`avx512.rs`) on
@@ -181,9 +182,9 @@ unsafe fn forward_block(t: &RayTable, img: &[f32], rb: usize) -> [f32; L] {
 /// A block of 16 rays of a SIMD view as two halves of 8: the rows outside
 /// the block's fast rows with [`forward_row_masked`], the fast rows (every
 /// ray inside the image and its two pixels in the row, verified when the
-/// table was built, `RayTable::forward_fast_rows`) with unmasked gathers and
-/// two accumulators per half (one for each pixel of a ray: the AVX-512
-/// kernel's order of summation).
+/// table was built, `RayTable::forward_fast_rows`) with unmasked 64-bit
+/// gathers of each ray's pixel pair and, per ray, one sum for each of its
+/// two pixels (the AVX-512 kernel's order of summation).
 ///
 /// # Safety
 /// AVX2; rays `rb .. rb + 16` exist in the table, are one view's and start
@@ -216,21 +217,31 @@ unsafe fn forward_block16(t: &RayTable, img: &[f32], rb: usize) -> [f32; 16] {
             for i in (i_start..fa.min(i_end)).chain(fb.max(i_start)..i_end) {
                 acc = forward_row_masked(t, img, r, i, acc);
             }
-            let (mut acc0, mut acc1) = (_mm256_setzero_ps(), _mm256_setzero_ps());
+            // Each ray's two pixels are neighbours: one 64-bit gather
+            // fetches both, four rays per gather, in the lane order that
+            // `unpacklo/hi(w0, w1)` gives the weights (rays 0, 1, 4, 5 and
+            // 2, 3, 6, 7); a horizontal add then sums each ray's pair.
+            let order = _mm256_setr_epi32(0, 1, 4, 5, 2, 3, 6, 7);
             let one = _mm256_set1_ps(1.0);
-            let ione = _mm256_set1_epi32(1);
             let mut fi = _mm256_set1_ps(fa as f32);
+            let (mut acc0, mut acc1) = (_mm256_setzero_ps(), _mm256_setzero_ps());
+            let pairs = img.as_ptr() as *const f64;
             for i in fa..fb {
                 let (jf, w0, w1) = weights8(r.x_top, r.sx, r.len, r.inv, fi);
                 let idx =
                     _mm256_add_epi32(_mm256_set1_epi32((i * nx) as i32), _mm256_cvttps_epi32(jf));
-                let g0 = _mm256_i32gather_ps::<4>(img.as_ptr(), idx);
-                let g1 = _mm256_i32gather_ps::<4>(img.as_ptr(), _mm256_add_epi32(idx, ione));
-                acc0 = _mm256_add_ps(acc0, _mm256_mul_ps(w0, g0));
-                acc1 = _mm256_add_ps(acc1, _mm256_mul_ps(w1, g1));
+                let idx = _mm256_permutevar8x32_epi32(idx, order);
+                let pa = _mm256_i32gather_pd::<4>(pairs, _mm256_castsi256_si128(idx));
+                let pb = _mm256_i32gather_pd::<4>(pairs, _mm256_extracti128_si256::<1>(idx));
+                let ya = _mm256_mul_ps(_mm256_castpd_ps(pa), _mm256_unpacklo_ps(w0, w1));
+                let yb = _mm256_mul_ps(_mm256_castpd_ps(pb), _mm256_unpackhi_ps(w0, w1));
+                // Lanes (w0 x_j, w1 x_(j+1)) per ray, added in pairs by the
+                // accumulators' final horizontal add.
+                acc0 = _mm256_add_ps(acc0, ya);
+                acc1 = _mm256_add_ps(acc1, yb);
                 fi = _mm256_add_ps(fi, one);
             }
-            acc = _mm256_add_ps(acc, _mm256_add_ps(acc0, acc1));
+            acc = _mm256_add_ps(acc, _mm256_hadd_ps(acc0, acc1));
             _mm256_storeu_ps(res.as_mut_ptr().add(h * L), acc);
         }
         res
