@@ -1363,6 +1363,26 @@ mod tests {
         assert!(e.contains("scatter") && e.contains("grid"), "{e}");
     }
 
+    /// The calibration key follows the configured corrections: the shipped
+    /// (uncorrected) inputs read `int8`, both corrections `int8 | scatter
+    /// removed + linearised`, one alone its own key.
+    #[test]
+    fn the_calibration_key_follows_the_corrections() {
+        let key = |f: &dyn Fn(String) -> String| {
+            example(|t| f(t)).unwrap().input_corrections().key("int8")
+        };
+        assert_eq!(key(&|t| t), "int8");
+        let both = |t: String| {
+            t.replace("scatter = \"off\"", "scatter = \"kernel\"")
+                .replace("beam_hardening = \"off\"", "beam_hardening = \"csi\"")
+        };
+        assert_eq!(key(&both), "int8 | scatter removed + linearised");
+        assert_eq!(
+            key(&|t| t.replace("beam_hardening = \"off\"", "beam_hardening = \"csi\"")),
+            "int8 | linearised"
+        );
+    }
+
     /// The cone-beam system: the shipped one, none (the slice-wise stream),
     /// a file relative to the configuration; a system whose rebinning fan
     /// is not the geometry, or an unknown one, is refused naming the key.
