@@ -630,10 +630,6 @@ unsafe fn pixel_pass(t: &RayTable, map: &InvMap, s: &mut RowRays, row_out: &mut 
 
 #[cfg(test)]
 mod tests {
-    use super::*;
-    use dbt_geometry::Geometry;
-    use rand::{Rng, SeedableRng};
-
     /// As the AVX-512 kernel's test of the same name: cutting the fit ranges
     /// by hand exercises the scalar pixels before and after them and the
     /// carry into the first SIMD block from a scalar pixel.
@@ -642,39 +638,9 @@ mod tests {
         if !dbt_isa::kernel_test_runs("projector avx2 fit ranges", &["avx2"]) {
             return;
         }
-        let odd = Geometry::from_toml_str(
-            "source_to_center_mm = 400.0\nsource_to_detector_mm = 470.0\n\
-             [views]\ncount = 9\nfirst_deg = -21.0\nlast_deg = 17.0\n\
-             [detector]\nelements = 331\npitch_mm = 0.61\n\
-             [image]\ncolumns = 203\nrows = 77\npixel_mm = 0.37\n",
-        )
-        .unwrap();
-        for g in [Geometry::paper().binned(4).unwrap(), odd] {
-            let base = RayTable::new(&g);
-            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
-            let y: Vec<f32> = (0..g.n_rays()).map(|_| rng.random::<f32>()).collect();
-            let mut reference = vec![0.0; g.n_pixels()];
-            base.adjoint_rows_scalar(&y, 0, &mut reference);
-            for (cut_lo, cut_hi) in [(0, 0), (1, 0), (3, 2), (0, 1), (usize::MAX, 0)] {
-                let mut t = base.clone();
-                for m in &mut t.inv_map {
-                    let lo = (m.fit_lo as usize)
-                        .saturating_add(cut_lo)
-                        .min(m.fit_hi as usize);
-                    let hi = (m.fit_hi as usize).saturating_sub(cut_hi).max(lo);
-                    m.fit_lo = lo as u32;
-                    m.fit_hi = hi as u32;
-                }
-                let mut out = vec![0.0; g.n_pixels()];
-                // SAFETY: AVX2 detected above.
-                unsafe { adjoint_rows(&t, &y, 0, &mut out) };
-                for (k, (p, q)) in out.iter().zip(&reference).enumerate() {
-                    assert!(
-                        (p - q).abs() <= 1e-5 * q.abs().max(1.0),
-                        "cut ({cut_lo}, {cut_hi}) pixel {k}: {p} vs {q}"
-                    );
-                }
-            }
-        }
+        // SAFETY: AVX2 detected above.
+        crate::table::check_cut_fit_ranges(|t, y, out| unsafe {
+            super::adjoint_rows(t, y, 0, out)
+        });
     }
 }

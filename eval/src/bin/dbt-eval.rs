@@ -242,6 +242,60 @@ struct MgdArgs {
     seed: u64,
 }
 
+/// The acquisitions' physics and the firmware's corrections of their
+/// counts (`accuracy`, `calibrate`).
+#[derive(Args)]
+struct PhysicsArgs {
+    /// The acquisition's physics (issue #27): `mono` (the paper's: one
+    /// energy, photon counting), `clinical` (polychromatic, CsI
+    /// energy-integrating detector, quantum and electronic noise, scatter
+    /// without a grid) or `clinical-primary` (the same without scatter).
+    #[arg(long, default_value = "mono")]
+    physics: String,
+    /// Linearise the beam hardening before the reconstruction
+    /// (`dbt_pipeline::linearise`, the clinical physics' CsI detector).
+    #[arg(long)]
+    linearise: bool,
+    /// Remove the scatter before the linearisation
+    /// (`dbt_pipeline::descatter`, the shipped kernel model).
+    #[arg(long)]
+    descatter: bool,
+}
+
+/// [`PhysicsArgs`] resolved.
+struct Physics {
+    /// The simulated physics.
+    physics: host_sim::Physics,
+    /// The beam-hardening linearisation, if asked for.
+    linearise: Option<dbt_pipeline::linearise::BeamHardening>,
+    /// The scatter removal, if asked for.
+    descatter: Option<dbt_pipeline::descatter::ScatterRemoval>,
+    /// The corrections, as the calibration's key names them.
+    input: dbt_model::InputCorrections,
+}
+
+impl PhysicsArgs {
+    fn resolve(&self) -> Result<Physics> {
+        Ok(Physics {
+            physics: host_sim::Physics::parse(&self.physics)?,
+            linearise: self
+                .linearise
+                .then(|| dbt_pipeline::linearise::BeamHardening {
+                    detector: Default::default(),
+                }),
+            descatter: if self.descatter {
+                Some(dbt_pipeline::descatter::ScatterRemoval::shipped()?)
+            } else {
+                None
+            },
+            input: dbt_model::InputCorrections {
+                scatter_removed: self.descatter,
+                linearised: self.linearise,
+            },
+        })
+    }
+}
+
 /// The options of `dbt-eval accuracy`.
 #[derive(Args)]
 struct AccuracyArgs {
@@ -272,20 +326,8 @@ struct AccuracyArgs {
     /// The DBToR model (needed for the fp32 and int8 reconstructors).
     #[arg(long)]
     model: Option<PathBuf>,
-    /// The acquisition's physics (issue #27): `mono` (the paper's: one
-    /// energy, photon counting), `clinical` (polychromatic, CsI
-    /// energy-integrating detector, quantum and electronic noise, scatter
-    /// without a grid) or `clinical-primary` (the same without scatter).
-    #[arg(long, default_value = "mono")]
-    physics: String,
-    /// Linearise the beam hardening before the reconstruction
-    /// (`dbt_pipeline::linearise`, the clinical physics' CsI detector).
-    #[arg(long)]
-    linearise: bool,
-    /// Remove the scatter before the linearisation
-    /// (`dbt_pipeline::descatter`, the shipped kernel model).
-    #[arg(long)]
-    descatter: bool,
+    #[command(flatten)]
+    physics: PhysicsArgs,
     /// Acquire on this cone-beam system (issue #28: `paper-cone`,
     /// `siemens-victre` or a system TOML), binned as the geometry is
     /// (its pixel over 0.2 mm); the firmware rebins to slices. Default: every
@@ -373,18 +415,11 @@ struct CalibrateArgs {
     /// Noise level.
     #[arg(long, default_value = "N8")]
     noise: String,
-    /// The acquisitions' physics (as `accuracy --physics`): `mono`, or
-    /// `clinical` with the corrections below, for the calibration the
-    /// firmware reads when it corrects its counts the same way
-    /// (`dbt_model::InputCorrections`).
-    #[arg(long, default_value = "mono")]
-    physics: String,
-    /// Linearise the beam hardening before the reconstruction.
-    #[arg(long)]
-    linearise: bool,
-    /// Remove the scatter before the linearisation.
-    #[arg(long)]
-    descatter: bool,
+    /// The acquisitions' physics and corrections: `clinical` with both
+    /// corrections fits the calibration the firmware reads when it corrects
+    /// its counts the same way (`dbt_model::InputCorrections`).
+    #[command(flatten)]
+    physics: PhysicsArgs,
     /// Write here instead of the model folder.
     #[arg(long)]
     out: Option<PathBuf>,
@@ -965,15 +1000,13 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
         runtime,
         system,
         physics,
+    } = args;
+    let Physics {
+        physics,
         linearise,
         descatter,
-    } = args;
-    let physics = host_sim::Physics::parse(&physics)?;
-    let descatter = if descatter {
-        Some(dbt_pipeline::descatter::ScatterRemoval::shipped()?)
-    } else {
-        None
-    };
+        input,
+    } = physics.resolve()?;
     let skin = match skin {
         Some(v) => parse_skin_variant(&v)?,
         None => dbt_tissue::ClassifyOptions::default(),
@@ -1004,14 +1037,7 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
         };
         // The model's calibration, as the firmware loads it.
         let calibration = match (&dbtor, no_calibration) {
-            (Some(m), false) => dbt_model::load_calibration(
-                m,
-                &skin,
-                dbt_model::InputCorrections {
-                    scatter_removed: descatter.is_some(),
-                    linearised: linearise,
-                },
-            )?,
+            (Some(m), false) => dbt_model::load_calibration(m, &skin, input)?,
             _ => None,
         };
         let opts = dbt_pipeline::PipelineOptions {
@@ -1021,9 +1047,7 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
             seed: 1,
             classify: skin,
             calibration,
-            linearise: linearise.then(|| dbt_pipeline::linearise::BeamHardening {
-                detector: Default::default(),
-            }),
+            linearise,
             descatter,
         };
         let label = dbt_pipeline::reconstructor_name(&opts);
@@ -1153,7 +1177,7 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
         "geometry": g_acq.describe(),
         "system": system.as_ref().map(|s| s.name.clone()),
         "physics": physics.name(),
-        "linearised": linearise,
+        "linearised": linearise.is_some(),
         "descattered": descatter.is_some(),
         "phantoms": match &phantom {
             Some(p) => p.display().to_string(),
@@ -1314,17 +1338,16 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
         population,
         noise,
         physics,
-        linearise,
-        descatter,
         out,
         runtime,
     } = args;
     use dbt_model::{manifest_sha256, CalibrationFile, CALIBRATION_FILE, CALIBRATION_FORMAT};
-    let physics = host_sim::Physics::parse(&physics)?;
-    let input = dbt_model::InputCorrections {
-        scatter_removed: descatter,
-        linearised: linearise,
-    };
+    let Physics {
+        physics,
+        linearise,
+        descatter,
+        input,
+    } = physics.resolve()?;
     let m = load_models(Some(&model), &precision, &runtime)?
         .pop()
         .map(|(_, m)| std::sync::Arc::new(m))
@@ -1341,14 +1364,8 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
     let opts = dbt_pipeline::PipelineOptions {
         dbtor: Some(m.clone()),
         classify,
-        linearise: linearise.then(|| dbt_pipeline::linearise::BeamHardening {
-            detector: Default::default(),
-        }),
-        descatter: if descatter {
-            Some(dbt_pipeline::descatter::ScatterRemoval::shipped()?)
-        } else {
-            None
-        },
+        linearise,
+        descatter,
         ..Default::default()
     };
     let t0 = Instant::now();
