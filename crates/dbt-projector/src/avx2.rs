@@ -278,69 +278,17 @@ unsafe fn weights8(
 /// Requires AVX2. `out` holds whole rows starting at row `i0`.
 #[target_feature(enable = "avx2")]
 pub(crate) unsafe fn adjoint_rows(t: &RayTable, sino: &[f32], i0: usize, out: &mut [f32]) {
-    // SAFETY: AVX2 per the contract; `adjoint_rows_with` gets scratch sized
-    // for this table (`reset`).
-    unsafe {
-        let n = t.n_det + 2 * PAD;
-        let nb = t.nx.div_ceil(16).next_multiple_of(16);
-        // Per-thread scratch, reset (not reallocated) on every call: after the
-        // first call on a thread the adjoint allocates nothing.
-        thread_local! {
-            static SCRATCH: std::cell::RefCell<RowRays> =
-                const { std::cell::RefCell::new(RowRays::new()) };
+    crate::table::adjoint_band(t, sino, i0, out, |v, i, ys, map, s, row_out| {
+        // SAFETY: AVX2 per this function's contract; `adjoint_band` passes
+        // a view and row of the table, the view's values, scratch sized for
+        // the table and one image row.
+        unsafe {
+            ray_pass(t, v, i, ys, s);
+            pixel_pass(t, map, s, row_out);
         }
-        SCRATCH.with(|cell| {
-            let mut s = cell.borrow_mut();
-            s.reset(n, nb);
-            adjoint_rows_with(t, sino, i0, out, &mut s);
-        });
-    }
+    });
 }
 
-/// View-major over the task's rows, as the AVX-512 kernel.
-///
-/// # Safety
-/// AVX2; `out` holds whole image rows from row `i0`; `s` is sized for the
-/// table (`RowRays::reset`).
-#[target_feature(enable = "avx2")]
-unsafe fn adjoint_rows_with(
-    t: &RayTable,
-    sino: &[f32],
-    i0: usize,
-    out: &mut [f32],
-    s: &mut RowRays,
-) {
-    // SAFETY: AVX2 per the contract; the passes index the scratch within its
-    // reset sizes and the rows of `out`.
-    unsafe {
-        let (nx, n_det) = (t.nx, t.n_det);
-        out.fill(0.0);
-        for v in 0..t.n_views {
-            let ys = &sino[v * n_det..(v + 1) * n_det];
-            for (di, row_out) in out.chunks_exact_mut(nx).enumerate() {
-                let i = i0 + di;
-                let map = t.inv_map[v * t.nz + i];
-                if map.count > 0 {
-                    ray_pass(t, v, i, ys, s);
-                    pixel_pass(t, &map, s, row_out);
-                }
-                if t.view_has_slow[v] {
-                    for k in 0..n_det {
-                        let r = v * n_det + k;
-                        if !t.fast[r] && t.touches_row(r, i) {
-                            t.scatter_ray_row(r, i, ys[k], row_out);
-                        }
-                    }
-                }
-            }
-        }
-    }
-}
-
-/// Every ray's first pixel and its two weighted contributions in row `i`
-/// of view `v` (`NO_PIXEL` and zeros for rays outside the row, and for slow
-/// rays, which the caller scatters).
-///
 /// # Safety
 /// AVX2; `v` is a view and `i` a row of the table; `ys` holds the view's
 /// `n_det` values; `s` is sized for the table (`PAD` entries on both sides of

@@ -240,67 +240,15 @@ unsafe fn forward_row_general(
 /// Requires AVX-512F. `out` holds whole rows starting at row `i0`.
 #[target_feature(enable = "avx512f")]
 pub(crate) unsafe fn adjoint_rows(t: &RayTable, sino: &[f32], i0: usize, out: &mut [f32]) {
-    // SAFETY: AVX-512F per the contract; `adjoint_rows_with` gets scratch sized
-    // for this table (`reset`).
-    unsafe {
-        let n = t.n_det + 2 * PAD;
-        let nb = t.nx.div_ceil(L).next_multiple_of(L);
-        // Per-thread scratch, reset (not reallocated) on every call: after the
-        // first call on a thread the adjoint allocates nothing (the DBToR slice
-        // loop's no-allocation rule).
-        thread_local! {
-            static SCRATCH: std::cell::RefCell<RowRays> =
-                const { std::cell::RefCell::new(RowRays::new()) };
+    crate::table::adjoint_band(t, sino, i0, out, |v, i, ys, map, s, row_out| {
+        // SAFETY: AVX-512F per this function's contract; `adjoint_band` passes
+        // a view and row of the table, the view's values, scratch sized for
+        // the table and one image row.
+        unsafe {
+            ray_pass(t, v, i, ys, s);
+            pixel_pass(t, map, s, row_out);
         }
-        SCRATCH.with(|cell| {
-            let mut s = cell.borrow_mut();
-            s.reset(n, nb);
-            adjoint_rows_with(t, sino, i0, out, &mut s);
-        });
-    }
-}
-
-/// View-major over the task's rows: one view's ray parameters stay in L1
-/// while its rows are visited (faster than row-major in `projector-bench`); each
-/// pixel still sums the views in order.
-///
-/// # Safety
-/// AVX-512F; `out` holds whole image rows from row `i0`; `s` is sized for the
-/// table (`RowRays::reset`).
-#[target_feature(enable = "avx512f")]
-unsafe fn adjoint_rows_with(
-    t: &RayTable,
-    sino: &[f32],
-    i0: usize,
-    out: &mut [f32],
-    s: &mut RowRays,
-) {
-    // SAFETY: AVX-512F per the contract; the passes index the scratch within its
-    // reset sizes and the rows of `out`.
-    unsafe {
-        let (nx, n_det) = (t.nx, t.n_det);
-        out.fill(0.0);
-        for v in 0..t.n_views {
-            let ys = &sino[v * n_det..(v + 1) * n_det];
-            for (di, row_out) in out.chunks_exact_mut(nx).enumerate() {
-                let i = i0 + di;
-                let map = t.inv_map[v * t.nz + i];
-                if map.count > 0 {
-                    ray_pass(t, v, i, ys, s);
-                    pixel_pass(t, &map, s, row_out);
-                }
-                if t.view_has_slow[v] {
-                    for k in 0..n_det {
-                        let r = v * n_det + k;
-                        let inside = t.touches_row(r, i);
-                        if !t.fast[r] && inside {
-                            t.scatter_ray_row(r, i, ys[k], row_out);
-                        }
-                    }
-                }
-            }
-        }
-    }
+    });
 }
 
 /// # Safety

@@ -627,6 +627,52 @@ impl RayTable {
     }
 }
 
+/// The pixel-driven adjoints' walk over a band of rows (`avx512.rs`,
+/// `avx2.rs`): view-major over the task's rows, so that one view's ray
+/// parameters stay in L1 while its rows are visited (faster than row-major in
+/// `projector-bench`; each pixel still sums the views in order). For each
+/// (view, row) with fast rays `row(v, i, view values, inverse map, scratch,
+/// image row)` adds them; the slow rays are scattered here. The scratch is
+/// per thread and reset, not reallocated, on every call: after the first
+/// call on a thread the adjoint allocates nothing (the DBToR slice loop's
+/// no-allocation rule). `out` holds whole rows from row `i0`.
+pub(crate) fn adjoint_band(
+    t: &RayTable,
+    sino: &[f32],
+    i0: usize,
+    out: &mut [f32],
+    row: impl Fn(usize, usize, &[f32], &InvMap, &mut RowRays, &mut [f32]),
+) {
+    thread_local! {
+        static SCRATCH: std::cell::RefCell<RowRays> =
+            const { std::cell::RefCell::new(RowRays::new()) };
+    }
+    let (nx, n_det) = (t.nx, t.n_det);
+    SCRATCH.with(|cell| {
+        let mut s = cell.borrow_mut();
+        s.reset(n_det + 2 * PAD, nx.div_ceil(16).next_multiple_of(16));
+        out.fill(0.0);
+        for v in 0..t.n_views {
+            let ys = &sino[v * n_det..(v + 1) * n_det];
+            for (di, row_out) in out.chunks_exact_mut(nx).enumerate() {
+                let i = i0 + di;
+                let map = t.inv_map[v * t.nz + i];
+                if map.count > 0 {
+                    row(v, i, ys, &map, &mut s, row_out);
+                }
+                if t.view_has_slow[v] {
+                    for k in 0..n_det {
+                        let r = v * n_det + k;
+                        if !t.fast[r] && t.touches_row(r, i) {
+                            t.scatter_ray_row(r, i, ys[k], row_out);
+                        }
+                    }
+                }
+            }
+        }
+    });
+}
+
 /// The SIMD adjoints' test of their fit ranges (`avx512.rs`, `avx2.rs`):
 /// `adjoint` (whole image, from row 0) against the scalar reference on the
 /// binned paper geometry and an odd one, with each (view, row)'s verified
