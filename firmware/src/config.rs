@@ -1368,9 +1368,8 @@ mod tests {
     /// removed + linearised`, one alone its own key.
     #[test]
     fn the_calibration_key_follows_the_corrections() {
-        let key = |f: &dyn Fn(String) -> String| {
-            example(|t| f(t)).unwrap().input_corrections().key("int8")
-        };
+        let key =
+            |f: &dyn Fn(String) -> String| example(f).unwrap().input_corrections().key("int8");
         assert_eq!(key(&|t| t), "int8");
         let both = |t: String| {
             t.replace("scatter = \"off\"", "scatter = \"kernel\"")
