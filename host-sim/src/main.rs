@@ -182,6 +182,12 @@ struct DatasetArgs {
     /// dbtor-x4t3 was trained on) or `anatomical` (issue #26) or `mixed` (both: index % 3 == 2 procedural).
     #[arg(long, default_value = "procedural")]
     population: PopulationKind,
+    /// The acquisitions' physics: `mono` (the paper's, every level), or
+    /// `clinical` / `clinical-primary` (issue #27: one level; the counts
+    /// the firmware reconstructs after its scatter removal and
+    /// linearisation, DATASET.md).
+    #[arg(long, default_value = "mono")]
+    physics: String,
 }
 
 /// The options of `host-sim dicom-send`.
@@ -502,7 +508,9 @@ fn run_dataset(args: DatasetArgs) -> Result<()> {
         geometry,
         batch,
         population,
+        physics,
     } = args;
+    let physics = host_sim::Physics::parse(&physics)?;
     let levels = levels
         .split(',')
         .map(NoiseLevel::parse)
@@ -518,6 +526,7 @@ fn run_dataset(args: DatasetArgs) -> Result<()> {
         levels,
         batch,
         population,
+        physics,
     };
     let t = Instant::now();
     let bar = Progress::new(slices as u64, "dataset", "slices", false);
