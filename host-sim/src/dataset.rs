@@ -129,7 +129,13 @@ fn phantom_records(
 ) -> Result<(PhantomEntry, Vec<SimSlice>), SimError> {
     let vol = spec.generate()?;
     let depths = tissue_slices(&vol, 1);
-    let mut slices = simulate_slices(&vol, geom, proj, &depths, levels, noise_seed)?;
+    // The clinical counts come from the whole acquisition below: the
+    // slices then need only their images, labels and masks.
+    let slice_levels = match physics {
+        Physics::Mono => levels,
+        Physics::Clinical { .. } => &[],
+    };
+    let mut slices = simulate_slices(&vol, geom, proj, &depths, slice_levels, noise_seed)?;
     if let Physics::Clinical { detector, scatter } = physics {
         let level = match levels {
             [l] => *l,

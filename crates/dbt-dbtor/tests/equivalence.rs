@@ -449,7 +449,7 @@ fn every_forced_kernel_matches_the_fixtures() {
             assert_eq!(m.kernel(), Some(want.name()), "{p} up to {limit:?}");
             assert_eq!(
                 m.projector_kernel(),
-                dbt_projector::best_kernel().min(dbt_dbtor::projector_limit(limit)),
+                dbt_projector::best_kernel_up_to(dbt_dbtor::projector_limit(limit)),
                 "{p} up to {limit:?}"
             );
             for c in check_fixtures(&m, &dir).unwrap() {

@@ -134,7 +134,7 @@ impl Projector {
     /// The same projector on the fastest kernel this CPU runs that is at
     /// most `limit` (the firmware's forced lower path, `DBTOR_KERNEL`).
     pub fn up_to(mut self, limit: Kernel) -> Self {
-        self.kernel = best_kernel().min(limit);
+        self.kernel = best_kernel_up_to(limit);
         self
     }
 
@@ -306,6 +306,12 @@ pub fn best_kernel() -> Kernel {
         return Kernel::Avx2;
     }
     Kernel::Scalar
+}
+
+/// The fastest kernel this CPU runs that is at most `limit` (what
+/// [`Projector::up_to`] selects).
+pub fn best_kernel_up_to(limit: Kernel) -> Kernel {
+    best_kernel().min(limit)
 }
 
 fn has_avx2() -> bool {

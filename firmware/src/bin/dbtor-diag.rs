@@ -212,9 +212,7 @@ fn conv_kernels() -> Result<String> {
         "fp32 {}, int8 {}, projector {}{}",
         dbt_conv::Kernel::best_fp32_up_to(limit).name(),
         dbt_conv::Kernel::best_int8_up_to(limit).name(),
-        dbt_projector::best_kernel()
-            .min(dbt_dbtor::projector_limit(limit))
-            .name(),
+        dbt_projector::best_kernel_up_to(dbt_dbtor::projector_limit(limit)).name(),
         match std::env::var(dbt_dbtor::KERNEL_ENV) {
             Ok(v) => format!(" ({}={v})", dbt_dbtor::KERNEL_ENV),
             Err(_) => String::new(),
