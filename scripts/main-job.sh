@@ -76,6 +76,12 @@ print(f"processed {d['acquisition']} in {d['seconds']:.1f} s ({r['reconstructor'
 print(f"glandularity: reported {r['glandularity']:.3f} ({'calibrated ' if r['calibrated'] else ''}partial volume), "
       f"labels {r['density']['glandularity_labels']:.3f}, partial volume "
       f"{r['density']['glandularity_partial_volume']:.3f}; phantom truth {t.get('glandularity', float('nan')):.3f}")
+st = r.get("stage_seconds") or {}
+if st:
+    n = st["slices"]
+    print(f"stages: corrections {st['corrections']:.1f} s, reconstruction {st['reconstruction']:.1f} s "
+          f"({n} slices, {1e3 * st['reconstruction'] / max(n, 1):.0f} ms each), classification "
+          f"{st['classification']:.1f} s, dose {st['dose_patient']:.1f} s (patient) + {st['dose_model']:.1f} s (model breast)")
 print(f"MGD {r['mgd_mgy']:.3f} mGy (+- {100 * r['dose_patient']['mgd_rel_uncertainty']:.2f} %), "
       f"model breast {r['model_mgd_mgy']:.3f} mGy, incident air kerma {r['kerma_mgy']:.2f} mGy")
 PY

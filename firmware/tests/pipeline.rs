@@ -38,7 +38,30 @@ fn acquisition_to_reports() {
         ..PipelineOptions::default()
     };
     let mut stages = Vec::new();
+    let t = std::time::Instant::now();
     let res = process_with_progress(&acq, &opts, &mut |s| stages.push(s)).unwrap();
+    let wall = t.elapsed().as_secs_f64();
+    // The stages' seconds: each measured, none beyond the whole call, and
+    // together all of it but what surrounds them (returning the result).
+    let st = res.stage_seconds;
+    assert_eq!(st.slices, acq.counts.len());
+    for (name, s) in [
+        ("corrections", st.corrections),
+        ("reconstruction", st.reconstruction),
+        ("classification", st.classification),
+        ("dose_patient", st.dose_patient),
+        ("dose_model", st.dose_model),
+    ] {
+        assert!(s.is_finite() && s >= 0.0, "{name}: {s}");
+    }
+    assert!(
+        st.reconstruction > 0.0 && st.dose_patient > 0.0 && st.dose_model > 0.0,
+        "{st:?}"
+    );
+    assert!(
+        st.total() <= wall && st.total() > 0.9 * wall,
+        "{st:?} against {wall} s"
+    );
     // Progress: every slice in order, then classification, then dose.
     let n = acq.counts.len();
     let want: Vec<Stage> = (1..=n)
@@ -380,4 +403,75 @@ fn nonnegativity_changes_the_image_not_the_density_or_dose() {
     assert_eq!(a.glandularity, b.glandularity);
     assert_eq!(a.mgd_mgy, b.mgd_mgy);
     assert_eq!(a.model_mgd_mgy, b.model_mgd_mgy);
+}
+
+/// The pipeline reconstructs as many slices at once as its pool has
+/// threads (`dbt_pipeline::reconstruct_volume`; the DBToR runtime keeps a
+/// set of buffers per slice in flight): the volume, the stage order and the
+/// report's figures are those of one slice at a time. int8 fast engine (the shipped default's kernels)
+/// and MLTR.
+#[test]
+fn slices_in_flight_give_what_one_at_a_time_gives() {
+    let g = Geometry::paper().binned(4).unwrap();
+    let spec = PhantomSpec {
+        thickness_mm: 30.0,
+        chest_to_nipple_mm: 20.0,
+        width_mm: 80.0,
+        glandularity: 0.3,
+        ..PhantomSpec::typical(g.image.pixel_mm, 17)
+    };
+    let vol = generate(&spec).unwrap();
+    let acq = simulate_acquisition(
+        &vol,
+        &g,
+        NoiseLevel::Poisson(8),
+        5,
+        Technique::default(),
+        28.0,
+        "T4",
+        "1.2.3",
+    )
+    .unwrap();
+    let n = acq.counts.len();
+    assert!(n >= 5, "{n} slices: too few to keep several in flight");
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/dbtor-x4");
+    let m = dbt_dbtor::Dbtor::load_with(&dir, dbt_dbtor::Precision::Int8, dbt_dbtor::Engine::Fast)
+        .unwrap();
+    let with_dbtor = PipelineOptions {
+        dbtor: Some(std::sync::Arc::new(m)),
+        dose_uncertainty: 0.2,
+        seed: 3,
+        ..PipelineOptions::default()
+    };
+    let with_mltr = PipelineOptions {
+        mltr_iterations: 5,
+        dose_uncertainty: 0.2,
+        seed: 3,
+        ..PipelineOptions::default()
+    };
+    let in_pool = |threads: usize, opts: &PipelineOptions, acq: &dbt_pipeline::Acquisition| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| {
+                let mut stages = Vec::new();
+                let r = process_with_progress(acq, opts, &mut |s| stages.push(s));
+                (r, stages)
+            })
+    };
+    for opts in [&with_dbtor, &with_mltr] {
+        let (one, one_stages) = in_pool(1, opts, &acq);
+        let one = one.unwrap();
+        for threads in [2, 3] {
+            let (many, stages) = in_pool(threads, opts, &acq);
+            let many = many.unwrap();
+            assert_eq!(stages, one_stages, "{threads} threads");
+            assert_eq!(many.mu, one.mu, "{threads} threads");
+            assert_eq!(many.classification, one.classification);
+            assert_eq!(many.density, one.density);
+            assert_eq!(many.mgd_mgy, one.mgd_mgy);
+            assert_eq!(many.model_mgd_mgy, one.model_mgd_mgy);
+        }
+    }
 }

@@ -280,7 +280,9 @@ pub struct Dbtor {
     projector: Projector,
     /// In execution order: dual 0, primal 0, dual 1, ...
     blocks: Blocks,
-    buffers: std::sync::Mutex<Option<Box<Buffers>>>,
+    /// Per-slice buffers kept between slices: one set per slice in flight
+    /// (slices reconstructed concurrently each take their own).
+    buffers: std::sync::Mutex<Vec<Buffers>>,
     /// Primal blocks run only from this many rows above the breast (fast
     /// engine); `None`: on the whole image.
     crop_margin: Option<usize>,
@@ -541,7 +543,7 @@ impl Dbtor {
             fp32_blocks,
             engine,
             blocks,
-            buffers: std::sync::Mutex::new(None),
+            buffers: std::sync::Mutex::new(Vec::new()),
             crop_margin: None,
             constraints,
         };
@@ -630,7 +632,7 @@ impl Dbtor {
         }
     }
 
-    fn new_buffers(&self) -> Box<Buffers> {
+    fn new_buffers(&self) -> Buffers {
         let g = &self.manifest.geometry;
         let (n_img, n_sino) = (g.n_pixels(), g.n_rays());
         let c = self.manifest.state_channels;
@@ -658,7 +660,7 @@ impl Dbtor {
                 }
             }
         };
-        Box::new(Buffers {
+        Buffers {
             gn: vec![0.0; n_sino],
             mask: vec![0.0; n_img],
             pm: vec![0.0; n_sino],
@@ -667,7 +669,7 @@ impl Dbtor {
             aux_d: vec![0.0; aux_dual * n_sino],
             aux_p: vec![0.0; aux_primal * n_img],
             ws,
-        })
+        }
     }
 
     /// Floating-point operations of each block on this geometry (2 per
@@ -689,14 +691,15 @@ impl Dbtor {
         }
     }
 
-    /// Bytes of the per-slice buffers (state, aux, workspaces). The buffers
-    /// are made if no slice has made them yet, and kept for the next slice.
+    /// Bytes of one set of per-slice buffers (state, aux, workspaces), one
+    /// per slice in flight. A set is made if no slice has made one yet, and
+    /// kept for the next slice.
     pub fn slice_buffer_bytes(&self) -> usize {
-        self.buffers
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .get_or_insert_with(|| self.new_buffers())
-            .bytes()
+        let mut pool = self.buffers.lock().unwrap_or_else(|e| e.into_inner());
+        if pool.is_empty() {
+            pool.push(self.new_buffers());
+        }
+        pool[0].bytes()
     }
 
     /// The model folder it was loaded from.
@@ -817,7 +820,7 @@ impl Dbtor {
 
     /// [`Dbtor::reconstruct`] into `out` (the model's image size). With the
     /// fast engine nothing is allocated after the first slice: the buffers
-    /// are kept between calls (one set; a concurrent call makes its own).
+    /// are kept between calls (a set per concurrent call, made by its first).
     pub fn reconstruct_into(
         &self,
         g: &[f32],
@@ -882,11 +885,7 @@ impl Dbtor {
                 "thickness {thickness_mm} mm is not a positive number"
             )));
         }
-        let taken = self
-            .buffers
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .take();
+        let taken = self.buffers.lock().unwrap_or_else(|e| e.into_inner()).pop();
         let mut bufs = match taken {
             Some(b) => b,
             None => self.new_buffers(),
@@ -900,7 +899,10 @@ impl Dbtor {
         let r = rayon::scope(|_| {
             span.in_scope(|| self.run_slice(&mut bufs, g, thickness_mm, out, prof, constraints))
         });
-        *self.buffers.lock().unwrap_or_else(|e| e.into_inner()) = Some(bufs);
+        self.buffers
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .push(bufs);
         r
     }
 

@@ -22,6 +22,7 @@ use dbt_recon::{mltr, MltrOptions};
 use dbt_tissue::{
     classify, density, Classification, ClassifyOptions, Density, GlandularityCalibration,
 };
+use rayon::prelude::*;
 use serde::Serialize;
 use thiserror::Error;
 
@@ -152,6 +153,40 @@ pub struct ProcessResult {
     pub plausibility: Plausibility,
     /// Quality flags the report carries (empty when nothing was corrected).
     pub flags: Vec<String>,
+    /// Wall-clock seconds of each stage (for the service engineer and the
+    /// pipeline benchmark; not reported).
+    pub stage_seconds: StageSeconds,
+}
+
+/// Wall-clock seconds of each stage of [`process_with_progress`], in order.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct StageSeconds {
+    /// Coronal slices reconstructed (a cone-beam acquisition's rebinned
+    /// slices), for the time per slice.
+    pub slices: usize,
+    /// Scatter removal, linearisation, a cone-beam acquisition's frames
+    /// checked and rebinned to slice-wise sinograms.
+    pub corrections: f64,
+    /// Every slice reconstructed and stacked (a cone-beam stack resampled
+    /// in depth).
+    pub reconstruction: f64,
+    /// Tissue classification, the volume's plausibility and the density.
+    pub classification: f64,
+    /// The patient-specific Monte Carlo dose.
+    pub dose_patient: f64,
+    /// The model breast's Monte Carlo dose.
+    pub dose_model: f64,
+}
+
+impl StageSeconds {
+    /// The sum of the stages.
+    pub fn total(&self) -> f64 {
+        self.corrections
+            + self.reconstruction
+            + self.classification
+            + self.dose_patient
+            + self.dose_model
+    }
 }
 
 /// What the plausibility checks measured on an acquisition that passed them.
@@ -362,34 +397,50 @@ pub fn reconstruct_volume(
     let nd = counts.len();
     let mut mu = vec![0f32; cols * nv * nd];
     let reconstructor = reconstructor_name(opts);
-    for (d, counts) in counts.iter().enumerate() {
-        let _s = tracing::debug_span!("slice", d).entered();
-        let img = match &opts.dbtor {
+    let span = tracing::Span::current();
+    let slice = |d: usize, counts: &[f32]| -> Result<Vec<f32>, PipelineError> {
+        let _s = tracing::debug_span!(parent: &span, "slice", d).entered();
+        match &opts.dbtor {
             Some(m) => m
                 .reconstruct(&log_transform(counts, h.flux), h.thickness_mm)
                 .map_err(|source| PipelineError::Dbtor {
                     slice: d,
                     cause: source,
-                })?,
-            None => {
-                mltr(&proj, counts, h.flux, &mask, &mopts)
-                    .map_err(|source| PipelineError::Recon {
-                        slice: d,
-                        cause: source,
-                    })?
-                    .0
-            }
-        };
-        // Image row r (0 at the top) -> vertical index rows - 1 - r.
-        for v in 0..nv {
-            let r = rows - 1 - v;
-            let dst = (d * nv + v) * cols;
-            mu[dst..dst + cols].copy_from_slice(&img[r * cols..(r + 1) * cols]);
+                }),
+            None => mltr(&proj, counts, h.flux, &mask, &mopts)
+                .map(|r| r.0)
+                .map_err(|source| PipelineError::Recon {
+                    slice: d,
+                    cause: source,
+                }),
         }
-        progress(Stage::Slice {
-            done: d + 1,
-            total: nd,
-        });
+    };
+    // As many slices in flight as the pool has threads, each on its own
+    // worker (the loops inside a slice still share the idle workers): one
+    // slice's serial parts (projector set-up, normalisation, the blocks'
+    // joins) no longer idle the other core. A slice's result does not
+    // depend on it (the kernels split rows, never sums); the slices are
+    // stacked, reported and their errors returned in order.
+    let in_flight = rayon::current_num_threads().max(1);
+    for (c, chunk) in counts.chunks(in_flight).enumerate() {
+        let imgs: Vec<Result<Vec<f32>, PipelineError>> = chunk
+            .par_iter()
+            .enumerate()
+            .map(|(i, counts)| slice(c * in_flight + i, counts))
+            .collect();
+        for (i, img) in imgs.into_iter().enumerate() {
+            let (d, img) = (c * in_flight + i, img?);
+            // Image row r (0 at the top) -> vertical index rows - 1 - r.
+            for v in 0..nv {
+                let r = rows - 1 - v;
+                let dst = (d * nv + v) * cols;
+                mu[dst..dst + cols].copy_from_slice(&img[r * cols..(r + 1) * cols]);
+            }
+            progress(Stage::Slice {
+                done: d + 1,
+                total: nd,
+            });
+        }
     }
     Ok(Volume {
         reconstructor,
@@ -408,6 +459,14 @@ pub fn process_with_progress(
     opts: &PipelineOptions,
     progress: &mut dyn FnMut(Stage),
 ) -> Result<ProcessResult, PipelineError> {
+    let mut clock = std::time::Instant::now();
+    let mut lap = move || {
+        let now = std::time::Instant::now();
+        let s = now.duration_since(clock).as_secs_f64();
+        clock = now;
+        s
+    };
+    let mut stage_seconds = StageSeconds::default();
     let corrected = correct_counts(acq, opts)?;
     let acq = corrected.as_ref();
     // A cone-beam acquisition is then made the slice-wise fan-beam one: its
@@ -440,6 +499,8 @@ pub fn process_with_progress(
     let g = &h.geometry;
     let _span =
         tracing::info_span!("acquisition", patient = %h.patient.id, slices = h.slices).entered();
+    stage_seconds.corrections = lap();
+    stage_seconds.slices = acq.counts.len();
     let Volume {
         reconstructor,
         dims,
@@ -468,6 +529,7 @@ pub fn process_with_progress(
         },
         None => counts_check,
     };
+    stage_seconds.reconstruction = lap();
     progress(Stage::Classification);
     let classification = classify(&mu, dims, g.image.pixel_mm, &opts.classify)?;
     let volume_check = check_volume(
@@ -478,6 +540,7 @@ pub fn process_with_progress(
         g.image.pixel_mm,
     )?;
     let dens = density(&mu, &classification.labels, g.image.pixel_mm);
+    stage_seconds.classification = lap();
     progress(Stage::Dose);
     // The exposure's spectrum from the kV received (the one place the
     // technique becomes a spectrum: dbt_dose::xray::technique_spectrum).
@@ -503,6 +566,7 @@ pub fn process_with_progress(
         max,
         opts.seed,
     )?;
+    stage_seconds.dose_patient = lap();
     let dose_model = mgd_to_uncertainty(
         &breast,
         Model::Homogeneous,
@@ -513,6 +577,15 @@ pub fn process_with_progress(
         max,
         opts.seed + 1,
     )?;
+    stage_seconds.dose_model = lap();
+    tracing::info!(
+        corrections_s = stage_seconds.corrections,
+        reconstruction_s = stage_seconds.reconstruction,
+        classification_s = stage_seconds.classification,
+        dose_patient_s = stage_seconds.dose_patient,
+        dose_model_s = stage_seconds.dose_model,
+        "acquisition processed"
+    );
     let kerma_mgy = h.mas_total * h.tube_output_mgy_per_mas;
     Ok(ProcessResult {
         reconstructor,
@@ -539,6 +612,7 @@ pub fn process_with_progress(
             counts: counts_check,
             volume: volume_check,
         },
+        stage_seconds,
     })
 }
 
