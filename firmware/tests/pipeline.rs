@@ -8,6 +8,36 @@ use dbt_phantom::{generate, PhantomSpec};
 use dbt_pipeline::{process, process_with_progress, reports, PipelineOptions, Stage};
 use host_sim::{simulate_acquisition, Technique};
 
+/// `spec`'s breast generated and acquired on `g` (the technique's defaults,
+/// `kvp`, study UID root 1.2.3).
+fn acquired(
+    g: &Geometry,
+    spec: &PhantomSpec,
+    noise: NoiseLevel,
+    seed: u64,
+    kvp: f64,
+    patient: &str,
+) -> dbt_pipeline::Acquisition {
+    let vol = generate(spec).unwrap();
+    simulate_acquisition(
+        &vol,
+        g,
+        noise,
+        seed,
+        Technique::default(),
+        kvp,
+        patient,
+        "1.2.3",
+    )
+    .unwrap()
+}
+
+/// dbtor-x4 (the paper geometry binned x4) in int8 on the fast engine.
+fn x4_int8() -> dbt_dbtor::Dbtor {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/dbtor-x4");
+    dbt_dbtor::Dbtor::load_with(&dir, dbt_dbtor::Precision::Int8, dbt_dbtor::Engine::Fast).unwrap()
+}
+
 #[test]
 fn acquisition_to_reports() {
     let g = Geometry::paper().binned(4).unwrap();
@@ -18,18 +48,7 @@ fn acquisition_to_reports() {
         glandularity: 0.3,
         ..PhantomSpec::typical(g.image.pixel_mm, 5)
     };
-    let vol = generate(&spec).unwrap();
-    let acq = simulate_acquisition(
-        &vol,
-        &g,
-        NoiseLevel::NoiseFree,
-        3,
-        Technique::default(),
-        27.0,
-        "T1",
-        "1.2.3",
-    )
-    .unwrap();
+    let acq = acquired(&g, &spec, NoiseLevel::NoiseFree, 3, 27.0, "T1");
     let opts = PipelineOptions {
         dbtor: None,
         mltr_iterations: 30,
@@ -69,7 +88,7 @@ fn acquisition_to_reports() {
         .chain([Stage::Classification, Stage::Dose])
         .collect();
     assert_eq!(stages, want);
-    assert_eq!(res.dims[2], vol.n_coronal());
+    assert_eq!(res.dims[2], generate(&spec).unwrap().n_coronal());
     assert_eq!(res.dims[1], g.rows_within_thickness(32.0));
     let d = res.density;
     assert!(d.glandularity_labels > 0.0 && d.glandularity_labels < 1.0);
@@ -310,18 +329,7 @@ fn a_breast_taller_than_the_image_is_refused() {
         width_mm: 60.0,
         ..PhantomSpec::typical(g.image.pixel_mm, 5)
     };
-    let vol = generate(&spec).unwrap();
-    let mut acq = simulate_acquisition(
-        &vol,
-        &g,
-        NoiseLevel::NoiseFree,
-        3,
-        Technique::default(),
-        27.0,
-        "T2",
-        "1.2.3",
-    )
-    .unwrap();
+    let mut acq = acquired(&g, &spec, NoiseLevel::NoiseFree, 3, 27.0, "T2");
     let opts = PipelineOptions {
         dbtor: None,
         mltr_iterations: 2,
@@ -355,24 +363,9 @@ fn nonnegativity_changes_the_image_not_the_density_or_dose() {
         glandularity: 0.25,
         ..PhantomSpec::typical(g.image.pixel_mm, 11)
     };
-    let vol = generate(&spec).unwrap();
-    let acq = simulate_acquisition(
-        &vol,
-        &g,
-        NoiseLevel::Poisson(8),
-        4,
-        Technique::default(),
-        28.0,
-        "T3",
-        "1.2.3",
-    )
-    .unwrap();
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/dbtor-x4");
+    let acq = acquired(&g, &spec, NoiseLevel::Poisson(8), 4, 28.0, "T3");
     let opts = |on: bool| {
-        let m =
-            dbt_dbtor::Dbtor::load_with(&dir, dbt_dbtor::Precision::Int8, dbt_dbtor::Engine::Fast)
-                .unwrap()
-                .with_nonnegativity(on);
+        let m = x4_int8().with_nonnegativity(on);
         assert_eq!(m.constraints().nonnegative, on);
         PipelineOptions {
             dbtor: Some(std::sync::Arc::new(m)),
@@ -420,25 +413,11 @@ fn slices_in_flight_give_what_one_at_a_time_gives() {
         glandularity: 0.3,
         ..PhantomSpec::typical(g.image.pixel_mm, 17)
     };
-    let vol = generate(&spec).unwrap();
-    let acq = simulate_acquisition(
-        &vol,
-        &g,
-        NoiseLevel::Poisson(8),
-        5,
-        Technique::default(),
-        28.0,
-        "T4",
-        "1.2.3",
-    )
-    .unwrap();
+    let acq = acquired(&g, &spec, NoiseLevel::Poisson(8), 5, 28.0, "T4");
     let n = acq.counts.len();
     assert!(n >= 5, "{n} slices: too few to keep several in flight");
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/dbtor-x4");
-    let m = dbt_dbtor::Dbtor::load_with(&dir, dbt_dbtor::Precision::Int8, dbt_dbtor::Engine::Fast)
-        .unwrap();
     let with_dbtor = PipelineOptions {
-        dbtor: Some(std::sync::Arc::new(m)),
+        dbtor: Some(std::sync::Arc::new(x4_int8())),
         dose_uncertainty: 0.2,
         seed: 3,
         ..PipelineOptions::default()
