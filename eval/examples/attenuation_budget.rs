@@ -94,6 +94,7 @@ fn main() -> Result<()> {
                 calibration: None,
                 linearise: None,
                 descatter: None,
+                slice_step: 1,
             };
             let v = reconstruct_volume(&acq, &opts, &mut |_| {})?;
             ensure!(v.dims == dims, "volume {:?} against {:?}", v.dims, dims);

@@ -305,6 +305,7 @@ impl Daemon {
             dose_uncertainty: cfg.recon.dose_uncertainty,
             linearise: cfg.linearise(),
             descatter: cfg.descatter(&config_path)?,
+            slice_step: cfg.recon.slice_step,
             ..PipelineOptions::default()
         };
         if cfg.recon.reconstructor == Reconstructor::Dbtor {

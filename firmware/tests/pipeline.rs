@@ -454,3 +454,70 @@ fn slices_in_flight_give_what_one_at_a_time_gives() {
         }
     }
 }
+
+/// `slice_step` (issue #29 point 5): every Nth slice and the last are
+/// reconstructed, exactly as with every slice; those between are the
+/// linear mix of their two neighbours in depth; the progress counts the
+/// reconstructed ones; the reports name the step; 0 is refused.
+#[test]
+fn a_slice_step_reconstructs_some_slices_and_interpolates_the_rest() {
+    let g = Geometry::paper().binned(4).unwrap();
+    let spec = PhantomSpec {
+        thickness_mm: 30.0,
+        chest_to_nipple_mm: 20.0,
+        width_mm: 80.0,
+        glandularity: 0.3,
+        ..PhantomSpec::typical(g.image.pixel_mm, 19)
+    };
+    let acq = acquired(&g, &spec, NoiseLevel::Poisson(8), 6, 28.0, "T5");
+    let n = acq.counts.len();
+    let opts = |slice_step: usize| PipelineOptions {
+        dbtor: Some(std::sync::Arc::new(x4_int8())),
+        slice_step,
+        ..PipelineOptions::default()
+    };
+    let every = dbt_pipeline::reconstruct_volume(&acq, &opts(1), &mut |_| {}).unwrap();
+    let slab = every.dims[0] * every.dims[1];
+    for step in [2, 3, n + 4] {
+        let wanted = dbt_pipeline::reconstructed_slices(n, step);
+        assert_eq!(wanted[0], 0);
+        assert_eq!(*wanted.last().unwrap(), n - 1);
+        let mut stages = Vec::new();
+        let v =
+            dbt_pipeline::reconstruct_volume(&acq, &opts(step), &mut |s| stages.push(s)).unwrap();
+        assert_eq!(v.dims, every.dims);
+        let want: Vec<Stage> = (1..=wanted.len())
+            .map(|done| Stage::Slice {
+                done,
+                total: wanted.len(),
+            })
+            .collect();
+        assert_eq!(stages, want, "step {step}");
+        let s = |vol: &[f32], d: usize| vol[d * slab..(d + 1) * slab].to_vec();
+        for w in wanted.windows(2) {
+            let (a, b) = (w[0], w[1]);
+            assert_eq!(s(&v.mu, a), s(&every.mu, a), "step {step}, slice {a}");
+            assert_eq!(s(&v.mu, b), s(&every.mu, b), "step {step}, slice {b}");
+            for d in a + 1..b {
+                let t = (d - a) as f32 / (b - a) as f32;
+                for (k, x) in s(&v.mu, d).iter().enumerate() {
+                    let want = (1.0 - t) * v.mu[a * slab + k] + t * v.mu[b * slab + k];
+                    assert!((x - want).abs() <= 1e-6 * want.abs().max(1e-3), "slice {d}");
+                }
+            }
+        }
+        let name = dbt_pipeline::reconstructor_name(&opts(step));
+        assert!(
+            name.ends_with(" slice") && name.contains("every "),
+            "{name}"
+        );
+        let version = dbt_pipeline::algorithm_version(&opts(step));
+        assert!(version.contains("interpolated"), "{version}");
+    }
+    assert_eq!(dbt_pipeline::reconstructed_slices(5, 2), [0, 2, 4]);
+    assert_eq!(dbt_pipeline::reconstructed_slices(6, 2), [0, 2, 4, 5]);
+    assert_eq!(dbt_pipeline::reconstructed_slices(1, 3), [0]);
+    assert!(!dbt_pipeline::algorithm_version(&opts(1)).contains("interpolated"));
+    let e = dbt_pipeline::reconstruct_volume(&acq, &opts(0), &mut |_| {}).unwrap_err();
+    assert!(e.to_string().contains("slice step 0"), "{e}");
+}

@@ -96,6 +96,12 @@ pub struct PipelineOptions {
     /// counts are taken as primary.
     #[serde(skip)]
     pub descatter: Option<crate::descatter::ScatterRemoval>,
+    /// Reconstruct every `slice_step`-th coronal slice (and the last one),
+    /// the slices between interpolated linearly in depth (issue #29 point
+    /// 5: density and dose may not need every detector row); 1: every
+    /// slice. The volume keeps every slice's depth, so the dose grid stays
+    /// isotropic.
+    pub slice_step: usize,
 }
 
 impl Default for PipelineOptions {
@@ -109,6 +115,7 @@ impl Default for PipelineOptions {
             calibration: None,
             linearise: None,
             descatter: None,
+            slice_step: 1,
         }
     }
 }
@@ -244,7 +251,7 @@ pub struct Volume {
 /// model without its support, or any model without its non-negativity) or
 /// `MLTR N iterations`.
 pub fn reconstructor_name(opts: &PipelineOptions) -> String {
-    match &opts.dbtor {
+    let name = match &opts.dbtor {
         Some(m) => format!(
             "DBToR {} ({}, {}{}{})",
             m.manifest().name,
@@ -262,7 +269,33 @@ pub fn reconstructor_name(opts: &PipelineOptions) -> String {
             }
         ),
         None => format!("MLTR {} iterations", opts.mltr_iterations),
+    };
+    if opts.slice_step > 1 {
+        format!("{name}, every {} slice", ordinal(opts.slice_step))
+    } else {
+        name
     }
+}
+
+/// `2nd`, `3rd`, `4th`, ... (for the slice step in words).
+fn ordinal(n: usize) -> String {
+    let suffix = match (n % 10, n % 100) {
+        (1, r) if r != 11 => "st",
+        (2, r) if r != 12 => "nd",
+        (3, r) if r != 13 => "rd",
+        _ => "th",
+    };
+    format!("{n}{suffix}")
+}
+
+/// The slices of `n` that [`reconstruct_volume`] reconstructs with
+/// `step`: 0, step, 2 step, ... and the last one.
+pub fn reconstructed_slices(n: usize, step: usize) -> Vec<usize> {
+    let mut v: Vec<usize> = (0..n).step_by(step.max(1)).collect();
+    if n > 0 && v.last() != Some(&(n - 1)) {
+        v.push(n - 1);
+    }
+    v
 }
 
 /// What exactly produced a result, for the reports' Algorithm Version: the
@@ -272,6 +305,14 @@ pub fn reconstructor_name(opts: &PipelineOptions) -> String {
 /// iterations.
 pub fn algorithm_version(opts: &PipelineOptions) -> String {
     let software = concat!("dbt-pipeline ", env!("CARGO_PKG_VERSION"));
+    let software = if opts.slice_step > 1 {
+        format!(
+            "every {} coronal slice reconstructed, those between interpolated in depth; {software}",
+            ordinal(opts.slice_step)
+        )
+    } else {
+        software.to_string()
+    };
     match &opts.dbtor {
         Some(m) => format!(
             "model {} (manifest sha256:{}), {} on the {} engine, {}; {software}",
@@ -364,6 +405,12 @@ pub fn reconstruct_volume(
             h.thickness_mm
         )));
     }
+    if opts.slice_step == 0 {
+        return Err(PipelineError::Input(
+            "slice step 0: the step between reconstructed slices is at least 1 (1: every slice)"
+                .into(),
+        ));
+    }
     let mopts = MltrOptions {
         iterations: opts.mltr_iterations,
         track_likelihood: false,
@@ -422,24 +469,36 @@ pub fn reconstruct_volume(
     // depend on it (the kernels split rows, never sums); the slices are
     // stacked, reported and their errors returned in order.
     let in_flight = rayon::current_num_threads().max(1);
-    for (c, chunk) in counts.chunks(in_flight).enumerate() {
-        let imgs: Vec<Result<Vec<f32>, PipelineError>> = chunk
-            .par_iter()
-            .enumerate()
-            .map(|(i, counts)| slice(c * in_flight + i, counts))
-            .collect();
-        for (i, img) in imgs.into_iter().enumerate() {
-            let (d, img) = (c * in_flight + i, img?);
+    let wanted = reconstructed_slices(nd, opts.slice_step);
+    let (total, slab) = (wanted.len(), nv * cols);
+    let mut done = 0;
+    for chunk in wanted.chunks(in_flight) {
+        let imgs: Vec<Result<Vec<f32>, PipelineError>> =
+            chunk.par_iter().map(|&d| slice(d, &counts[d])).collect();
+        for (&d, img) in chunk.iter().zip(imgs) {
+            let img = img?;
             // Image row r (0 at the top) -> vertical index rows - 1 - r.
             for v in 0..nv {
                 let r = rows - 1 - v;
                 let dst = (d * nv + v) * cols;
                 mu[dst..dst + cols].copy_from_slice(&img[r * cols..(r + 1) * cols]);
             }
-            progress(Stage::Slice {
-                done: d + 1,
-                total: nd,
-            });
+            done += 1;
+            progress(Stage::Slice { done, total });
+        }
+    }
+    // With a slice step, the slices between two reconstructed ones,
+    // linearly in depth.
+    for w in wanted.windows(2) {
+        let (a, b) = (w[0], w[1]);
+        let (lo, rest) = mu.split_at_mut((a + 1) * slab);
+        let (mid, hi) = rest.split_at_mut((b - a - 1) * slab);
+        let (first, last) = (&lo[a * slab..], &hi[..slab]);
+        for (k, dst) in mid.chunks_exact_mut(slab).enumerate() {
+            let t = (k + 1) as f32 / (b - a) as f32;
+            for ((o, x), y) in dst.iter_mut().zip(first).zip(last) {
+                *o = (1.0 - t) * x + t * y;
+            }
         }
     }
     Ok(Volume {

@@ -346,6 +346,11 @@ struct AccuracyArgs {
     /// separated: mltr, fp32, int8, mixed; default: fp32 with --model, else mltr).
     #[arg(long)]
     reconstructors: Option<String>,
+    /// Slice steps to run each reconstructor with (comma separated; 2:
+    /// every 2nd coronal slice reconstructed, those between interpolated,
+    /// the firmware's `recon.slice_step`), on the same acquisitions.
+    #[arg(long, default_value = "1")]
+    slice_steps: String,
     #[command(flatten)]
     runtime: Runtime,
 }
@@ -997,6 +1002,7 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
         skin,
         no_calibration,
         reconstructors,
+        slice_steps,
         runtime,
         system,
         physics,
@@ -1015,6 +1021,18 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
     let noise = NoiseLevel::parse(&noise)?;
     let list =
         reconstructors.unwrap_or_else(|| if model.is_some() { "fp32" } else { "mltr" }.to_string());
+    let steps: Vec<usize> = slice_steps
+        .split(',')
+        .map(|x| {
+            x.trim()
+                .parse::<usize>()
+                .ok()
+                .filter(|&n| n >= 1)
+                .with_context(|| {
+                    format!("--slice-steps {x:?}: a whole number of slices, at least 1")
+                })
+        })
+        .collect::<Result<_>>()?;
     let mut recs: Vec<(String, String, dbt_pipeline::PipelineOptions)> = Vec::new();
     for r in list.split(',').map(str::trim).filter(|r| !r.is_empty()) {
         let dbtor = match r {
@@ -1040,22 +1058,30 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
             (Some(m), false) => dbt_model::load_calibration(m, &skin, input)?,
             _ => None,
         };
-        let opts = dbt_pipeline::PipelineOptions {
-            dbtor,
-            mltr_iterations: iterations,
-            dose_uncertainty,
-            seed: 1,
-            classify: skin,
-            calibration,
-            linearise,
-            descatter,
-        };
-        let label = dbt_pipeline::reconstructor_name(&opts);
-        let label = match calibration {
-            Some(c) => format!("{label} [G = {:+.4} + {:.4} x PV]", c.offset, c.slope),
-            None => label,
-        };
-        recs.push((label, tag, opts));
+        for &slice_step in &steps {
+            let opts = dbt_pipeline::PipelineOptions {
+                dbtor: dbtor.clone(),
+                mltr_iterations: iterations,
+                dose_uncertainty,
+                seed: 1,
+                classify: skin,
+                calibration,
+                linearise,
+                descatter,
+                slice_step,
+            };
+            let label = dbt_pipeline::reconstructor_name(&opts);
+            let label = match calibration {
+                Some(c) => format!("{label} [G = {:+.4} + {:.4} x PV]", c.offset, c.slope),
+                None => label,
+            };
+            let tag = if slice_step > 1 {
+                format!("{tag}-step{slice_step}")
+            } else {
+                tag.clone()
+            };
+            recs.push((label, tag, opts));
+        }
     }
     anyhow::ensure!(!recs.is_empty(), "no reconstructor given");
     // The model's geometry (a taller variant holds thicker breasts);

@@ -62,6 +62,10 @@ struct Cli {
     /// linearisation (the daemon's `recon.scatter = "kernel"`).
     #[arg(long)]
     descatter: bool,
+    /// Reconstruct every Nth coronal slice (and the last), those between
+    /// interpolated in depth (the daemon's `recon.slice_step`; 1 to 8).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=8))]
+    slice_step: u8,
 }
 
 fn main() -> ExitCode {
@@ -110,6 +114,7 @@ fn run(cli: Cli) -> Result<()> {
         } else {
             None
         },
+        slice_step: cli.slice_step.into(),
         ..PipelineOptions::default()
     };
     let dbt_cli::ModelArgs {
