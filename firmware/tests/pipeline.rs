@@ -493,6 +493,8 @@ fn a_slice_step_reconstructs_some_slices_and_interpolates_the_rest() {
             })
             .collect();
         assert_eq!(stages, want, "step {step}");
+        let r = process(&acq, &opts(step)).unwrap();
+        assert_eq!(r.stage_seconds.slices, wanted.len(), "step {step}");
         let s = |vol: &[f32], d: usize| vol[d * slab..(d + 1) * slab].to_vec();
         for w in wanted.windows(2) {
             let (a, b) = (w[0], w[1]);

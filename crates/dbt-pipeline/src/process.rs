@@ -168,8 +168,9 @@ pub struct ProcessResult {
 /// Wall-clock seconds of each stage of [`process_with_progress`], in order.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
 pub struct StageSeconds {
-    /// Coronal slices reconstructed (a cone-beam acquisition's rebinned
-    /// slices), for the time per slice.
+    /// Coronal slices reconstructed (of a cone-beam acquisition's rebinned
+    /// slices; with a slice step, only those reconstructed), for the time
+    /// per slice.
     pub slices: usize,
     /// Scatter removal, linearisation, a cone-beam acquisition's frames
     /// checked and rebinned to slice-wise sinograms.
@@ -464,8 +465,8 @@ pub fn reconstruct_volume(
     };
     // As many slices in flight as the pool has threads, each on its own
     // worker (the loops inside a slice still share the idle workers): one
-    // slice's serial parts (projector set-up, normalisation, the blocks'
-    // joins) no longer idle the other core. A slice's result does not
+    // slice's serial parts (normalisation, the waits at the end of each
+    // block) no longer idle the other core. A slice's result does not
     // depend on it (the kernels split rows, never sums); the slices are
     // stacked, reported and their errors returned in order.
     let in_flight = rayon::current_num_threads().max(1);
@@ -559,7 +560,7 @@ pub fn process_with_progress(
     let _span =
         tracing::info_span!("acquisition", patient = %h.patient.id, slices = h.slices).entered();
     stage_seconds.corrections = lap();
-    stage_seconds.slices = acq.counts.len();
+    stage_seconds.slices = reconstructed_slices(acq.counts.len(), opts.slice_step).len();
     let Volume {
         reconstructor,
         dims,
