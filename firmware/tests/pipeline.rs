@@ -38,6 +38,26 @@ fn x4_int8() -> dbt_dbtor::Dbtor {
     dbt_dbtor::Dbtor::load_with(&dir, dbt_dbtor::Precision::Int8, dbt_dbtor::Engine::Fast).unwrap()
 }
 
+/// A 30 mm breast, 20 mm deep (a few slices), 30 % glandular.
+fn small_breast(g: &Geometry, seed: u64) -> PhantomSpec {
+    PhantomSpec {
+        thickness_mm: 30.0,
+        chest_to_nipple_mm: 20.0,
+        width_mm: 80.0,
+        glandularity: 0.3,
+        ..PhantomSpec::typical(g.image.pixel_mm, seed)
+    }
+}
+
+/// The same classification, density, reported glandularity and doses.
+fn same_figures(a: &dbt_pipeline::ProcessResult, b: &dbt_pipeline::ProcessResult) {
+    assert_eq!(a.classification, b.classification);
+    assert_eq!(a.density, b.density);
+    assert_eq!(a.glandularity, b.glandularity);
+    assert_eq!(a.mgd_mgy, b.mgd_mgy);
+    assert_eq!(a.model_mgd_mgy, b.model_mgd_mgy);
+}
+
 #[test]
 fn acquisition_to_reports() {
     let g = Geometry::paper().binned(4).unwrap();
@@ -391,11 +411,7 @@ fn nonnegativity_changes_the_image_not_the_density_or_dose() {
     assert!(!dbt_pipeline::reconstructor_name(&on).contains("raw"));
     assert!(dbt_pipeline::reconstructor_name(&off).contains("raw"));
     let (a, b) = (process(&acq, &on).unwrap(), process(&acq, &off).unwrap());
-    assert_eq!(a.classification, b.classification);
-    assert_eq!(a.density, b.density);
-    assert_eq!(a.glandularity, b.glandularity);
-    assert_eq!(a.mgd_mgy, b.mgd_mgy);
-    assert_eq!(a.model_mgd_mgy, b.model_mgd_mgy);
+    same_figures(&a, &b);
 }
 
 /// The pipeline reconstructs as many slices at once as its pool has
@@ -406,13 +422,7 @@ fn nonnegativity_changes_the_image_not_the_density_or_dose() {
 #[test]
 fn slices_in_flight_give_what_one_at_a_time_gives() {
     let g = Geometry::paper().binned(4).unwrap();
-    let spec = PhantomSpec {
-        thickness_mm: 30.0,
-        chest_to_nipple_mm: 20.0,
-        width_mm: 80.0,
-        glandularity: 0.3,
-        ..PhantomSpec::typical(g.image.pixel_mm, 17)
-    };
+    let spec = small_breast(&g, 17);
     let acq = acquired(&g, &spec, NoiseLevel::Poisson(8), 5, 28.0, "T4");
     let n = acq.counts.len();
     assert!(n >= 5, "{n} slices: too few to keep several in flight");
@@ -447,10 +457,7 @@ fn slices_in_flight_give_what_one_at_a_time_gives() {
             let many = many.unwrap();
             assert_eq!(stages, one_stages, "{threads} threads");
             assert_eq!(many.mu, one.mu, "{threads} threads");
-            assert_eq!(many.classification, one.classification);
-            assert_eq!(many.density, one.density);
-            assert_eq!(many.mgd_mgy, one.mgd_mgy);
-            assert_eq!(many.model_mgd_mgy, one.model_mgd_mgy);
+            same_figures(&many, &one);
         }
     }
 }
@@ -462,13 +469,7 @@ fn slices_in_flight_give_what_one_at_a_time_gives() {
 #[test]
 fn a_slice_step_reconstructs_some_slices_and_interpolates_the_rest() {
     let g = Geometry::paper().binned(4).unwrap();
-    let spec = PhantomSpec {
-        thickness_mm: 30.0,
-        chest_to_nipple_mm: 20.0,
-        width_mm: 80.0,
-        glandularity: 0.3,
-        ..PhantomSpec::typical(g.image.pixel_mm, 19)
-    };
+    let spec = small_breast(&g, 19);
     let acq = acquired(&g, &spec, NoiseLevel::Poisson(8), 6, 28.0, "T5");
     let n = acq.counts.len();
     let opts = |slice_step: usize| PipelineOptions {
