@@ -274,6 +274,10 @@ fn default_slice_step() -> usize {
     1
 }
 
+/// The slice steps the firmware takes (`recon.slice_step`, `dbtor-process
+/// --slice-step`): every slice to every 8th.
+pub const SLICE_STEPS: std::ops::RangeInclusive<usize> = 1..=8;
+
 /// Folders.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -762,11 +766,8 @@ impl Config {
                 "must be in (0, 20) mm".into(),
             ));
         }
-        if !(self.recon.csi_um.is_finite() && (50.0..=1000.0).contains(&self.recon.csi_um)) {
-            return Err(bad(
-                "recon.csi_um",
-                format!("{} um: a CsI layer is 50-1000 um thick", self.recon.csi_um),
-            ));
+        if let Err(e) = dbt_pipeline::linearise::BeamHardening::csi(self.recon.csi_um) {
+            return Err(bad("recon.csi_um", e.to_string()));
         }
         match self.recon.reconstructor {
             Reconstructor::Dbtor => {
@@ -832,12 +833,14 @@ impl Config {
         if !(self.recon.dose_uncertainty > 0.0 && self.recon.dose_uncertainty <= 0.5) {
             return Err(bad("recon.dose_uncertainty", "must be in (0, 0.5]".into()));
         }
-        if !(1..=8).contains(&self.recon.slice_step) {
+        if !SLICE_STEPS.contains(&self.recon.slice_step) {
             return Err(bad(
                 "recon.slice_step",
                 format!(
-                    "{}: reconstruct every 1st to 8th coronal slice",
-                    self.recon.slice_step
+                    "{}: reconstruct every {}st to {}th coronal slice",
+                    self.recon.slice_step,
+                    SLICE_STEPS.start(),
+                    SLICE_STEPS.end()
                 ),
             ));
         }

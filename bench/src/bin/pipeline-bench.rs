@@ -95,12 +95,9 @@ fn main() -> Result<()> {
     let mut base = PipelineOptions {
         linearise: a
             .csi_um
-            .map(|csi_um| dbt_pipeline::linearise::BeamHardening {
-                detector: dbt_acquisition::clinical::Detector {
-                    csi_um,
-                    ..Default::default()
-                },
-            }),
+            .map(dbt_pipeline::linearise::BeamHardening::csi)
+            .transpose()
+            .context("--csi-um")?,
         descatter: if a.descatter {
             Some(dbt_pipeline::descatter::ScatterRemoval::shipped()?)
         } else {

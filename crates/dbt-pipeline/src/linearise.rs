@@ -33,6 +33,9 @@ use thiserror::Error;
 /// Why the linearisation cannot be made.
 #[derive(Debug, Error, PartialEq)]
 pub enum LineariseError {
+    /// A CsI layer's thickness outside [`CSI_UM`] (or not a number).
+    #[error("{0} um: a CsI layer is {lo}-{hi} um thick", lo = CSI_UM.start(), hi = CSI_UM.end())]
+    CsiThickness(f64),
     /// The technique's spectrum or the detector model failed.
     #[error("beam-hardening linearisation for {thickness_mm} mm: {reason}")]
     Model {
@@ -48,6 +51,10 @@ pub enum LineariseError {
 const L_MAX_MM: f64 = 300.0;
 /// Table step, mm.
 const L_STEP_MM: f64 = 0.5;
+
+/// The CsI scintillator thicknesses the correction accepts, um (DBT flat
+/// panels carry 150-250 um; the bounds refuse a value in another unit).
+pub const CSI_UM: std::ops::RangeInclusive<f64> = 50.0..=1000.0;
 
 /// The site's beam-hardening correction: its detector.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -66,6 +73,21 @@ pub struct Linearisation {
 }
 
 impl BeamHardening {
+    /// The correction for a CsI flat panel `csi_um` thick (the detector's
+    /// other properties at their defaults); a thickness outside [`CSI_UM`]
+    /// is refused, naming it.
+    pub fn csi(csi_um: f64) -> Result<Self, LineariseError> {
+        if !(csi_um.is_finite() && CSI_UM.contains(&csi_um)) {
+            return Err(LineariseError::CsiThickness(csi_um));
+        }
+        Ok(Self {
+            detector: Detector {
+                csi_um,
+                ..Default::default()
+            },
+        })
+    }
+
     /// The table for an exposure at `kvp` of a breast `thickness_mm`
     /// thick (its spectrum: [`dbt_dose::xray::technique_spectrum`]).
     pub fn table(&self, kvp: f64, thickness_mm: f64) -> Result<Linearisation, LineariseError> {
@@ -149,6 +171,24 @@ mod tests {
         BeamHardening {
             detector: Detector::default(),
         }
+    }
+
+    /// A CsI panel's thickness within [`CSI_UM`] gives that detector (the
+    /// rest at its defaults); one outside, or not a number, is refused
+    /// naming it.
+    #[test]
+    fn a_csi_thickness_is_checked() {
+        assert_eq!(BeamHardening::csi(200.0).unwrap(), bh());
+        assert_eq!(BeamHardening::csi(50.0).unwrap().detector.csi_um, 50.0);
+        for bad in [5.0, 1000.5, f64::NAN, f64::INFINITY] {
+            let e = BeamHardening::csi(bad).unwrap_err();
+            assert!(matches!(e, LineariseError::CsiThickness(_)), "{e}");
+            assert!(e.to_string().contains("50-1000 um"), "{e}");
+        }
+        assert!(BeamHardening::csi(5.0)
+            .unwrap_err()
+            .to_string()
+            .starts_with("5 um"));
     }
 
     /// Exact for the reference tissue: its polychromatic signal through any

@@ -64,8 +64,21 @@ struct Cli {
     descatter: bool,
     /// Reconstruct every Nth coronal slice (and the last), those between
     /// interpolated in depth (the daemon's `recon.slice_step`; 1 to 8).
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=8))]
-    slice_step: u8,
+    #[arg(long, default_value_t = 1, value_parser = slice_step)]
+    slice_step: usize,
+}
+
+/// A slice step the firmware takes (`dbtor_firmware::config::SLICE_STEPS`).
+fn slice_step(s: &str) -> Result<usize, String> {
+    let steps = dbtor_firmware::config::SLICE_STEPS;
+    match s.parse::<usize>() {
+        Ok(n) if steps.contains(&n) => Ok(n),
+        _ => Err(format!(
+            "{s:?}: a whole number of slices from {} to {}",
+            steps.start(),
+            steps.end()
+        )),
+    }
 }
 
 fn main() -> ExitCode {
@@ -92,29 +105,20 @@ fn run(cli: Cli) -> Result<()> {
         .map(dbt_pacs::PacsConfig::parse)
         .transpose()?;
     let (acq_dir, out, uid_root) = (cli.acquisition, cli.out, cli.uid_root);
-    if let Some(um) = cli.csi_um {
-        anyhow::ensure!(
-            um.is_finite() && (50.0..=1000.0).contains(&um),
-            "--csi-um {um}: a CsI layer is 50-1000 um thick"
-        );
-    }
     let mut opts = PipelineOptions {
         mltr_iterations: cli.iterations,
         dose_uncertainty: cli.dose_uncertainty,
         linearise: cli
             .csi_um
-            .map(|csi_um| dbt_pipeline::linearise::BeamHardening {
-                detector: dbt_acquisition::clinical::Detector {
-                    csi_um,
-                    ..Default::default()
-                },
-            }),
+            .map(dbt_pipeline::linearise::BeamHardening::csi)
+            .transpose()
+            .context("--csi-um")?,
         descatter: if cli.descatter {
             Some(dbt_pipeline::descatter::ScatterRemoval::shipped()?)
         } else {
             None
         },
-        slice_step: cli.slice_step.into(),
+        slice_step: cli.slice_step,
         ..PipelineOptions::default()
     };
     let dbt_cli::ModelArgs {
