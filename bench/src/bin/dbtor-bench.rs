@@ -217,21 +217,27 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
     let mut outputs: Vec<(String, Vec<f32>)> = Vec::new();
     let mut flops = None;
     let mut fast_projector_ms = f64::NAN;
-    // The fast engine with each kernel this CPU runs, fastest first (the
-    // kernels below the best forced with the same limit DBTOR_KERNEL sets);
-    // int8 has no AVX2 kernel (it runs the portable one there).
-    let best = Kernel::best_fp32();
+    // The fast engine with each kernel level this CPU runs, fastest first
+    // (the levels below the best forced with the same limit DBTOR_KERNEL
+    // sets), each precision once per kernel it actually runs (fp32 has no
+    // AVX-VNNI kernel: that level runs its AVX2 one).
+    let best = Kernel::best_fp32().max(Kernel::best_int8());
     let forced: Vec<Kernel> = Kernel::ALL
         .into_iter()
         .rev()
         .filter(|k| *k <= best && (a.all_kernels || *k == best))
         .collect();
     let mut combos: Vec<(Engine, Precision, &[String], Kernel)> = Vec::new();
-    for (i, k) in forced.iter().enumerate() {
-        combos.push((Engine::Fast, Precision::Fp32, &[][..], *k));
-        let int8 = Kernel::best_int8_up_to(*k);
-        if i == 0 || (int8 == *k && int8 != Kernel::best_int8()) {
-            combos.push((Engine::Fast, Precision::Int8, &[][..], *k));
+    let mut seen: Vec<(Precision, Kernel)> = Vec::new();
+    for k in &forced {
+        for (precision, runs) in [
+            (Precision::Fp32, Kernel::best_fp32_up_to(*k)),
+            (Precision::Int8, Kernel::best_int8_up_to(*k)),
+        ] {
+            if !seen.contains(&(precision, runs)) {
+                seen.push((precision, runs));
+                combos.push((Engine::Fast, precision, &[][..], *k));
+            }
         }
     }
     if a.tract {

@@ -113,7 +113,7 @@ pub fn cpu_summary() -> String {
         "{model}; {} logical CPUs; {}",
         std::thread::available_parallelism().map_or(1, |n| n.get()),
         if isa.is_empty() {
-            "none of avx2/fma/avx512f/avx512bw/avx512vnni".to_string()
+            format!("none of {}", dbt_isa::KNOWN.join("/"))
         } else {
             isa.join(" ")
         }

@@ -87,9 +87,11 @@ impl Fp32Workspace {
 }
 
 impl Fp32Block {
-    /// Pack checked weights for `kernel`.
+    /// Pack checked weights for `kernel` (the AVX-VNNI level runs the AVX2
+    /// kernel: [`Kernel::for_fp32`]).
     pub fn new(b: &BlockWeights, kernel: Kernel) -> Result<Self, ConvError> {
         b.check()?;
+        let kernel = kernel.for_fp32();
         if kernel > Kernel::best_fp32() {
             return Err(ConvError::Shape(format!(
                 "the {} fp32 kernel was asked for on a CPU that lacks it (best here: {})",

@@ -20,10 +20,11 @@
 //!
 //! On AVX2 CPUs (issue #30) the same tiles are computed in register-sized
 //! passes: 16 vector registers of 8 lanes hold 16 output channels x 5
-//! pixels (fp32, FMA) or 8 channels x 5 pixels (int8: the bytes widened to
-//! i16 and `vpmaddwd`, exact where `vpmaddubsw` would saturate), written
-//! where the AVX-512 kernels write, so packing, epilogues and the block loop
-//! are shared.
+//! pixels (fp32, FMA; int8: the tile's input bytes widened to i16 once and
+//! `vpmaddwd` on pairs of input channels, exact where `vpmaddubsw` would
+//! saturate; int8 on AVX-VNNI: `vpdpbusd` on the bytes as the AVX-512
+//! kernel), written where the AVX-512 kernels write, so packing, epilogues
+//! and the block loop are shared.
 //!
 //! The portable kernel computes the same tiles with plain arrays (the
 //! compiler vectorises what it can); it runs where neither is present and is
@@ -262,13 +263,33 @@ pub enum Kernel {
     Portable,
     /// AVX2 + FMA (fp32) or AVX2 `vpmaddwd` on bytes widened to i16 (int8).
     Avx2,
+    /// int8 only: AVX-VNNI, the VEX-encoded 256-bit `vpdpbusd` of CPUs with
+    /// AVX2 and AVX-VNNI (Intel Alder Lake and later client cores have it
+    /// without AVX-512). fp32 runs its AVX2 kernel at this level
+    /// ([`Kernel::for_fp32`]).
+    AvxVnni,
     /// AVX-512F fused multiply-add (fp32) or AVX-512 VNNI `vpdpbusd` (int8).
     Avx512,
 }
 
 impl Kernel {
     /// Every kernel, slowest first.
-    pub const ALL: [Kernel; 3] = [Kernel::Portable, Kernel::Avx2, Kernel::Avx512];
+    pub const ALL: [Kernel; 4] = [
+        Kernel::Portable,
+        Kernel::Avx2,
+        Kernel::AvxVnni,
+        Kernel::Avx512,
+    ];
+
+    /// The fp32 kernel of this level: AVX-VNNI has no fp32 kernel of its
+    /// own, so its level runs fp32 on AVX2.
+    pub fn for_fp32(self) -> Self {
+        if self == Self::AvxVnni {
+            Self::Avx2
+        } else {
+            self
+        }
+    }
 
     /// The fastest kernel this CPU runs for fp32.
     pub fn best_fp32() -> Self {
@@ -288,7 +309,7 @@ impl Kernel {
 
     /// The fastest fp32 kernel this CPU runs, at most `limit`.
     pub fn best_fp32_up_to(limit: Kernel) -> Self {
-        Self::best_fp32().min(limit)
+        Self::best_fp32().min(limit.for_fp32())
     }
 
     /// The fastest int8 kernel this CPU runs, at most `limit`.
@@ -312,6 +333,9 @@ impl Kernel {
                 return Self::Avx512;
             }
             if std::arch::is_x86_feature_detected!("avx2") {
+                if std::arch::is_x86_feature_detected!("avxvnni") {
+                    return Self::AvxVnni;
+                }
                 return Self::Avx2;
             }
         }
@@ -323,6 +347,7 @@ impl Kernel {
         match self {
             Self::Portable => "portable",
             Self::Avx2 => "avx2",
+            Self::AvxVnni => "avx-vnni",
             Self::Avx512 => "avx512",
         }
     }

@@ -291,7 +291,7 @@ pub struct Dbtor {
 }
 
 /// The environment variable that forces the fast engine down to a slower
-/// kernel (`portable`, `avx2`, `avx512`), its convolutions and its fused
+/// kernel (`portable`, `avx2`, `avx-vnni`, `avx512`), its convolutions and its fused
 /// projector (`portable` is the projector's scalar kernel): to test and
 /// benchmark every path on a CPU that has a faster one. Unset: the fastest
 /// the CPU runs.
@@ -316,7 +316,7 @@ pub fn kernel_limit() -> Result<Kernel, DbtorError> {
 pub fn projector_limit(limit: Kernel) -> dbt_projector::Kernel {
     match limit {
         Kernel::Portable => dbt_projector::Kernel::Scalar,
-        Kernel::Avx2 => dbt_projector::Kernel::Avx2,
+        Kernel::Avx2 | Kernel::AvxVnni => dbt_projector::Kernel::Avx2,
         Kernel::Avx512 => dbt_projector::Kernel::Avx512,
     }
 }

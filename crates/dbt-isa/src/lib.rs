@@ -8,7 +8,8 @@
 //! (`dbt-conv`, `dbt-projector`).
 
 /// Whether this CPU has the extension `name` (`avx2`, `fma`, `avx512f`,
-/// `avx512bw`, `avx512vnni`, also spelt `avx512_vnni` as in `/proc/cpuinfo`:
+/// `avx512bw`, `avx512vnni`, `avxvnni`, also spelt `avx512_vnni` and
+/// `avx_vnni` as in `/proc/cpuinfo`:
 /// the kernels' needs;
 /// AMX detection is not stable in Rust yet); `None` for a name this crate
 /// does not know.
@@ -21,6 +22,7 @@ pub fn detected(name: &str) -> Option<bool> {
             "avx512f" => std::arch::is_x86_feature_detected!("avx512f"),
             "avx512bw" => std::arch::is_x86_feature_detected!("avx512bw"),
             "avx512vnni" | "avx512_vnni" => std::arch::is_x86_feature_detected!("avx512vnni"),
+            "avxvnni" | "avx_vnni" => std::arch::is_x86_feature_detected!("avxvnni"),
             _ => return None,
         })
     }
@@ -32,7 +34,14 @@ pub fn detected(name: &str) -> Option<bool> {
 }
 
 /// The extensions [`detected`] knows, in its spelling.
-pub const KNOWN: [&str; 5] = ["avx2", "fma", "avx512f", "avx512bw", "avx512vnni"];
+pub const KNOWN: [&str; 6] = [
+    "avx2",
+    "fma",
+    "avx512f",
+    "avx512bw",
+    "avx512vnni",
+    "avxvnni",
+];
 
 /// The extensions of [`KNOWN`] this CPU has.
 pub fn present() -> Vec<&'static str> {

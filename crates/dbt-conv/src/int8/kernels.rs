@@ -36,6 +36,14 @@ pub(super) fn conv(
     let ocp = p.ocp;
     let row = |r: usize, dst: &mut dyn FnMut(usize, usize, &[i32])| {
         let mut tile = [0i32; NP_NARROW * GROUP];
+        let mut win = vec![
+            0i16;
+            if kernel == Kernel::Avx2 {
+                avx2_window_len(p.cin4)
+            } else {
+                0
+            }
+        ];
         for_each_tile(ocp, w, |g0, gw, x, np| {
             run_tile(
                 kernel,
@@ -48,6 +56,7 @@ pub(super) fn conv(
                 p,
                 g0,
                 &mut tile,
+                &mut win,
             );
             dst(x, g0, &tile[..np * gw]);
         });
@@ -96,6 +105,16 @@ pub(super) fn epilogue_bytes(
         // SAFETY: as above.
         (Kernel::Avx512, false) => unsafe {
             epilogue_bytes_avx512::<false>(p, qa, x, g0, tile, out)
+        },
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: AVX2 was detected when the block was made.
+        (Kernel::Avx2 | Kernel::AvxVnni, true) => unsafe {
+            epilogue_bytes_avx2::<true>(p, qa, x, g0, tile, out)
+        },
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: as above.
+        (Kernel::Avx2 | Kernel::AvxVnni, false) => unsafe {
+            epilogue_bytes_avx2::<false>(p, qa, x, g0, tile, out)
         },
         _ => epilogue_bytes_impl(p, qa, x, g0, tile, out),
     }
@@ -176,6 +195,78 @@ pub(super) unsafe fn epilogue_bytes_avx512<const QO: bool>(
     }
 }
 
+/// [`epilogue_bytes_avx512`] on 8 lanes: the same operations in the same
+/// order, so the portable epilogue's bits.
+///
+/// # Safety
+/// AVX2; `tile` and `out` hold the tile's pixels for the channel group `g0`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+pub(super) unsafe fn epilogue_bytes_avx2<const QO: bool>(
+    p: &PackedI8,
+    qa: QuantParams,
+    x: usize,
+    g0: usize,
+    tile: &[i32],
+    out: &mut [u8],
+) {
+    // SAFETY: AVX2 per the contract; the assert below bounds every tile
+    // pixel's group in `tile` and `out`, and the per-channel vectors (`corr`,
+    // `scale`, `bias`, `slope`) hold all `ocp` channels, 8-lane steps from
+    // `g0` inside the group (a multiple of 16 wide).
+    unsafe {
+        use std::arch::x86_64::*;
+        const NEAREST: i32 = _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC;
+        let gw = group_width(p.ocp, g0);
+        // (unused without QO)
+        let qo = p.q_out.unwrap_or(qa);
+        let (so, zo) = (
+            _mm256_set1_ps(qo.scale),
+            _mm256_set1_ps(qo.zero_point as f32),
+        );
+        let za = _mm256_set1_ps(qa.zero_point as f32);
+        let (io, ia) = (
+            _mm256_set1_ps(1.0 / qo.scale),
+            _mm256_set1_ps(1.0 / qa.scale),
+        );
+        let (lo, hi, zero) = (
+            _mm256_set1_ps(-128.0),
+            _mm256_set1_ps(127.0),
+            _mm256_setzero_ps(),
+        );
+        let off = _mm256_set1_epi32(128);
+        assert!(tile.len().is_multiple_of(gw) && (x + tile.len() / gw) * p.ocp <= out.len());
+        for (px, t) in tile.chunks_exact(gw).enumerate() {
+            let o = out[(x + px) * p.ocp + g0..].as_mut_ptr();
+            for jv in (0..gw).step_by(8) {
+                let c = g0 + jv;
+                let acc = _mm256_loadu_si256(t.as_ptr().add(jv) as *const __m256i);
+                let corr = _mm256_loadu_si256(p.corr.as_ptr().add(c) as *const __m256i);
+                let v = _mm256_cvtepi32_ps(_mm256_sub_epi32(acc, corr));
+                let v = _mm256_mul_ps(v, _mm256_loadu_ps(p.scale.as_ptr().add(c)));
+                let mut v = _mm256_add_ps(v, _mm256_loadu_ps(p.bias.as_ptr().add(c)));
+                if QO {
+                    // Q/DQ of the convolution's output
+                    let q = _mm256_round_ps::<NEAREST>(_mm256_mul_ps(v, io));
+                    let q = _mm256_min_ps(_mm256_max_ps(_mm256_add_ps(q, zo), lo), hi);
+                    v = _mm256_mul_ps(_mm256_sub_ps(q, zo), so);
+                }
+                // PReLU
+                let neg = _mm256_cmp_ps::<_CMP_LT_OQ>(v, zero);
+                let scaled = _mm256_mul_ps(v, _mm256_loadu_ps(p.slope.as_ptr().add(c)));
+                let v = _mm256_blendv_ps(v, scaled, neg);
+                // Q of the activation, stored as q + 128
+                let q = _mm256_round_ps::<NEAREST>(_mm256_mul_ps(v, ia));
+                let q = _mm256_min_ps(_mm256_max_ps(_mm256_add_ps(q, za), lo), hi);
+                let b = _mm256_add_epi32(_mm256_cvtps_epi32(q), off);
+                let w16 =
+                    _mm_packus_epi32(_mm256_castsi256_si128(b), _mm256_extracti128_si256::<1>(b));
+                _mm_storel_epi64(o.add(jv) as *mut __m128i, _mm_packus_epi16(w16, w16));
+            }
+        }
+    }
+}
+
 #[inline(always)]
 pub(super) fn epilogue_bytes_impl(
     p: &PackedI8,
@@ -214,8 +305,25 @@ pub(super) fn epilogue_floats(
         #[cfg(target_arch = "x86_64")]
         // SAFETY: AVX-512F was detected when the block was made.
         Kernel::Avx512 => unsafe { epilogue_floats_avx512(p, x, g0, tile, out) },
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: AVX2 was detected when the block was made.
+        Kernel::Avx2 | Kernel::AvxVnni => unsafe { epilogue_floats_avx2(p, x, g0, tile, out) },
         _ => epilogue_floats_impl(p, x, g0, tile, out),
     }
+}
+
+/// # Safety
+/// AVX2 (the body is safe code, compiled with it enabled).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+pub(super) unsafe fn epilogue_floats_avx2(
+    p: &PackedI8,
+    x: usize,
+    g0: usize,
+    tile: &[i32],
+    out: &mut [f32],
+) {
+    epilogue_floats_impl(p, x, g0, tile, out)
 }
 
 /// # Safety
@@ -269,6 +377,7 @@ pub(super) fn run_tile(
     p: &PackedI8,
     g0: usize,
     tile: &mut [i32],
+    win: &mut [i16],
 ) {
     assert!(base + 2 * rs + (np + 1) * cs + p.cin4 <= inp.len());
     assert!(g0 + gw <= p.ocp && p.w.len() == 9 * p.cin4 * p.ocp);
@@ -294,18 +403,39 @@ pub(super) fn run_tile(
             }
         }
         #[cfg(target_arch = "x86_64")]
+        Kernel::AvxVnni => {
+            let (i, wp, t) = (
+                inp[base..].as_ptr(),
+                p.w[g0 * 4..].as_ptr(),
+                tile.as_mut_ptr(),
+            );
+            assert!(
+                (wp as usize).is_multiple_of(32),
+                "packed weights not aligned"
+            );
+            // SAFETY: AVX2 and AVX-VNNI were detected when the block was made
+            // (Int8Block::new refuses otherwise); the asserts above bound
+            // every address the kernel touches and align the weights.
+            unsafe { tile_avxvnni(gw / L, np, i, rs, cs, g4, wp, p.ocp, t) }
+        }
+        #[cfg(target_arch = "x86_64")]
         Kernel::Avx2 => {
             assert!(p.w16.len() == p.w.len());
             let (i, wp, t) = (
                 inp[base..].as_ptr(),
-                p.w16[g0 * 4..].as_ptr(),
+                p.w16[g0 * 2..].as_ptr(),
                 tile.as_mut_ptr(),
+            );
+            assert!(
+                (wp as usize).is_multiple_of(32),
+                "packed weights not aligned"
             );
             // SAFETY: AVX2 was detected when the block was made
             // (Int8Block::new refuses otherwise); the asserts above bound
-            // every address the kernel touches (w16 is w widened, same
-            // length and order).
-            unsafe { tile_avx2(gw / L, np, i, rs, cs, g4, wp, p.ocp, t) }
+            // every address the kernel touches and align the weights (w16
+            // holds w's values, as many, pair-packed: `[tap][cin4 / 2][ocp][2]`);
+            // the window's length is checked by the kernel.
+            unsafe { tile_avx2(gw / L, np, i, rs, cs, p.cin4, wp, p.ocp, t, win) }
         }
         _ => {
             if gw == GROUP {
@@ -426,17 +556,32 @@ pub(super) unsafe fn tile_vnni<const NB: usize, const NP: usize>(
     }
 }
 
-/// AVX2: the VNNI tile computed exactly with `vpmaddwd`. Each pass keeps 8
-/// output channels x up to 5 pixels: two accumulators per pixel, each
-/// holding 4 channels x 2 partial sums (pairs of the 4 inputs of a group);
-/// the weights are the packing widened to i16 and the 4 input bytes are
-/// zero-extended to i16 and broadcast. The partial sums are added once per
-/// pass. Written where the VNNI kernel writes (`out[(p * nb + j) * 16 + k]`).
+/// Pixels of one AVX2 or AVX-VNNI pass: 16 output channels (two 8-lane
+/// accumulators) x up to 5 pixels, 10 accumulators of the 16 registers.
+const NP_PASS: usize = 5;
+
+/// The i16 window an AVX2 tile reads: `3 x (np + 2)` pixels of `cin4`
+/// values, the tile's input bytes zero-extended once per tile (a few
+/// percent of its multiply-adds) rather than once per pass.
+pub(super) fn avx2_window_len(cin4: usize) -> usize {
+    3 * (NP_NARROW + 2) * cin4
+}
+
+/// AVX2: the VNNI tile computed exactly with `vpmaddwd`. The tile's input
+/// window is zero-extended to i16 once ([`avx2_window_len`]); each pass
+/// keeps 16 output channels x up to 5 pixels in 10 accumulators: per pair of
+/// input channels it broadcasts the pair (one 32-bit load per pixel) and
+/// multiplies it with two vectors of 8 channels x the pair's i16 weights
+/// (`PackedI8::w16`), each `vpmaddwd` giving 8 channels' sums of two exact
+/// products. Written where the VNNI kernel writes
+/// (`out[(p * nb + j) * 16 + k]`).
 ///
 /// # Safety
-/// AVX2; `inp` valid for every tap of the tile (`2 * rs + (np + 1) * cs`
-/// bytes), `w` for `9 * g4 * ocp * 4` i16 from the group's first lane,
-/// `out` for `np * nb * 16` i32; `np` in 1..=10, `nb` in 1..=4.
+/// AVX2; `inp` valid for every tap of the tile (`2 * rs + (np + 1) * cs +
+/// cin4` bytes), `w` for `9 * (cin4 / 2) * ocp * 2` i16 from the group's
+/// first lane and aligned to 32 bytes (`ocp` a multiple of 16), `out` for `np * nb * 16` i32; `np` in 1..=10, `nb` in 1..=4,
+/// `cin4` a multiple of 4 no larger than `cs`, `win` at least
+/// [`avx2_window_len`]`(cin4)` long.
 #[cfg(target_arch = "x86_64")]
 #[allow(clippy::too_many_arguments)]
 #[target_feature(enable = "avx2")]
@@ -446,30 +591,59 @@ pub(super) unsafe fn tile_avx2(
     inp: *const u8,
     rs: usize,
     cs: usize,
-    g4: usize,
+    cin4: usize,
     w: *const i16,
     ocp: usize,
     out: *mut i32,
+    win: &mut [i16],
 ) {
+    use std::arch::x86_64::*;
+    let (wcs, wrs) = (cin4, (np + 2) * cin4);
+    assert!(win.len() >= 3 * wrs && cin4.is_multiple_of(4));
+    let wp = win.as_mut_ptr();
+    for ry in 0..3 {
+        for px in 0..np + 2 {
+            // SAFETY: pixel (ry, px) of the tile's taps is inside `inp` per the
+            // contract (`cin4 <= cs` bytes each); its i16 copy is inside `win`
+            // (asserted above).
+            unsafe {
+                let src = inp.add(ry * rs + px * cs);
+                let dst = wp.add(ry * wrs + px * wcs);
+                let mut c = 0;
+                while c + 16 <= cin4 {
+                    let b = _mm_loadu_si128(src.add(c) as *const __m128i);
+                    _mm256_storeu_si256(dst.add(c) as *mut __m256i, _mm256_cvtepu8_epi16(b));
+                    c += 16;
+                }
+                while c < cin4 {
+                    let four = (src.add(c) as *const i32).read_unaligned();
+                    let v = _mm_cvtepu8_epi16(_mm_cvtsi32_si128(four));
+                    _mm_storel_epi64(dst.add(c) as *mut __m128i, v);
+                    c += 4;
+                }
+            }
+        }
+    }
     let mut p0 = 0;
     while p0 < np {
-        let n = (np - p0).min(5);
-        for q in 0..2 * nb {
-            // SAFETY: the pass reads pixels p0..p0 + n of the tile and the
-            // weights of channels 8q..8q + 8 of the group, and writes those
+        let n = (np - p0).min(NP_PASS);
+        for q in 0..nb {
+            // SAFETY: the pass reads pixels p0..p0 + n of the window and the
+            // weights of channels 16q..16q + 16 of the group, and writes those
             // values of `out`: inside the contract's ranges.
             unsafe {
                 let (i, wq, o) = (
-                    inp.add(p0 * cs),
-                    w.add(q * 8 * 4),
-                    out.add(p0 * nb * L + q * 8),
+                    wp.add(p0 * wcs) as *const i16,
+                    w.add(q * L * 2),
+                    out.add(p0 * nb * L + q * L),
                 );
+                let k2 = cin4 / 2;
                 match n {
-                    1 => pass_avx2::<1>(i, rs, cs, g4, wq, ocp, o, nb),
-                    2 => pass_avx2::<2>(i, rs, cs, g4, wq, ocp, o, nb),
-                    3 => pass_avx2::<3>(i, rs, cs, g4, wq, ocp, o, nb),
-                    4 => pass_avx2::<4>(i, rs, cs, g4, wq, ocp, o, nb),
-                    _ => pass_avx2::<5>(i, rs, cs, g4, wq, ocp, o, nb),
+                    1 => pass_avx2::<1>(i, wrs, wcs, k2, wq, ocp, o, nb),
+                    2 => pass_avx2::<2>(i, wrs, wcs, k2, wq, ocp, o, nb),
+                    3 => pass_avx2::<3>(i, wrs, wcs, k2, wq, ocp, o, nb),
+                    4 => pass_avx2::<4>(i, wrs, wcs, k2, wq, ocp, o, nb),
+                    _ => pass_avx2::<5>(i, wrs, wcs, k2, wq, ocp, o, nb),
                 }
             }
         }
@@ -477,21 +651,22 @@ pub(super) unsafe fn tile_avx2(
     }
 }
 
-/// 8 output channels x `NP` pixels of [`tile_avx2`], stored at
+/// 16 output channels x `NP` pixels of [`tile_avx2`], stored at
 /// `out[p * nb * 16 + k]`.
 ///
 /// # Safety
-/// AVX2; `inp` valid for every tap of `NP` pixels, `w` for the group's
-/// weights from the pass's first channel, `out` for `(NP - 1) * nb * 16 + 8`
-/// i32.
+/// AVX2; `win` valid for every tap of `NP` pixels (`k2` pairs of i16 each),
+/// `w` for the group's pair-packed weights from the pass's first channel,
+/// aligned to 32 bytes (`ocp` a multiple of 16),
+/// `out` for `(NP - 1) * nb * 16 + 16` i32.
 #[cfg(target_arch = "x86_64")]
 #[allow(clippy::too_many_arguments)]
 #[target_feature(enable = "avx2")]
 unsafe fn pass_avx2<const NP: usize>(
-    inp: *const u8,
-    rs: usize,
-    cs: usize,
-    g4: usize,
+    win: *const i16,
+    wrs: usize,
+    wcs: usize,
+    k2: usize,
     w: *const i16,
     ocp: usize,
     out: *mut i32,
@@ -500,30 +675,131 @@ unsafe fn pass_avx2<const NP: usize>(
     // SAFETY: AVX2 and the pointer ranges per the contract.
     unsafe {
         use std::arch::x86_64::*;
-        // lo: channels 0-3 of the pass, hi: 4-7; lanes (channel, pair).
-        let mut lo = [_mm256_setzero_si256(); NP];
-        let mut hi = [_mm256_setzero_si256(); NP];
+        let mut a0 = [_mm256_setzero_si256(); NP];
+        let mut a1 = [_mm256_setzero_si256(); NP];
+        for t in 0..9 {
+            let ib = win.add((t / 3) * wrs + (t % 3) * wcs);
+            let wb = w.add(t * k2 * ocp * 2);
+            for k in 0..k2 {
+                let wr = wb.add(k * ocp * 2);
+                // aligned: `PackedI8::w16` is, and every offset is a
+                // multiple of 32 bytes
+                let w0 = _mm256_load_si256(wr as *const __m256i);
+                let w1 = _mm256_load_si256(wr.add(16) as *const __m256i);
+                for p in 0..NP {
+                    let pair = (ib.add(p * wcs + 2 * k) as *const i32).read_unaligned();
+                    let b = _mm256_set1_epi32(pair);
+                    a0[p] = _mm256_add_epi32(a0[p], _mm256_madd_epi16(b, w0));
+                    a1[p] = _mm256_add_epi32(a1[p], _mm256_madd_epi16(b, w1));
+                }
+            }
+        }
+        for p in 0..NP {
+            let o = out.add(p * nb * L);
+            _mm256_storeu_si256(o as *mut __m256i, a0[p]);
+            _mm256_storeu_si256(o.add(8) as *mut __m256i, a1[p]);
+        }
+    }
+}
+
+/// AVX-VNNI (the VEX-encoded `vpdpbusd` of CPUs with AVX2 and AVX-VNNI but
+/// no AVX-512, e.g. Intel's Alder Lake and later client cores): the VNNI
+/// tile on 8-lane vectors, on the same packed bytes, each pass 16 output
+/// channels x up to 5 pixels (10 accumulators). Written where the VNNI
+/// kernel writes.
+///
+/// # Safety
+/// AVX2 and AVX-VNNI; `inp` valid for every tap of the tile, `w` for
+/// `9 * g4 * ocp * 4` bytes from the group's first lane and aligned to 32
+/// bytes (`ocp` a multiple of 16), `out` for
+/// `np * nb * 16` i32; `np` in 1..=10, `nb` in 1..=4.
+#[cfg(target_arch = "x86_64")]
+#[allow(clippy::too_many_arguments)]
+#[target_feature(enable = "avx2,avxvnni")]
+pub(super) unsafe fn tile_avxvnni(
+    nb: usize,
+    np: usize,
+    inp: *const u8,
+    rs: usize,
+    cs: usize,
+    g4: usize,
+    w: *const i8,
+    ocp: usize,
+    out: *mut i32,
+) {
+    let mut p0 = 0;
+    while p0 < np {
+        let n = (np - p0).min(NP_PASS);
+        for q in 0..nb {
+            // SAFETY: the pass reads pixels p0..p0 + n of the tile and the
+            // weights of channels 16q..16q + 16 of the group, and writes those
+            // values of `out`: inside the contract's ranges.
+            unsafe {
+                let (i, wq, o) = (
+                    inp.add(p0 * cs),
+                    w.add(q * L * 4),
+                    out.add(p0 * nb * L + q * L),
+                );
+                match n {
+                    1 => pass_avxvnni::<1>(i, rs, cs, g4, wq, ocp, o, nb),
+                    2 => pass_avxvnni::<2>(i, rs, cs, g4, wq, ocp, o, nb),
+                    3 => pass_avxvnni::<3>(i, rs, cs, g4, wq, ocp, o, nb),
+                    4 => pass_avxvnni::<4>(i, rs, cs, g4, wq, ocp, o, nb),
+                    _ => pass_avxvnni::<5>(i, rs, cs, g4, wq, ocp, o, nb),
+                }
+            }
+        }
+        p0 += n;
+    }
+}
+
+/// 16 output channels x `NP` pixels of [`tile_avxvnni`], stored at
+/// `out[p * nb * 16 + k]`.
+///
+/// # Safety
+/// AVX2 and AVX-VNNI; `inp` valid for every tap of `NP` pixels, `w` for the
+/// group's weights from the pass's first channel, aligned to 32 bytes (`ocp`
+/// a multiple of 16), `out` for
+/// `(NP - 1) * nb * 16 + 16` i32.
+#[cfg(target_arch = "x86_64")]
+#[allow(clippy::too_many_arguments)]
+#[target_feature(enable = "avx2,avxvnni")]
+unsafe fn pass_avxvnni<const NP: usize>(
+    inp: *const u8,
+    rs: usize,
+    cs: usize,
+    g4: usize,
+    w: *const i8,
+    ocp: usize,
+    out: *mut i32,
+    nb: usize,
+) {
+    // SAFETY: AVX2, AVX-VNNI and the pointer ranges per the contract.
+    unsafe {
+        use std::arch::x86_64::*;
+        let mut a0 = [_mm256_setzero_si256(); NP];
+        let mut a1 = [_mm256_setzero_si256(); NP];
         for t in 0..9 {
             let ib = inp.add((t / 3) * rs + (t % 3) * cs);
             let wb = w.add(t * g4 * ocp * 4);
             for g in 0..g4 {
                 let wr = wb.add(g * ocp * 4);
-                let w0 = _mm256_loadu_si256(wr as *const __m256i);
-                let w1 = _mm256_loadu_si256(wr.add(16) as *const __m256i);
+                // aligned: `PackedI8::w` is, and every offset is a multiple
+                // of 32 bytes
+                let w0 = _mm256_load_si256(wr as *const __m256i);
+                let w1 = _mm256_load_si256(wr.add(32) as *const __m256i);
                 for p in 0..NP {
                     let four = (ib.add(p * cs + 4 * g) as *const i32).read_unaligned();
-                    // 4 bytes -> 4 x i16 (zero-extended), broadcast to 4 x 64 bits.
-                    let a = _mm256_broadcastq_epi64(_mm_cvtepu8_epi16(_mm_cvtsi32_si128(four)));
-                    lo[p] = _mm256_add_epi32(lo[p], _mm256_madd_epi16(a, w0));
-                    hi[p] = _mm256_add_epi32(hi[p], _mm256_madd_epi16(a, w1));
+                    let b = _mm256_set1_epi32(four);
+                    a0[p] = _mm256_dpbusd_avx_epi32(a0[p], b, w0);
+                    a1[p] = _mm256_dpbusd_avx_epi32(a1[p], b, w1);
                 }
             }
         }
         for p in 0..NP {
-            // [c0 c1 c4 c5 | c2 c3 c6 c7] -> [c0 .. c7]
-            let h = _mm256_hadd_epi32(lo[p], hi[p]);
-            let r = _mm256_permute4x64_epi64(h, 0b11_01_10_00);
-            _mm256_storeu_si256(out.add(p * nb * L) as *mut __m256i, r);
+            let o = out.add(p * nb * L);
+            _mm256_storeu_si256(o as *mut __m256i, a0[p]);
+            _mm256_storeu_si256(o.add(8) as *mut __m256i, a1[p]);
         }
     }
 }

@@ -447,26 +447,72 @@ mod tests {
             // Exact integer products and sums: bit-identical too.
             assert_eq!(run(&b, Kernel::Avx2, &state, &aux, h, w), got);
         }
+        if dbt_isa::kernel_test_runs("int8 avx-vnni", &["avx2", "avxvnni"]) {
+            assert!(Kernel::best_int8() >= Kernel::AvxVnni);
+            assert_eq!(run(&b, Kernel::AvxVnni, &state, &aux, h, w), got);
+        }
     }
 
-    /// Every pixel count of a tile (1..=10 and a tail) and both group
-    /// widths, on the AVX2 kernel, against the portable one.
+    /// Every pixel count of a tile (1..=10 and a tail), both group widths,
+    /// input channels that fill 16-byte steps or not (7 and 20 concatenated
+    /// channels: 8 and 20 bytes per pixel, the AVX2 window's 16-, 8- and
+    /// 4-byte steps), on the AVX2 and AVX-VNNI kernels, against the portable
+    /// one.
     #[test]
-    fn avx2_int8_matches_portable_on_every_tile_shape() {
-        if !dbt_isa::kernel_test_runs("int8 avx2", &["avx2"]) {
-            return;
-        }
-        for w in 1..=12 {
-            for hidden in [64, 16] {
-                let b = in_form(random_int8(5, 2, hidden, 11 + w as u64), Form::Plain, 1);
-                let state = random_vec(5 * 2 * w, 1);
-                let aux = random_vec(2 * 2 * w, 2);
-                assert_eq!(
-                    run(&b, Kernel::Avx2, &state, &aux, 2, w),
-                    run(&b, Kernel::Portable, &state, &aux, 2, w),
-                    "{hidden} channels, width {w}"
-                );
+    fn avx2_and_avx_vnni_int8_match_portable_on_every_tile_shape() {
+        let kernels: Vec<Kernel> = [
+            (Kernel::Avx2, "int8 avx2", &["avx2"][..]),
+            (Kernel::AvxVnni, "int8 avx-vnni", &["avx2", "avxvnni"][..]),
+        ]
+        .into_iter()
+        .filter(|(_, name, needs)| dbt_isa::kernel_test_runs(name, needs))
+        .map(|(k, _, _)| k)
+        .collect();
+        for k in kernels {
+            for w in 1..=12 {
+                for (sc, ac) in [(5, 2), (5, 15)] {
+                    for hidden in [64, 16, 32] {
+                        let b = in_form(random_int8(sc, ac, hidden, 11 + w as u64), Form::Plain, 1);
+                        let state = random_vec(sc * 2 * w, 1);
+                        let aux = random_vec(ac * 2 * w, 2);
+                        assert_eq!(
+                            run(&b, k, &state, &aux, 2, w),
+                            run(&b, Kernel::Portable, &state, &aux, 2, w),
+                            "{k:?}: {sc} + {ac} -> {hidden} channels, width {w}"
+                        );
+                    }
+                }
             }
+        }
+    }
+
+    /// The packed weights' storage is aligned for the AVX2 and AVX-VNNI
+    /// kernels' aligned loads, and holds the weights' values: the pair
+    /// packing is a permutation of the byte packing.
+    #[test]
+    fn packed_weights_are_aligned_and_a_permutation() {
+        let b = random_int8(5, 2, 64, 3);
+        for l in &b.layers {
+            let p = pack(l, b.q_cat);
+            assert_eq!(p.w.as_ptr() as usize % 64, 0);
+            assert_eq!(p.w16.as_ptr() as usize % 64, 0);
+            let mut a: Vec<i16> = p.w.iter().map(|&v| i16::from(v)).collect();
+            let mut c = p.w16.to_vec();
+            a.sort_unstable();
+            c.sort_unstable();
+            assert_eq!(a, c);
+            // tap 4, input channel 3 (pair 1, second), the last output
+            // channel
+            let (t, i, o) = (4, 3, l.out_ch - 1);
+            let want = l.weight[(o * l.in_ch + i) * 9 + t];
+            assert_eq!(
+                p.w[((t * (p.cin4 / 4) + i / 4) * p.ocp + o) * 4 + i % 4],
+                want
+            );
+            assert_eq!(
+                p.w16[((t * (p.cin4 / 2) + i / 2) * p.ocp + o) * 2 + i % 2],
+                i16::from(want)
+            );
         }
     }
 

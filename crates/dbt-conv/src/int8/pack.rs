@@ -4,6 +4,58 @@
 
 use super::*;
 
+/// A value the packed weights are made of: any bit pattern is one.
+pub(super) trait Plain: Copy + Default {}
+impl Plain for i8 {}
+impl Plain for i16 {}
+
+/// One 64-byte line of packed weights, aligned to 64 bytes.
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(64))]
+struct Line([u8; 64]);
+
+/// Packed weights on 64-byte aligned storage, so that every vector load of
+/// the kernels is aligned (LLVM's generic AVX2 code splits an unaligned
+/// 32-byte load into two halves and an insert).
+#[derive(Clone, Debug)]
+pub(super) struct Aligned<T: Plain> {
+    lines: Vec<Line>,
+    len: usize,
+    _t: std::marker::PhantomData<T>,
+}
+
+impl<T: Plain> Aligned<T> {
+    /// `v`'s values on aligned storage.
+    pub(super) fn from_slice(v: &[T]) -> Self {
+        let bytes = std::mem::size_of_val(v);
+        let mut a = Self {
+            lines: vec![Line([0; 64]); bytes.div_ceil(64)],
+            len: v.len(),
+            _t: std::marker::PhantomData,
+        };
+        let dst: &mut [T] = &mut a;
+        dst.copy_from_slice(v);
+        a
+    }
+}
+
+impl<T: Plain> std::ops::Deref for Aligned<T> {
+    type Target = [T];
+    fn deref(&self) -> &[T] {
+        // SAFETY: `lines` holds at least `len * size_of::<T>()` initialised
+        // bytes, aligned to 64 (more than `T`'s alignment), and any bit
+        // pattern is a `T` (`Plain`).
+        unsafe { std::slice::from_raw_parts(self.lines.as_ptr() as *const T, self.len) }
+    }
+}
+
+impl<T: Plain> std::ops::DerefMut for Aligned<T> {
+    fn deref_mut(&mut self) -> &mut [T] {
+        // SAFETY: as in `deref`, borrowed uniquely through `&mut self`.
+        unsafe { std::slice::from_raw_parts_mut(self.lines.as_mut_ptr() as *mut T, self.len) }
+    }
+}
+
 #[derive(Clone, Debug)]
 pub(super) struct PackedI8 {
     pub(super) cin: usize,
@@ -11,11 +63,12 @@ pub(super) struct PackedI8 {
     pub(super) cin4: usize,
     pub(super) ocp: usize,
     /// `[tap][cin4 / 4][ocp][4]`.
-    pub(super) w: Vec<i8>,
-    /// `w` widened to i16, same order: the AVX2 kernel's operands
-    /// (`vpmaddwd` sums pairs of i16 products exactly, where `vpmaddubsw`
-    /// on the bytes would saturate).
-    pub(super) w16: Vec<i16>,
+    pub(super) w: Aligned<i8>,
+    /// `w` widened to i16 and packed by pairs of input channels,
+    /// `[tap][cin4 / 2][ocp][2]`: the AVX2 kernel's operands (`vpmaddwd`
+    /// sums pairs of i16 products exactly, where `vpmaddubsw` on the bytes
+    /// would saturate).
+    pub(super) w16: Aligned<i16>,
     /// `sx * sw[o]`, 0 on padded lanes.
     pub(super) scale: Vec<f32>,
     /// `(128 + zx) * sum qw[o]`.
@@ -51,13 +104,23 @@ pub(super) fn pack(l: &Int8Conv, q_in: QuantParams) -> PackedI8 {
             slope[o] = p[o];
         }
     }
-    let w16 = w.iter().map(|&v| i16::from(v)).collect();
+    // [tap][g][o][4] -> [tap][2g + e / 2][o][e % 2]
+    let mut w16 = vec![0i16; w.len()];
+    for (k, &v) in w.iter().enumerate() {
+        let (e, o, g, t) = (
+            k % 4,
+            (k / 4) % ocp,
+            (k / 4 / ocp) % (cin4 / 4),
+            k / 4 / ocp / (cin4 / 4),
+        );
+        w16[((t * (cin4 / 2) + 2 * g + e / 2) * ocp + o) * 2 + e % 2] = i16::from(v);
+    }
     PackedI8 {
         cin: l.in_ch,
         cin4,
         ocp,
-        w,
-        w16,
+        w: Aligned::from_slice(&w),
+        w16: Aligned::from_slice(&w16),
         scale,
         corr,
         bias,
