@@ -430,8 +430,8 @@ fn mixed_precision_runs_the_named_blocks_in_fp32() {
 }
 
 /// Every fast-path kernel this CPU runs, forced in turn as `DBTOR_KERNEL`
-/// forces it (AVX-512, AVX2, portable for fp32; AVX-512 VNNI and portable
-/// for int8), passes the model's fixtures against PyTorch (fp32) and
+/// forces it (AVX-512, AVX2, portable for fp32, which runs AVX2 at the
+/// AVX-VNNI level; AVX-512 VNNI, AVX-VNNI, AVX2 and portable for int8), passes the model's fixtures against PyTorch (fp32) and
 /// onnxruntime (int8), and reports the kernel it runs; the fused projector
 /// is forced with it (its scalar kernel for `portable`).
 #[test]
