@@ -9,7 +9,7 @@
 //!
 //! `cargo run --release -p dbt-bench --bin pipeline-bench -- --acquisition DIR
 //!  [--model models/dbtor-x4t3] [--precisions fp32,int8] [--threads 1,2] [--reps 3]
-//!  [--descatter --csi-um 200]`
+//!  [--descatter --csi-um 200] [--slice-step N] [--timing-only-on-acquisition-grid]`
 //!
 //! DIR is a recorded acquisition (`host-sim acquire --out DIR ...`; the main
 //! job's is `out/main-job/gantry-acquisition`).
@@ -49,6 +49,17 @@ struct Args {
     /// (`dbtor-process --csi-um`).
     #[arg(long)]
     csi_um: Option<f64>,
+    /// Reconstruct every Nth coronal slice, those between interpolated
+    /// (`dbtor-process --slice-step`).
+    #[arg(long, default_value_t = 1, value_parser = at_least_one)]
+    slice_step: usize,
+    /// Run the model's weights on the acquisition's grid when it is not the
+    /// model's (e.g. a 0.2 mm acquisition with a model trained at 0.8 mm):
+    /// TIMING ONLY, the network reconstructs nonsense on a pixel size it
+    /// was not trained for, so the figures printed are not results. Issue
+    /// #30's 0.2 mm acquisition before a full-resolution model exists.
+    #[arg(long)]
+    timing_only_on_acquisition_grid: bool,
 }
 
 const STAGES: [&str; 6] = [
@@ -103,6 +114,7 @@ fn main() -> Result<()> {
         } else {
             None
         },
+        slice_step: a.slice_step,
         ..PipelineOptions::default()
     };
     let cpu = dbt_cli::cpu_summary();
@@ -126,8 +138,26 @@ fn main() -> Result<()> {
             "int8" => Precision::Int8,
             p => anyhow::bail!("--precisions {p:?}: fp32 or int8"),
         };
-        let m = Dbtor::load_with(&a.model, precision, Engine::Fast)
-            .with_context(|| format!("loading {}", a.model.display()))?;
+        let m = if a.timing_only_on_acquisition_grid {
+            Dbtor::load_for_geometry_up_to(
+                &a.model,
+                precision,
+                &[],
+                Engine::Fast,
+                &acq.header.geometry,
+                dbt_dbtor::kernel_limit()?,
+            )
+        } else {
+            Dbtor::load_with(&a.model, precision, Engine::Fast)
+        }
+        .with_context(|| format!("loading {}", a.model.display()))?;
+        if a.timing_only_on_acquisition_grid {
+            println!(
+                "TIMING ONLY: {}'s weights on the acquisition's grid ({}); the figures below are not results",
+                a.model.display(),
+                acq.header.geometry.describe()
+            );
+        }
         println!(
             "model {} {precision}: convolutions {}, projector {}",
             a.model.display(),

@@ -185,25 +185,25 @@ pub fn classify(
     }
     let _span = tracing::debug_span!("classify", ?dims).entered();
     let air_cut = 0.5 * Tissue::Adipose.mu_per_mm();
-    let breast: Vec<bool> = mu.iter().map(|&v| v > air_cut).collect();
-    if !breast.iter().any(|&b| b) {
+    // The per-voxel passes run on rayon's pool, each collected in voxel
+    // order: the same classification whatever the number of threads (at
+    // the paper's 0.2 mm a breast is ~10^8 voxels).
+    let breast: Vec<bool> = mu.par_iter().map(|&v| v > air_cut).collect();
+    if !breast.par_iter().any(|&b| b) {
         return Err(TissueError::Empty(air_cut));
     }
     // Seeds: breast voxels with an air neighbour or on the volume border
     // (except the chest-wall face).
-    let mut seeds = Vec::new();
-    for i in 0..mu.len() {
-        if !breast[i] {
-            continue;
-        }
-        let edge = neighbours(i, dims).iter().any(|&(n, chest)| match n {
-            Some(j) => !breast[j],
-            None => !chest,
-        });
-        if edge {
-            seeds.push(i);
-        }
-    }
+    let seeds: Vec<usize> = (0..mu.len())
+        .into_par_iter()
+        .filter(|&i| {
+            breast[i]
+                && neighbours(i, dims).iter().any(|&(n, chest)| match n {
+                    Some(j) => !breast[j],
+                    None => !chest,
+                })
+        })
+        .collect();
     let seed_mean = seeds.iter().map(|&i| mu[i] as f64).sum::<f64>() / seeds.len().max(1) as f64;
     // Depth below the outer edge in voxel layers (seeds: 1), by breadth-first
     // search through the breast, where the skin's depth is bounded.
@@ -211,26 +211,29 @@ pub fn classify(
     let depth_ok: Vec<bool> = if max_layers == usize::MAX {
         vec![true; mu.len()]
     } else {
-        let mut depth = vec![u32::MAX; mu.len()];
+        // u16 depths (a quarter of u32's memory): the search stops at
+        // `max_layers`, far below u16::MAX for any skin bound in voxels.
+        let cap = max_layers.min(u16::MAX as usize - 1) as u16;
+        let mut depth = vec![u16::MAX; mu.len()];
         let mut queue = std::collections::VecDeque::with_capacity(seeds.len());
         for &i in &seeds {
             depth[i] = 1;
             queue.push_back(i);
         }
         while let Some(i) = queue.pop_front() {
-            if depth[i] as usize >= max_layers {
+            if depth[i] >= cap {
                 continue;
             }
             for (n, _) in neighbours(i, dims) {
                 if let Some(j) = n {
-                    if breast[j] && depth[j] == u32::MAX {
+                    if breast[j] && depth[j] == u16::MAX {
                         depth[j] = depth[i] + 1;
                         queue.push_back(j);
                     }
                 }
             }
         }
-        depth.iter().map(|&d| d as usize <= max_layers).collect()
+        depth.par_iter().map(|&d| d <= cap).collect()
     };
     // Region growing from the seeds through breast voxels >= seed mean.
     let mut skin = vec![false; mu.len()];
@@ -259,12 +262,15 @@ pub fn classify(
             }
         }
     }
-    // Fuzzy c-means (2 classes) on the skin-free breast.
-    let vals: Vec<f64> = (0..mu.len())
-        .filter(|&i| breast[i] && !skin[i])
-        .map(|i| mu[i] as f64)
+    // Fuzzy c-means (2 classes) on the skin-free breast (f32 values, as
+    // reconstructed: half the memory of f64 copies, the same sums).
+    let vals: Vec<f32> = mu
+        .par_iter()
+        .zip(breast.par_iter().zip(skin.par_iter()))
+        .filter(|(_, (&b, &k))| b && !k)
+        .map(|(&v, _)| v)
         .collect();
-    let (centres, iterations) = fcm2(&vals, opts);
+    let (centres, iterations) = fcm2_of(&vals, opts);
     // Two classes need two populations: when the centres meet (a skin-free
     // breast of one value), the voxels go to the nearer of the two tissues'
     // nominal attenuations instead.
@@ -274,6 +280,7 @@ pub fn classify(
         0.5 * (centres[0] + centres[1])
     };
     let labels = (0..mu.len())
+        .into_par_iter()
         .map(|i| {
             if !breast[i] {
                 Tissue::Air.label()
@@ -296,6 +303,23 @@ pub fn classify(
     })
 }
 
+/// `total_cmp` of f32 and f64, as one function pointer type.
+trait TotalOrder {
+    fn total_cmp_ref(a: &Self, b: &Self) -> std::cmp::Ordering;
+}
+
+impl TotalOrder for f32 {
+    fn total_cmp_ref(a: &Self, b: &Self) -> std::cmp::Ordering {
+        a.total_cmp(b)
+    }
+}
+
+impl TotalOrder for f64 {
+    fn total_cmp_ref(a: &Self, b: &Self) -> std::cmp::Ordering {
+        a.total_cmp(b)
+    }
+}
+
 /// Values per chunk of [`fcm2`]'s sums.
 const FCM_CHUNK: usize = 1 << 14;
 
@@ -303,15 +327,46 @@ const FCM_CHUNK: usize = 1 << 14;
 /// (low, high) and the iterations used. Starts from the 25th and 75th
 /// percentiles.
 pub fn fcm2(vals: &[f64], opts: &ClassifyOptions) -> ([f64; 2], usize) {
+    fcm2_of(vals, opts)
+}
+
+/// The values `sorted[(n - 1) * f]` of a sorted copy of `vals` for the
+/// fractions `fs` (ascending), by selection (linear time) instead of a
+/// sort: the same values, since the k-th smallest in `total_cmp` order is
+/// one value whatever finds it.
+fn quantiles<T: Copy + Send + Sync>(
+    vals: &[T],
+    fs: [f64; 2],
+    cmp: fn(&T, &T) -> std::cmp::Ordering,
+) -> [T; 2] {
+    let mut work = vals.to_vec();
+    let n = work.len();
+    let k0 = ((n - 1) as f64 * fs[0]) as usize;
+    let k1 = ((n - 1) as f64 * fs[1]) as usize;
+    let (_, &mut a, upper) = work.select_nth_unstable_by(k0, cmp);
+    // k1 >= k0: the k1-th smallest is the (k1 - k0 - 1)-th of the part
+    // above the k0-th (or the k0-th itself).
+    let b = if k1 == k0 {
+        a
+    } else {
+        *upper.select_nth_unstable_by(k1 - k0 - 1, cmp).1
+    };
+    [a, b]
+}
+
+/// [`fcm2`] on values of either precision (each read as f64).
+fn fcm2_of<T>(vals: &[T], opts: &ClassifyOptions) -> ([f64; 2], usize)
+where
+    T: Copy + Send + Sync + Into<f64> + PartialOrd,
+    T: TotalOrder,
+{
     if vals.is_empty() {
         let a = Tissue::Adipose.mu_per_mm() as f64;
         let g = Tissue::Fibroglandular.mu_per_mm() as f64;
         return ([a, g], 0);
     }
-    let mut sorted = vals.to_vec();
-    sorted.sort_by(|a, b| a.total_cmp(b));
-    let q = |f: f64| sorted[((sorted.len() - 1) as f64 * f) as usize];
-    let mut c = [q(0.25), q(0.75)];
+    let [lo, hi] = quantiles(vals, [0.25, 0.75], T::total_cmp_ref);
+    let mut c: [f64; 2] = [lo.into(), hi.into()];
     if c[1] - c[0] < 1e-9 {
         c[1] = c[0] + 1e-6;
     }
@@ -328,6 +383,7 @@ pub fn fcm2(vals: &[f64], opts: &ClassifyOptions) -> ([f64; 2], usize) {
             .map(|chunk| {
                 let mut s = [0.0f64; 4];
                 for &x in chunk {
+                    let x: f64 = x.into();
                     let d0 = (x - c[0]).abs().max(1e-12);
                     let d1 = (x - c[1]).abs().max(1e-12);
                     // u_k = 1 / sum_j (d_k / d_j)^(2/(m-1))
@@ -741,6 +797,70 @@ mod tests {
                 "{c:?}"
             );
             assert!(it > 1 && it < opts.max_iter, "{it}");
+        }
+    }
+
+    /// The selection gives the sorted copy's values: ties, negative zero,
+    /// one and two values, both precisions; and fcm2 starts from them (f32
+    /// and f64 values of the same numbers give the same centres).
+    #[test]
+    fn quantiles_are_the_sorted_values_and_f32_reads_as_f64() {
+        let mut s = 3u64;
+        let mut r = || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1);
+            (s >> 40) as f32 / 16.0 - 300.0
+        };
+        for n in [1usize, 2, 3, 4, 7, 100, 1001] {
+            let mut v: Vec<f32> = (0..n).map(|_| r()).collect();
+            if n > 3 {
+                v[1] = v[0]; // a tie
+                v[2] = -0.0;
+                v[3] = 0.0;
+            }
+            let mut sorted = v.clone();
+            sorted.sort_by(|a, b| a.total_cmp(b));
+            for fs in [[0.25, 0.75], [0.0, 1.0], [0.5, 0.5], [0.1, 0.9]] {
+                let k = |f: f64| sorted[((n - 1) as f64 * f) as usize];
+                let got = quantiles(&v, fs, f32::total_cmp_ref);
+                assert_eq!(
+                    got.map(f32::to_bits),
+                    [k(fs[0]), k(fs[1])].map(f32::to_bits),
+                    "{n} {fs:?}"
+                );
+            }
+            let v64: Vec<f64> = v.iter().map(|&x| x as f64).collect();
+            let opts = ClassifyOptions::default();
+            assert_eq!(fcm2_of(&v, &opts), fcm2(&v64, &opts), "{n} values");
+        }
+    }
+
+    /// The whole classification does not depend on the pool's threads.
+    #[test]
+    fn classification_does_not_depend_on_the_threads() {
+        let dims = [23, 17, 19];
+        let (mut mu, _) = slab(dims, 3);
+        let mut s = 11u64;
+        for v in mu.iter_mut().filter(|v| **v > 0.0) {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1);
+            *v += 0.01 * (((s >> 11) as f32 / (1u64 << 53) as f32) - 0.5);
+        }
+        let run = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| classify(&mu, dims, 0.5, &ClassifyOptions::default()).unwrap())
+        };
+        let one = run(1);
+        for t in [2, 3] {
+            let other = run(t);
+            assert_eq!(one.labels, other.labels, "{t} threads");
+            assert_eq!(one.centres, other.centres, "{t} threads");
+            assert_eq!(
+                one.seed_mean.to_bits(),
+                other.seed_mean.to_bits(),
+                "{t} threads"
+            );
         }
     }
 
