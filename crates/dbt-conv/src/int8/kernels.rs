@@ -624,28 +624,38 @@ pub(super) unsafe fn tile_avx2(
             }
         }
     }
+    for_each_pass(np, nb, |p0, n, q| {
+        // SAFETY: the pass reads pixels p0..p0 + n of the window and the
+        // weights of channels 16q..16q + 16 of the group, and writes those
+        // values of `out`: inside the contract's ranges.
+        unsafe {
+            let (i, wq, o) = (
+                wp.add(p0 * wcs) as *const i16,
+                w.add(q * L * 2),
+                out.add(p0 * nb * L + q * L),
+            );
+            let k2 = cin4 / 2;
+            match n {
+                1 => pass_avx2::<1>(i, wrs, wcs, k2, wq, ocp, o, nb),
+                2 => pass_avx2::<2>(i, wrs, wcs, k2, wq, ocp, o, nb),
+                3 => pass_avx2::<3>(i, wrs, wcs, k2, wq, ocp, o, nb),
+                4 => pass_avx2::<4>(i, wrs, wcs, k2, wq, ocp, o, nb),
+                _ => pass_avx2::<5>(i, wrs, wcs, k2, wq, ocp, o, nb),
+            }
+        }
+    });
+}
+
+/// The passes of an AVX2-sized tile of `np` pixels and `nb` 16-channel
+/// blocks: `f(p0, n, q)` for each run of up to [`NP_PASS`] pixels from `p0`
+/// and each block `q`.
+#[inline(always)]
+fn for_each_pass(np: usize, nb: usize, mut f: impl FnMut(usize, usize, usize)) {
     let mut p0 = 0;
     while p0 < np {
         let n = (np - p0).min(NP_PASS);
         for q in 0..nb {
-            // SAFETY: the pass reads pixels p0..p0 + n of the window and the
-            // weights of channels 16q..16q + 16 of the group, and writes those
-            // values of `out`: inside the contract's ranges.
-            unsafe {
-                let (i, wq, o) = (
-                    wp.add(p0 * wcs) as *const i16,
-                    w.add(q * L * 2),
-                    out.add(p0 * nb * L + q * L),
-                );
-                let k2 = cin4 / 2;
-                match n {
-                    1 => pass_avx2::<1>(i, wrs, wcs, k2, wq, ocp, o, nb),
-                    2 => pass_avx2::<2>(i, wrs, wcs, k2, wq, ocp, o, nb),
-                    3 => pass_avx2::<3>(i, wrs, wcs, k2, wq, ocp, o, nb),
-                    4 => pass_avx2::<4>(i, wrs, wcs, k2, wq, ocp, o, nb),
-                    _ => pass_avx2::<5>(i, wrs, wcs, k2, wq, ocp, o, nb),
-                }
-            }
+            f(p0, n, q);
         }
         p0 += n;
     }
@@ -727,30 +737,25 @@ pub(super) unsafe fn tile_avxvnni(
     ocp: usize,
     out: *mut i32,
 ) {
-    let mut p0 = 0;
-    while p0 < np {
-        let n = (np - p0).min(NP_PASS);
-        for q in 0..nb {
-            // SAFETY: the pass reads pixels p0..p0 + n of the tile and the
-            // weights of channels 16q..16q + 16 of the group, and writes those
-            // values of `out`: inside the contract's ranges.
-            unsafe {
-                let (i, wq, o) = (
-                    inp.add(p0 * cs),
-                    w.add(q * L * 4),
-                    out.add(p0 * nb * L + q * L),
-                );
-                match n {
-                    1 => pass_avxvnni::<1>(i, rs, cs, g4, wq, ocp, o, nb),
-                    2 => pass_avxvnni::<2>(i, rs, cs, g4, wq, ocp, o, nb),
-                    3 => pass_avxvnni::<3>(i, rs, cs, g4, wq, ocp, o, nb),
-                    4 => pass_avxvnni::<4>(i, rs, cs, g4, wq, ocp, o, nb),
-                    _ => pass_avxvnni::<5>(i, rs, cs, g4, wq, ocp, o, nb),
-                }
+    for_each_pass(np, nb, |p0, n, q| {
+        // SAFETY: the pass reads pixels p0..p0 + n of the tile and the
+        // weights of channels 16q..16q + 16 of the group, and writes those
+        // values of `out`: inside the contract's ranges.
+        unsafe {
+            let (i, wq, o) = (
+                inp.add(p0 * cs),
+                w.add(q * L * 4),
+                out.add(p0 * nb * L + q * L),
+            );
+            match n {
+                1 => pass_avxvnni::<1>(i, rs, cs, g4, wq, ocp, o, nb),
+                2 => pass_avxvnni::<2>(i, rs, cs, g4, wq, ocp, o, nb),
+                3 => pass_avxvnni::<3>(i, rs, cs, g4, wq, ocp, o, nb),
+                4 => pass_avxvnni::<4>(i, rs, cs, g4, wq, ocp, o, nb),
+                _ => pass_avxvnni::<5>(i, rs, cs, g4, wq, ocp, o, nb),
             }
         }
-        p0 += n;
-    }
+    });
 }
 
 /// 16 output channels x `NP` pixels of [`tile_avxvnni`], stored at
