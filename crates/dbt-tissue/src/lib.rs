@@ -320,6 +320,9 @@ impl TotalOrder for f64 {
     }
 }
 
+/// Values whose c-means terms are computed together before they are summed.
+const FCM_BLOCK: usize = 64;
+
 /// Values per chunk of [`fcm2`]'s sums.
 const FCM_CHUNK: usize = 1 << 14;
 
@@ -370,33 +373,13 @@ where
     if c[1] - c[0] < 1e-9 {
         c[1] = c[0] + 1e-6;
     }
-    let p = 2.0 / (opts.fuzziness - 1.0);
-    // x^e, by a product where e is 2 (the default fuzziness 2 gives p = 2
-    // and m = 2): libm's pow took most of the classification's time.
-    let pow = |x: f64, e: f64| if e == 2.0 { x * x } else { x.powf(e) };
     let m = opts.fuzziness;
     for it in 1..=opts.max_iter {
         // The sums in fixed chunks, added in chunk order: the same centres
         // whatever the number of threads.
         let partial: Vec<[f64; 4]> = vals
             .par_chunks(FCM_CHUNK)
-            .map(|chunk| {
-                let mut s = [0.0f64; 4];
-                for &x in chunk {
-                    let x: f64 = x.into();
-                    let d0 = (x - c[0]).abs().max(1e-12);
-                    let d1 = (x - c[1]).abs().max(1e-12);
-                    // u_k = 1 / sum_j (d_k / d_j)^(2/(m-1))
-                    let u0 = 1.0 / (1.0 + pow(d0 / d1, p));
-                    let u1 = 1.0 - u0;
-                    let (w0, w1) = (pow(u0, m), pow(u1, m));
-                    s[0] += w0 * x;
-                    s[1] += w0;
-                    s[2] += w1 * x;
-                    s[3] += w1;
-                }
-                s
-            })
+            .map(|chunk| fcm_chunk_sums(chunk, c, m))
             .collect();
         let (mut num, mut den) = ([0.0f64; 2], [0.0f64; 2]);
         for s in &partial {
@@ -413,6 +396,57 @@ where
         }
     }
     (c, opts.max_iter)
+}
+
+/// One chunk's c-means sums `[sum w0 x, sum w0, sum w1 x, sum w1]` for the
+/// centres `c` and fuzziness `m`, added in value order.
+fn fcm_chunk_sums<T: Copy + Into<f64>>(chunk: &[T], c: [f64; 2], m: f64) -> [f64; 4] {
+    let p = 2.0 / (m - 1.0);
+    // x^e, by a product where e is 2 (the default fuzziness 2 gives p = 2
+    // and m = 2; p is 2 exactly when m is 2).
+    let pow = |x: f64, e: f64| if e == 2.0 { x * x } else { x.powf(e) };
+    let mut s = [0.0f64; 4];
+    // Each block's per-value terms first, elementwise (the compiler
+    // vectorises them, divisions included), then the sums in value order:
+    // the same operations on the same values as one value at a time, so
+    // the same bits.
+    let mut xs = [0.0f64; FCM_BLOCK];
+    let mut ws = [[0.0f64; 2]; FCM_BLOCK];
+    for block in chunk.chunks(FCM_BLOCK) {
+        let terms = xs.iter_mut().zip(ws.iter_mut()).zip(block);
+        // u_k = 1 / sum_j (d_k / d_j)^(2/(m-1)), w_k = u_k^m
+        if m == 2.0 {
+            // p = 2: products (libm's pow took most of the classification's
+            // time)
+            for ((xo, wo), &x) in terms {
+                let x: f64 = x.into();
+                let d0 = (x - c[0]).abs().max(1e-12);
+                let d1 = (x - c[1]).abs().max(1e-12);
+                let r = d0 / d1;
+                let u0 = 1.0 / (1.0 + r * r);
+                let u1 = 1.0 - u0;
+                *xo = x;
+                *wo = [u0 * u0, u1 * u1];
+            }
+        } else {
+            for ((xo, wo), &x) in terms {
+                let x: f64 = x.into();
+                let d0 = (x - c[0]).abs().max(1e-12);
+                let d1 = (x - c[1]).abs().max(1e-12);
+                let u0 = 1.0 / (1.0 + pow(d0 / d1, p));
+                let u1 = 1.0 - u0;
+                *xo = x;
+                *wo = [pow(u0, m), pow(u1, m)];
+            }
+        }
+        for (&x, &[w0, w1]) in xs.iter().zip(&ws).take(block.len()) {
+            s[0] += w0 * x;
+            s[1] += w0;
+            s[2] += w1 * x;
+            s[3] += w1;
+        }
+    }
+    s
 }
 
 /// Density estimates of a classified volume.
@@ -831,6 +865,54 @@ mod tests {
             let v64: Vec<f64> = v.iter().map(|&x| x as f64).collect();
             let opts = ClassifyOptions::default();
             assert_eq!(fcm2_of(&v, &opts), fcm2(&v64, &opts), "{n} values");
+        }
+    }
+
+    /// The blocked c-means sums are the one-value-at-a-time loop's to the
+    /// bit (a transcription of it here): both fuzziness paths, blocks with
+    /// a partial tail, centres on both sides of values.
+    #[test]
+    fn fcm_blocks_give_the_one_at_a_time_sums() {
+        let reference = |vals: &[f64], c: [f64; 2], m: f64| -> [f64; 4] {
+            let p = 2.0 / (m - 1.0);
+            let pow = |x: f64, e: f64| if e == 2.0 { x * x } else { x.powf(e) };
+            let mut s = [0.0f64; 4];
+            for &x in vals {
+                let d0 = (x - c[0]).abs().max(1e-12);
+                let d1 = (x - c[1]).abs().max(1e-12);
+                let u0 = 1.0 / (1.0 + pow(d0 / d1, p));
+                let u1 = 1.0 - u0;
+                let (w0, w1) = (pow(u0, m), pow(u1, m));
+                s[0] += w0 * x;
+                s[1] += w0;
+                s[2] += w1 * x;
+                s[3] += w1;
+            }
+            s
+        };
+        let mut s = 5u64;
+        let v: Vec<f64> = (0..3 * FCM_BLOCK + 17)
+            .map(|i| {
+                s = s.wrapping_mul(6364136223846793005).wrapping_add(1);
+                let n = ((s >> 11) as f64 / (1u64 << 53) as f64) - 0.5;
+                if i % 4 == 0 {
+                    0.0798 + 0.006 * n
+                } else {
+                    0.0512 + 0.006 * n
+                }
+            })
+            .collect();
+        for m in [2.0, 1.7, 2.5] {
+            for c in [[0.05, 0.08], [0.0513, 0.0799], [0.06, 0.061]] {
+                for n in [1, FCM_BLOCK - 1, FCM_BLOCK, FCM_BLOCK + 1, v.len()] {
+                    let (want, got) = (reference(&v[..n], c, m), fcm_chunk_sums(&v[..n], c, m));
+                    assert_eq!(
+                        got.map(f64::to_bits),
+                        want.map(f64::to_bits),
+                        "m {m}, c {c:?}, {n} values"
+                    );
+                }
+            }
         }
     }
 
