@@ -264,12 +264,32 @@ pub fn classify(
     }
     // Fuzzy c-means (2 classes) on the skin-free breast (f32 values, as
     // reconstructed: half the memory of f64 copies, the same sums).
-    let vals: Vec<f32> = mu
-        .par_iter()
-        .zip(breast.par_iter().zip(skin.par_iter()))
-        .filter(|(_, (&b, &k))| b && !k)
-        .map(|(&v, _)| v)
+    // Counted per chunk, then each chunk's values written to its own part
+    // of the vector: in voxel order, in parallel, without a second copy.
+    const PART: usize = 1 << 16;
+    let keep = |i: usize| breast[i] && !skin[i];
+    let counts: Vec<usize> = (0..mu.len().div_ceil(PART))
+        .into_par_iter()
+        .map(|c| {
+            (c * PART..((c + 1) * PART).min(mu.len()))
+                .filter(|&i| keep(i))
+                .count()
+        })
         .collect();
+    let mut vals = vec![0.0f32; counts.iter().sum()];
+    let mut parts = Vec::with_capacity(counts.len());
+    let mut rest = &mut vals[..];
+    for &c in &counts {
+        let (part, tail) = rest.split_at_mut(c);
+        parts.push(part);
+        rest = tail;
+    }
+    parts.into_par_iter().enumerate().for_each(|(c, part)| {
+        let from = (c * PART..((c + 1) * PART).min(mu.len())).filter(|&i| keep(i));
+        for (o, i) in part.iter_mut().zip(from) {
+            *o = mu[i];
+        }
+    });
     let (centres, iterations) = fcm2_of(&vals, opts);
     // Two classes need two populations: when the centres meet (a skin-free
     // breast of one value), the voxels go to the nearer of the two tissues'
@@ -304,13 +324,69 @@ pub fn classify(
 }
 
 /// `total_cmp` of f32 and f64, as one function pointer type.
-trait TotalOrder {
+trait TotalOrder: Copy + Send + Sync {
     fn total_cmp_ref(a: &Self, b: &Self) -> std::cmp::Ordering;
+
+    /// [`quantiles`] of `vals` (a type may find them faster).
+    fn quantiles(vals: &[Self], fs: [f64; 2]) -> [Self; 2] {
+        quantiles(vals, fs, Self::total_cmp_ref)
+    }
 }
 
 impl TotalOrder for f32 {
     fn total_cmp_ref(a: &Self, b: &Self) -> std::cmp::Ordering {
         a.total_cmp(b)
+    }
+
+    /// The same two values by a parallel histogram of the values' leading
+    /// 16 bits in `total_cmp` order (one pass over them on the pool), then
+    /// a selection among the values of the bin that holds each rank only.
+    fn quantiles(vals: &[Self], fs: [f64; 2]) -> [Self; 2] {
+        // total_cmp order as unsigned order: negative values' bits inverted,
+        // positive ones' sign bit set.
+        let key = |x: f32| {
+            let b = x.to_bits();
+            if b >> 31 == 1 {
+                !b
+            } else {
+                b | 1 << 31
+            }
+        };
+        const BINS: usize = 1 << 16;
+        let hist = vals
+            .par_chunks(1 << 16)
+            .map(|c| {
+                let mut h = vec![0usize; BINS];
+                for &x in c {
+                    h[(key(x) >> 16) as usize] += 1;
+                }
+                h
+            })
+            .reduce(
+                || vec![0usize; BINS],
+                |mut a, b| {
+                    for (x, y) in a.iter_mut().zip(&b) {
+                        *x += y;
+                    }
+                    a
+                },
+            );
+        let n = vals.len();
+        fs.map(|f| {
+            let k = ((n - 1) as f64 * f) as usize;
+            // The bin holding rank k, and the ranks below it.
+            let (mut below, mut bin) = (0usize, 0usize);
+            while below + hist[bin] <= k {
+                below += hist[bin];
+                bin += 1;
+            }
+            let mut inside: Vec<f32> = vals
+                .par_iter()
+                .copied()
+                .filter(|&x| (key(x) >> 16) as usize == bin)
+                .collect();
+            *inside.select_nth_unstable_by(k - below, f32::total_cmp).1
+        })
     }
 }
 
@@ -368,7 +444,7 @@ where
         let g = Tissue::Fibroglandular.mu_per_mm() as f64;
         return ([a, g], 0);
     }
-    let [lo, hi] = quantiles(vals, [0.25, 0.75], T::total_cmp_ref);
+    let [lo, hi] = T::quantiles(vals, [0.25, 0.75]);
     let mut c: [f64; 2] = [lo.into(), hi.into()];
     if c[1] - c[0] < 1e-9 {
         c[1] = c[0] + 1e-6;
@@ -855,13 +931,20 @@ mod tests {
             sorted.sort_by(|a, b| a.total_cmp(b));
             for fs in [[0.25, 0.75], [0.0, 1.0], [0.5, 0.5], [0.1, 0.9]] {
                 let k = |f: f64| sorted[((n - 1) as f64 * f) as usize];
+                let want = [k(fs[0]), k(fs[1])].map(f32::to_bits);
                 let got = quantiles(&v, fs, f32::total_cmp_ref);
-                assert_eq!(
-                    got.map(f32::to_bits),
-                    [k(fs[0]), k(fs[1])].map(f32::to_bits),
-                    "{n} {fs:?}"
-                );
+                assert_eq!(got.map(f32::to_bits), want, "{n} {fs:?}");
+                // f32's own: the histogram, then a selection in one bin
+                let got = <f32 as TotalOrder>::quantiles(&v, fs);
+                assert_eq!(got.map(f32::to_bits), want, "{n} {fs:?}, histogram");
             }
+            // attenuation-like values: many in each bin of the histogram
+            let narrow: Vec<f32> = v.iter().map(|&x| 0.05 + x * 1e-9).collect();
+            let mut sorted = narrow.clone();
+            sorted.sort_by(|a, b| a.total_cmp(b));
+            let k = |f: f64| sorted[((n - 1) as f64 * f) as usize].to_bits();
+            let got = <f32 as TotalOrder>::quantiles(&narrow, [0.25, 0.75]);
+            assert_eq!(got.map(f32::to_bits), [k(0.25), k(0.75)], "{n} narrow");
             let v64: Vec<f64> = v.iter().map(|&x| x as f64).collect();
             let opts = ClassifyOptions::default();
             assert_eq!(fcm2_of(&v, &opts), fcm2(&v64, &opts), "{n} values");
