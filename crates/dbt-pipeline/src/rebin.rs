@@ -33,6 +33,7 @@
 
 use crate::acquisition::Acquisition;
 use dbt_geometry::{ConeSystem, DetectorMotion, Geometry};
+use rayon::prelude::*;
 use thiserror::Error;
 
 /// Why projections cannot be rebinned.
@@ -221,70 +222,107 @@ pub fn rebin(
     let (det, pitch) = (fan.n_det(), sys.detector.pitch_mm);
     let image_half_mm = fan.image.columns as f64 * fan.image.pixel_mm / 2.0;
     let image_top = sys.support_height_mm + fan.image.rows as f64 * fan.image.pixel_mm;
+    // Each fan ray's source and direction, once (`[view * det + element]`).
+    struct Ray {
+        s: [f64; 3],
+        dx: f64,
+        dz: f64,
+        t_ref: f64,
+        crosses: bool,
+    }
+    let rays: Vec<Ray> = (0..views)
+        .flat_map(|v| {
+            let s = sys.source(v);
+            (0..det).map(move |k| {
+                // The fan element's centre (the virtual rotating detector).
+                let u = (k as f64 - (det as f64 - 1.0) / 2.0) * fan.detector.pitch_mm;
+                let p = sys.rotating_point(v, u, 0.0);
+                let (dx, dz) = (p[0] - s[0], p[2] - s[2]);
+                let t_ref = (z_ref_mm - s[2]) / dz;
+                // Does this fan ray cross the image? (Else it sees air.)
+                let x_at = |z: f64| s[0] + (z - s[2]) / dz * dx;
+                let crosses = x_at(sys.support_height_mm).abs() < image_half_mm
+                    || x_at(image_top).abs() < image_half_mm;
+                Ray {
+                    s,
+                    dx,
+                    dz,
+                    t_ref,
+                    crosses,
+                }
+            })
+        })
+        .collect();
     let mut out = vec![vec![0.0f32; views * det]; slices];
     let mut off_detector = vec![0usize; slices];
-    for v in 0..views {
-        let s = sys.source(v);
-        for k in 0..det {
-            // The fan element's centre (the virtual rotating detector).
-            let u = (k as f64 - (det as f64 - 1.0) / 2.0) * fan.detector.pitch_mm;
-            let p = sys.rotating_point(v, u, 0.0);
-            let (dx, dz) = (p[0] - s[0], p[2] - s[2]);
-            let t_ref = (z_ref_mm - s[2]) / dz;
-            // Does this fan ray cross the image? (Else it sees air.)
-            let x_at = |z: f64| s[0] + (z - s[2]) / dz * dx;
-            let crosses = x_at(sys.support_height_mm).abs() < image_half_mm
-                || x_at(image_top).abs() < image_half_mm;
-            for (c, slice) in out.iter_mut().enumerate() {
-                let y_c = (c as f64 + 0.5) * slice_mm;
-                let dy = (y_c - s[1]) / t_ref;
-                // Where the ray meets the detector: the rotating one at the
-                // fan element (parameter 1), the stationary one at z = 0.
-                let (t_det, col) = match sys.detector_motion {
-                    DetectorMotion::Rotating => (1.0, k as f64),
-                    DetectorMotion::Stationary => {
-                        let td = -s[2] / dz;
-                        (td, (s[0] + td * dx) / pitch + (cols as f64 - 1.0) / 2.0)
+    // The slices on rayon's pool: each is written by one worker, with the
+    // arithmetic of one slice at a time.
+    out.par_iter_mut()
+        .zip(off_detector.par_iter_mut())
+        .enumerate()
+        .try_for_each(|(c, (slice, off))| -> Result<(), RebinError> {
+            let y_c = (c as f64 + 0.5) * slice_mm;
+            for v in 0..views {
+                for k in 0..det {
+                    let Ray {
+                        s,
+                        dx,
+                        dz,
+                        t_ref,
+                        crosses,
+                    } = rays[v * det + k];
+                    let dy = (y_c - s[1]) / t_ref;
+                    // Where the ray meets the detector: the rotating one at
+                    // the fan element (parameter 1), the stationary one at
+                    // z = 0.
+                    let (t_det, col) = match sys.detector_motion {
+                        DetectorMotion::Rotating => (1.0, k as f64),
+                        DetectorMotion::Stationary => {
+                            let td = -s[2] / dz;
+                            (td, (s[0] + td * dx) / pitch + (cols as f64 - 1.0) / 2.0)
+                        }
+                    };
+                    let row = (s[1] + t_det * dy) / pitch - 0.5;
+                    let (ri, ci) = (row.round(), col.round());
+                    let idx = slice.get_mut(v * det + k).ok_or_else(|| {
+                        RebinError::Shape("fan geometry larger than its sinogram".into())
+                    })?;
+                    let outside = ri < 0.0 || ri >= rows as f64 || ci < 0.0 || ci >= cols as f64;
+                    if outside {
+                        if !crosses {
+                            // Air beside the image.
+                            *idx = flux as f32;
+                            continue;
+                        }
+                        // Through the image box but beyond the detector's
+                        // edge (its corners at the widest angles): the edge
+                        // element's count, and counted for the caller to
+                        // judge.
+                        *off += 1;
                     }
-                };
-                let row = (s[1] + t_det * dy) / pitch - 0.5;
-                let (ri, ci) = (row.round(), col.round());
-                let idx = slice.get_mut(v * det + k).ok_or_else(|| {
-                    RebinError::Shape("fan geometry larger than its sinogram".into())
-                })?;
-                let outside = ri < 0.0 || ri >= rows as f64 || ci < 0.0 || ci >= cols as f64;
-                if outside {
-                    if !crosses {
-                        // Air beside the image.
-                        *idx = flux as f32;
-                        continue;
-                    }
-                    // Through the image box but beyond the detector's edge
-                    // (its corners at the widest angles): the edge element's
-                    // count, and counted for the caller to judge.
-                    off_detector[c] += 1;
+                    let (ri, ci) = (
+                        ri.clamp(0.0, rows as f64 - 1.0),
+                        ci.clamp(0.0, cols as f64 - 1.0),
+                    );
+                    let count = f64::from(frames[ri as usize][v * cols + ci as usize]);
+                    // The obliquity of the ray that reached this element (its
+                    // depth at the detector, not the ideal one's).
+                    let dy = ((ri + 0.5) * pitch - s[1]) / t_det;
+                    let obliquity =
+                        (dx * dx + dy * dy + dz * dz).sqrt() / (dx * dx + dz * dz).sqrt();
+                    // Only a count a breast can give (0 < c <= b) is
+                    // corrected; any other (zero, negative, not a number,
+                    // above the flat field, a saturated 65535) passes as
+                    // read, for the counts check to name it.
+                    *idx = if count > 0.0 && count <= flux {
+                        (flux * (count / flux).powf(1.0 / obliquity)) as f32
+                    } else {
+                        count as f32
+                    };
                 }
-                let (ri, ci) = (
-                    ri.clamp(0.0, rows as f64 - 1.0),
-                    ci.clamp(0.0, cols as f64 - 1.0),
-                );
-                let count = f64::from(frames[ri as usize][v * cols + ci as usize]);
-                // The obliquity of the ray that reached this element (its
-                // depth at the detector, not the ideal one's).
-                let dy = ((ri + 0.5) * pitch - s[1]) / t_det;
-                let obliquity = (dx * dx + dy * dy + dz * dz).sqrt() / (dx * dx + dz * dz).sqrt();
-                // Only a count a breast can give (0 < c <= b) is corrected;
-                // any other (zero, negative, not a number, above the flat
-                // field, a saturated 65535) passes as read, for the counts
-                // check to name it.
-                *idx = if count > 0.0 && count <= flux {
-                    (flux * (count / flux).powf(1.0 / obliquity)) as f32
-                } else {
-                    count as f32
-                };
             }
-        }
-    }
+            Ok(())
+        })?;
     Ok(Rebinned {
         counts: out,
         off_detector,

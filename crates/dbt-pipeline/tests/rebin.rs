@@ -399,3 +399,61 @@ fn resampling_undoes_the_shear() {
         assert!((e - step).abs() <= 0.1 * px, "row {r}: step at {e} mm");
     }
 }
+
+/// The slices are rebinned on rayon's pool; the counts and the rays counted
+/// beyond the detector's edge do not depend on its threads (both systems,
+/// a breast varying in depth).
+#[test]
+fn rebinning_does_not_depend_on_the_threads() {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+    let img: Vec<f32> = (0..IMG.0 * IMG.1)
+        .map(|_| rng.random_range(0.0..0.08))
+        .collect();
+    let (grid, vol) = volume(&img, 60, |d| d < 50.0);
+    let stationary = ConeSystem::builtin("siemens-victre")
+        .unwrap()
+        .binned(4)
+        .unwrap();
+    let stationary = ConeSystem {
+        support_height_mm: stationary.axis_height_mm - IMG.1 as f64 * IMG.2 / 2.0,
+        ..stationary
+    };
+    // The stationary system's virtual rotating detector, as in
+    // `stationary_detector_rebins_within_the_nearest_element_bound`.
+    let stationary_fan = Geometry {
+        source_to_center_mm: stationary.arc_radius_mm,
+        source_to_detector_mm: stationary.arc_radius_mm + stationary.axis_height_mm,
+        views: stationary.views.clone(),
+        detector: dbt_geometry::Detector {
+            elements: 170,
+            pitch_mm: 1.6,
+        },
+        image: dbt_geometry::Image {
+            columns: IMG.0,
+            rows: IMG.1,
+            pixel_mm: IMG.2,
+        },
+    };
+    for (sys, fan) in [paper(), (stationary, stationary_fan)] {
+        let f = frames(&sys, grid, &vol);
+        let z_ref = sys.support_height_mm + 30.0;
+        let run = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| rebin(&sys, &fan, &f, FLUX, 40, IMG.2, z_ref))
+        };
+        let one = run(1);
+        for t in [2, 3] {
+            match (&one, run(t)) {
+                (Ok(a), Ok(b)) => {
+                    assert_eq!(a.counts, b.counts, "{}: {t} threads", sys.name);
+                    assert_eq!(a.off_detector, b.off_detector, "{}: {t} threads", sys.name);
+                }
+                (Err(a), Err(b)) => assert_eq!(a.to_string(), b.to_string()),
+                (a, b) => panic!("{}: {a:?} against {b:?}", sys.name),
+            }
+        }
+    }
+}
