@@ -14,15 +14,40 @@ const FLUX: f64 = 1e6;
 const IMG: (usize, usize, f64) = (125, 37, 1.6);
 
 fn paper() -> (ConeSystem, Geometry) {
-    let sys = ConeSystem::builtin("paper-cone")
-        .unwrap()
-        .binned(8)
-        .unwrap();
-    let sys = ConeSystem {
+    let sys = on_axis("paper-cone", 8);
+    let fan = sys.central_fan(IMG.0, IMG.1, IMG.2).unwrap();
+    (sys, fan)
+}
+
+/// The built-in system `name` binned `bin` times, its support lowered so
+/// that the image's middle is on the rotation axis.
+fn on_axis(name: &str, bin: usize) -> ConeSystem {
+    let sys = ConeSystem::builtin(name).unwrap().binned(bin).unwrap();
+    ConeSystem {
         support_height_mm: sys.axis_height_mm - IMG.1 as f64 * IMG.2 / 2.0,
         ..sys
+    }
+}
+
+/// The stationary-detector system binned x4, the image on its axis, and
+/// its virtual rotating detector of the paper's 1.6 mm elements.
+fn victre() -> (ConeSystem, Geometry) {
+    let sys = on_axis("siemens-victre", 4);
+    let fan = Geometry {
+        source_to_center_mm: sys.arc_radius_mm,
+        source_to_detector_mm: sys.arc_radius_mm + sys.axis_height_mm,
+        views: sys.views.clone(),
+        detector: dbt_geometry::Detector {
+            elements: 170,
+            pitch_mm: 1.6,
+        },
+        image: dbt_geometry::Image {
+            columns: IMG.0,
+            rows: IMG.1,
+            pixel_mm: IMG.2,
+        },
     };
-    let fan = sys.central_fan(IMG.0, IMG.1, IMG.2).unwrap();
+    fan.validate().unwrap();
     (sys, fan)
 }
 
@@ -127,30 +152,7 @@ fn depth_uniform_breast_rebins_to_the_fan_sinogram() {
 /// within the fan sinogram's values at its neighbouring elements.
 #[test]
 fn stationary_detector_rebins_within_the_nearest_element_bound() {
-    let sys = ConeSystem::builtin("siemens-victre")
-        .unwrap()
-        .binned(4)
-        .unwrap();
-    let sys = ConeSystem {
-        support_height_mm: sys.axis_height_mm - IMG.1 as f64 * IMG.2 / 2.0,
-        ..sys
-    };
-    // The virtual rotating detector: the paper's 1.6 mm elements.
-    let fan = Geometry {
-        source_to_center_mm: sys.arc_radius_mm,
-        source_to_detector_mm: sys.arc_radius_mm + sys.axis_height_mm,
-        views: sys.views.clone(),
-        detector: dbt_geometry::Detector {
-            elements: 170,
-            pitch_mm: 1.6,
-        },
-        image: dbt_geometry::Image {
-            columns: IMG.0,
-            rows: IMG.1,
-            pixel_mm: IMG.2,
-        },
-    };
-    fan.validate().unwrap();
+    let (sys, fan) = victre();
     // A smooth breast: a Gaussian blob across, 40 mm wide.
     let img: Vec<f32> = (0..IMG.0 * IMG.1)
         .map(|i| {
@@ -410,31 +412,7 @@ fn rebinning_does_not_depend_on_the_threads() {
         .map(|_| rng.random_range(0.0..0.08))
         .collect();
     let (grid, vol) = volume(&img, 60, |d| d < 50.0);
-    let stationary = ConeSystem::builtin("siemens-victre")
-        .unwrap()
-        .binned(4)
-        .unwrap();
-    let stationary = ConeSystem {
-        support_height_mm: stationary.axis_height_mm - IMG.1 as f64 * IMG.2 / 2.0,
-        ..stationary
-    };
-    // The stationary system's virtual rotating detector, as in
-    // `stationary_detector_rebins_within_the_nearest_element_bound`.
-    let stationary_fan = Geometry {
-        source_to_center_mm: stationary.arc_radius_mm,
-        source_to_detector_mm: stationary.arc_radius_mm + stationary.axis_height_mm,
-        views: stationary.views.clone(),
-        detector: dbt_geometry::Detector {
-            elements: 170,
-            pitch_mm: 1.6,
-        },
-        image: dbt_geometry::Image {
-            columns: IMG.0,
-            rows: IMG.1,
-            pixel_mm: IMG.2,
-        },
-    };
-    for (sys, fan) in [paper(), (stationary, stationary_fan)] {
+    for (sys, fan) in [paper(), victre()] {
         let f = frames(&sys, grid, &vol);
         let z_ref = sys.support_height_mm + 30.0;
         let run = |threads: usize| {

@@ -871,28 +871,35 @@ mod tests {
         assert!(it > 1 && it < 200);
     }
 
+    /// `n` attenuation-like values: every `high_every`-th about the
+    /// fibroglandular value, the others about the adipose one, spread
+    /// uniformly over `spread` (a linear congruential sequence from `seed`).
+    fn two_populations(n: usize, seed: u64, high_every: usize, spread: f64) -> Vec<f64> {
+        let mut s = seed;
+        (0..n)
+            .map(|i| {
+                s = s.wrapping_mul(6364136223846793005).wrapping_add(1);
+                let u = ((s >> 11) as f64 / (1u64 << 53) as f64) - 0.5;
+                let centre = if i % high_every == 0 { 0.0798 } else { 0.0512 };
+                centre + spread * u
+            })
+            .collect()
+    }
+
+    /// `f` in a rayon pool of `threads` threads.
+    fn in_pool<R: Send>(threads: usize, f: impl FnOnce() -> R + Send) -> R {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(f)
+    }
+
     #[test]
     fn fcm_centres_do_not_depend_on_the_threads() {
         // Several chunks of sums (FCM_CHUNK values each) and a partial one.
-        let mut s = 7u64;
-        let v: Vec<f64> = (0..3 * FCM_CHUNK + 1234)
-            .map(|i| {
-                s = s.wrapping_mul(6364136223846793005).wrapping_add(1);
-                let n = ((s >> 11) as f64 / (1u64 << 53) as f64) - 0.5;
-                if i % 3 == 0 {
-                    0.0798 + 0.004 * n
-                } else {
-                    0.0512 + 0.004 * n
-                }
-            })
-            .collect();
-        let run = |threads: usize, opts: &ClassifyOptions| {
-            rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap()
-                .install(|| fcm2(&v, opts))
-        };
+        let v = two_populations(3 * FCM_CHUNK + 1234, 7, 3, 0.004);
+        let run = |threads: usize, opts: &ClassifyOptions| in_pool(threads, || fcm2(&v, opts));
         for fuzziness in [2.0, 1.7] {
             let opts = ClassifyOptions {
                 fuzziness,
@@ -973,18 +980,7 @@ mod tests {
             }
             s
         };
-        let mut s = 5u64;
-        let v: Vec<f64> = (0..3 * FCM_BLOCK + 17)
-            .map(|i| {
-                s = s.wrapping_mul(6364136223846793005).wrapping_add(1);
-                let n = ((s >> 11) as f64 / (1u64 << 53) as f64) - 0.5;
-                if i % 4 == 0 {
-                    0.0798 + 0.006 * n
-                } else {
-                    0.0512 + 0.006 * n
-                }
-            })
-            .collect();
+        let v = two_populations(3 * FCM_BLOCK + 17, 5, 4, 0.006);
         for m in [2.0, 1.7, 2.5] {
             for c in [[0.05, 0.08], [0.0513, 0.0799], [0.06, 0.061]] {
                 for n in [1, FCM_BLOCK - 1, FCM_BLOCK, FCM_BLOCK + 1, v.len()] {
@@ -1010,11 +1006,9 @@ mod tests {
             *v += 0.01 * (((s >> 11) as f32 / (1u64 << 53) as f32) - 0.5);
         }
         let run = |threads: usize| {
-            rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap()
-                .install(|| classify(&mu, dims, 0.5, &ClassifyOptions::default()).unwrap())
+            in_pool(threads, || {
+                classify(&mu, dims, 0.5, &ClassifyOptions::default()).unwrap()
+            })
         };
         let one = run(1);
         for t in [2, 3] {
