@@ -42,13 +42,9 @@ struct Args {
     /// Runs of each (the median of each stage is reported).
     #[arg(long, default_value_t = 3, value_parser = at_least_one)]
     reps: usize,
-    /// Remove the scatter (a clinical acquisition; `dbtor-process --descatter`).
-    #[arg(long)]
-    descatter: bool,
-    /// Linearise the beam hardening of a CsI detector this thick, um
-    /// (`dbtor-process --csi-um`).
-    #[arg(long)]
-    csi_um: Option<f64>,
+    /// The corrections of a clinical acquisition (as `dbtor-process`'s).
+    #[command(flatten)]
+    corrections: dbt_cli::CorrectionArgs,
     /// Reconstruct every Nth coronal slice, those between interpolated
     /// (`dbtor-process --slice-step`).
     #[arg(long, default_value_t = 1, value_parser = at_least_one)]
@@ -104,16 +100,8 @@ fn main() -> Result<()> {
     let acq = dbt_store::acquisition::read_acquisition(&a.acquisition)
         .with_context(|| format!("reading {}", a.acquisition.display()))?;
     let mut base = PipelineOptions {
-        linearise: a
-            .csi_um
-            .map(dbt_pipeline::linearise::BeamHardening::csi)
-            .transpose()
-            .context("--csi-um")?,
-        descatter: if a.descatter {
-            Some(dbt_pipeline::descatter::ScatterRemoval::shipped()?)
-        } else {
-            None
-        },
+        linearise: a.corrections.linearise().context("--csi-um")?,
+        descatter: a.corrections.descatter()?,
         slice_step: a.slice_step,
         ..PipelineOptions::default()
     };

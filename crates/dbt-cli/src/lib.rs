@@ -64,6 +64,49 @@ pub struct ModelArgs {
     pub engine: dbt_dbtor::Engine,
 }
 
+/// The corrections of a clinical (polychromatic, scattered) acquisition
+/// before the reconstruction, as the daemon's `recon.scatter` and
+/// `recon.beam_hardening` configure them.
+#[derive(Debug, Clone, clap::Args)]
+pub struct CorrectionArgs {
+    /// Linearise the beam hardening of an energy-integrating CsI detector
+    /// this many um thick (the daemon's `recon.beam_hardening = "csi"`,
+    /// `csi_um`); without it the counts are taken as mono-energetic.
+    #[arg(long)]
+    pub csi_um: Option<f64>,
+    /// Remove the scatter with the shipped kernel model before the
+    /// linearisation (the daemon's `recon.scatter = "kernel"`).
+    #[arg(long)]
+    pub descatter: bool,
+}
+
+impl CorrectionArgs {
+    /// The beam-hardening linearisation asked for (a CsI thickness outside
+    /// `dbt_pipeline::linearise::CSI_UM` refused, naming it).
+    pub fn linearise(
+        &self,
+    ) -> Result<
+        Option<dbt_pipeline::linearise::BeamHardening>,
+        dbt_pipeline::linearise::LineariseError,
+    > {
+        self.csi_um
+            .map(dbt_pipeline::linearise::BeamHardening::csi)
+            .transpose()
+    }
+
+    /// The scatter removal asked for.
+    pub fn descatter(
+        &self,
+    ) -> Result<
+        Option<dbt_pipeline::descatter::ScatterRemoval>,
+        dbt_pipeline::descatter::DescatterError,
+    > {
+        self.descatter
+            .then(dbt_pipeline::descatter::ScatterRemoval::shipped)
+            .transpose()
+    }
+}
+
 /// The bar on the terminal now, if any: log lines are written above it.
 static ACTIVE: std::sync::Mutex<Option<indicatif::ProgressBar>> = std::sync::Mutex::new(None);
 

@@ -53,15 +53,8 @@ struct Cli {
     /// Relative statistical uncertainty the Monte Carlo dose runs to.
     #[arg(long, default_value_t = 0.01)]
     dose_uncertainty: f64,
-    /// Linearise the beam hardening of an energy-integrating CsI detector
-    /// this many um thick (the daemon's `recon.beam_hardening = "csi"`,
-    /// `csi_um`); without it the counts are taken as mono-energetic.
-    #[arg(long)]
-    csi_um: Option<f64>,
-    /// Remove the scatter with the shipped kernel model before the
-    /// linearisation (the daemon's `recon.scatter = "kernel"`).
-    #[arg(long)]
-    descatter: bool,
+    #[command(flatten)]
+    corrections: dbt_cli::CorrectionArgs,
     /// Reconstruct every Nth coronal slice (and the last), those between
     /// interpolated in depth (the daemon's `recon.slice_step`; 1 to 8).
     #[arg(long, default_value_t = 1, value_parser = slice_step)]
@@ -108,16 +101,8 @@ fn run(cli: Cli) -> Result<()> {
     let mut opts = PipelineOptions {
         mltr_iterations: cli.iterations,
         dose_uncertainty: cli.dose_uncertainty,
-        linearise: cli
-            .csi_um
-            .map(dbt_pipeline::linearise::BeamHardening::csi)
-            .transpose()
-            .context("--csi-um")?,
-        descatter: if cli.descatter {
-            Some(dbt_pipeline::descatter::ScatterRemoval::shipped()?)
-        } else {
-            None
-        },
+        linearise: cli.corrections.linearise().context("--csi-um")?,
+        descatter: cli.corrections.descatter()?,
         slice_step: cli.slice_step,
         ..PipelineOptions::default()
     };
