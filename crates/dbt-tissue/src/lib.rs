@@ -353,15 +353,19 @@ impl TotalOrder for f32 {
             }
         };
         const BINS: usize = 1 << 16;
+        // One histogram per worker's run of chunks (not one per chunk:
+        // a histogram is as large as a chunk), then merged.
         let hist = vals
             .par_chunks(1 << 16)
-            .map(|c| {
-                let mut h = vec![0usize; BINS];
-                for &x in c {
-                    h[(key(x) >> 16) as usize] += 1;
-                }
-                h
-            })
+            .fold(
+                || vec![0usize; BINS],
+                |mut h, c| {
+                    for &x in c {
+                        h[(key(x) >> 16) as usize] += 1;
+                    }
+                    h
+                },
+            )
             .reduce(
                 || vec![0usize; BINS],
                 |mut a, b| {
@@ -434,11 +438,7 @@ fn quantiles<T: Copy + Send + Sync>(
 }
 
 /// [`fcm2`] on values of either precision (each read as f64).
-fn fcm2_of<T>(vals: &[T], opts: &ClassifyOptions) -> ([f64; 2], usize)
-where
-    T: Copy + Send + Sync + Into<f64> + PartialOrd,
-    T: TotalOrder,
-{
+fn fcm2_of<T: TotalOrder + Into<f64>>(vals: &[T], opts: &ClassifyOptions) -> ([f64; 2], usize) {
     if vals.is_empty() {
         let a = Tissue::Adipose.mu_per_mm() as f64;
         let g = Tissue::Fibroglandular.mu_per_mm() as f64;
