@@ -54,10 +54,28 @@ struct Args {
     /// (AVX2, portable), as `DBTOR_KERNEL` would.
     #[arg(long)]
     all_kernels: bool,
+    /// Only these forced kernel levels (e.g. `avx2,avx-vnni`) besides the
+    /// best, instead of every one (`--all-kernels`).
+    #[arg(long, value_delimiter = ',', value_parser = parse_kernel)]
+    kernels: Vec<Kernel>,
+    /// Also each int8 row that convolves by Winograd (AVX2) with its direct
+    /// convolution instead (`DBTOR_WINOGRAD=off`): the same bits.
+    #[arg(long)]
+    direct: bool,
     /// Adds "fast mixed": int8 with these blocks in fp32 (e.g.
     /// `primal08,primal09`).
     #[arg(long, value_parser = parse_blocks)]
     mixed: Option<Blocks>,
+}
+
+/// A kernel level by its name (`DBTOR_KERNEL`'s names).
+fn parse_kernel(s: &str) -> Result<Kernel, String> {
+    Kernel::parse(s).ok_or_else(|| {
+        format!(
+            "unknown kernel {s:?}: expected one of {}",
+            Kernel::ALL.map(|k| k.name()).join(", ")
+        )
+    })
 }
 
 /// Where the slices are timed.
@@ -225,9 +243,10 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
     let forced: Vec<Kernel> = Kernel::ALL
         .into_iter()
         .rev()
-        .filter(|k| *k <= best && (a.all_kernels || *k == best))
+        .filter(|k| *k <= best && (a.all_kernels || *k == best || a.kernels.contains(k)))
         .collect();
-    let mut combos: Vec<(Engine, Precision, &[String], Kernel)> = Vec::new();
+    // (engine, precision, blocks in fp32, kernel limit, Winograd off)
+    let mut combos: Vec<(Engine, Precision, &[String], Kernel, bool)> = Vec::new();
     let mut seen: Vec<(Precision, Kernel)> = Vec::new();
     for k in &forced {
         for (precision, runs) in [
@@ -236,19 +255,23 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
         ] {
             if !seen.contains(&(precision, runs)) {
                 seen.push((precision, runs));
-                combos.push((Engine::Fast, precision, &[][..], *k));
+                combos.push((Engine::Fast, precision, &[][..], *k, false));
+                // Winograd is the AVX2 int8 kernel's
+                if a.direct && precision == Precision::Int8 && runs == Kernel::Avx2 {
+                    combos.push((Engine::Fast, precision, &[][..], *k, true));
+                }
             }
         }
     }
     if a.tract {
         for p in [Precision::Fp32, Precision::Int8] {
-            combos.push((Engine::Tract, p, &[][..], best));
+            combos.push((Engine::Tract, p, &[][..], best, false));
         }
     }
     if let Some(Blocks(mixed)) = a.mixed.as_ref().filter(|b| !b.0.is_empty()) {
-        combos.insert(2, (Engine::Fast, Precision::Int8, &mixed[..], best));
+        combos.insert(2, (Engine::Fast, Precision::Int8, &mixed[..], best, false));
     }
-    for (engine, precision, fp32_blocks, limit) in combos {
+    for (engine, precision, fp32_blocks, limit, direct) in combos {
         // Forced rows are named by the kernel they run (fp32 at the AVX-VNNI
         // level runs AVX2).
         let runs = match precision {
@@ -260,7 +283,9 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
         } else {
             String::new()
         };
-        let name = if fp32_blocks.is_empty() {
+        let name = if direct {
+            format!("{engine} {precision} [{} direct]", runs.name())
+        } else if fp32_blocks.is_empty() {
             format!("{engine} {precision}{forced_note}")
         } else {
             format!("{engine} mixed")
@@ -268,6 +293,12 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
         let t = Instant::now();
         let d = Dbtor::load_for_geometry_up_to(&a.model, precision, fp32_blocks, engine, g, limit)
             .with_context(|| format!("loading {name}"))?;
+        let d = if direct {
+            d.without_winograd()
+                .with_context(|| format!("loading {name}"))?
+        } else {
+            d
+        };
         let load_s = t.elapsed().as_secs_f64();
         if flops.is_none() {
             flops = d.block_flops().map(|v| v.iter().sum::<f64>());
@@ -296,7 +327,15 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
             load_s,
             buffers_mb: (engine == Engine::Fast).then(|| d.slice_buffer_bytes() as f64 / 1e6),
             note: match (d.kernel(), fp32_blocks.len()) {
-                (Some(k), 0) => format!("kernel {k}, projector {}", d.projector_kernel().name()),
+                (Some(k), 0) => {
+                    let (wg, all) = d.winograd_convolutions();
+                    let wg = if wg > 0 {
+                        format!("; Winograd F(3x3,3x3) on {wg} of {all} convolutions (fewer multiply-adds than the floor's count)")
+                    } else {
+                        String::new()
+                    };
+                    format!("kernel {k}, projector {}{wg}", d.projector_kernel().name())
+                }
                 (Some(k), n) => format!(
                     "kernels {k}, projector {}; {n} blocks fp32 (rate and floor as fp32)",
                     d.projector_kernel().name()
@@ -304,6 +343,19 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
                 (None, _) => format!("projector {}", d.projector_kernel().name()),
             },
         });
+        if direct {
+            // The row before is the same kernel by Winograd: the same bits.
+            if let Some((wn, wo)) = outputs.last() {
+                let differ = wo.iter().zip(&first).filter(|(a, b)| a != b).count();
+                if differ > 0 {
+                    bail!(
+                        "{name}: {differ} of {} values differ from {wn}'s",
+                        first.len()
+                    );
+                }
+                eprintln!("  {name}: bit for bit {wn}'s output");
+            }
+        }
         outputs.push((name, first));
     }
     if a.peers {

@@ -311,6 +311,27 @@ pub fn kernel_limit() -> Result<Kernel, DbtorError> {
     }
 }
 
+/// The environment variable that turns the AVX2 int8 kernel's Winograd
+/// convolution off (`off` or `0`; `on`, `1` or unset: on): its direct
+/// convolution gives the same bits more slowly, so this is for tests,
+/// benchmarks and service comparisons only.
+pub const WINOGRAD_ENV: &str = "DBTOR_WINOGRAD";
+
+/// Whether the AVX2 int8 kernel may convolve by Winograd: [`WINOGRAD_ENV`]
+/// (another value is an error naming it and the choices).
+pub fn winograd_allowed() -> Result<bool, DbtorError> {
+    match std::env::var(WINOGRAD_ENV) {
+        Err(_) => Ok(true),
+        Ok(v) => match v.trim() {
+            "on" | "1" => Ok(true),
+            "off" | "0" => Ok(false),
+            _ => Err(DbtorError::Input(format!(
+                "{WINOGRAD_ENV}={v:?}: expected on, off, 1 or 0"
+            ))),
+        },
+    }
+}
+
 /// The fused projector's kernel level under the fast engine's `limit`
 /// (`portable` is the projector's scalar kernel).
 pub fn projector_limit(limit: Kernel) -> dbt_projector::Kernel {
@@ -504,6 +525,7 @@ impl Dbtor {
                 Blocks::Tract(plans)
             }
             Engine::Fast => {
+                let winograd = winograd_allowed()?;
                 let mut v = Vec::new();
                 for (b, p, path) in files {
                     let blk = match p {
@@ -517,8 +539,12 @@ impl Dbtor {
                         Precision::Int8 => {
                             let w = fast::int8_block(&path, c, b.aux_channels)?;
                             FastBlock::Int8(
-                                Int8Block::new(&w, Kernel::best_int8_up_to(limit))
-                                    .map_err(conv_err(&path))?,
+                                Int8Block::with_winograd(
+                                    &w,
+                                    Kernel::best_int8_up_to(limit),
+                                    winograd,
+                                )
+                                .map_err(conv_err(&path))?,
                             )
                         }
                     };
@@ -628,6 +654,41 @@ impl Dbtor {
             Blocks::Fast(v) => v.first().map(|b| match &b.0 {
                 FastBlock::Fp32(k) => k.kernel().name(),
                 FastBlock::Int8(k) => k.kernel().name(),
+            }),
+        }
+    }
+
+    /// The same model with the AVX2 int8 kernel's direct convolution
+    /// everywhere (as [`WINOGRAD_ENV`]`=off` loads it): the int8 blocks that
+    /// convolve by Winograd reloaded without it (for benchmarks).
+    pub fn without_winograd(mut self) -> Result<Self, DbtorError> {
+        let c = self.manifest.state_channels;
+        if let Blocks::Fast(v) = &mut self.blocks {
+            for ((blk, path), b) in v.iter_mut().zip(&self.manifest.blocks) {
+                if let FastBlock::Int8(k) = blk {
+                    if k.winograd_layers() > 0 {
+                        let w = fast::int8_block(path, c, b.aux_channels)?;
+                        *k = Int8Block::with_winograd(&w, k.kernel(), false).map_err(|e| {
+                            DbtorError::Block {
+                                path: path.clone(),
+                                reason: format!("fast path: {e}"),
+                            }
+                        })?;
+                    }
+                }
+            }
+        }
+        Ok(self)
+    }
+
+    /// Convolutions run by Winograd (the AVX2 int8 kernel's), of all the
+    /// fast engine's.
+    pub fn winograd_convolutions(&self) -> (usize, usize) {
+        match &self.blocks {
+            Blocks::Tract(_) => (0, 0),
+            Blocks::Fast(v) => v.iter().fold((0, 0), |(n, all), b| match &b.0 {
+                FastBlock::Fp32(_) => (n, all + 3),
+                FastBlock::Int8(k) => (n + k.winograd_layers(), all + 3),
             }),
         }
     }

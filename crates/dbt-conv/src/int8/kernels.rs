@@ -15,6 +15,10 @@ pub(super) fn fill_border(buf: &mut [u8], h: usize, w: usize, c: usize, v: u8) {
     }
 }
 
+/// Where a convolution's rows go: `dst(a, x, g0, tile)` receives the
+/// `a`-th row's tile of pixels from `x`, channels from `g0`.
+pub(super) type RowSink<'a> = dyn FnMut(usize, usize, usize, &[i32]) + 'a;
+
 pub(super) enum Out<'a> {
     /// Padded channels-last bytes for the next layer, quantized as it reads them.
     Bytes(&'a mut [u8], QuantParams),
@@ -34,51 +38,72 @@ pub(super) fn conv(
     let rs = (w + 2) * cs;
     debug_assert!(inp.len() >= (h + 2) * rs);
     let ocp = p.ocp;
-    let row = |r: usize, dst: &mut dyn FnMut(usize, usize, &[i32])| {
+    let win_len = if kernel == Kernel::Avx2 {
+        avx2_window_len(p.cin4)
+    } else {
+        0
+    };
+    // Winograd: the AVX2 kernel, where the layer was packed for it.
+    let wino = match kernel {
+        Kernel::Avx2 => p.wino.as_deref(),
+        _ => None,
+    };
+    // Rows per parallel chunk: Winograd's tile height, else one.
+    let per = if wino.is_some() {
+        super::winograd::M
+    } else {
+        1
+    };
+    // Output rows r0..r0 + n; `dst(a, ...)` gets row r0 + a's tiles.
+    let rows = |r0: usize, n: usize, dst: &mut RowSink<'_>| {
+        let mut win = vec![0i16; win_len];
+        #[cfg(target_arch = "x86_64")]
+        if let Some(u) = wino.filter(|_| n == per) {
+            super::winograd::row_triple(p, u, inp, r0, rs, cs, w, &mut win, dst);
+            return;
+        }
         let mut tile = [0i32; NP_NARROW * GROUP];
-        let mut win = vec![
-            0i16;
-            if kernel == Kernel::Avx2 {
-                avx2_window_len(p.cin4)
-            } else {
-                0
-            }
-        ];
-        for_each_tile(ocp, w, |g0, gw, x, np| {
-            run_tile(
-                kernel,
-                gw,
-                np,
-                inp,
-                r * rs + x * cs,
-                rs,
-                cs,
-                p,
-                g0,
-                &mut tile,
-                &mut win,
-            );
-            dst(x, g0, &tile[..np * gw]);
-        });
+        for a in 0..n {
+            let r = r0 + a;
+            for_each_tile(ocp, w, |g0, gw, x, np| {
+                run_tile(
+                    kernel,
+                    gw,
+                    np,
+                    inp,
+                    r * rs + x * cs,
+                    rs,
+                    cs,
+                    p,
+                    g0,
+                    &mut tile,
+                    &mut win,
+                );
+                dst(a, x, g0, &tile[..np * gw]);
+            });
+        }
     };
     match out {
         Out::Bytes(o, qa) => {
             let rl = (w + 2) * ocp;
             o[rl..(h + 1) * rl]
-                .par_chunks_mut(rl)
+                .par_chunks_mut(per * rl)
                 .enumerate()
-                .for_each(|(r, orow)| {
-                    row(r, &mut |x, g0, tile| {
-                        epilogue_bytes(kernel, p, qa, x, g0, tile, &mut orow[ocp..])
+                .for_each(|(k, orows)| {
+                    rows(k * per, orows.len() / rl, &mut |a, x, g0, tile| {
+                        let orow = &mut orows[a * rl + ocp..(a + 1) * rl];
+                        epilogue_bytes(kernel, p, qa, x, g0, tile, orow)
                     })
                 });
         }
         Out::Floats(o) => {
-            o[..h * w * ocp]
-                .par_chunks_mut(w * ocp)
+            let rl = w * ocp;
+            o[..h * rl]
+                .par_chunks_mut(per * rl)
                 .enumerate()
-                .for_each(|(r, orow)| {
-                    row(r, &mut |x, g0, tile| {
+                .for_each(|(k, orows)| {
+                    rows(k * per, orows.len() / rl, &mut |a, x, g0, tile| {
+                        let orow = &mut orows[a * rl..(a + 1) * rl];
                         epilogue_floats(kernel, p, x, g0, tile, orow)
                     })
                 });

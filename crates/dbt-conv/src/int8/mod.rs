@@ -47,6 +47,7 @@ mod kernels;
 mod pack;
 mod quant;
 mod reference;
+mod winograd;
 
 use kernels::*;
 use pack::*;
@@ -105,8 +106,21 @@ impl Int8Workspace {
 }
 
 impl Int8Block {
-    /// Pack checked weights for `kernel`.
+    /// Pack checked weights for `kernel` (on AVX2, the convolutions of 16
+    /// input channels and more by Winograd's F(2x2, 3x3), bit for bit the
+    /// direct ones: [`Int8Block::with_winograd`]).
     pub fn new(b: &Int8BlockWeights, kernel: Kernel) -> Result<Self, ConvError> {
+        Self::with_winograd(b, kernel, true)
+    }
+
+    /// As [`Int8Block::new`]; `winograd: false` keeps the AVX2 kernel's
+    /// direct convolution everywhere (to test and benchmark it; other
+    /// kernels ignore the flag).
+    pub fn with_winograd(
+        b: &Int8BlockWeights,
+        kernel: Kernel,
+        winograd: bool,
+    ) -> Result<Self, ConvError> {
         b.check()?;
         if kernel > Kernel::best_int8() {
             return Err(ConvError::Shape(format!(
@@ -133,7 +147,10 @@ impl Int8Block {
                 .unwrap_or_else(|| vec![1.0; b.state_ch + b.aux_ch]),
             q_cat: b.q_cat,
             q_result: b.q_result,
-            layers: [pack(l1, b.q_cat), pack(l2, q2), pack(l3, q3)],
+            layers: {
+                let wg = winograd && kernel == Kernel::Avx2;
+                [pack(l1, b.q_cat, wg), pack(l2, q2, wg), pack(l3, q3, wg)]
+            },
             kernel,
             ops_per_pixel: b.ops(1, 1),
         })
@@ -142,6 +159,11 @@ impl Int8Block {
     /// The kernel in use.
     pub fn kernel(&self) -> Kernel {
         self.kernel
+    }
+
+    /// How many of the block's three convolutions run by Winograd.
+    pub fn winograd_layers(&self) -> usize {
+        self.layers.iter().filter(|l| l.wino.is_some()).count()
     }
 
     /// Operations (2 per multiply-add) of one run on `h x w`.
@@ -486,6 +508,46 @@ mod tests {
         }
     }
 
+    /// The AVX2 kernel's blocks by Winograd give the direct blocks' bits, on
+    /// every grid height 1-7 (whole 3-row groups and 1 or 2 rows left over)
+    /// and widths with 0, 1 or 2 columns left over, one and several chunks
+    /// of tiles, in all three graph forms; only the AVX2 kernel packs for it.
+    #[test]
+    fn winograd_blocks_give_the_direct_blocks_bits() {
+        if !dbt_isa::kernel_test_runs("int8 avx2 winograd", &["avx2"]) {
+            return;
+        }
+        let run_with = |b: &Int8BlockWeights, wg: bool, state: &[f32], aux: &[f32], h, w| {
+            let blk = Int8Block::with_winograd(b, Kernel::Avx2, wg).unwrap();
+            assert_eq!(blk.winograd_layers(), if wg { 3 } else { 0 });
+            let mut ws = Int8Workspace::new(&blk, h, w);
+            let mut s = state.to_vec();
+            blk.run(&mut ws, &mut s, aux).unwrap();
+            s
+        };
+        for (k, form) in FORMS.into_iter().enumerate() {
+            for h in 1..=7 {
+                for (w, hidden) in [(1, 16), (5, 32), (16, 80), (17, 32), (31, 16)] {
+                    let seed = (h * 100 + w + k) as u64;
+                    let b = in_form(random_int8(5, 3, hidden, seed), form, seed);
+                    let state = random_vec(5 * h * w, seed);
+                    let aux = random_vec(3 * h * w, seed + 1);
+                    assert_eq!(
+                        run_with(&b, true, &state, &aux, h, w),
+                        run_with(&b, false, &state, &aux, h, w),
+                        "{form:?}: {h} x {w}, {hidden} channels"
+                    );
+                }
+            }
+        }
+        let b = random_int8(5, 3, 32, 1);
+        for k in [Kernel::Portable, Kernel::best_int8()] {
+            if k != Kernel::Avx2 {
+                assert_eq!(Int8Block::new(&b, k).unwrap().winograd_layers(), 0);
+            }
+        }
+    }
+
     /// The packed weights' storage is aligned for the AVX2 and AVX-VNNI
     /// kernels' aligned loads, and holds the weights' values: the pair
     /// packing is a permutation of the byte packing.
@@ -493,7 +555,7 @@ mod tests {
     fn packed_weights_are_aligned_and_a_permutation() {
         let b = random_int8(5, 2, 64, 3);
         for l in &b.layers {
-            let p = pack(l, b.q_cat);
+            let p = pack(l, b.q_cat, true);
             assert_eq!(p.w.as_ptr() as usize % 64, 0);
             assert_eq!(p.w16.as_ptr() as usize % 64, 0);
             let mut a: Vec<i16> = p.w.iter().map(|&v| i16::from(v)).collect();

@@ -69,6 +69,10 @@ pub(super) struct PackedI8 {
     /// sums pairs of i16 products exactly, where `vpmaddubsw` on the bytes
     /// would saturate).
     pub(super) w16: Aligned<i16>,
+    /// The weights transformed for the AVX2 kernel's Winograd convolution
+    /// (`[pos][cin4 / 2][ocp][2]`, [`super::winograd`]), where it was asked
+    /// for and pays ([`super::winograd::eligible`]).
+    pub(super) wino: Option<Aligned<i16>>,
     /// `sx * sw[o]`, 0 on padded lanes.
     pub(super) scale: Vec<f32>,
     /// `(128 + zx) * sum qw[o]`.
@@ -80,7 +84,8 @@ pub(super) struct PackedI8 {
     pub(super) q_in: QuantParams,
 }
 
-pub(super) fn pack(l: &Int8Conv, q_in: QuantParams) -> PackedI8 {
+/// `l` packed; with `winograd`, also its Winograd weights where that pays.
+pub(super) fn pack(l: &Int8Conv, q_in: QuantParams, winograd: bool) -> PackedI8 {
     let ocp = l.out_ch.div_ceil(L) * L;
     let cin4 = l.in_ch.div_ceil(4) * 4;
     let mut w = vec![0i8; 9 * cin4 * ocp];
@@ -120,6 +125,8 @@ pub(super) fn pack(l: &Int8Conv, q_in: QuantParams) -> PackedI8 {
         cin4,
         ocp,
         w: Aligned::from_slice(&w),
+        wino: (winograd && super::winograd::eligible(cin4))
+            .then(|| Aligned::from_slice(&super::winograd::transform_weights(&w16, cin4, ocp))),
         w16: Aligned::from_slice(&w16),
         scale,
         corr,
