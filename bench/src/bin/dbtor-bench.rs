@@ -58,8 +58,8 @@ struct Args {
     /// best, instead of every one (`--all-kernels`).
     #[arg(long, value_delimiter = ',', value_parser = parse_kernel)]
     kernels: Vec<Kernel>,
-    /// Also each int8 row that convolves by Winograd (AVX2) with its direct
-    /// convolution instead (`DBTOR_WINOGRAD=off`): the same bits.
+    /// Also each int8 row that convolves by Winograd (AVX2, AVX-VNNI) with
+    /// its direct convolution instead (`DBTOR_WINOGRAD=off`): the same bits.
     #[arg(long)]
     direct: bool,
     /// Adds "fast mixed": int8 with these blocks in fp32 (e.g.
@@ -256,8 +256,11 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
             if !seen.contains(&(precision, runs)) {
                 seen.push((precision, runs));
                 combos.push((Engine::Fast, precision, &[][..], *k, false));
-                // Winograd is the AVX2 int8 kernel's
-                if a.direct && precision == Precision::Int8 && runs == Kernel::Avx2 {
+                // Winograd is the AVX2 and AVX-VNNI int8 kernels'
+                if a.direct
+                    && precision == Precision::Int8
+                    && matches!(runs, Kernel::Avx2 | Kernel::AvxVnni)
+                {
                     combos.push((Engine::Fast, precision, &[][..], *k, true));
                 }
             }

@@ -311,24 +311,26 @@ pub fn kernel_limit() -> Result<Kernel, DbtorError> {
     }
 }
 
-/// The environment variable that turns the AVX2 int8 kernel's Winograd
+/// The environment variable that turns the AVX2 and AVX-VNNI int8 kernels' Winograd
 /// convolution off (`off` or `0`; `on`, `1` or unset: on): its direct
 /// convolution gives the same bits more slowly, so this is for tests,
 /// benchmarks and service comparisons only.
 pub const WINOGRAD_ENV: &str = "DBTOR_WINOGRAD";
 
-/// Whether the AVX2 int8 kernel may convolve by Winograd: [`WINOGRAD_ENV`]
+/// Whether the AVX2 and AVX-VNNI int8 kernels may convolve by Winograd: [`WINOGRAD_ENV`]
 /// (another value is an error naming it and the choices).
 pub fn winograd_allowed() -> Result<bool, DbtorError> {
-    match std::env::var(WINOGRAD_ENV) {
-        Err(_) => Ok(true),
-        Ok(v) => match v.trim() {
-            "on" | "1" => Ok(true),
-            "off" | "0" => Ok(false),
-            _ => Err(DbtorError::Input(format!(
-                "{WINOGRAD_ENV}={v:?}: expected on, off, 1 or 0"
-            ))),
-        },
+    std::env::var(WINOGRAD_ENV).map_or(Ok(true), |v| parse_winograd(&v))
+}
+
+/// A [`WINOGRAD_ENV`] value.
+fn parse_winograd(v: &str) -> Result<bool, DbtorError> {
+    match v.trim() {
+        "on" | "1" => Ok(true),
+        "off" | "0" => Ok(false),
+        _ => Err(DbtorError::Input(format!(
+            "{WINOGRAD_ENV}={v:?}: expected on, off, 1 or 0"
+        ))),
     }
 }
 
@@ -658,7 +660,7 @@ impl Dbtor {
         }
     }
 
-    /// The same model with the AVX2 int8 kernel's direct convolution
+    /// The same model with the int8 kernels' direct convolution
     /// everywhere (as [`WINOGRAD_ENV`]`=off` loads it): the int8 blocks that
     /// convolve by Winograd reloaded without it (for benchmarks).
     pub fn without_winograd(mut self) -> Result<Self, DbtorError> {
@@ -681,7 +683,7 @@ impl Dbtor {
         Ok(self)
     }
 
-    /// Convolutions run by Winograd (the AVX2 int8 kernel's), of all the
+    /// Convolutions run by Winograd (the AVX2 and AVX-VNNI int8 kernels'), of all the
     /// fast engine's.
     pub fn winograd_convolutions(&self) -> (usize, usize) {
         match &self.blocks {
@@ -1068,5 +1070,19 @@ impl Dbtor {
             .map_err(|e| DbtorError::Input(e.to_string()))?;
         out.iter_mut().for_each(|v| *v *= scale);
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn winograd_switch_values_are_read_or_refused_by_name() {
+        for (v, want) in [("on", true), ("1", true), (" off ", false), ("0", false)] {
+            assert_eq!(parse_winograd(v).unwrap(), want, "{v:?}");
+        }
+        let e = parse_winograd("no").unwrap_err().to_string();
+        assert!(e.contains("DBTOR_WINOGRAD=\"no\"") && e.contains("on, off"), "{e}");
     }
 }

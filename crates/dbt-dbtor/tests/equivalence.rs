@@ -455,6 +455,25 @@ fn every_forced_kernel_matches_the_fixtures() {
             for c in check_fixtures(&m, &dir).unwrap() {
                 assert!(c.pass, "{p} on {}: {c:?}", want.name());
             }
+            // int8 on AVX2 and AVX-VNNI convolves by Winograd: every
+            // convolution, and the direct convolution gives the same bits.
+            let (wg, all) = m.winograd_convolutions();
+            let winograd = p == Precision::Int8 && matches!(want, Kernel::Avx2 | Kernel::AvxVnni);
+            assert_eq!(wg, if winograd { all } else { 0 }, "{p} on {}", want.name());
+            if winograd {
+                let sino: Vec<f32> = (0..g.n_rays())
+                    .map(|i| (i * 7919 % 1000) as f32 / 400.0)
+                    .collect();
+                let a = m.reconstruct(&sino, 40.0).unwrap();
+                let direct = m.without_winograd().unwrap();
+                assert_eq!(direct.winograd_convolutions().0, 0);
+                assert_eq!(
+                    direct.reconstruct(&sino, 40.0).unwrap(),
+                    a,
+                    "{}",
+                    want.name()
+                );
+            }
         }
     }
 }

@@ -43,10 +43,11 @@ pub(super) fn conv(
     } else {
         0
     };
-    // Winograd: the AVX2 kernel, where the layer was packed for it.
+    // Winograd: the AVX2 and AVX-VNNI kernels, where the layer was packed
+    // for it.
     let wino = match kernel {
-        Kernel::Avx2 => p.wino.as_deref(),
-        _ => None,
+        Kernel::Avx2 | Kernel::AvxVnni => p.wino.as_deref(),
+        Kernel::Portable | Kernel::Avx512 => None,
     };
     // Rows per parallel chunk: Winograd's tile height, else one.
     let per = if wino.is_some() {
@@ -59,7 +60,7 @@ pub(super) fn conv(
         let mut win = vec![0i16; win_len];
         #[cfg(target_arch = "x86_64")]
         if let Some(u) = wino.filter(|_| n == per) {
-            super::winograd::row_triple(p, u, inp, r0, rs, cs, w, &mut win, dst);
+            super::winograd::row_triple(kernel, p, u, inp, r0, rs, cs, w, &mut win, dst);
             return;
         }
         let mut tile = [0i32; NP_NARROW * GROUP];

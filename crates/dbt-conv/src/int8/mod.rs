@@ -38,7 +38,8 @@
 //!
 //! Split by layer: [`quant`] (quantisation), [`reference`] (the float
 //! graph), [`pack`] (weights for the kernel), [`kernels`] (the integer
-//! convolution); this file runs a block with them.
+//! convolution), [`winograd`] (the same convolution in fewer products, on
+//! AVX2 and AVX-VNNI); this file runs a block with them.
 
 use crate::{check_run, for_each_tile, group_width, ConvError, Kernel, GROUP, L, NP_NARROW};
 use rayon::prelude::*;
@@ -106,16 +107,16 @@ impl Int8Workspace {
 }
 
 impl Int8Block {
-    /// Pack checked weights for `kernel` (on AVX2, the convolutions of 16
-    /// input channels and more by Winograd's F(2x2, 3x3), bit for bit the
-    /// direct ones: [`Int8Block::with_winograd`]).
+    /// Pack checked weights for `kernel` (on AVX2 and AVX-VNNI, the
+    /// convolutions by Winograd's F(3x3, 3x3), bit for bit the direct ones:
+    /// [`Int8Block::with_winograd`]).
     pub fn new(b: &Int8BlockWeights, kernel: Kernel) -> Result<Self, ConvError> {
         Self::with_winograd(b, kernel, true)
     }
 
-    /// As [`Int8Block::new`]; `winograd: false` keeps the AVX2 kernel's
-    /// direct convolution everywhere (to test and benchmark it; other
-    /// kernels ignore the flag).
+    /// As [`Int8Block::new`]; `winograd: false` keeps the AVX2 and AVX-VNNI
+    /// kernels' direct convolution everywhere (to test and benchmark it;
+    /// the other kernels ignore the flag).
     pub fn with_winograd(
         b: &Int8BlockWeights,
         kernel: Kernel,
@@ -148,7 +149,7 @@ impl Int8Block {
             q_cat: b.q_cat,
             q_result: b.q_result,
             layers: {
-                let wg = winograd && kernel == Kernel::Avx2;
+                let wg = winograd && matches!(kernel, Kernel::Avx2 | Kernel::AvxVnni);
                 [pack(l1, b.q_cat, wg), pack(l2, q2, wg), pack(l3, q3, wg)]
             },
             kernel,
@@ -508,41 +509,42 @@ mod tests {
         }
     }
 
-    /// The AVX2 kernel's blocks by Winograd give the direct blocks' bits, on
+    /// The AVX2 and AVX-VNNI kernels' blocks by Winograd give the direct
+    /// blocks' bits, on
     /// every grid height 1-7 (whole 3-row groups and 1 or 2 rows left over)
     /// and widths with 0, 1 or 2 columns left over, one and several chunks
-    /// of tiles, in all three graph forms; only the AVX2 kernel packs for it.
+    /// of tiles, in all three graph forms; the portable and AVX-512 kernels
+    /// do not pack for it.
     #[test]
     fn winograd_blocks_give_the_direct_blocks_bits() {
-        if !dbt_isa::kernel_test_runs("int8 avx2 winograd", &["avx2"]) {
-            return;
-        }
-        let run_with = |b: &Int8BlockWeights, wg: bool, state: &[f32], aux: &[f32], h, w| {
-            let blk = Int8Block::with_winograd(b, Kernel::Avx2, wg).unwrap();
+        let run_with = |b: &Int8BlockWeights, k, wg: bool, state: &[f32], aux: &[f32], h, w| {
+            let blk = Int8Block::with_winograd(b, k, wg).unwrap();
             assert_eq!(blk.winograd_layers(), if wg { 3 } else { 0 });
             let mut ws = Int8Workspace::new(&blk, h, w);
             let mut s = state.to_vec();
             blk.run(&mut ws, &mut s, aux).unwrap();
             s
         };
-        for (k, form) in FORMS.into_iter().enumerate() {
-            for h in 1..=7 {
-                for (w, hidden) in [(1, 16), (5, 32), (16, 80), (17, 32), (31, 16)] {
-                    let seed = (h * 100 + w + k) as u64;
-                    let b = in_form(random_int8(5, 3, hidden, seed), form, seed);
-                    let state = random_vec(5 * h * w, seed);
-                    let aux = random_vec(3 * h * w, seed + 1);
-                    assert_eq!(
-                        run_with(&b, true, &state, &aux, h, w),
-                        run_with(&b, false, &state, &aux, h, w),
-                        "{form:?}: {h} x {w}, {hidden} channels"
-                    );
+        for k in winograd::tests::winograd_kernels() {
+            for (f, form) in FORMS.into_iter().enumerate() {
+                for h in 1..=7 {
+                    for (w, hidden) in [(1, 16), (5, 32), (16, 80), (17, 32), (31, 16), (65, 32)] {
+                        let seed = (h * 100 + w + f) as u64;
+                        let b = in_form(random_int8(5, 3, hidden, seed), form, seed);
+                        let state = random_vec(5 * h * w, seed);
+                        let aux = random_vec(3 * h * w, seed + 1);
+                        assert_eq!(
+                            run_with(&b, k, true, &state, &aux, h, w),
+                            run_with(&b, k, false, &state, &aux, h, w),
+                            "{k:?}, {form:?}: {h} x {w}, {hidden} channels"
+                        );
+                    }
                 }
             }
         }
         let b = random_int8(5, 3, 32, 1);
         for k in [Kernel::Portable, Kernel::best_int8()] {
-            if k != Kernel::Avx2 {
+            if !matches!(k, Kernel::Avx2 | Kernel::AvxVnni) {
                 assert_eq!(Int8Block::new(&b, k).unwrap().winograd_layers(), 0);
             }
         }

@@ -69,7 +69,8 @@ pub(super) struct PackedI8 {
     /// sums pairs of i16 products exactly, where `vpmaddubsw` on the bytes
     /// would saturate).
     pub(super) w16: Aligned<i16>,
-    /// The weights transformed for the AVX2 kernel's Winograd convolution
+    /// The weights transformed for the AVX2 and AVX-VNNI kernels' Winograd
+    /// convolution
     /// (`[pos][cin4 / 2][ocp][2]`, [`super::winograd`]), where it was asked
     /// for and pays ([`super::winograd::eligible`]).
     pub(super) wino: Option<Aligned<i16>>,

@@ -1,4 +1,5 @@
-//! The AVX2 int8 convolution by Winograd's minimal filtering F(3x3, 3x3)
+//! The AVX2 and AVX-VNNI int8 convolution by Winograd's minimal filtering
+//! F(3x3, 3x3)
 //! (Lavin & Gray 2016, "Fast algorithms for convolutional neural networks",
 //! CVPR, arXiv:1509.09308; the Toom-Cook points 0, 1, -1, 2 and infinity):
 //! each 3 x 3 block of output pixels from its 5 x 5 input patch with 25
@@ -27,13 +28,23 @@
 //! convolution is therefore bit for bit the direct one (tested), at
 //! 25 / 9 = 2.8 multiply-adds per output pixel and input channel instead of
 //! 9, plus the two transforms. Rows and columns left over (the grid's height
-//! or width not a multiple of 3) run the direct AVX2 tile.
+//! or width not a multiple of 3) run the kernel's direct tile.
+//!
+//! Where it runs: the AVX2 kernel (`vpmaddwd` then `vpaddd`, as its direct
+//! tile) and the AVX-VNNI kernel (`vpdpwssd`, the same i16 products
+//! accumulated in one instruction), all input widths (`eligible`). Not the
+//! AVX-512 VNNI kernel: its direct `vpdpbusd` multiplies 64 byte pairs per
+//! instruction where `vpdpwssd` multiplies 32 i16 pairs, so Winograd saves
+//! only 38 % of its multiply instructions, less than the transforms cost;
+//! tried (the transforms as here, a 512-bit product loop), a paper-geometry
+//! slice took 300 ms against the direct kernel's 264 ms on a Zen 5
+//! (`dbtor-bench --direct`, the AVX-512 rows), so it was not kept.
 
 use super::*;
 
-/// Tiles of 3 x 3 output pixels per chunk: 5, so 15 pixels of a row and
-/// 10 accumulators per pass.
-pub(super) const WT: usize = 5;
+/// Tiles of 3 x 3 output pixels per chunk (each transform position's
+/// weights are read once per chunk, for its register blocks of 5 tiles).
+pub(super) const WT: usize = 20;
 
 /// Output pixels per tile side.
 pub(super) const M: usize = 3;
@@ -42,7 +53,8 @@ pub(super) const M: usize = 3;
 const N: usize = 5;
 const POS: usize = N * N;
 
-/// `B^T`.
+/// `B^T` ([`bt5`] computes it factorised; a test holds them equal).
+#[cfg_attr(not(test), allow(dead_code))]
 const BT: [[i32; N]; N] = [
     [2, -1, -2, 1, 0],
     [0, -2, -1, 1, 0],
@@ -54,7 +66,8 @@ const BT: [[i32; N]; N] = [
 /// `G' = 6 G`.
 const GP: [[i32; 3]; N] = [[3, 0, 0], [-3, -3, -3], [-1, 1, -1], [1, 2, 4], [0, 0, 6]];
 
-/// `A^T`.
+/// `A^T` ([`at5`] computes it factorised; a test holds them equal).
+#[cfg_attr(not(test), allow(dead_code))]
 const AT: [[i32; N]; M] = [[1, 1, 1, 1, 0], [0, 1, -1, 2, 0], [0, 1, 1, 4, 1]];
 
 /// The inverse of 9 modulo 2^32 (`9 * INV9 = 2 * 2^32 + 1`).
@@ -108,6 +121,7 @@ pub(super) fn transform_weights(w16: &[i16], cin4: usize, ocp: usize) -> Vec<i16
 #[cfg(target_arch = "x86_64")]
 #[allow(clippy::too_many_arguments)]
 pub(super) fn row_triple(
+    kernel: Kernel,
     p: &PackedI8,
     u: &[i16],
     inp: &[u8],
@@ -119,11 +133,13 @@ pub(super) fn row_triple(
     dst: &mut RowSink<'_>,
 ) {
     let (cin4, ocp) = (p.cin4, p.ocp);
+    assert!(matches!(kernel, Kernel::Avx2 | Kernel::AvxVnni));
     assert!(eligible(cin4) && cin4 <= cs && ocp.is_multiple_of(L));
     assert!(u.len() == POS * cin4 * ocp && (u.as_ptr() as usize).is_multiple_of(32));
     assert!(rs == (w + 2) * cs && inp.len() >= (r + N) * rs);
     let mut v = vec![0i16; POS * WT * cin4];
-    let mut m = vec![0i32; POS * WT * L];
+    // two 16-channel blocks' sums
+    let mut m = vec![0i32; 2 * POS * WT * L];
     let mut tiles: [Vec<i32>; M] = std::array::from_fn(|_| vec![0; M * WT * GROUP]);
     let mut x = 0;
     while x + M <= w {
@@ -144,24 +160,26 @@ pub(super) fn row_triple(
         let mut g0 = 0;
         while g0 < ocp {
             let gw = group_width(ocp, g0);
-            for q in 0..gw / L {
+            // 16-channel blocks, two at a time where the group has them
+            let mut q = 0;
+            while q < gw / L {
+                let nq = (gw / L - q).min(2);
                 let uq = u[(g0 + q * L) * 2..].as_ptr();
-                // SAFETY: AVX2; `v` holds the chunk's nt tiles, `uq` the
-                // transformed weights from channel g0 + 16 q (aligned: `u` is,
-                // offsets are multiples of 32 bytes), `m` POS * WT * 16 i32;
-                // each of the tiles holds 3 WT pixels of the group's gw <= GROUP.
+                // SAFETY: the kernel's instructions were detected when the
+                // block was made (the caller's contract); `v` holds the
+                // chunk's nt tiles, `uq` the transformed weights from channel
+                // g0 + 16 q (aligned: `u` is, offsets are multiples of 64
+                // bytes), `m` 2 * POS * WT * 16 i32; each of the tiles holds
+                // 3 WT pixels of the group's gw <= GROUP.
                 unsafe {
                     let (vp, mp) = (v.as_ptr(), m.as_mut_ptr());
-                    match nt {
-                        1 => gemm_avx2::<1>(vp, cin4, uq, ocp, mp),
-                        2 => gemm_avx2::<2>(vp, cin4, uq, ocp, mp),
-                        3 => gemm_avx2::<3>(vp, cin4, uq, ocp, mp),
-                        4 => gemm_avx2::<4>(vp, cin4, uq, ocp, mp),
-                        _ => gemm_avx2::<5>(vp, cin4, uq, ocp, mp),
+                    gemm(kernel, nt, nq, vp, cin4, uq, ocp, mp);
+                    for qi in 0..nq {
+                        let t = tiles.each_mut().map(|t| t.as_mut_ptr());
+                        output_avx2(mp.add(qi * POS * WT * L), nt, gw, q + qi, t);
                     }
-                    let t = tiles.each_mut().map(|t| t.as_mut_ptr());
-                    output_avx2(m.as_ptr(), nt, gw, q, t);
                 }
+                q += nq;
             }
             for (a, t) in tiles.iter().enumerate() {
                 dst(a, x, g0, &t[..M * nt * gw]);
@@ -178,7 +196,7 @@ pub(super) fn row_triple(
             while g0 < ocp {
                 let gw = group_width(ocp, g0);
                 let base = (r + a) * rs + x * cs;
-                run_tile(Kernel::Avx2, gw, np, inp, base, rs, cs, p, g0, tile, win);
+                run_tile(kernel, gw, np, inp, base, rs, cs, p, g0, tile, win);
                 dst(a, x, g0, &tile[..np * gw]);
                 g0 += gw;
             }
@@ -186,105 +204,92 @@ pub(super) fn row_triple(
     }
 }
 
-/// `sum_j c[j] x[j]` for small constant integer `c` (0, +-1..+-4), by
-/// additions and shifts (the constants are known where this is inlined, so
-/// the matches fold away).
+/// `B^T x` on 16 i16 lanes, factorised (13 additions; [`BT`]'s rows:
+/// `r3 = x3 - x1`, `r0 = 2 (x0 - x2) + r3`, `r1 = r3 - (x1 + x2)`,
+/// `r2 = r3 + 3 (x1 - x2)`, `r4 = (x4 - x2) - 2 r3`).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
-fn lin16(c: &[i32; N], x: &[std::arch::x86_64::__m256i; N]) -> std::arch::x86_64::__m256i {
+fn bt5(x: [std::arch::x86_64::__m256i; N]) -> [std::arch::x86_64::__m256i; N] {
     use std::arch::x86_64::*;
-    let mut acc = _mm256_setzero_si256();
-    for (&k, &v) in c.iter().zip(x) {
-        let t = match k.abs() {
-            0 => continue,
-            1 => v,
-            2 => _mm256_add_epi16(v, v),
-            3 => _mm256_add_epi16(_mm256_add_epi16(v, v), v),
-            _ => _mm256_slli_epi16::<2>(v),
-        };
-        acc = if k > 0 {
-            _mm256_add_epi16(acc, t)
-        } else {
-            _mm256_sub_epi16(acc, t)
-        };
-    }
-    acc
+    let [x0, x1, x2, x3, x4] = x;
+    let r3 = _mm256_sub_epi16(x3, x1);
+    let d02 = _mm256_sub_epi16(x0, x2);
+    let r0 = _mm256_add_epi16(_mm256_add_epi16(d02, d02), r3);
+    let r1 = _mm256_sub_epi16(r3, _mm256_add_epi16(x1, x2));
+    let u = _mm256_sub_epi16(x1, x2);
+    let r2 = _mm256_add_epi16(_mm256_add_epi16(r3, u), _mm256_add_epi16(u, u));
+    let r4 = _mm256_sub_epi16(_mm256_sub_epi16(x4, x2), _mm256_add_epi16(r3, r3));
+    [r0, r1, r2, r3, r4]
 }
 
-/// [`lin16`] on i32 lanes.
+/// `A^T x` on 8 i32 lanes, factorised (9 additions; [`AT`]'s rows:
+/// `y0 = x0 + (x1 + x2) + x3`, `y1 = (x1 - x2) + 2 x3`,
+/// `y2 = (x1 + x2) + 4 x3 + x4`).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
-fn lin32(c: &[i32; N], x: &[std::arch::x86_64::__m256i; N]) -> std::arch::x86_64::__m256i {
+fn at5(x: [std::arch::x86_64::__m256i; N]) -> [std::arch::x86_64::__m256i; M] {
     use std::arch::x86_64::*;
-    let mut acc = _mm256_setzero_si256();
-    for (&k, &v) in c.iter().zip(x) {
-        let t = match k.abs() {
-            0 => continue,
-            1 => v,
-            2 => _mm256_add_epi32(v, v),
-            3 => _mm256_add_epi32(_mm256_add_epi32(v, v), v),
-            _ => _mm256_slli_epi32::<2>(v),
-        };
-        acc = if k > 0 {
-            _mm256_add_epi32(acc, t)
-        } else {
-            _mm256_sub_epi32(acc, t)
-        };
-    }
-    acc
+    let [x0, x1, x2, x3, x4] = x;
+    let a = _mm256_add_epi32(x1, x2);
+    let b = _mm256_sub_epi32(x1, x2);
+    let x3x2 = _mm256_add_epi32(x3, x3);
+    let y0 = _mm256_add_epi32(_mm256_add_epi32(x0, a), x3);
+    let y1 = _mm256_add_epi32(b, x3x2);
+    let y2 = _mm256_add_epi32(_mm256_add_epi32(a, x4), _mm256_add_epi32(x3x2, x3x2));
+    [y0, y1, y2]
 }
 
 /// `V = B^T d B` of `nt` patches (5 x 5 pixels from `inp`, the next one 3
-/// pixels right), 16 channels at a time (then 8, then 4), into
-/// `v[(pos * WT + t) * cin4 + c]`.
+/// pixels right, so neighbours share 2 columns), 16 channels at a time
+/// (then 8, then 4), into `v[(pos * WT + t) * cin4 + c]`: `B^T` down each of
+/// the chunk's `3 nt + 2` columns once, then `B` along each patch's rows.
 ///
 /// # Safety
 /// AVX2; `inp` valid for rows 0..5 (stride `rs`) of pixels 0..3 nt + 2
 /// (stride `cs`), `cin4` bytes each; `cin4` a multiple of 4; `v` valid for
-/// `POS * WT * cin4` i16; `nt <= WT`.
+/// `POS * WT * cin4` i16; `nt` in 1..=WT.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn input_avx2(inp: *const u8, rs: usize, cs: usize, cin4: usize, nt: usize, v: *mut i16) {
     // SAFETY: AVX2 and the ranges per the contract: each step reads and
-    // writes `n <= cin4 - c` channels from `c`.
+    // writes `NC <= cin4 - c` channels from `c`.
     unsafe {
-        for t in 0..nt {
-            let (src, dst) = (inp.add(M * t * cs), v.add(t * cin4));
-            let mut c = 0;
-            while c + 16 <= cin4 {
-                input_step::<16>(src.add(c), rs, cs, dst.add(c), WT * cin4);
-                c += 16;
-            }
-            if c + 8 <= cin4 {
-                input_step::<8>(src.add(c), rs, cs, dst.add(c), WT * cin4);
-                c += 8;
-            }
-            if c < cin4 {
-                input_step::<4>(src.add(c), rs, cs, dst.add(c), WT * cin4);
-            }
+        let mut c = 0;
+        while c + 16 <= cin4 {
+            input_step::<16>(inp.add(c), rs, cs, nt, v.add(c), cin4);
+            c += 16;
+        }
+        if c + 8 <= cin4 {
+            input_step::<8>(inp.add(c), rs, cs, nt, v.add(c), cin4);
+            c += 8;
+        }
+        if c < cin4 {
+            input_step::<4>(inp.add(c), rs, cs, nt, v.add(c), cin4);
         }
     }
 }
 
-/// [`input_avx2`] on `NC` (16, 8 or 4) channels of one patch: bytes
-/// zero-extended into the low `NC` of 16 i16 lanes (the others zero, not
-/// stored), `V` of position `pos` at `dst + pos * ps`.
+/// [`input_avx2`] on `NC` (16, 8 or 4) channels: bytes zero-extended into
+/// the low `NC` of 16 i16 lanes (the others zero, not stored); tile `t`'s
+/// position `pos` at `dst + (pos * WT + t) * cin4`.
 ///
 /// # Safety
-/// AVX2; `src` valid for `NC` bytes of rows 0..5 (stride `rs`) x pixels 0..5
-/// (stride `cs`); `dst` for `NC` i16 at `pos * ps`, `pos < 25`.
+/// AVX2; `src` valid for `NC` bytes of rows 0..5 (stride `rs`) x pixels
+/// 0..3 nt + 2 (stride `cs`); `dst` for `NC` i16 at each of those places;
+/// `nt` in 1..=WT.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
-#[allow(clippy::needless_range_loop)] // e[i][j] filled column by column
+#[allow(clippy::needless_range_loop)] // row i of five columns
 unsafe fn input_step<const NC: usize>(
     src: *const u8,
     rs: usize,
     cs: usize,
+    nt: usize,
     dst: *mut i16,
-    ps: usize,
+    cin4: usize,
 ) {
     // SAFETY: AVX2 and the ranges per the contract (loads and stores of
     // exactly NC bytes / i16).
@@ -298,74 +303,219 @@ unsafe fn input_step<const NC: usize>(
                 _ => _mm_cvtsi32_si128((a as *const i32).read_unaligned()),
             })
         };
-        // B^T d, column by column: e[i][j]
-        let mut e = [[_mm256_setzero_si256(); N]; N];
-        for j in 0..N {
-            let d = [ld(0, j), ld(1, j), ld(2, j), ld(3, j), ld(4, j)];
-            for (i, b) in BT.iter().enumerate() {
-                e[i][j] = lin16(b, &d);
-            }
+        // B^T d down every column of the chunk: cols[j][i]
+        let mut cols = [[_mm256_setzero_si256(); N]; M * WT + 2];
+        for (j, col) in cols.iter_mut().enumerate().take(M * nt + 2) {
+            *col = bt5([ld(0, j), ld(1, j), ld(2, j), ld(3, j), ld(4, j)]);
         }
-        // (B^T d) B, row by row
-        for (i, ei) in e.iter().enumerate() {
-            for (j, b) in BT.iter().enumerate() {
-                let o = lin16(b, ei);
-                let d = dst.add((N * i + j) * ps);
-                match NC {
-                    16 => _mm256_storeu_si256(d as *mut __m256i, o),
-                    8 => _mm_storeu_si128(d as *mut __m128i, _mm256_castsi256_si128(o)),
-                    _ => _mm_storel_epi64(d as *mut __m128i, _mm256_castsi256_si128(o)),
+        // (B^T d) B along each patch's rows
+        for t in 0..nt {
+            let p = &cols[M * t..M * t + N];
+            for i in 0..N {
+                let o = bt5([p[0][i], p[1][i], p[2][i], p[3][i], p[4][i]]);
+                for (j, oj) in o.into_iter().enumerate() {
+                    let d = dst.add(((N * i + j) * WT + t) * cin4);
+                    match NC {
+                        16 => _mm256_storeu_si256(d as *mut __m256i, oj),
+                        8 => _mm_storeu_si128(d as *mut __m128i, _mm256_castsi256_si128(oj)),
+                        _ => _mm_storel_epi64(d as *mut __m128i, _mm256_castsi256_si128(oj)),
+                    }
                 }
             }
         }
     }
 }
 
-/// The element-wise products summed over the input channels, per transform
-/// position, for 16 output channels x `NT` tiles (10 accumulators, as the
-/// direct AVX2 pass): per pair of input channels one 32-bit broadcast per
-/// tile and two `vpmaddwd` against the pair-packed transformed weights;
-/// stored at `m[(pos * WT + t) * 16 + k]`.
+/// [`gemm_avx2`] or [`gemm_avxvnni`] for `kernel`, `nt`
+/// tiles and `nq` (1 or 2) blocks of 16 output channels, block `qi`'s sums
+/// at `m[qi * POS * WT * 16..]`.
 ///
 /// # Safety
-/// AVX2; `v` as [`input_avx2`] fills it for `NT` tiles; `u` valid for the
-/// transformed weights (`[pos][cin4 / 2][ocp][2]`) from the pass's first
-/// channel and aligned to 32 bytes (`ocp` a multiple of 16); `m` valid for
-/// `POS * WT * 16` i32.
+/// `kernel`'s instructions (AVX2 at least); `u` aligned to 64 bytes; `nt`
+/// in 1..=WT; otherwise as [`gemm_avx2`], for `16 nq` channels from `u`'s
+/// first and `m` valid for `nq * POS * WT * 16` i32.
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn gemm_avx2<const NT: usize>(
+#[allow(clippy::too_many_arguments)]
+unsafe fn gemm(
+    kernel: Kernel,
+    nt: usize,
+    nq: usize,
     v: *const i16,
     cin4: usize,
     u: *const i16,
     ocp: usize,
     m: *mut i32,
 ) {
+    // SAFETY: per the contract; the one-block forms run once per block, 16
+    // channels (32 i16 of a pair row) and POS * WT * 16 sums apart.
+    unsafe {
+        match kernel {
+            Kernel::AvxVnni => {
+                for qi in 0..nq {
+                    gemm_avxvnni(
+                        nt,
+                        v,
+                        cin4,
+                        u.add(qi * 2 * L),
+                        ocp,
+                        m.add(qi * POS * WT * L),
+                    );
+                }
+            }
+            _ => {
+                for qi in 0..nq {
+                    gemm_avx2(
+                        nt,
+                        v,
+                        cin4,
+                        u.add(qi * 2 * L),
+                        ocp,
+                        m.add(qi * POS * WT * L),
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// Calls `$block::<n, ...>(args)` for a run-time `n` in 1..=5.
+macro_rules! by_tiles {
+    ($n:expr, $block:ident, [$($c:literal),*], $($arg:expr),*) => {
+        match $n {
+            1 => $block::<1 $(, $c)*>($($arg),*),
+            2 => $block::<2 $(, $c)*>($($arg),*),
+            3 => $block::<3 $(, $c)*>($($arg),*),
+            4 => $block::<4 $(, $c)*>($($arg),*),
+            _ => $block::<5 $(, $c)*>($($arg),*),
+        }
+    };
+}
+
+/// The element-wise products summed over the input channels, per transform
+/// position, for 16 output channels x `nt` tiles, `5` tiles at a time (10
+/// accumulators, as the direct AVX2 pass), each position's weights read
+/// once per 5 tiles while in cache: per pair of input channels one 32-bit
+/// broadcast per tile and two `vpmaddwd` against the pair-packed
+/// transformed weights; stored at `m[(pos * WT + t) * 16 + k]`.
+///
+/// # Safety
+/// AVX2; `v` as [`input_avx2`] fills it for `nt` (1..=WT) tiles; `u` valid
+/// for the transformed weights (`[pos][cin4 / 2][ocp][2]`) from the
+/// block's first channel and aligned to 32 bytes (`ocp` a multiple of 16);
+/// `m` valid for `POS * WT * 16` i32.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn gemm_avx2(nt: usize, v: *const i16, cin4: usize, u: *const i16, ocp: usize, m: *mut i32) {
+    // SAFETY: AVX2 and the ranges per the contract, block by block.
+    unsafe {
+        for pos in 0..POS {
+            let w = u.add(pos * (cin4 / 2) * ocp * 2);
+            for t0 in (0..nt).step_by(5) {
+                let (vb, mb) = (v.add((pos * WT + t0) * cin4), m.add((pos * WT + t0) * L));
+                by_tiles!(nt - t0, block_avx2, [], vb, cin4, w, ocp, mb);
+            }
+        }
+    }
+}
+
+/// `NT` tiles of [`gemm_avx2`] at one position: `v` and `m` at the first
+/// tile, `w` at the position's weights.
+///
+/// # Safety
+/// As [`gemm_avx2`], for those tiles.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn block_avx2<const NT: usize>(
+    v: *const i16,
+    cin4: usize,
+    w: *const i16,
+    ocp: usize,
+    m: *mut i32,
+) {
     // SAFETY: AVX2 and the ranges per the contract.
     unsafe {
         use std::arch::x86_64::*;
-        let k2 = cin4 / 2;
-        for pos in 0..POS {
-            let ib = v.add(pos * WT * cin4);
-            let wb = u.add(pos * k2 * ocp * 2);
-            let mut a0 = [_mm256_setzero_si256(); NT];
-            let mut a1 = [_mm256_setzero_si256(); NT];
-            for k in 0..k2 {
-                let wr = wb.add(k * ocp * 2);
-                let w0 = _mm256_load_si256(wr as *const __m256i);
-                let w1 = _mm256_load_si256(wr.add(16) as *const __m256i);
-                for t in 0..NT {
-                    let pair = (ib.add(t * cin4 + 2 * k) as *const i32).read_unaligned();
-                    let b = _mm256_set1_epi32(pair);
-                    a0[t] = _mm256_add_epi32(a0[t], _mm256_madd_epi16(b, w0));
-                    a1[t] = _mm256_add_epi32(a1[t], _mm256_madd_epi16(b, w1));
-                }
-            }
+        let mut a0 = [_mm256_setzero_si256(); NT];
+        let mut a1 = [_mm256_setzero_si256(); NT];
+        for k in 0..cin4 / 2 {
+            let wr = w.add(k * ocp * 2);
+            let w0 = _mm256_load_si256(wr as *const __m256i);
+            let w1 = _mm256_load_si256(wr.add(16) as *const __m256i);
             for t in 0..NT {
-                let o = m.add((pos * WT + t) * L);
-                _mm256_storeu_si256(o as *mut __m256i, a0[t]);
-                _mm256_storeu_si256(o.add(8) as *mut __m256i, a1[t]);
+                let pair = (v.add(t * cin4 + 2 * k) as *const i32).read_unaligned();
+                let b = _mm256_set1_epi32(pair);
+                a0[t] = _mm256_add_epi32(a0[t], _mm256_madd_epi16(b, w0));
+                a1[t] = _mm256_add_epi32(a1[t], _mm256_madd_epi16(b, w1));
             }
+        }
+        for t in 0..NT {
+            _mm256_storeu_si256(m.add(t * L) as *mut __m256i, a0[t]);
+            _mm256_storeu_si256(m.add(t * L + 8) as *mut __m256i, a1[t]);
+        }
+    }
+}
+
+/// [`gemm_avx2`] with AVX-VNNI's `vpdpwssd` (the pair products and the
+/// accumulation in one instruction, the same exact sums).
+///
+/// # Safety
+/// AVX2 and AVX-VNNI; otherwise as [`gemm_avx2`].
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,avxvnni")]
+unsafe fn gemm_avxvnni(
+    nt: usize,
+    v: *const i16,
+    cin4: usize,
+    u: *const i16,
+    ocp: usize,
+    m: *mut i32,
+) {
+    // SAFETY: AVX2, AVX-VNNI and the ranges per the contract, block by block.
+    unsafe {
+        for pos in 0..POS {
+            let w = u.add(pos * (cin4 / 2) * ocp * 2);
+            for t0 in (0..nt).step_by(5) {
+                let (vb, mb) = (v.add((pos * WT + t0) * cin4), m.add((pos * WT + t0) * L));
+                by_tiles!(nt - t0, block_avxvnni, [], vb, cin4, w, ocp, mb);
+            }
+        }
+    }
+}
+
+/// `NT` tiles of [`gemm_avxvnni`] at one position (as [`block_avx2`]).
+///
+/// # Safety
+/// As [`gemm_avxvnni`], for those tiles.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,avxvnni")]
+#[inline]
+unsafe fn block_avxvnni<const NT: usize>(
+    v: *const i16,
+    cin4: usize,
+    w: *const i16,
+    ocp: usize,
+    m: *mut i32,
+) {
+    // SAFETY: AVX2, AVX-VNNI and the ranges per the contract.
+    unsafe {
+        use std::arch::x86_64::*;
+        let mut a0 = [_mm256_setzero_si256(); NT];
+        let mut a1 = [_mm256_setzero_si256(); NT];
+        for k in 0..cin4 / 2 {
+            let wr = w.add(k * ocp * 2);
+            let w0 = _mm256_load_si256(wr as *const __m256i);
+            let w1 = _mm256_load_si256(wr.add(16) as *const __m256i);
+            for t in 0..NT {
+                let pair = (v.add(t * cin4 + 2 * k) as *const i32).read_unaligned();
+                let b = _mm256_set1_epi32(pair);
+                a0[t] = _mm256_dpwssd_avx_epi32(a0[t], b, w0);
+                a1[t] = _mm256_dpwssd_avx_epi32(a1[t], b, w1);
+            }
+        }
+        for t in 0..NT {
+            _mm256_storeu_si256(m.add(t * L) as *mut __m256i, a0[t]);
+            _mm256_storeu_si256(m.add(t * L + 8) as *mut __m256i, a1[t]);
         }
     }
 }
@@ -379,7 +529,6 @@ unsafe fn gemm_avx2<const NT: usize>(
 /// for `3 * nt * gw` i32; `16 (q + 1) <= gw`.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-#[allow(clippy::needless_range_loop)] // s[a][j] filled column by column
 unsafe fn output_avx2(m: *const i32, nt: usize, gw: usize, q: usize, out: [*mut i32; M]) {
     // SAFETY: AVX2 and the ranges per the contract.
     unsafe {
@@ -390,26 +539,23 @@ unsafe fn output_avx2(m: *const i32, nt: usize, gw: usize, q: usize, out: [*mut 
                 let ld = |pos: usize| {
                     _mm256_loadu_si256(m.add((pos * WT + t) * L + 8 * h) as *const __m256i)
                 };
-                // A^T M, column by column: s[a][j]
-                let mut s = [[_mm256_setzero_si256(); N]; M];
-                for j in 0..N {
-                    let c = [
+                // A^T M down each column: s[j][a]
+                let s: [[__m256i; M]; N] = [0, 1, 2, 3, 4].map(|j| {
+                    at5([
                         ld(j),
                         ld(N + j),
                         ld(2 * N + j),
                         ld(3 * N + j),
                         ld(4 * N + j),
-                    ];
-                    for (a, at) in AT.iter().enumerate() {
-                        s[a][j] = lin32(at, &c);
-                    }
-                }
-                // (A^T M) A, row by row, then / 4 (a shift) / 9 (the inverse)
-                for (a, sa) in s.iter().enumerate() {
-                    for (b, at) in AT.iter().enumerate() {
-                        let y = _mm256_mullo_epi32(_mm256_srai_epi32::<2>(lin32(at, sa)), inv9);
+                    ])
+                });
+                // (A^T M) A along each row, then / 4 (a shift) / 9 (the inverse)
+                for a in 0..M {
+                    let y = at5([s[0][a], s[1][a], s[2][a], s[3][a], s[4][a]]);
+                    for (b, yb) in y.into_iter().enumerate() {
+                        let yb = _mm256_mullo_epi32(_mm256_srai_epi32::<2>(yb), inv9);
                         let at = out[a].add((M * t + b) * gw + q * L + 8 * h);
-                        _mm256_storeu_si256(at as *mut __m256i, y);
+                        _mm256_storeu_si256(at as *mut __m256i, yb);
                     }
                 }
             }
@@ -418,23 +564,44 @@ unsafe fn output_avx2(m: *const i32, nt: usize, gw: usize, q: usize, out: [*mut 
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
 
-    /// The integer sums of two output rows by Winograd against the portable
+    /// The integer sums of three output rows by Winograd (AVX2, AVX-VNNI) against the portable
     /// direct tile, bit for bit, at the ends of the ranges the module's
     /// comment bounds (weights -128 and 127, activation bytes 0 and 255,
     /// mixed with random ones), for 3 to 64 input channels (cin4 4 to 64, so
     /// the input transform's 16-, 8- and 4-channel steps; pixel strides equal
     /// to cin4 or wider), output channels in one
-    /// 16-lane group, a 64-lane group and both (80), and widths with and
-    /// without the odd last column, shorter and longer than a chunk.
+    /// 16-lane group, a 64-lane group and both (80), and widths with 0, 1
+    /// or 2 columns left over, shorter than a register block of tiles and
+    /// longer than two chunks.
     #[test]
     fn winograd_sums_are_the_direct_sums_at_the_ends_of_the_ranges() {
-        if !dbt_isa::kernel_test_runs("int8 avx2 winograd", &["avx2"]) {
-            return;
+        for kernel in winograd_kernels() {
+            sums_match(kernel);
         }
+    }
+
+    /// The Winograd kernels this CPU runs (each product loop), skipped
+    /// with a printed reason where it lacks them.
+    pub(in crate::int8) fn winograd_kernels() -> Vec<Kernel> {
+        [
+            (Kernel::Avx2, "int8 avx2 winograd", &["avx2"][..]),
+            (
+                Kernel::AvxVnni,
+                "int8 avx-vnni winograd",
+                &["avx2", "avxvnni"][..],
+            ),
+        ]
+        .into_iter()
+        .filter(|(_, name, needs)| dbt_isa::kernel_test_runs(name, needs))
+        .map(|(k, _, _)| k)
+        .collect()
+    }
+
+    fn sums_match(kernel: Kernel) {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(29);
         for (cin, out_ch, extra, w) in [
             (16, 16, 0, 7),
@@ -446,6 +613,7 @@ mod tests {
             (7, 16, 4, 5),
             (20, 32, 0, 6),
             (3, 16, 0, 2),
+            (32, 32, 0, 3 * WT * 2 + 4),
         ] {
             let weight = (0..out_ch * cin * 9)
                 .map(|_| match rng.random_range(0..4) {
@@ -506,6 +674,7 @@ mod tests {
             let mut got = vec![i32::MIN; M * w * p.ocp];
             let mut win = vec![0i16; avx2_window_len(p.cin4)];
             row_triple(
+                kernel,
                 &p,
                 u,
                 &inp,
@@ -522,7 +691,10 @@ mod tests {
                     }
                 },
             );
-            assert_eq!(got, want, "{cin} -> {out_ch} channels, width {w}");
+            assert_eq!(
+                got, want,
+                "{kernel:?}: {cin} -> {out_ch} channels, width {w}"
+            );
             // Sums larger than any one product: not a trivial case.
             let big = want.iter().map(|v| v.unsigned_abs()).max().unwrap_or(0);
             assert!(big > 255 * 128, "largest |sum| {big}");
@@ -586,6 +758,45 @@ mod tests {
         assert_eq!(BT.iter().map(|r| row_sum(r)).max(), Some(6));
         assert_eq!(GP.iter().map(|r| row_sum(r)).max(), Some(9));
         assert_eq!(9i32.wrapping_mul(INV9), 1);
+    }
+
+    /// The factorised transforms are the matrices: each unit vector (in
+    /// every lane, and a lane pattern) goes to the matrix's column.
+    #[test]
+    fn factorised_transforms_are_the_matrices() {
+        if !dbt_isa::kernel_test_runs("int8 avx2 winograd", &["avx2"]) {
+            return;
+        }
+        use std::arch::x86_64::*;
+        let lanes16 = |v: __m256i| -> [i16; 16] {
+            // SAFETY: a 32-byte value reinterpreted as 16 i16.
+            unsafe { std::mem::transmute(v) }
+        };
+        let lanes32 = |v: __m256i| -> [i32; 8] {
+            // SAFETY: a 32-byte value reinterpreted as 8 i32.
+            unsafe { std::mem::transmute(v) }
+        };
+        for k in 0..N {
+            for scale in [1i32, -3, 1000] {
+                // SAFETY: AVX2 (checked above).
+                let (b, a) = unsafe {
+                    let x16: [__m256i; N] = std::array::from_fn(|j| {
+                        _mm256_set1_epi16(if j == k { scale as i16 } else { 0 })
+                    });
+                    let x32: [__m256i; N] =
+                        std::array::from_fn(|j| _mm256_set1_epi32(if j == k { scale } else { 0 }));
+                    (bt5(x16), at5(x32))
+                };
+                for (i, row) in BT.iter().enumerate() {
+                    assert!(lanes16(b[i])
+                        .iter()
+                        .all(|&v| i32::from(v) == row[k] * scale));
+                }
+                for (i, row) in AT.iter().enumerate() {
+                    assert!(lanes32(a[i]).iter().all(|&v| v == row[k] * scale));
+                }
+            }
+        }
     }
 
     /// The packed transformed weights are `G' g G'^T` of the pair-packed
