@@ -1083,6 +1083,9 @@ mod tests {
             assert_eq!(parse_winograd(v).unwrap(), want, "{v:?}");
         }
         let e = parse_winograd("no").unwrap_err().to_string();
-        assert!(e.contains("DBTOR_WINOGRAD=\"no\"") && e.contains("on, off"), "{e}");
+        assert!(
+            e.contains("DBTOR_WINOGRAD=\"no\"") && e.contains("on, off"),
+            "{e}"
+        );
     }
 }

@@ -204,14 +204,22 @@ fn run_cmd(cmd: Cmd) -> Result<bool> {
     }
 }
 
-/// The fast engine's kernels here: fp32, int8 and the fused projector's,
-/// and whether `DBTOR_KERNEL` forces them down.
+/// The fast engine's kernels here: fp32, int8 (and whether it convolves by
+/// Winograd) and the fused projector's, and whether `DBTOR_KERNEL` forces
+/// them down.
 fn conv_kernels() -> Result<String> {
+    use dbt_conv::Kernel;
     let limit = dbt_dbtor::kernel_limit()?;
+    let int8 = Kernel::best_int8_up_to(limit);
+    let winograd = match (int8, dbt_dbtor::winograd_allowed()?) {
+        (Kernel::Avx2 | Kernel::AvxVnni, true) => " (Winograd F(3x3,3x3))",
+        (Kernel::Avx2 | Kernel::AvxVnni, false) => " (direct convolution: DBTOR_WINOGRAD)",
+        _ => "",
+    };
     Ok(format!(
-        "fp32 {}, int8 {}, projector {}{}",
-        dbt_conv::Kernel::best_fp32_up_to(limit).name(),
-        dbt_conv::Kernel::best_int8_up_to(limit).name(),
+        "fp32 {}, int8 {}{winograd}, projector {}{}",
+        Kernel::best_fp32_up_to(limit).name(),
+        int8.name(),
         dbt_projector::best_kernel_up_to(dbt_dbtor::projector_limit(limit)).name(),
         match std::env::var(dbt_dbtor::KERNEL_ENV) {
             Ok(v) => format!(" ({}={v})", dbt_dbtor::KERNEL_ENV),
