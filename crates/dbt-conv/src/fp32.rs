@@ -490,7 +490,10 @@ unsafe fn pass_avx2<const NP: usize>(
             let wb = w.add(t * cin * ocp);
             for ic in 0..cin {
                 let wr = wb.add(ic * ocp);
-                let (w0, w1) = (_mm256_loadu_ps(wr), _mm256_loadu_ps(wr.add(8)));
+                let (w0, w1) = (
+                    dbt_isa::ymm::loadu_ps(wr),
+                    dbt_isa::ymm::loadu_ps(wr.add(8)),
+                );
                 for p in 0..NP {
                     let b = _mm256_broadcast_ss(&*ib.add(p * cs + ic));
                     lo[p] = _mm256_fmadd_ps(b, w0, lo[p]);
@@ -500,8 +503,8 @@ unsafe fn pass_avx2<const NP: usize>(
         }
         for p in 0..NP {
             let o = out.add(p * nb * L);
-            _mm256_storeu_ps(o, lo[p]);
-            _mm256_storeu_ps(o.add(8), hi[p]);
+            dbt_isa::ymm::storeu_ps(o, lo[p]);
+            dbt_isa::ymm::storeu_ps(o.add(8), hi[p]);
         }
     }
 }

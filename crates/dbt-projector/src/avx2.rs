@@ -90,12 +90,12 @@ impl Rays8 {
         // the table's arrays (asserted above).
         unsafe {
             Rays8 {
-                x_top: _mm256_loadu_ps(t.x_top.as_ptr().add(rb)),
-                sx: _mm256_loadu_ps(t.sx.as_ptr().add(rb)),
-                len: _mm256_loadu_ps(t.len.as_ptr().add(rb)),
-                inv: _mm256_loadu_ps(t.inv.as_ptr().add(rb)),
-                row_lo: _mm256_loadu_si256(t.row_lo.as_ptr().add(rb) as *const __m256i),
-                row_hi: _mm256_loadu_si256(t.row_hi.as_ptr().add(rb) as *const __m256i),
+                x_top: dbt_isa::ymm::loadu_ps(t.x_top.as_ptr().add(rb)),
+                sx: dbt_isa::ymm::loadu_ps(t.sx.as_ptr().add(rb)),
+                len: dbt_isa::ymm::loadu_ps(t.len.as_ptr().add(rb)),
+                inv: dbt_isa::ymm::loadu_ps(t.inv.as_ptr().add(rb)),
+                row_lo: dbt_isa::ymm::loadu_si256(t.row_lo.as_ptr().add(rb) as *const __m256i),
+                row_hi: dbt_isa::ymm::loadu_si256(t.row_hi.as_ptr().add(rb) as *const __m256i),
             }
         }
     }
@@ -174,7 +174,7 @@ unsafe fn forward_block(t: &RayTable, img: &[f32], rb: usize) -> [f32; L] {
             acc = forward_row_masked(t, img, &r, i, acc);
         }
         let mut a = [0.0f32; L];
-        _mm256_storeu_ps(a.as_mut_ptr(), acc);
+        dbt_isa::ymm::storeu_ps(a.as_mut_ptr(), acc);
         a
     }
 }
@@ -242,7 +242,7 @@ unsafe fn forward_block16(t: &RayTable, img: &[f32], rb: usize) -> [f32; 16] {
                 fi = _mm256_add_ps(fi, one);
             }
             acc = _mm256_add_ps(acc, _mm256_hadd_ps(acc0, acc1));
-            _mm256_storeu_ps(res.as_mut_ptr().add(h * L), acc);
+            dbt_isa::ymm::storeu_ps(res.as_mut_ptr().add(h * L), acc);
         }
         res
     }
@@ -318,20 +318,20 @@ unsafe fn ray_pass(t: &RayTable, v: usize, i: usize, ys: &[f32], s: &mut RowRays
             if k + L <= k_lo || k >= k_hi {
                 // No ray of this block touches the row: mark it empty (the
                 // scratch is reused across rows).
-                _mm256_storeu_si256(jp.add(PAD + k) as *mut __m256i, nop);
-                _mm256_storeu_ps(c0p.add(PAD + k), zero);
-                _mm256_storeu_ps(c1p.add(PAD + k), zero);
+                dbt_isa::ymm::storeu_si256(jp.add(PAD + k) as *mut __m256i, nop);
+                dbt_isa::ymm::storeu_ps(c0p.add(PAD + k), zero);
+                dbt_isa::ymm::storeu_ps(c1p.add(PAD + k), zero);
                 k += L;
                 continue;
             }
             let (jf, w0, w1) = weights8(
-                _mm256_loadu_ps(t.x_top.as_ptr().add(r)),
-                _mm256_loadu_ps(t.sx.as_ptr().add(r)),
-                _mm256_loadu_ps(t.len.as_ptr().add(r)),
-                _mm256_loadu_ps(t.inv.as_ptr().add(r)),
+                dbt_isa::ymm::loadu_ps(t.x_top.as_ptr().add(r)),
+                dbt_isa::ymm::loadu_ps(t.sx.as_ptr().add(r)),
+                dbt_isa::ymm::loadu_ps(t.len.as_ptr().add(r)),
+                dbt_isa::ymm::loadu_ps(t.inv.as_ptr().add(r)),
                 fi,
             );
-            let y = _mm256_loadu_ps(ys.as_ptr().add(k));
+            let y = dbt_isa::ymm::loadu_ps(ys.as_ptr().add(k));
             let (j, c0, c1) = (
                 _mm256_cvttps_epi32(jf),
                 _mm256_mul_ps(w0, y),
@@ -339,14 +339,14 @@ unsafe fn ray_pass(t: &RayTable, v: usize, i: usize, ys: &[f32], s: &mut RowRays
             );
             if !has_slow && k >= k_lo && k + L <= k_hi {
                 // Every ray of the block is inside the row and fast.
-                _mm256_storeu_si256(jp.add(PAD + k) as *mut __m256i, j);
-                _mm256_storeu_ps(c0p.add(PAD + k), c0);
-                _mm256_storeu_ps(c1p.add(PAD + k), c1);
+                dbt_isa::ymm::storeu_si256(jp.add(PAD + k) as *mut __m256i, j);
+                dbt_isa::ymm::storeu_ps(c0p.add(PAD + k), c0);
+                dbt_isa::ymm::storeu_ps(c1p.add(PAD + k), c1);
             } else {
                 // An edge block, or a view with slow rays (scattered by the
                 // caller): row_lo <= i < row_hi and fast.
-                let row_lo = _mm256_loadu_si256(t.row_lo.as_ptr().add(r) as *const __m256i);
-                let row_hi = _mm256_loadu_si256(t.row_hi.as_ptr().add(r) as *const __m256i);
+                let row_lo = dbt_isa::ymm::loadu_si256(t.row_lo.as_ptr().add(r) as *const __m256i);
+                let row_hi = dbt_isa::ymm::loadu_si256(t.row_hi.as_ptr().add(r) as *const __m256i);
                 let mut valid = _mm256_andnot_si256(
                     _mm256_cmpgt_epi32(row_lo, ii),
                     _mm256_cmpgt_epi32(row_hi, ii),
@@ -358,16 +358,16 @@ unsafe fn ray_pass(t: &RayTable, v: usize, i: usize, ys: &[f32], s: &mut RowRays
                     }
                     valid = _mm256_and_si256(
                         valid,
-                        _mm256_loadu_si256(fast.as_ptr() as *const __m256i),
+                        dbt_isa::ymm::loadu_si256(fast.as_ptr() as *const __m256i),
                     );
                 }
                 let vf = _mm256_castsi256_ps(valid);
-                _mm256_storeu_si256(
+                dbt_isa::ymm::storeu_si256(
                     jp.add(PAD + k) as *mut __m256i,
                     _mm256_blendv_epi8(nop, j, valid),
                 );
-                _mm256_storeu_ps(c0p.add(PAD + k), _mm256_and_ps(c0, vf));
-                _mm256_storeu_ps(c1p.add(PAD + k), _mm256_and_ps(c1, vf));
+                dbt_isa::ymm::storeu_ps(c0p.add(PAD + k), _mm256_and_ps(c0, vf));
+                dbt_isa::ymm::storeu_ps(c1p.add(PAD + k), _mm256_and_ps(c1, vf));
             }
             k += L;
         }
@@ -415,11 +415,11 @@ unsafe fn block_values(map: &InvMap, s: &mut RowRays) {
             let inv = _mm256_div_ps(one, _mm256_add_ps(_mm256_mul_ps(c, x), d));
             let val = _mm256_mul_ps(_mm256_add_ps(_mm256_mul_ps(a, x), b), inv);
             let slope = _mm256_mul_ps(_mm256_mul_ps(e, inv), inv);
-            _mm256_storeu_ps(rb.as_mut_ptr().add(q), val);
-            _mm256_storeu_ps(sb.as_mut_ptr().add(q), slope);
+            dbt_isa::ymm::storeu_ps(rb.as_mut_ptr().add(q), val);
+            dbt_isa::ymm::storeu_ps(sb.as_mut_ptr().add(q), slope);
             let first = _mm256_cvttps_epi32(_mm256_floor_ps(val));
-            _mm256_storeu_si256(r0.as_mut_ptr().add(q) as *mut __m256i, first);
-            _mm256_storeu_si256(
+            dbt_isa::ymm::storeu_si256(r0.as_mut_ptr().add(q) as *mut __m256i, first);
+            dbt_isa::ymm::storeu_si256(
                 eb.as_mut_ptr().add(q) as *mut __m256i,
                 _mm256_add_epi32(first, e_off),
             );
@@ -503,16 +503,16 @@ unsafe fn pixel_pass(t: &RayTable, map: &InvMap, s: &mut RowRays, row_out: &mut 
                     if narrow {
                         let lo = lo as usize;
                         let (jl, jh) = (
-                            _mm256_loadu_si256(jp.add(lo) as *const __m256i),
-                            _mm256_loadu_si256(jp.add(lo + L) as *const __m256i),
+                            dbt_isa::ymm::loadu_si256(jp.add(lo) as *const __m256i),
+                            dbt_isa::ymm::loadu_si256(jp.add(lo + L) as *const __m256i),
                         );
                         let (c0l, c0h) = (
-                            _mm256_loadu_ps(c0p.add(lo)),
-                            _mm256_loadu_ps(c0p.add(lo + L)),
+                            dbt_isa::ymm::loadu_ps(c0p.add(lo)),
+                            dbt_isa::ymm::loadu_ps(c0p.add(lo + L)),
                         );
                         let (c1l, c1h) = (
-                            _mm256_loadu_ps(c1p.add(lo)),
-                            _mm256_loadu_ps(c1p.add(lo + L)),
+                            dbt_isa::ymm::loadu_ps(c1p.add(lo)),
+                            dbt_isa::ymm::loadu_ps(c1p.add(lo + L)),
                         );
                         let mut loc = _mm256_sub_epi32(id, _mm256_set1_epi32(first as i32));
                         let seven = _mm256_set1_epi32(7);
@@ -559,7 +559,7 @@ unsafe fn pixel_pass(t: &RayTable, map: &InvMap, s: &mut RowRays, row_out: &mut 
                     let o = row_out.as_mut_ptr().add(p0);
                     let sum = _mm256_add_ps(a0, carried);
                     if p0 + L <= nx {
-                        _mm256_storeu_ps(o, _mm256_add_ps(_mm256_loadu_ps(o), sum));
+                        dbt_isa::ymm::storeu_ps(o, _mm256_add_ps(dbt_isa::ymm::loadu_ps(o), sum));
                     } else {
                         // The row's last, partial half: lanes past the row
                         // are neither read nor written.

@@ -266,11 +266,11 @@ pub(super) unsafe fn epilogue_bytes_avx2<const QO: bool>(
             let o = out[(x + px) * p.ocp + g0..].as_mut_ptr();
             for jv in (0..gw).step_by(8) {
                 let c = g0 + jv;
-                let acc = _mm256_loadu_si256(t.as_ptr().add(jv) as *const __m256i);
-                let corr = _mm256_loadu_si256(p.corr.as_ptr().add(c) as *const __m256i);
+                let acc = dbt_isa::ymm::loadu_si256(t.as_ptr().add(jv) as *const __m256i);
+                let corr = dbt_isa::ymm::loadu_si256(p.corr.as_ptr().add(c) as *const __m256i);
                 let v = _mm256_cvtepi32_ps(_mm256_sub_epi32(acc, corr));
-                let v = _mm256_mul_ps(v, _mm256_loadu_ps(p.scale.as_ptr().add(c)));
-                let mut v = _mm256_add_ps(v, _mm256_loadu_ps(p.bias.as_ptr().add(c)));
+                let v = _mm256_mul_ps(v, dbt_isa::ymm::loadu_ps(p.scale.as_ptr().add(c)));
+                let mut v = _mm256_add_ps(v, dbt_isa::ymm::loadu_ps(p.bias.as_ptr().add(c)));
                 if QO {
                     // Q/DQ of the convolution's output
                     let q = _mm256_round_ps::<NEAREST>(_mm256_mul_ps(v, io));
@@ -279,7 +279,7 @@ pub(super) unsafe fn epilogue_bytes_avx2<const QO: bool>(
                 }
                 // PReLU
                 let neg = _mm256_cmp_ps::<_CMP_LT_OQ>(v, zero);
-                let scaled = _mm256_mul_ps(v, _mm256_loadu_ps(p.slope.as_ptr().add(c)));
+                let scaled = _mm256_mul_ps(v, dbt_isa::ymm::loadu_ps(p.slope.as_ptr().add(c)));
                 let v = _mm256_blendv_ps(v, scaled, neg);
                 // Q of the activation, stored as q + 128
                 let q = _mm256_round_ps::<NEAREST>(_mm256_mul_ps(v, ia));
@@ -638,7 +638,7 @@ pub(super) unsafe fn tile_avx2(
                 let mut c = 0;
                 while c + 16 <= cin4 {
                     let b = _mm_loadu_si128(src.add(c) as *const __m128i);
-                    _mm256_storeu_si256(dst.add(c) as *mut __m256i, _mm256_cvtepu8_epi16(b));
+                    dbt_isa::ymm::storeu_si256(dst.add(c) as *mut __m256i, _mm256_cvtepu8_epi16(b));
                     c += 16;
                 }
                 while c < cin4 {
@@ -732,8 +732,8 @@ unsafe fn pass_avx2<const NP: usize>(
         }
         for p in 0..NP {
             let o = out.add(p * nb * L);
-            _mm256_storeu_si256(o as *mut __m256i, a0[p]);
-            _mm256_storeu_si256(o.add(8) as *mut __m256i, a1[p]);
+            dbt_isa::ymm::storeu_si256(o as *mut __m256i, a0[p]);
+            dbt_isa::ymm::storeu_si256(o.add(8) as *mut __m256i, a1[p]);
         }
     }
 }
@@ -829,8 +829,8 @@ unsafe fn pass_avxvnni<const NP: usize>(
         }
         for p in 0..NP {
             let o = out.add(p * nb * L);
-            _mm256_storeu_si256(o as *mut __m256i, a0[p]);
-            _mm256_storeu_si256(o.add(8) as *mut __m256i, a1[p]);
+            dbt_isa::ymm::storeu_si256(o as *mut __m256i, a0[p]);
+            dbt_isa::ymm::storeu_si256(o.add(8) as *mut __m256i, a1[p]);
         }
     }
 }

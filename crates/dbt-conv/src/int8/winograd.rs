@@ -316,7 +316,7 @@ unsafe fn input_step<const NC: usize>(
                 for (j, oj) in o.into_iter().enumerate() {
                     let d = dst.add(((N * i + j) * WT + t) * cin4);
                     match NC {
-                        16 => _mm256_storeu_si256(d as *mut __m256i, oj),
+                        16 => dbt_isa::ymm::storeu_si256(d as *mut __m256i, oj),
                         8 => _mm_storeu_si128(d as *mut __m128i, _mm256_castsi256_si128(oj)),
                         _ => _mm_storel_epi64(d as *mut __m128i, _mm256_castsi256_si128(oj)),
                     }
@@ -450,8 +450,8 @@ unsafe fn block_avx2<const NT: usize>(
             }
         }
         for t in 0..NT {
-            _mm256_storeu_si256(m.add(t * L) as *mut __m256i, a0[t]);
-            _mm256_storeu_si256(m.add(t * L + 8) as *mut __m256i, a1[t]);
+            dbt_isa::ymm::storeu_si256(m.add(t * L) as *mut __m256i, a0[t]);
+            dbt_isa::ymm::storeu_si256(m.add(t * L + 8) as *mut __m256i, a1[t]);
         }
     }
 }
@@ -514,8 +514,8 @@ unsafe fn block_avxvnni<const NT: usize>(
             }
         }
         for t in 0..NT {
-            _mm256_storeu_si256(m.add(t * L) as *mut __m256i, a0[t]);
-            _mm256_storeu_si256(m.add(t * L + 8) as *mut __m256i, a1[t]);
+            dbt_isa::ymm::storeu_si256(m.add(t * L) as *mut __m256i, a0[t]);
+            dbt_isa::ymm::storeu_si256(m.add(t * L + 8) as *mut __m256i, a1[t]);
         }
     }
 }
@@ -537,7 +537,7 @@ unsafe fn output_avx2(m: *const i32, nt: usize, gw: usize, q: usize, out: [*mut 
         for t in 0..nt {
             for h in 0..2 {
                 let ld = |pos: usize| {
-                    _mm256_loadu_si256(m.add((pos * WT + t) * L + 8 * h) as *const __m256i)
+                    dbt_isa::ymm::loadu_si256(m.add((pos * WT + t) * L + 8 * h) as *const __m256i)
                 };
                 // A^T M down each column: s[j][a]
                 let s: [[__m256i; M]; N] = [0, 1, 2, 3, 4].map(|j| {
@@ -555,7 +555,7 @@ unsafe fn output_avx2(m: *const i32, nt: usize, gw: usize, q: usize, out: [*mut 
                     for (b, yb) in y.into_iter().enumerate() {
                         let yb = _mm256_mullo_epi32(_mm256_srai_epi32::<2>(yb), inv9);
                         let at = out[a].add((M * t + b) * gw + q * L + 8 * h);
-                        _mm256_storeu_si256(at as *mut __m256i, yb);
+                        dbt_isa::ymm::storeu_si256(at as *mut __m256i, yb);
                     }
                 }
             }
