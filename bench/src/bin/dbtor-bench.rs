@@ -54,8 +54,9 @@ struct Args {
     /// (AVX2, portable), as `DBTOR_KERNEL` would.
     #[arg(long)]
     all_kernels: bool,
-    /// Only these forced kernel levels (e.g. `avx2,avx-vnni`) besides the
-    /// best, instead of every one (`--all-kernels`).
+    /// Only these forced kernel levels (e.g. `avx2,avx-vnni`, or `amx`
+    /// where the CPU has it) besides the best, instead of every one
+    /// (`--all-kernels`).
     #[arg(long, value_delimiter = ',', value_parser = parse_kernel)]
     kernels: Vec<Kernel>,
     /// Also each int8 row that convolves by Winograd (AVX2, AVX-VNNI) with
@@ -243,7 +244,12 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
     let forced: Vec<Kernel> = Kernel::ALL
         .into_iter()
         .rev()
-        .filter(|k| *k <= best && (a.all_kernels || *k == best || a.kernels.contains(k)))
+        .filter(|k| {
+            // AMX only where it runs and asked for (never the default dispatch)
+            let runs = *k <= best || (*k == Kernel::Amx && Kernel::amx_available());
+            let asked = a.all_kernels || a.kernels.contains(k);
+            runs && (*k == best || asked)
+        })
         .collect();
     // (engine, precision, blocks in fp32, kernel limit, Winograd off)
     let mut combos: Vec<(Engine, Precision, &[String], Kernel, bool)> = Vec::new();

@@ -270,25 +270,38 @@ pub enum Kernel {
     AvxVnni,
     /// AVX-512F fused multiply-add (fp32) or AVX-512 VNNI `vpdpbusd` (int8).
     Avx512,
+    /// int8 only: AMX-INT8 tile products (`tdpbusd`), on CPUs with AMX and
+    /// AVX-512 VNNI (Intel Sapphire Rapids and later). Reached only when
+    /// asked for (`DBTOR_KERNEL=amx`: not yet run on AMX hardware; see
+    /// `int8/amx.rs`), never by [`Kernel::best_int8`]; fp32 runs AVX-512 at
+    /// this level.
+    Amx,
 }
 
 impl Kernel {
     /// Every kernel, slowest first.
-    pub const ALL: [Kernel; 4] = [
+    pub const ALL: [Kernel; 5] = [
         Kernel::Portable,
         Kernel::Avx2,
         Kernel::AvxVnni,
         Kernel::Avx512,
+        Kernel::Amx,
     ];
 
-    /// The fp32 kernel of this level: AVX-VNNI has no fp32 kernel of its
-    /// own, so its level runs fp32 on AVX2.
+    /// The fp32 kernel of this level: AVX-VNNI and AMX have no fp32 kernel
+    /// of their own, so their levels run fp32 on AVX2 and AVX-512.
     pub fn for_fp32(self) -> Self {
-        if self == Self::AvxVnni {
-            Self::Avx2
-        } else {
-            self
+        match self {
+            Self::AvxVnni => Self::Avx2,
+            Self::Amx => Self::Avx512,
+            k => k,
         }
+    }
+
+    /// Whether this CPU (and OS) runs the AMX int8 kernel: AMX-TILE,
+    /// AMX-INT8 and AVX-512 VNNI, and the tile data granted to the process.
+    pub fn amx_available() -> bool {
+        crate::int8::amx_available()
     }
 
     /// The fastest kernel this CPU runs for fp32.
@@ -312,9 +325,14 @@ impl Kernel {
         Self::best_fp32().min(limit.for_fp32())
     }
 
-    /// The fastest int8 kernel this CPU runs, at most `limit`.
+    /// The fastest int8 kernel this CPU runs, at most `limit` (AMX only when
+    /// `limit` names it and the CPU has it).
     pub fn best_int8_up_to(limit: Kernel) -> Self {
-        Self::best_int8().min(limit)
+        if limit == Self::Amx && Self::amx_available() {
+            Self::Amx
+        } else {
+            Self::best_int8().min(limit)
+        }
     }
 
     /// A kernel by its [`Kernel::name`].
@@ -349,6 +367,7 @@ impl Kernel {
             Self::Avx2 => "avx2",
             Self::AvxVnni => "avx-vnni",
             Self::Avx512 => "avx512",
+            Self::Amx => "amx",
         }
     }
 }

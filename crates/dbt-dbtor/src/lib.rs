@@ -294,7 +294,8 @@ pub struct Dbtor {
 /// kernel (`portable`, `avx2`, `avx-vnni`, `avx512`), its convolutions and its fused
 /// projector (`portable` is the projector's scalar kernel): to test and
 /// benchmark every path on a CPU that has a faster one. Unset: the fastest
-/// the CPU runs.
+/// the CPU runs, short of AMX: `amx` is the only way to the AMX int8 kernel
+/// (not yet run on AMX hardware; `crates/dbt-conv/src/int8/amx.rs`).
 pub const KERNEL_ENV: &str = "DBTOR_KERNEL";
 
 /// The fastest kernel the fast engine may use: [`KERNEL_ENV`] if set (an
@@ -340,7 +341,7 @@ pub fn projector_limit(limit: Kernel) -> dbt_projector::Kernel {
     match limit {
         Kernel::Portable => dbt_projector::Kernel::Scalar,
         Kernel::Avx2 | Kernel::AvxVnni => dbt_projector::Kernel::Avx2,
-        Kernel::Avx512 => dbt_projector::Kernel::Avx512,
+        Kernel::Avx512 | Kernel::Amx => dbt_projector::Kernel::Avx512,
     }
 }
 

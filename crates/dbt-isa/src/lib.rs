@@ -9,10 +9,10 @@
 
 /// Whether this CPU has the extension `name` (`avx2`, `fma`, `avx512f`,
 /// `avx512bw`, `avx512vnni`, `avxvnni`, also spelt `avx512_vnni` and
-/// `avx_vnni` as in `/proc/cpuinfo`:
-/// the kernels' needs;
-/// AMX detection is not stable in Rust yet); `None` for a name this crate
-/// does not know.
+/// `avx_vnni` as in `/proc/cpuinfo`, and `amx_tile`, `amx_int8` (read from
+/// CPUID: `std`'s AMX detection is not stable yet; whether the OS grants
+/// the tiles is the kernel's question): the kernels' needs); `None` for a
+/// name this crate does not know.
 pub fn detected(name: &str) -> Option<bool> {
     #[cfg(target_arch = "x86_64")]
     {
@@ -23,6 +23,8 @@ pub fn detected(name: &str) -> Option<bool> {
             "avx512bw" => std::arch::is_x86_feature_detected!("avx512bw"),
             "avx512vnni" | "avx512_vnni" => std::arch::is_x86_feature_detected!("avx512vnni"),
             "avxvnni" | "avx_vnni" => std::arch::is_x86_feature_detected!("avxvnni"),
+            "amx_tile" => cpuid7_edx() & (1 << 24) != 0,
+            "amx_int8" => cpuid7_edx() & (1 << 25) != 0,
             _ => return None,
         })
     }
@@ -33,14 +35,30 @@ pub fn detected(name: &str) -> Option<bool> {
     }
 }
 
+/// CPUID leaf 7 (subleaf 0) EDX, where the AMX bits are (`std`'s detection
+/// of AMX is not stable yet); 0 where the CPU has no leaf 7.
+#[cfg(target_arch = "x86_64")]
+fn cpuid7_edx() -> u32 {
+    // CPUID exists on every x86-64 CPU; leaf 7 is read only where the
+    // highest standard leaf reaches it.
+    use std::arch::x86_64::__cpuid_count;
+    if __cpuid_count(0, 0).eax >= 7 {
+        __cpuid_count(7, 0).edx
+    } else {
+        0
+    }
+}
+
 /// The extensions [`detected`] knows, in its spelling.
-pub const KNOWN: [&str; 6] = [
+pub const KNOWN: [&str; 8] = [
     "avx2",
     "fma",
     "avx512f",
     "avx512bw",
     "avx512vnni",
     "avxvnni",
+    "amx_tile",
+    "amx_int8",
 ];
 
 /// The extensions of [`KNOWN`] this CPU has.

@@ -214,6 +214,9 @@ fn conv_kernels() -> Result<String> {
     let winograd = match (int8, dbt_dbtor::winograd_allowed()?) {
         (Kernel::Avx2 | Kernel::AvxVnni, true) => " (Winograd F(3x3,3x3))",
         (Kernel::Avx2 | Kernel::AvxVnni, false) => " (direct convolution: DBTOR_WINOGRAD)",
+        (Kernel::Avx512, _) if limit == Kernel::Amx => {
+            " (AMX asked for: not on this CPU or not granted)"
+        }
         _ => "",
     };
     Ok(format!(

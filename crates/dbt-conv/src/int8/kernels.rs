@@ -47,7 +47,7 @@ pub(super) fn conv(
     // for it.
     let wino = match kernel {
         Kernel::Avx2 | Kernel::AvxVnni => p.wino.as_deref(),
-        Kernel::Portable | Kernel::Avx512 => None,
+        Kernel::Portable | Kernel::Avx512 | Kernel::Amx => None,
     };
     // Rows per parallel chunk: Winograd's tile height, else one.
     let per = if wino.is_some() {
@@ -61,6 +61,15 @@ pub(super) fn conv(
         #[cfg(target_arch = "x86_64")]
         if let Some(u) = wino.filter(|_| n == per) {
             super::winograd::row_triple(kernel, p, u, inp, r0, rs, cs, w, &mut win, dst);
+            return;
+        }
+        #[cfg(target_arch = "x86_64")]
+        if kernel == Kernel::Amx && super::amx::eligible(p) {
+            for a in 0..n {
+                super::amx::row(p, inp, r0 + a, rs, cs, w, &mut |_, x, g0, t| {
+                    dst(a, x, g0, t)
+                });
+            }
             return;
         }
         let mut tile = [0i32; NP_NARROW * GROUP];
@@ -126,10 +135,12 @@ pub(super) fn epilogue_bytes(
     match (kernel, p.q_out.is_some()) {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: AVX-512F was detected when the block was made.
-        (Kernel::Avx512, true) => unsafe { epilogue_bytes_avx512::<true>(p, qa, x, g0, tile, out) },
+        (Kernel::Avx512 | Kernel::Amx, true) => unsafe {
+            epilogue_bytes_avx512::<true>(p, qa, x, g0, tile, out)
+        },
         #[cfg(target_arch = "x86_64")]
         // SAFETY: as above.
-        (Kernel::Avx512, false) => unsafe {
+        (Kernel::Avx512 | Kernel::Amx, false) => unsafe {
             epilogue_bytes_avx512::<false>(p, qa, x, g0, tile, out)
         },
         #[cfg(target_arch = "x86_64")]
@@ -330,7 +341,7 @@ pub(super) fn epilogue_floats(
     match kernel {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: AVX-512F was detected when the block was made.
-        Kernel::Avx512 => unsafe { epilogue_floats_avx512(p, x, g0, tile, out) },
+        Kernel::Avx512 | Kernel::Amx => unsafe { epilogue_floats_avx512(p, x, g0, tile, out) },
         #[cfg(target_arch = "x86_64")]
         // SAFETY: AVX2 was detected when the block was made.
         Kernel::Avx2 | Kernel::AvxVnni => unsafe { epilogue_floats_avx2(p, x, g0, tile, out) },
@@ -411,7 +422,7 @@ pub(super) fn run_tile(
     let g4 = p.cin4 / 4;
     match kernel {
         #[cfg(target_arch = "x86_64")]
-        Kernel::Avx512 => {
+        Kernel::Avx512 | Kernel::Amx => {
             let (i, wp, t) = (
                 inp[base..].as_ptr(),
                 p.w[g0 * 4..].as_ptr(),

@@ -44,11 +44,17 @@
 use crate::{check_run, for_each_tile, group_width, ConvError, Kernel, GROUP, L, NP_NARROW};
 use rayon::prelude::*;
 
+mod amx;
 mod kernels;
 mod pack;
 mod quant;
 mod reference;
 mod winograd;
+
+/// Whether the AMX int8 kernel runs here ([`Kernel::amx_available`]).
+pub(crate) fn amx_available() -> bool {
+    amx::available()
+}
 
 use kernels::*;
 use pack::*;
@@ -123,12 +129,16 @@ impl Int8Block {
         winograd: bool,
     ) -> Result<Self, ConvError> {
         b.check()?;
-        if kernel > Kernel::best_int8() {
+        if kernel != Kernel::best_int8_up_to(kernel) {
             return Err(ConvError::Shape(format!(
                 "the {} int8 kernel was asked for on a CPU that lacks it (best here: {})",
                 kernel.name(),
                 Kernel::best_int8().name()
             )));
+        }
+        #[cfg(target_arch = "x86_64")]
+        if kernel == Kernel::Amx {
+            amx::self_check().map_err(ConvError::Shape)?;
         }
         let [l1, l2, l3] = &b.layers;
         // check(): layers 1 and 2 end in a quantized PReLU
@@ -285,7 +295,7 @@ impl Int8Block {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::testutil::{random_block, random_vec};
     use rand::{Rng, SeedableRng};
@@ -327,7 +337,7 @@ mod tests {
     /// A quantized block from random float weights: per-channel symmetric
     /// weights, activation scales that leave some values saturating, zero
     /// points away from 0 so that the zero-point algebra is exercised.
-    fn random_int8(sc: usize, ac: usize, hidden: usize, seed: u64) -> Int8BlockWeights {
+    pub(crate) fn random_int8(sc: usize, ac: usize, hidden: usize, seed: u64) -> Int8BlockWeights {
         let f = random_block(sc, ac, hidden, seed);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x5a);
         let mut q = |scale: f32| QuantParams {

@@ -84,7 +84,7 @@ pub(super) fn quantize_chunk(
 ) {
     let mut done = 0;
     #[cfg(target_arch = "x86_64")]
-    if kernel == Kernel::Avx512 {
+    if matches!(kernel, Kernel::Avx512 | Kernel::Amx) {
         // SAFETY: AVX-512F was detected when the block was made.
         done = unsafe { quantize_chunk_avx512(src, q, k, qc, dst) };
     }
@@ -113,7 +113,7 @@ pub(super) fn residual_chunk(
     };
     let mut done = 0;
     #[cfg(target_arch = "x86_64")]
-    if kernel == Kernel::Avx512 {
+    if matches!(kernel, Kernel::Avx512 | Kernel::Amx) {
         // SAFETY: AVX-512F was detected when the block was made.
         done = unsafe { residual_chunk_avx512(row, add, qs, qr) };
     }
