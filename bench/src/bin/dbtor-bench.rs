@@ -63,6 +63,10 @@ struct Args {
     /// its direct convolution instead (`DBTOR_WINOGRAD=off`): the same bits.
     #[arg(long)]
     direct: bool,
+    /// Also each fp32 row of the AVX-512 and AVX2 kernels convolving by
+    /// Winograd (`DBTOR_FP32_WINOGRAD=on`, opt-in: other rounding).
+    #[arg(long)]
+    fp32_winograd: bool,
     /// Adds "fast mixed": int8 with these blocks in fp32 (e.g.
     /// `primal08,primal09`).
     #[arg(long, value_parser = parse_blocks)]
@@ -262,10 +266,17 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
             if !seen.contains(&(precision, runs)) {
                 seen.push((precision, runs));
                 combos.push((Engine::Fast, precision, &[][..], *k, false));
-                // Winograd is the AVX2 and AVX-VNNI int8 kernels'
+                // Winograd is the AVX2 and AVX-VNNI int8 kernels' default,
+                // the fp32 kernels' option
                 if a.direct
                     && precision == Precision::Int8
                     && matches!(runs, Kernel::Avx2 | Kernel::AvxVnni)
+                {
+                    combos.push((Engine::Fast, precision, &[][..], *k, true));
+                }
+                if a.fp32_winograd
+                    && precision == Precision::Fp32
+                    && matches!(runs, Kernel::Avx2 | Kernel::Avx512)
                 {
                     combos.push((Engine::Fast, precision, &[][..], *k, true));
                 }
@@ -292,7 +303,9 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
         } else {
             String::new()
         };
-        let name = if direct {
+        let name = if direct && precision == Precision::Fp32 {
+            format!("{engine} {precision} [{} winograd]", runs.name())
+        } else if direct {
             format!("{engine} {precision} [{} direct]", runs.name())
         } else if fp32_blocks.is_empty() {
             format!("{engine} {precision}{forced_note}")
@@ -302,12 +315,12 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
         let t = Instant::now();
         let d = Dbtor::load_for_geometry_up_to(&a.model, precision, fp32_blocks, engine, g, limit)
             .with_context(|| format!("loading {name}"))?;
-        let d = if direct {
-            d.without_winograd()
-                .with_context(|| format!("loading {name}"))?
-        } else {
-            d
-        };
+        let d = match (direct, precision) {
+            (false, _) => Ok(d),
+            (true, Precision::Int8) => d.without_winograd(),
+            (true, Precision::Fp32) => d.with_fp32_winograd(),
+        }
+        .with_context(|| format!("loading {name}"))?;
         let load_s = t.elapsed().as_secs_f64();
         if flops.is_none() {
             flops = d.block_flops().map(|v| v.iter().sum::<f64>());
@@ -352,7 +365,21 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
                 (None, _) => format!("projector {}", d.projector_kernel().name()),
             },
         });
-        if direct {
+        if direct && precision == Precision::Fp32 {
+            // The row before is the same kernel's direct convolution.
+            if let Some((dn, dout)) = outputs.last() {
+                let range = dout.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+                let max = first
+                    .iter()
+                    .zip(dout)
+                    .map(|(x, y)| (x - y).abs())
+                    .fold(0.0f32, f32::max);
+                eprintln!(
+                    "  {name}: max |difference| from {dn}'s image {:.2e} of its range",
+                    max / range.max(f32::MIN_POSITIVE)
+                );
+            }
+        } else if direct {
             // The row before is the same kernel by Winograd: the same bits.
             if let Some((wn, wo)) = outputs.last() {
                 let differ = wo.iter().zip(&first).filter(|(a, b)| a != b).count();

@@ -13,9 +13,12 @@ pub(crate) struct Packed {
     pub w: Vec<f32>,
     pub bias: Vec<f32>,
     pub slope: Option<Vec<f32>>,
+    /// The Winograd weights (`crate::winograd_fp32`), where asked for and
+    /// eligible.
+    pub wino: Option<Vec<f32>>,
 }
 
-pub(crate) fn pack(l: &Conv3x3) -> Packed {
+pub(crate) fn pack(l: &Conv3x3, winograd: bool) -> Packed {
     let ocp = l.out_ch.div_ceil(L) * L;
     let mut w = vec![0.0f32; 9 * l.in_ch * ocp];
     for o in 0..l.out_ch {
@@ -32,12 +35,15 @@ pub(crate) fn pack(l: &Conv3x3) -> Packed {
         s[..l.out_ch].copy_from_slice(p);
         s
     });
+    let wino = (winograd && crate::winograd_fp32::eligible(l.in_ch))
+        .then(|| crate::winograd_fp32::transform_weights(&w, l.in_ch, ocp));
     Packed {
         cin: l.in_ch,
         ocp,
         w,
         bias,
         slope,
+        wino,
     }
 }
 
@@ -90,6 +96,17 @@ impl Fp32Block {
     /// Pack checked weights for `kernel` (the AVX-VNNI level runs the AVX2
     /// kernel: [`Kernel::for_fp32`]).
     pub fn new(b: &BlockWeights, kernel: Kernel) -> Result<Self, ConvError> {
+        Self::with_winograd(b, kernel, false)
+    }
+
+    /// As [`Fp32Block::new`]; `winograd: true` convolves by Winograd's
+    /// F(3x3, 3x3) on the AVX-512 and AVX2 kernels (not the direct
+    /// kernels' bits: `crate::winograd_fp32`; opt-in).
+    pub fn with_winograd(
+        b: &BlockWeights,
+        kernel: Kernel,
+        winograd: bool,
+    ) -> Result<Self, ConvError> {
         b.check()?;
         let kernel = kernel.for_fp32();
         if kernel > Kernel::best_fp32() {
@@ -102,7 +119,10 @@ impl Fp32Block {
         Ok(Self {
             state_ch: b.state_ch,
             aux_ch: b.aux_ch,
-            layers: [pack(&b.layers[0]), pack(&b.layers[1]), pack(&b.layers[2])],
+            layers: {
+                let wg = winograd && matches!(kernel, Kernel::Avx2 | Kernel::Avx512);
+                b.layers.each_ref().map(|l| pack(l, wg))
+            },
             kernel,
             flops_per_pixel: b.flops(1, 1),
         })
@@ -111,6 +131,11 @@ impl Fp32Block {
     /// The kernel in use.
     pub fn kernel(&self) -> Kernel {
         self.kernel
+    }
+
+    /// How many of the block's three convolutions run by Winograd.
+    pub fn winograd_layers(&self) -> usize {
+        self.layers.iter().filter(|l| l.wino.is_some()).count()
     }
 
     /// Floating-point operations of one run on `h x w`.
@@ -216,23 +241,46 @@ fn conv(
     let rs = (w + 2) * cs;
     debug_assert!(inp.len() >= (h + 2) * rs);
     debug_assert!(p.cin <= cs);
+    let wino = match kernel {
+        Kernel::Avx2 | Kernel::Avx512 => p.wino.as_deref(),
+        _ => None,
+    };
+    let per = if wino.is_some() {
+        crate::int8::winograd::M
+    } else {
+        1
+    };
     out[skip * row_len..(skip + h) * row_len]
-        .par_chunks_mut(row_len)
+        .par_chunks_mut(per * row_len)
         .enumerate()
-        .for_each(|(r, orow)| {
+        .for_each(|(k, orows)| {
+            let n = orows.len() / row_len;
+            #[cfg(target_arch = "x86_64")]
+            if let Some(u) = wino.filter(|_| n == per) {
+                let mut put = |a: usize, x: usize, np: usize, sums: &[f32]| {
+                    let orow = &mut orows[a * row_len..(a + 1) * row_len];
+                    epilogue(p, 0, ocp, np, sums, &mut orow[px0 + x * ocp..]);
+                };
+                crate::winograd_fp32::row_triple(kernel, p, u, inp, k * per, rs, cs, w, &mut put);
+                return;
+            }
             let mut tile = [0.0f32; NP_NARROW * GROUP];
-            for_each_tile(ocp, w, |g0, gw, x, np| {
-                let base = r * rs + x * cs;
-                run_tile(kernel, gw, np, inp, base, rs, cs, p, g0, &mut tile);
-                epilogue(p, g0, gw, np, &tile, &mut orow[px0 + x * ocp..]);
-            });
+            for a in 0..n {
+                let r = k * per + a;
+                let orow = &mut orows[a * row_len..(a + 1) * row_len];
+                for_each_tile(ocp, w, |g0, gw, x, np| {
+                    let base = r * rs + x * cs;
+                    run_tile(kernel, gw, np, inp, base, rs, cs, p, g0, &mut tile);
+                    epilogue(p, g0, gw, np, &tile, &mut orow[px0 + x * ocp..]);
+                });
+            }
         });
 }
 
 /// Bias and PReLU on a tile of `np` pixels x `gw` channels, written at
 /// `out[p * ocp + g0 + j]`.
 #[inline]
-fn epilogue(p: &Packed, g0: usize, gw: usize, np: usize, tile: &[f32], out: &mut [f32]) {
+pub(crate) fn epilogue(p: &Packed, g0: usize, gw: usize, np: usize, tile: &[f32], out: &mut [f32]) {
     let bias = &p.bias[g0..g0 + gw];
     for px in 0..np {
         let t = &tile[px * gw..(px + 1) * gw];
@@ -257,7 +305,7 @@ fn epilogue(p: &Packed, g0: usize, gw: usize, np: usize, tile: &[f32], out: &mut
 /// Accumulate one tile (no bias) into `tile[p * gw + j]`.
 #[allow(clippy::too_many_arguments)]
 #[inline]
-fn run_tile(
+pub(crate) fn run_tile(
     kernel: Kernel,
     gw: usize,
     np: usize,
@@ -513,19 +561,7 @@ unsafe fn pass_avx2<const NP: usize>(
 mod tests {
     use super::*;
     use crate::reference_block;
-    use crate::testutil::{random_block, random_vec};
-
-    fn max_rel(a: &[f32], b: &[f32]) -> f64 {
-        let scale = b
-            .iter()
-            .fold(0.0f64, |m, v| m.max(v.abs() as f64))
-            .max(1e-30);
-        a.iter()
-            .zip(b)
-            .map(|(x, y)| (x - y).abs() as f64)
-            .fold(0.0, f64::max)
-            / scale
-    }
+    use crate::testutil::{max_rel, random_block, random_vec};
 
     fn check(kernel: Kernel, sc: usize, ac: usize, hidden: usize, h: usize, w: usize) {
         let b = random_block(sc, ac, hidden, 7 + h as u64);

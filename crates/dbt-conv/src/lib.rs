@@ -128,6 +128,7 @@ pub(crate) fn check_run(
 
 mod fp32;
 mod int8;
+mod winograd_fp32;
 
 pub use fp32::{Fp32Block, Fp32Workspace};
 pub use int8::{
@@ -465,5 +466,19 @@ pub(crate) mod testutil {
     pub fn random_vec(n: usize, seed: u64) -> Vec<f32> {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         (0..n).map(|_| rng.random_range(-1.0..1.0)).collect()
+    }
+
+    /// The largest difference between `a` and `b`, relative to `b`'s
+    /// largest magnitude.
+    pub fn max_rel(a: &[f32], b: &[f32]) -> f64 {
+        let scale = b
+            .iter()
+            .fold(0.0f64, |m, v| m.max(v.abs() as f64))
+            .max(1e-30);
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs() as f64)
+            .fold(0.0, f64::max)
+            / scale
     }
 }

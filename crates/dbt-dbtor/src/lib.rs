@@ -318,19 +318,31 @@ pub fn kernel_limit() -> Result<Kernel, DbtorError> {
 /// benchmarks and service comparisons only.
 pub const WINOGRAD_ENV: &str = "DBTOR_WINOGRAD";
 
+/// The environment variable that turns the fp32 kernels' Winograd
+/// convolution on (`on` or `1`; `off`, `0` or unset: off). Unlike int8's it
+/// changes the fp32 sums' rounding (`dbt_conv`'s `winograd_fp32`), so it is
+/// opt-in until an accuracy run chooses it.
+pub const FP32_WINOGRAD_ENV: &str = "DBTOR_FP32_WINOGRAD";
+
+/// Whether the fp32 kernels convolve by Winograd: [`FP32_WINOGRAD_ENV`]
+/// (another value is an error naming it and the choices).
+pub fn fp32_winograd_wanted() -> Result<bool, DbtorError> {
+    std::env::var(FP32_WINOGRAD_ENV).map_or(Ok(false), |v| parse_switch(FP32_WINOGRAD_ENV, &v))
+}
+
 /// Whether the AVX2 and AVX-VNNI int8 kernels may convolve by Winograd: [`WINOGRAD_ENV`]
 /// (another value is an error naming it and the choices).
 pub fn winograd_allowed() -> Result<bool, DbtorError> {
-    std::env::var(WINOGRAD_ENV).map_or(Ok(true), |v| parse_winograd(&v))
+    std::env::var(WINOGRAD_ENV).map_or(Ok(true), |v| parse_switch(WINOGRAD_ENV, &v))
 }
 
-/// A [`WINOGRAD_ENV`] value.
-fn parse_winograd(v: &str) -> Result<bool, DbtorError> {
+/// An on/off environment value (`name` for the error).
+fn parse_switch(name: &str, v: &str) -> Result<bool, DbtorError> {
     match v.trim() {
         "on" | "1" => Ok(true),
         "off" | "0" => Ok(false),
         _ => Err(DbtorError::Input(format!(
-            "{WINOGRAD_ENV}={v:?}: expected on, off, 1 or 0"
+            "{name}={v:?}: expected on, off, 1 or 0"
         ))),
     }
 }
@@ -529,14 +541,19 @@ impl Dbtor {
             }
             Engine::Fast => {
                 let winograd = winograd_allowed()?;
+                let fp32_winograd = fp32_winograd_wanted()?;
                 let mut v = Vec::new();
                 for (b, p, path) in files {
                     let blk = match p {
                         Precision::Fp32 => {
                             let w = fast::fp32_block(&path, c, b.aux_channels)?;
                             FastBlock::Fp32(
-                                Fp32Block::new(&w, Kernel::best_fp32_up_to(limit))
-                                    .map_err(conv_err(&path))?,
+                                Fp32Block::with_winograd(
+                                    &w,
+                                    Kernel::best_fp32_up_to(limit),
+                                    fp32_winograd,
+                                )
+                                .map_err(conv_err(&path))?,
                             )
                         }
                         Precision::Int8 => {
@@ -684,13 +701,33 @@ impl Dbtor {
         Ok(self)
     }
 
-    /// Convolutions run by Winograd (the AVX2 and AVX-VNNI int8 kernels'), of all the
-    /// fast engine's.
+    /// The same model with its fp32 blocks convolving by Winograd (as
+    /// [`FP32_WINOGRAD_ENV`]`=on` loads it; for benchmarks).
+    pub fn with_fp32_winograd(mut self) -> Result<Self, DbtorError> {
+        let c = self.manifest.state_channels;
+        if let Blocks::Fast(v) = &mut self.blocks {
+            for ((blk, path), b) in v.iter_mut().zip(&self.manifest.blocks) {
+                if let FastBlock::Fp32(k) = blk {
+                    let w = fast::fp32_block(path, c, b.aux_channels)?;
+                    *k = Fp32Block::with_winograd(&w, k.kernel(), true).map_err(|e| {
+                        DbtorError::Block {
+                            path: path.clone(),
+                            reason: format!("fast path: {e}"),
+                        }
+                    })?;
+                }
+            }
+        }
+        Ok(self)
+    }
+
+    /// Convolutions run by Winograd (the AVX2 and AVX-VNNI int8 kernels',
+    /// the fp32 kernels' where asked for), of all the fast engine's.
     pub fn winograd_convolutions(&self) -> (usize, usize) {
         match &self.blocks {
             Blocks::Tract(_) => (0, 0),
             Blocks::Fast(v) => v.iter().fold((0, 0), |(n, all), b| match &b.0 {
-                FastBlock::Fp32(_) => (n, all + 3),
+                FastBlock::Fp32(k) => (n + k.winograd_layers(), all + 3),
                 FastBlock::Int8(k) => (n + k.winograd_layers(), all + 3),
             }),
         }
@@ -1081,9 +1118,9 @@ mod tests {
     #[test]
     fn winograd_switch_values_are_read_or_refused_by_name() {
         for (v, want) in [("on", true), ("1", true), (" off ", false), ("0", false)] {
-            assert_eq!(parse_winograd(v).unwrap(), want, "{v:?}");
+            assert_eq!(parse_switch(WINOGRAD_ENV, v).unwrap(), want, "{v:?}");
         }
-        let e = parse_winograd("no").unwrap_err().to_string();
+        let e = parse_switch(WINOGRAD_ENV, "no").unwrap_err().to_string();
         assert!(
             e.contains("DBTOR_WINOGRAD=\"no\"") && e.contains("on, off"),
             "{e}"

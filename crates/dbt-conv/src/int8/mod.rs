@@ -49,7 +49,7 @@ mod kernels;
 mod pack;
 mod quant;
 mod reference;
-mod winograd;
+pub(crate) mod winograd;
 
 /// Whether the AMX int8 kernel runs here ([`Kernel::amx_available`]).
 pub(crate) fn amx_available() -> bool {

@@ -47,15 +47,15 @@ use super::*;
 pub(super) const WT: usize = 20;
 
 /// Output pixels per tile side.
-pub(super) const M: usize = 3;
+pub(crate) const M: usize = 3;
 
 /// Input pixels per patch side, and transform positions.
-const N: usize = 5;
-const POS: usize = N * N;
+pub(crate) const N: usize = 5;
+pub(crate) const POS: usize = N * N;
 
 /// `B^T` ([`bt5`] computes it factorised; a test holds them equal).
 #[cfg_attr(not(test), allow(dead_code))]
-const BT: [[i32; N]; N] = [
+pub(crate) const BT: [[i32; N]; N] = [
     [2, -1, -2, 1, 0],
     [0, -2, -1, 1, 0],
     [0, 2, -3, 1, 0],
@@ -64,11 +64,11 @@ const BT: [[i32; N]; N] = [
 ];
 
 /// `G' = 6 G`.
-const GP: [[i32; 3]; N] = [[3, 0, 0], [-3, -3, -3], [-1, 1, -1], [1, 2, 4], [0, 0, 6]];
+pub(crate) const GP: [[i32; 3]; N] = [[3, 0, 0], [-3, -3, -3], [-1, 1, -1], [1, 2, 4], [0, 0, 6]];
 
 /// `A^T` ([`at5`] computes it factorised; a test holds them equal).
 #[cfg_attr(not(test), allow(dead_code))]
-const AT: [[i32; N]; M] = [[1, 1, 1, 1, 0], [0, 1, -1, 2, 0], [0, 1, 1, 4, 1]];
+pub(crate) const AT: [[i32; N]; M] = [[1, 1, 1, 1, 0], [0, 1, -1, 2, 0], [0, 1, 1, 4, 1]];
 
 /// The inverse of 9 modulo 2^32 (`9 * INV9 = 2 * 2^32 + 1`).
 const INV9: i32 = 954_437_177;
@@ -391,134 +391,100 @@ macro_rules! by_tiles {
     };
 }
 
-/// The element-wise products summed over the input channels, per transform
-/// position, for 16 output channels x `nt` tiles, `5` tiles at a time (10
-/// accumulators, as the direct AVX2 pass), each position's weights read
-/// once per 5 tiles while in cache: per pair of input channels one 32-bit
-/// broadcast per tile and two `vpmaddwd` against the pair-packed
+/// A product loop and its block: `$gemm` sums, per transform position, the
+/// element-wise products over the input channels for 16 output channels x
+/// `nt` tiles, 5 tiles at a time (`$block`: 10 accumulators, as the direct
+/// AVX2 pass; each position's weights read once per 5 tiles while in
+/// cache): per pair of input channels one 32-bit broadcast per tile and,
+/// per 8 channels, `$acc(acc, pair, weights)` against the pair-packed
 /// transformed weights; stored at `m[(pos * WT + t) * 16 + k]`.
-///
-/// # Safety
-/// AVX2; `v` as [`input_avx2`] fills it for `nt` (1..=WT) tiles; `u` valid
-/// for the transformed weights (`[pos][cin4 / 2][ocp][2]`) from the
-/// block's first channel and aligned to 32 bytes (`ocp` a multiple of 16);
-/// `m` valid for `POS * WT * 16` i32.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn gemm_avx2(nt: usize, v: *const i16, cin4: usize, u: *const i16, ocp: usize, m: *mut i32) {
-    // SAFETY: AVX2 and the ranges per the contract, block by block.
-    unsafe {
-        for pos in 0..POS {
-            let w = u.add(pos * (cin4 / 2) * ocp * 2);
-            for t0 in (0..nt).step_by(5) {
-                let (vb, mb) = (v.add((pos * WT + t0) * cin4), m.add((pos * WT + t0) * L));
-                by_tiles!(nt - t0, block_avx2, [], vb, cin4, w, ocp, mb);
+macro_rules! product_loop {
+    ($gemm:ident, $block:ident, $features:literal, $acc:expr, $what:literal) => {
+        #[doc = concat!("The Winograd products with ", $what, ".")]
+        ///
+        /// # Safety
+        #[doc = concat!("`", $features, "`; `v` as [`input_avx2`] fills it for `nt` (1..=WT)")]
+        /// tiles; `u` valid for the transformed weights (`[pos][cin4 / 2][ocp][2]`)
+        /// from the block's first channel and aligned to 32 bytes (`ocp` a
+        /// multiple of 16); `m` valid for `POS * WT * 16` i32.
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = $features)]
+        unsafe fn $gemm(
+            nt: usize,
+            v: *const i16,
+            cin4: usize,
+            u: *const i16,
+            ocp: usize,
+            m: *mut i32,
+        ) {
+            // SAFETY: the features and the ranges per the contract, block
+            // by block.
+            unsafe {
+                for pos in 0..POS {
+                    let w = u.add(pos * (cin4 / 2) * ocp * 2);
+                    for t0 in (0..nt).step_by(5) {
+                        let vb = v.add((pos * WT + t0) * cin4);
+                        let mb = m.add((pos * WT + t0) * L);
+                        by_tiles!(nt - t0, $block, [], vb, cin4, w, ocp, mb);
+                    }
+                }
             }
         }
-    }
+
+        /// `NT` tiles at one position: `v` and `m` at the first tile, `w` at
+        /// the position's weights.
+        ///
+        /// # Safety
+        /// As the product loop's, for those tiles.
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = $features)]
+        #[inline]
+        unsafe fn $block<const NT: usize>(
+            v: *const i16,
+            cin4: usize,
+            w: *const i16,
+            ocp: usize,
+            m: *mut i32,
+        ) {
+            // SAFETY: the features and the ranges per the contract.
+            unsafe {
+                use std::arch::x86_64::*;
+                let mut a0 = [_mm256_setzero_si256(); NT];
+                let mut a1 = [_mm256_setzero_si256(); NT];
+                for k in 0..cin4 / 2 {
+                    let wr = w.add(k * ocp * 2);
+                    let w0 = _mm256_load_si256(wr as *const __m256i);
+                    let w1 = _mm256_load_si256(wr.add(16) as *const __m256i);
+                    for t in 0..NT {
+                        let pair = (v.add(t * cin4 + 2 * k) as *const i32).read_unaligned();
+                        let b = _mm256_set1_epi32(pair);
+                        a0[t] = $acc(a0[t], b, w0);
+                        a1[t] = $acc(a1[t], b, w1);
+                    }
+                }
+                for t in 0..NT {
+                    dbt_isa::ymm::storeu_si256(m.add(t * L) as *mut __m256i, a0[t]);
+                    dbt_isa::ymm::storeu_si256(m.add(t * L + 8) as *mut __m256i, a1[t]);
+                }
+            }
+        }
+    };
 }
 
-/// `NT` tiles of [`gemm_avx2`] at one position: `v` and `m` at the first
-/// tile, `w` at the position's weights.
-///
-/// # Safety
-/// As [`gemm_avx2`], for those tiles.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[inline]
-unsafe fn block_avx2<const NT: usize>(
-    v: *const i16,
-    cin4: usize,
-    w: *const i16,
-    ocp: usize,
-    m: *mut i32,
-) {
-    // SAFETY: AVX2 and the ranges per the contract.
-    unsafe {
-        use std::arch::x86_64::*;
-        let mut a0 = [_mm256_setzero_si256(); NT];
-        let mut a1 = [_mm256_setzero_si256(); NT];
-        for k in 0..cin4 / 2 {
-            let wr = w.add(k * ocp * 2);
-            let w0 = _mm256_load_si256(wr as *const __m256i);
-            let w1 = _mm256_load_si256(wr.add(16) as *const __m256i);
-            for t in 0..NT {
-                let pair = (v.add(t * cin4 + 2 * k) as *const i32).read_unaligned();
-                let b = _mm256_set1_epi32(pair);
-                a0[t] = _mm256_add_epi32(a0[t], _mm256_madd_epi16(b, w0));
-                a1[t] = _mm256_add_epi32(a1[t], _mm256_madd_epi16(b, w1));
-            }
-        }
-        for t in 0..NT {
-            dbt_isa::ymm::storeu_si256(m.add(t * L) as *mut __m256i, a0[t]);
-            dbt_isa::ymm::storeu_si256(m.add(t * L + 8) as *mut __m256i, a1[t]);
-        }
-    }
-}
-
-/// [`gemm_avx2`] with AVX-VNNI's `vpdpwssd` (the pair products and the
-/// accumulation in one instruction, the same exact sums).
-///
-/// # Safety
-/// AVX2 and AVX-VNNI; otherwise as [`gemm_avx2`].
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,avxvnni")]
-unsafe fn gemm_avxvnni(
-    nt: usize,
-    v: *const i16,
-    cin4: usize,
-    u: *const i16,
-    ocp: usize,
-    m: *mut i32,
-) {
-    // SAFETY: AVX2, AVX-VNNI and the ranges per the contract, block by block.
-    unsafe {
-        for pos in 0..POS {
-            let w = u.add(pos * (cin4 / 2) * ocp * 2);
-            for t0 in (0..nt).step_by(5) {
-                let (vb, mb) = (v.add((pos * WT + t0) * cin4), m.add((pos * WT + t0) * L));
-                by_tiles!(nt - t0, block_avxvnni, [], vb, cin4, w, ocp, mb);
-            }
-        }
-    }
-}
-
-/// `NT` tiles of [`gemm_avxvnni`] at one position (as [`block_avx2`]).
-///
-/// # Safety
-/// As [`gemm_avxvnni`], for those tiles.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,avxvnni")]
-#[inline]
-unsafe fn block_avxvnni<const NT: usize>(
-    v: *const i16,
-    cin4: usize,
-    w: *const i16,
-    ocp: usize,
-    m: *mut i32,
-) {
-    // SAFETY: AVX2, AVX-VNNI and the ranges per the contract.
-    unsafe {
-        use std::arch::x86_64::*;
-        let mut a0 = [_mm256_setzero_si256(); NT];
-        let mut a1 = [_mm256_setzero_si256(); NT];
-        for k in 0..cin4 / 2 {
-            let wr = w.add(k * ocp * 2);
-            let w0 = _mm256_load_si256(wr as *const __m256i);
-            let w1 = _mm256_load_si256(wr.add(16) as *const __m256i);
-            for t in 0..NT {
-                let pair = (v.add(t * cin4 + 2 * k) as *const i32).read_unaligned();
-                let b = _mm256_set1_epi32(pair);
-                a0[t] = _mm256_dpwssd_avx_epi32(a0[t], b, w0);
-                a1[t] = _mm256_dpwssd_avx_epi32(a1[t], b, w1);
-            }
-        }
-        for t in 0..NT {
-            dbt_isa::ymm::storeu_si256(m.add(t * L) as *mut __m256i, a0[t]);
-            dbt_isa::ymm::storeu_si256(m.add(t * L + 8) as *mut __m256i, a1[t]);
-        }
-    }
-}
+product_loop!(
+    gemm_avx2,
+    block_avx2,
+    "avx2",
+    |a, b, w| _mm256_add_epi32(a, _mm256_madd_epi16(b, w)),
+    "AVX2's `vpmaddwd` (exact sums of two i16 products) and `vpaddd`"
+);
+product_loop!(
+    gemm_avxvnni,
+    block_avxvnni,
+    "avx2,avxvnni",
+    |a, b, w| _mm256_dpwssd_avx_epi32(a, b, w),
+    "AVX-VNNI's `vpdpwssd` (the same products and the accumulation in one instruction)"
+);
 
 /// `Y = (A^T M A) / 36` of `nt` tiles' 16 channels (block `q` of a group
 /// `gw` wide): row `a` of each tile to `out[a]`, pixel `3 t + b` at
