@@ -135,38 +135,15 @@ pub(crate) fn row_triple(
     }
 }
 
-/// `B^T x` on 8 floats, factorised as `int8::winograd`'s `bt5`.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[inline]
-fn bt5(x: [std::arch::x86_64::__m256; N]) -> [std::arch::x86_64::__m256; N] {
-    use std::arch::x86_64::*;
-    let [x0, x1, x2, x3, x4] = x;
-    let r3 = _mm256_sub_ps(x3, x1);
-    let d02 = _mm256_sub_ps(x0, x2);
-    let r0 = _mm256_add_ps(_mm256_add_ps(d02, d02), r3);
-    let r1 = _mm256_sub_ps(r3, _mm256_add_ps(x1, x2));
-    let u = _mm256_sub_ps(x1, x2);
-    let r2 = _mm256_add_ps(_mm256_add_ps(r3, u), _mm256_add_ps(u, u));
-    let r4 = _mm256_sub_ps(_mm256_sub_ps(x4, x2), _mm256_add_ps(r3, r3));
-    [r0, r1, r2, r3, r4]
-}
-
-/// `A^T x` on 8 floats, factorised as `int8::winograd`'s `at5`.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[inline]
-fn at5(x: [std::arch::x86_64::__m256; N]) -> [std::arch::x86_64::__m256; M] {
-    use std::arch::x86_64::*;
-    let [x0, x1, x2, x3, x4] = x;
-    let a = _mm256_add_ps(x1, x2);
-    let b = _mm256_sub_ps(x1, x2);
-    let x3x2 = _mm256_add_ps(x3, x3);
-    let y0 = _mm256_add_ps(_mm256_add_ps(x0, a), x3);
-    let y1 = _mm256_add_ps(b, x3x2);
-    let y2 = _mm256_add_ps(_mm256_add_ps(a, x4), _mm256_add_ps(x3x2, x3x2));
-    [y0, y1, y2]
-}
+crate::int8::winograd::factorised_transforms!(
+    bt5,
+    at5,
+    std::arch::x86_64::__m256,
+    _mm256_add_ps,
+    _mm256_sub_ps,
+    _mm256_add_ps,
+    _mm256_sub_ps
+);
 
 /// `V = B^T d B` of `nt` patches, 8 channels at a time, into
 /// `v[(pos * WT + t) * cin + c]` (each column's `B^T` once per chunk).

@@ -204,42 +204,60 @@ pub(super) fn row_triple(
     }
 }
 
-/// `B^T x` on 16 i16 lanes, factorised (13 additions; [`BT`]'s rows:
-/// `r3 = x3 - x1`, `r0 = 2 (x0 - x2) + r3`, `r1 = r3 - (x1 + x2)`,
-/// `r2 = r3 + 3 (x1 - x2)`, `r4 = (x4 - x2) - 2 r3`).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[inline]
-fn bt5(x: [std::arch::x86_64::__m256i; N]) -> [std::arch::x86_64::__m256i; N] {
-    use std::arch::x86_64::*;
-    let [x0, x1, x2, x3, x4] = x;
-    let r3 = _mm256_sub_epi16(x3, x1);
-    let d02 = _mm256_sub_epi16(x0, x2);
-    let r0 = _mm256_add_epi16(_mm256_add_epi16(d02, d02), r3);
-    let r1 = _mm256_sub_epi16(r3, _mm256_add_epi16(x1, x2));
-    let u = _mm256_sub_epi16(x1, x2);
-    let r2 = _mm256_add_epi16(_mm256_add_epi16(r3, u), _mm256_add_epi16(u, u));
-    let r4 = _mm256_sub_epi16(_mm256_sub_epi16(x4, x2), _mm256_add_epi16(r3, r3));
-    [r0, r1, r2, r3, r4]
-}
-
-/// `A^T x` on 8 i32 lanes, factorised (9 additions; [`AT`]'s rows:
+/// The factorised transforms on one vector type: `$bt(x) = B^T x` (13
+/// additions; [`BT`]'s rows: `r3 = x3 - x1`, `r0 = 2 (x0 - x2) + r3`,
+/// `r1 = r3 - (x1 + x2)`, `r2 = r3 + 3 (x1 - x2)`, `r4 = (x4 - x2) - 2 r3`)
+/// with `$badd`/`$bsub`, and `$at(x) = A^T x` (9 additions; [`AT`]'s rows:
 /// `y0 = x0 + (x1 + x2) + x3`, `y1 = (x1 - x2) + 2 x3`,
-/// `y2 = (x1 + x2) + 4 x3 + x4`).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[inline]
-fn at5(x: [std::arch::x86_64::__m256i; N]) -> [std::arch::x86_64::__m256i; M] {
-    use std::arch::x86_64::*;
-    let [x0, x1, x2, x3, x4] = x;
-    let a = _mm256_add_epi32(x1, x2);
-    let b = _mm256_sub_epi32(x1, x2);
-    let x3x2 = _mm256_add_epi32(x3, x3);
-    let y0 = _mm256_add_epi32(_mm256_add_epi32(x0, a), x3);
-    let y1 = _mm256_add_epi32(b, x3x2);
-    let y2 = _mm256_add_epi32(_mm256_add_epi32(a, x4), _mm256_add_epi32(x3x2, x3x2));
-    [y0, y1, y2]
+/// `y2 = (x1 + x2) + 4 x3 + x4`) with `$aadd`/`$asub`. Here on i16 and i32
+/// lanes; `crate::winograd_fp32` makes the float pair.
+macro_rules! factorised_transforms {
+    ($bt:ident, $at:ident, $ty:ty, $badd:ident, $bsub:ident, $aadd:ident, $asub:ident) => {
+        #[doc = concat!("`B^T x`, factorised (`", stringify!($badd), "`).")]
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx2")]
+        #[inline]
+        fn $bt(x: [$ty; N]) -> [$ty; N] {
+            use std::arch::x86_64::*;
+            let [x0, x1, x2, x3, x4] = x;
+            let r3 = $bsub(x3, x1);
+            let d02 = $bsub(x0, x2);
+            let r0 = $badd($badd(d02, d02), r3);
+            let r1 = $bsub(r3, $badd(x1, x2));
+            let u = $bsub(x1, x2);
+            let r2 = $badd($badd(r3, u), $badd(u, u));
+            let r4 = $bsub($bsub(x4, x2), $badd(r3, r3));
+            [r0, r1, r2, r3, r4]
+        }
+
+        #[doc = concat!("`A^T x`, factorised (`", stringify!($aadd), "`).")]
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx2")]
+        #[inline]
+        fn $at(x: [$ty; N]) -> [$ty; M] {
+            use std::arch::x86_64::*;
+            let [x0, x1, x2, x3, x4] = x;
+            let a = $aadd(x1, x2);
+            let b = $asub(x1, x2);
+            let x3x2 = $aadd(x3, x3);
+            let y0 = $aadd($aadd(x0, a), x3);
+            let y1 = $aadd(b, x3x2);
+            let y2 = $aadd($aadd(a, x4), $aadd(x3x2, x3x2));
+            [y0, y1, y2]
+        }
+    };
 }
+pub(crate) use factorised_transforms;
+
+factorised_transforms!(
+    bt5,
+    at5,
+    std::arch::x86_64::__m256i,
+    _mm256_add_epi16,
+    _mm256_sub_epi16,
+    _mm256_add_epi32,
+    _mm256_sub_epi32
+);
 
 /// `V = B^T d B` of `nt` patches (5 x 5 pixels from `inp`, the next one 3
 /// pixels right, so neighbours share 2 columns), 16 channels at a time
