@@ -49,6 +49,25 @@ pub(crate) const NP_WIDE: usize = 5;
 /// Pixels per tile when one vector of channels is in registers.
 pub(crate) const NP_NARROW: usize = 10;
 
+/// Per-thread scratch: `f` gets the first `n` values of a buffer the thread
+/// keeps in `key` (grown when a call needs more, reused after), so that the
+/// kernels allocate nothing per call once warm (the fast engine's
+/// no-allocation rule, `crates/dbt-dbtor/tests/no_alloc.rs`). Each use site
+/// has its own key, so nested calls never share a buffer.
+pub(crate) fn with_scratch<T: Copy + Default + 'static, R>(
+    key: &'static std::thread::LocalKey<std::cell::RefCell<Vec<T>>>,
+    n: usize,
+    f: impl FnOnce(&mut [T]) -> R,
+) -> R {
+    key.with(|c| {
+        let mut v = c.borrow_mut();
+        if v.len() < n {
+            v.resize(n, T::default());
+        }
+        f(&mut v[..n])
+    })
+}
+
 /// Width of the channel group starting at `g0` of `ocp` (padded) channels:
 /// 64 while that many remain, else one vector.
 pub(crate) fn group_width(ocp: usize, g0: usize) -> usize {

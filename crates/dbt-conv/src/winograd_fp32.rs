@@ -78,9 +78,41 @@ pub(crate) fn row_triple(
     assert!(matches!(kernel, Kernel::Avx2 | Kernel::Avx512));
     assert!(eligible(cin) && cin <= cs && ocp.is_multiple_of(L));
     assert!(u.len() == POS * cin * ocp && rs == (w + 2) * cs && inp.len() >= (r + N) * rs);
-    let mut v = vec![0.0f32; POS * WT * cin];
-    let mut m = vec![0.0f32; POS * WT * ocp];
-    let mut tiles: [Vec<f32>; M] = std::array::from_fn(|_| vec![0.0; M * WT * ocp]);
+    thread_local! {
+        static BUF: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
+    }
+    let (vn, mn, tn) = (POS * WT * cin, POS * WT * ocp, M * WT * ocp);
+    crate::with_scratch(&BUF, vn + mn + M * tn, |b| {
+        let (v, b) = b.split_at_mut(vn);
+        let (m, t) = b.split_at_mut(mn);
+        let (t0, t12) = t.split_at_mut(tn);
+        let (t1, t2) = t12.split_at_mut(tn);
+        triple_in(kernel, p, u, inp, r, rs, cs, w, dst, v, m, [t0, t1, t2]);
+    });
+}
+
+/// [`row_triple`] with its scratch: `v` (`POS * WT * cin`), `m`
+/// (`POS * WT * ocp`) and three tiles of `3 * WT * ocp` sums (the first
+/// also the left-over columns' row).
+#[cfg(target_arch = "x86_64")]
+#[allow(clippy::too_many_arguments)]
+fn triple_in(
+    kernel: Kernel,
+    p: &Packed,
+    u: &[f32],
+    inp: &[f32],
+    r: usize,
+    rs: usize,
+    cs: usize,
+    w: usize,
+    dst: &mut RowSums<'_>,
+    v: &mut [f32],
+    m: &mut [f32],
+    mut tiles: [&mut [f32]; M],
+) {
+    let (cin, ocp) = (p.cin, p.ocp);
+    assert!(v.len() >= POS * WT * cin && m.len() >= POS * WT * ocp);
+    assert!(tiles.iter().all(|t| t.len() >= M * WT * ocp));
     let mut x = 0;
     while x + M <= w {
         let nt = ((w - x) / M).min(WT);
@@ -117,7 +149,8 @@ pub(crate) fn row_triple(
     if x < w {
         let np = w - x;
         let mut tile = [0.0f32; NP_NARROW * GROUP];
-        let mut row = vec![0.0f32; np * ocp];
+        // np <= 2 pixels: inside the first tile buffer
+        let row = &mut *tiles[0];
         for a in 0..M {
             let mut g0 = 0;
             while g0 < ocp {
@@ -130,7 +163,7 @@ pub(crate) fn row_triple(
                 }
                 g0 += gw;
             }
-            dst(a, x, np, &row);
+            dst(a, x, np, &row[..np * ocp]);
         }
     }
 }

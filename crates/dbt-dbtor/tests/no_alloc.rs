@@ -35,11 +35,39 @@ unsafe impl GlobalAlloc for Counting {
 #[global_allocator]
 static A: Counting = Counting;
 
+/// Every kernel level this CPU runs (forced as `DBTOR_KERNEL` forces it:
+/// the AVX2 kernels' per-row scratch once allocated per row), int8 with its
+/// Winograd convolution where the level has one, and fp32 with and without
+/// Winograd.
 #[test]
 fn no_allocation_per_slice_after_warm_up() {
+    use dbt_dbtor::Kernel;
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/dbtor-x4");
-    for p in [Precision::Fp32, Precision::Int8] {
-        let m = Dbtor::load_with(&dir, p, Engine::Fast).unwrap();
+    let g0 = dbt_dbtor::ModelManifest::load(&dir).unwrap().geometry;
+    let mut cases = Vec::new();
+    for limit in Kernel::ALL {
+        if Kernel::best_int8_up_to(limit) == limit {
+            cases.push((Precision::Int8, limit, false));
+        }
+        if Kernel::best_fp32_up_to(limit) == limit {
+            cases.push((Precision::Fp32, limit, false));
+            if matches!(limit, Kernel::Avx2 | Kernel::Avx512) {
+                cases.push((Precision::Fp32, limit, true));
+            }
+        }
+    }
+    assert!(cases.len() >= 2, "{cases:?}");
+    for (p, limit, fp32_winograd) in cases {
+        let m = Dbtor::load_for_geometry_up_to(&dir, p, &[], Engine::Fast, &g0, limit).unwrap();
+        let m = if fp32_winograd {
+            m.with_fp32_winograd().unwrap()
+        } else {
+            m
+        };
+        let p = format!(
+            "{p} {limit:?}{}",
+            if fp32_winograd { " Winograd" } else { "" }
+        );
         let g = m.geometry().clone();
         let sino: Vec<f32> = (0..g.n_rays())
             .map(|i| 2.0 + (i % 7) as f32 * 0.1)

@@ -130,9 +130,32 @@ pub(super) fn row(
     let (cin4, ocp) = (p.cin4, p.ocp);
     assert!(eligible(p) && cin4.is_multiple_of(4) && cin4 <= cs && ocp.is_multiple_of(L));
     assert!(rs == (w + 2) * cs && inp.len() >= (r + 3) * rs && p.w.len() == 9 * cin4 * ocp);
-    let cfg = TileConfig::new(cin4);
+    thread_local! {
+        static SUMS: std::cell::RefCell<Vec<i32>> = const { std::cell::RefCell::new(Vec::new()) };
+    }
     // 16 pixels x ocp sums, group by group in the epilogue's layout
-    let mut sums = vec![0i32; MT * ocp];
+    crate::with_scratch(&SUMS, MT * ocp, |sums| {
+        row_in(p, inp, r, rs, cs, w, dst, sums)
+    })
+}
+
+/// [`row`] with its scratch of `16 * ocp` sums (callers: [`row`], which
+/// checks the bounds the tile loads rely on).
+#[cfg(target_arch = "x86_64")]
+#[allow(clippy::too_many_arguments)]
+fn row_in(
+    p: &PackedI8,
+    inp: &[u8],
+    r: usize,
+    rs: usize,
+    cs: usize,
+    w: usize,
+    dst: &mut RowSink<'_>,
+    sums: &mut [i32],
+) {
+    let (cin4, ocp) = (p.cin4, p.ocp);
+    assert!(sums.len() >= MT * ocp);
+    let cfg = TileConfig::new(cin4);
     let (g4, nq) = (cin4 / 4, ocp / L);
     // SAFETY: AMX-TILE/INT8 available and granted (the caller's contract);
     // the configuration is a valid palette-1 one (tiles of at most 16 rows

@@ -56,11 +56,13 @@ pub(super) fn conv(
         1
     };
     // Output rows r0..r0 + n; `dst(a, ...)` gets row r0 + a's tiles.
-    let rows = |r0: usize, n: usize, dst: &mut RowSink<'_>| {
-        let mut win = vec![0i16; win_len];
+    thread_local! {
+        static WIN: std::cell::RefCell<Vec<i16>> = const { std::cell::RefCell::new(Vec::new()) };
+    }
+    let rows_with = |r0: usize, n: usize, win: &mut [i16], dst: &mut RowSink<'_>| {
         #[cfg(target_arch = "x86_64")]
         if let Some(u) = wino.filter(|_| n == per) {
-            super::winograd::row_triple(kernel, p, u, inp, r0, rs, cs, w, &mut win, dst);
+            super::winograd::row_triple(kernel, p, u, inp, r0, rs, cs, w, win, dst);
             return;
         }
         #[cfg(target_arch = "x86_64")]
@@ -87,11 +89,14 @@ pub(super) fn conv(
                     p,
                     g0,
                     &mut tile,
-                    &mut win,
+                    win,
                 );
                 dst(a, x, g0, &tile[..np * gw]);
             });
         }
+    };
+    let rows = |r0: usize, n: usize, dst: &mut RowSink<'_>| {
+        crate::with_scratch(&WIN, win_len, |win| rows_with(r0, n, win, dst))
     };
     match out {
         Out::Bytes(o, qa) => {

@@ -137,10 +137,58 @@ pub(super) fn row_triple(
     assert!(eligible(cin4) && cin4 <= cs && ocp.is_multiple_of(L));
     assert!(u.len() == POS * cin4 * ocp && (u.as_ptr() as usize).is_multiple_of(32));
     assert!(rs == (w + 2) * cs && inp.len() >= (r + N) * rs);
-    let mut v = vec![0i16; POS * WT * cin4];
-    // two 16-channel blocks' sums
-    let mut m = vec![0i32; 2 * POS * WT * L];
-    let mut tiles: [Vec<i32>; M] = std::array::from_fn(|_| vec![0; M * WT * GROUP]);
+    thread_local! {
+        static V: std::cell::RefCell<Vec<i16>> = const { std::cell::RefCell::new(Vec::new()) };
+        static SUMS: std::cell::RefCell<Vec<i32>> = const { std::cell::RefCell::new(Vec::new()) };
+    }
+    // two 16-channel blocks' sums, then three rows of tiles
+    let (mn, tn) = (2 * POS * WT * L, M * WT * GROUP);
+    crate::with_scratch(&V, POS * WT * cin4, |v| {
+        crate::with_scratch(&SUMS, mn + M * tn, |b| {
+            let (m, t) = b.split_at_mut(mn);
+            let (t0, t12) = t.split_at_mut(tn);
+            let (t1, t2) = t12.split_at_mut(tn);
+            triple_in(
+                kernel,
+                p,
+                u,
+                inp,
+                r,
+                rs,
+                cs,
+                w,
+                win,
+                dst,
+                v,
+                m,
+                [t0, t1, t2],
+            )
+        })
+    })
+}
+
+/// [`row_triple`] with its scratch: `v` (`POS * WT * cin4`), `m`
+/// (`2 * POS * WT * 16`) and three tiles of `3 * WT * GROUP` sums.
+#[cfg(target_arch = "x86_64")]
+#[allow(clippy::too_many_arguments)]
+fn triple_in(
+    kernel: Kernel,
+    p: &PackedI8,
+    u: &[i16],
+    inp: &[u8],
+    r: usize,
+    rs: usize,
+    cs: usize,
+    w: usize,
+    win: &mut [i16],
+    dst: &mut RowSink<'_>,
+    v: &mut [i16],
+    m: &mut [i32],
+    mut tiles: [&mut [i32]; M],
+) {
+    let (cin4, ocp) = (p.cin4, p.ocp);
+    assert!(v.len() >= POS * WT * cin4 && m.len() >= 2 * POS * WT * L);
+    assert!(tiles.iter().all(|t| t.len() >= M * WT * GROUP));
     let mut x = 0;
     while x + M <= w {
         let nt = ((w - x) / M).min(WT);
@@ -190,7 +238,7 @@ pub(super) fn row_triple(
     }
     if x < w {
         let np = w - x;
-        let tile = &mut tiles[0];
+        let tile = &mut *tiles[0];
         for a in 0..M {
             let mut g0 = 0;
             while g0 < ocp {
