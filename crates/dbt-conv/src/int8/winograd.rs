@@ -141,8 +141,8 @@ pub(super) fn row_triple(
         static V: std::cell::RefCell<Vec<i16>> = const { std::cell::RefCell::new(Vec::new()) };
         static SUMS: std::cell::RefCell<Vec<i32>> = const { std::cell::RefCell::new(Vec::new()) };
     }
-    // two 16-channel blocks' sums, then three rows of tiles
-    let (mn, tn) = (2 * POS * WT * L, M * WT * GROUP);
+    // one 16-channel block's sums, then three rows of tiles
+    let (mn, tn) = (POS * WT * L, M * WT * GROUP);
     crate::with_scratch(&V, POS * WT * cin4, |v| {
         crate::with_scratch(&SUMS, mn + M * tn, |b| {
             let (m, t) = b.split_at_mut(mn);
@@ -168,7 +168,7 @@ pub(super) fn row_triple(
 }
 
 /// [`row_triple`] with its scratch: `v` (`POS * WT * cin4`), `m`
-/// (`2 * POS * WT * 16`) and three tiles of `3 * WT * GROUP` sums.
+/// (`POS * WT * 16`) and three tiles of `3 * WT * GROUP` sums.
 #[cfg(target_arch = "x86_64")]
 #[allow(clippy::too_many_arguments)]
 fn triple_in(
@@ -187,7 +187,7 @@ fn triple_in(
     mut tiles: [&mut [i32]; M],
 ) {
     let (cin4, ocp) = (p.cin4, p.ocp);
-    assert!(v.len() >= POS * WT * cin4 && m.len() >= 2 * POS * WT * L);
+    assert!(v.len() >= POS * WT * cin4 && m.len() >= POS * WT * L);
     assert!(tiles.iter().all(|t| t.len() >= M * WT * GROUP));
     let mut x = 0;
     while x + M <= w {
@@ -208,26 +208,20 @@ fn triple_in(
         let mut g0 = 0;
         while g0 < ocp {
             let gw = group_width(ocp, g0);
-            // 16-channel blocks, two at a time where the group has them
-            let mut q = 0;
-            while q < gw / L {
-                let nq = (gw / L - q).min(2);
+            for q in 0..gw / L {
                 let uq = u[(g0 + q * L) * 2..].as_ptr();
                 // SAFETY: the kernel's instructions were detected when the
                 // block was made (the caller's contract); `v` holds the
                 // chunk's nt tiles, `uq` the transformed weights from channel
                 // g0 + 16 q (aligned: `u` is, offsets are multiples of 64
-                // bytes), `m` 2 * POS * WT * 16 i32; each of the tiles holds
+                // bytes), `m` POS * WT * 16 i32; each of the tiles holds
                 // 3 WT pixels of the group's gw <= GROUP.
                 unsafe {
                     let (vp, mp) = (v.as_ptr(), m.as_mut_ptr());
-                    gemm(kernel, nt, nq, vp, cin4, uq, ocp, mp);
-                    for qi in 0..nq {
-                        let t = tiles.each_mut().map(|t| t.as_mut_ptr());
-                        output_avx2(mp.add(qi * POS * WT * L), nt, gw, q + qi, t);
-                    }
+                    gemm(kernel, nt, vp, cin4, uq, ocp, mp);
+                    let t = tiles.each_mut().map(|t| t.as_mut_ptr());
+                    output_avx2(mp, nt, gw, q, t);
                 }
-                q += nq;
             }
             for (a, t) in tiles.iter().enumerate() {
                 dst(a, x, g0, &t[..M * nt * gw]);
@@ -392,54 +386,26 @@ unsafe fn input_step<const NC: usize>(
     }
 }
 
-/// [`gemm_avx2`] or [`gemm_avxvnni`] for `kernel`, `nt`
-/// tiles and `nq` (1 or 2) blocks of 16 output channels, block `qi`'s sums
-/// at `m[qi * POS * WT * 16..]`.
+/// [`gemm_avx2`] or [`gemm_avxvnni`], as `kernel` says.
 ///
 /// # Safety
-/// `kernel`'s instructions (AVX2 at least); `u` aligned to 64 bytes; `nt`
-/// in 1..=WT; otherwise as [`gemm_avx2`], for `16 nq` channels from `u`'s
-/// first and `m` valid for `nq * POS * WT * 16` i32.
+/// As the one called (`kernel` AVX-VNNI: its instructions; else AVX2).
 #[cfg(target_arch = "x86_64")]
-#[allow(clippy::too_many_arguments)]
 unsafe fn gemm(
     kernel: Kernel,
     nt: usize,
-    nq: usize,
     v: *const i16,
     cin4: usize,
     u: *const i16,
     ocp: usize,
     m: *mut i32,
 ) {
-    // SAFETY: per the contract; the one-block forms run once per block, 16
-    // channels (32 i16 of a pair row) and POS * WT * 16 sums apart.
+    // SAFETY: per the contract.
     unsafe {
-        match kernel {
-            Kernel::AvxVnni => {
-                for qi in 0..nq {
-                    gemm_avxvnni(
-                        nt,
-                        v,
-                        cin4,
-                        u.add(qi * 2 * L),
-                        ocp,
-                        m.add(qi * POS * WT * L),
-                    );
-                }
-            }
-            _ => {
-                for qi in 0..nq {
-                    gemm_avx2(
-                        nt,
-                        v,
-                        cin4,
-                        u.add(qi * 2 * L),
-                        ocp,
-                        m.add(qi * POS * WT * L),
-                    );
-                }
-            }
+        if kernel == Kernel::AvxVnni {
+            gemm_avxvnni(nt, v, cin4, u, ocp, m)
+        } else {
+            gemm_avx2(nt, v, cin4, u, ocp, m)
         }
     }
 }
