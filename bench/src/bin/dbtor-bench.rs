@@ -255,7 +255,8 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
             runs && (*k == best || asked)
         })
         .collect();
-    // (engine, precision, blocks in fp32, kernel limit, Winograd off)
+    // (engine, precision, blocks in fp32, kernel limit, Winograd toggled from
+    // the precision's default: int8 direct, fp32 by Winograd)
     let mut combos: Vec<(Engine, Precision, &[String], Kernel, bool)> = Vec::new();
     let mut seen: Vec<(Precision, Kernel)> = Vec::new();
     for k in &forced {
@@ -291,7 +292,7 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
     if let Some(Blocks(mixed)) = a.mixed.as_ref().filter(|b| !b.0.is_empty()) {
         combos.insert(2, (Engine::Fast, Precision::Int8, &mixed[..], best, false));
     }
-    for (engine, precision, fp32_blocks, limit, direct) in combos {
+    for (engine, precision, fp32_blocks, limit, toggled) in combos {
         // Forced rows are named by the kernel they run (fp32 at the AVX-VNNI
         // level runs AVX2).
         let runs = match precision {
@@ -303,9 +304,9 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
         } else {
             String::new()
         };
-        let name = if direct && precision == Precision::Fp32 {
+        let name = if toggled && precision == Precision::Fp32 {
             format!("{engine} {precision} [{} winograd]", runs.name())
-        } else if direct {
+        } else if toggled {
             format!("{engine} {precision} [{} direct]", runs.name())
         } else if fp32_blocks.is_empty() {
             format!("{engine} {precision}{forced_note}")
@@ -315,7 +316,7 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
         let t = Instant::now();
         let d = Dbtor::load_for_geometry_up_to(&a.model, precision, fp32_blocks, engine, g, limit)
             .with_context(|| format!("loading {name}"))?;
-        let d = match (direct, precision) {
+        let d = match (toggled, precision) {
             (false, _) => Ok(d),
             (true, Precision::Int8) => d.without_winograd(),
             (true, Precision::Fp32) => d.with_fp32_winograd(),
@@ -365,7 +366,7 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
                 (None, _) => format!("projector {}", d.projector_kernel().name()),
             },
         });
-        if direct && precision == Precision::Fp32 {
+        if toggled && precision == Precision::Fp32 {
             // The row before is the same kernel's direct convolution.
             if let Some((dn, dout)) = outputs.last() {
                 let range = dout.iter().fold(0.0f32, |m, v| m.max(v.abs()));
@@ -379,7 +380,7 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
                     max / range.max(f32::MIN_POSITIVE)
                 );
             }
-        } else if direct {
+        } else if toggled {
             // The row before is the same kernel by Winograd: the same bits.
             if let Some((wn, wo)) = outputs.last() {
                 let differ = wo.iter().zip(&first).filter(|(a, b)| a != b).count();

@@ -347,6 +347,14 @@ fn parse_switch(name: &str, v: &str) -> Result<bool, DbtorError> {
     }
 }
 
+/// A fast-path block's error, naming its file.
+fn fast_path_err(path: &Path) -> impl Fn(dbt_conv::ConvError) -> DbtorError + '_ {
+    move |e| DbtorError::Block {
+        path: path.to_path_buf(),
+        reason: format!("fast path: {e}"),
+    }
+}
+
 /// The fused projector's kernel level under the fast engine's `limit`
 /// (`portable` is the projector's scalar kernel).
 pub fn projector_limit(limit: Kernel) -> dbt_projector::Kernel {
@@ -508,13 +516,6 @@ impl Dbtor {
             };
             (b, p, dir.join(rel))
         });
-        let conv_err = |path: &Path| {
-            let path = path.to_path_buf();
-            move |e: dbt_conv::ConvError| DbtorError::Block {
-                path: path.clone(),
-                reason: format!("fast path: {e}"),
-            }
-        };
         let blocks = match engine {
             Engine::Tract => {
                 let mut plans = Vec::with_capacity(manifest.blocks.len());
@@ -553,7 +554,7 @@ impl Dbtor {
                                     Kernel::best_fp32_up_to(limit),
                                     fp32_winograd,
                                 )
-                                .map_err(conv_err(&path))?,
+                                .map_err(fast_path_err(&path))?,
                             )
                         }
                         Precision::Int8 => {
@@ -564,7 +565,7 @@ impl Dbtor {
                                     Kernel::best_int8_up_to(limit),
                                     winograd,
                                 )
-                                .map_err(conv_err(&path))?,
+                                .map_err(fast_path_err(&path))?,
                             )
                         }
                     };
@@ -681,40 +682,38 @@ impl Dbtor {
     /// The same model with the int8 kernels' direct convolution
     /// everywhere (as [`WINOGRAD_ENV`]`=off` loads it): the int8 blocks that
     /// convolve by Winograd reloaded without it (for benchmarks).
-    pub fn without_winograd(mut self) -> Result<Self, DbtorError> {
-        let c = self.manifest.state_channels;
-        if let Blocks::Fast(v) = &mut self.blocks {
-            for ((blk, path), b) in v.iter_mut().zip(&self.manifest.blocks) {
-                if let FastBlock::Int8(k) = blk {
-                    if k.winograd_layers() > 0 {
-                        let w = fast::int8_block(path, c, b.aux_channels)?;
-                        *k = Int8Block::with_winograd(&w, k.kernel(), false).map_err(|e| {
-                            DbtorError::Block {
-                                path: path.clone(),
-                                reason: format!("fast path: {e}"),
-                            }
-                        })?;
-                    }
-                }
-            }
-        }
-        Ok(self)
+    pub fn without_winograd(self) -> Result<Self, DbtorError> {
+        self.with_blocks_rebuilt(Precision::Int8, false)
     }
 
     /// The same model with its fp32 blocks convolving by Winograd (as
     /// [`FP32_WINOGRAD_ENV`]`=on` loads it; for benchmarks).
-    pub fn with_fp32_winograd(mut self) -> Result<Self, DbtorError> {
+    pub fn with_fp32_winograd(self) -> Result<Self, DbtorError> {
+        self.with_blocks_rebuilt(Precision::Fp32, true)
+    }
+
+    /// The fast engine's blocks of `precision` read again from their files
+    /// and made on the same kernel with Winograd on or off.
+    fn with_blocks_rebuilt(
+        mut self,
+        precision: Precision,
+        winograd: bool,
+    ) -> Result<Self, DbtorError> {
         let c = self.manifest.state_channels;
         if let Blocks::Fast(v) = &mut self.blocks {
             for ((blk, path), b) in v.iter_mut().zip(&self.manifest.blocks) {
-                if let FastBlock::Fp32(k) = blk {
-                    let w = fast::fp32_block(path, c, b.aux_channels)?;
-                    *k = Fp32Block::with_winograd(&w, k.kernel(), true).map_err(|e| {
-                        DbtorError::Block {
-                            path: path.clone(),
-                            reason: format!("fast path: {e}"),
-                        }
-                    })?;
+                match (blk, precision) {
+                    (FastBlock::Int8(k), Precision::Int8) => {
+                        let w = fast::int8_block(path, c, b.aux_channels)?;
+                        *k = Int8Block::with_winograd(&w, k.kernel(), winograd)
+                            .map_err(fast_path_err(path))?;
+                    }
+                    (FastBlock::Fp32(k), Precision::Fp32) => {
+                        let w = fast::fp32_block(path, c, b.aux_channels)?;
+                        *k = Fp32Block::with_winograd(&w, k.kernel(), winograd)
+                            .map_err(fast_path_err(path))?;
+                    }
+                    _ => {}
                 }
             }
         }
