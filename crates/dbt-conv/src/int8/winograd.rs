@@ -364,13 +364,15 @@ unsafe fn input_step<const NC: usize>(
             })
         };
         // B^T d down every column of the chunk: cols[j][i]
-        let mut cols = [[_mm256_setzero_si256(); N]; M * WT + 2];
-        for (j, col) in cols.iter_mut().enumerate().take(M * nt + 2) {
-            *col = bt5([ld(0, j), ld(1, j), ld(2, j), ld(3, j), ld(4, j)]);
-        }
+        let col = |j: usize| bt5([ld(0, j), ld(1, j), ld(2, j), ld(3, j), ld(4, j)]);
+        // the patch's five columns, the last two kept for the next patch
+        let mut p = [col(0), col(1), col(2), col(3), col(4)];
         // (B^T d) B along each patch's rows
         for t in 0..nt {
-            let p = &cols[M * t..M * t + N];
+            if t > 0 {
+                let j = M * t;
+                p = [p[3], p[4], col(j + 2), col(j + 3), col(j + 4)];
+            }
             for i in 0..N {
                 let o = bt5([p[0][i], p[1][i], p[2][i], p[3][i], p[4][i]]);
                 for (j, oj) in o.into_iter().enumerate() {
