@@ -3,7 +3,8 @@
 # a small dataset (binned x4 geometry, N8) from host-sim, DBToR with 2+2 blocks
 # trained for 4 iterations in two runs (the second resumes from the first's
 # checkpoint), exported (fp32 + int8 QDQ with equalisation, only the
-# convolutions' inputs quantised, fixtures, manifest), the int8 simulation checked against
+# convolutions' inputs quantised, fixtures, manifest), re-quantised from its
+# folder with GPTQ-rounded weights, the int8 simulation checked against
 # onnxruntime, a 2-iteration quantisation-aware fine-tuning exported as the
 # int8 blocks, and both exports checked by the firmware's runtime
 # (`dbtor-diag model --sign-off`: checksums, fp32 vs PyTorch, int8 vs onnxruntime, then the sign-off the firmware requires, written and verified); then
@@ -39,6 +40,19 @@ if $PY -m dbtor.qat --model "$tmp/model" --run "$tmp/run" --data "$tmp/ds" --cal
     echo "smoke test: the int8 simulation check passed a simulation without the concatenation's quantisation"; exit 1
 fi
 grep -q "does not reproduce the exported int8 graph" "$tmp/omit.log" || { echo "smoke test: the check failed for another reason"; cat "$tmp/omit.log"; exit 1; }
+# GPTQ rounding of the int8 weights (gptq.py): its checks, then the folder
+# re-quantised from itself (--from-model): the fp32 blocks byte for byte, the
+# int8 ones checked by the firmware's runtime below.
+$PY -m dbtor.gptq
+$PY -m dbtor.export --from-model "$tmp/model" --data "$tmp/ds" --out "$tmp/gptq-model" --calibration 2 \
+    --fixtures 1 --gptq 4 | tee "$tmp/gptq.log"
+grep -q "GPTQ moved" "$tmp/gptq.log" || { echo "smoke test: --gptq did not round the weights"; exit 1; }
+grep -q '"weight_rounding": "GPTQ on 4 training slices' "$tmp/gptq-model/manifest.json" \
+    || { echo "smoke test: the manifest does not record the GPTQ rounding"; exit 1; }
+grep -q '"requantised_from"' "$tmp/gptq-model/manifest.json" || { echo "smoke test: the manifest does not name its source folder"; exit 1; }
+for f in "$tmp"/model/fp32/*.onnx; do
+    cmp "$f" "$tmp/gptq-model/fp32/$(basename "$f")" || { echo "smoke test: --from-model changed $f"; exit 1; }
+done
 # A model folder read back into PyTorch (train.py --init MODEL, folder.py):
 # its fp32 blocks give exactly the run's weights; a folder with a changed
 # file is refused, naming the file.
@@ -80,6 +94,7 @@ $PY -m dbtor.qat --model "$tmp/qat-model" --run "$tmp/qat-run" --data "$tmp/ds" 
 cd ..
 ./target/release/dbtor-diag model "$tmp/model" --sign-off
 ./target/release/dbtor-diag model "$tmp/qat-model" --sign-off
+./target/release/dbtor-diag model "$tmp/gptq-model" --sign-off
 # The LPD baseline (no mask): trained, exported and checked the same way.
 cd training
 $PY -m dbtor.train --data "$tmp/ds" --out "$tmp/lpd-run" --model lpd --iters 2 --batch 2 --blocks 2 \

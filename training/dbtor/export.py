@@ -1,7 +1,13 @@
 """Export a trained run to a firmware model folder.
 
     python -m dbtor.export --run RUN --data DS --out models/NAME [--name NAME]
-        [--calibration 16] [--fixtures 2] [--int8-run QATRUN]
+        [--calibration 16] [--fixtures 2] [--int8-run QATRUN] [--gptq 64]
+    python -m dbtor.export --from-model models/NAME --data DS --out DIR --gptq 64
+
+--from-model re-quantises a model folder whose run is gone: its fp32 blocks
+are read back (folder.py) and copied byte for byte, its run.json and
+curve.csv kept, and only the int8 blocks, the fixtures and the manifest are
+made anew (its provenance names the folder it came from).
 
 Writes, per block in execution order (dual 0, primal 0, dual 1, ...), an fp32
 ONNX file (opset 17, inputs `state` [n,5,h,w] and `aux` [n,k,h,w], output
@@ -33,6 +39,9 @@ Two choices make the int8 blocks lose less than onnxruntime's plain output
   - plain: onnxruntime's graph as quantize_static makes it.
   The state that flows from block to block stays float in all three, as it
   does in the runtime between blocks anyway.
+- --gptq N (default 0 = off): the int8 weights rounded by GPTQ on N
+  training slices instead of to the nearest level (gptq.py; conv-inputs
+  form only).
 Also fixtures for the Rust equivalence test (a sinogram, its thickness, the
 PyTorch fp32 reconstruction and the onnxruntime int8 one) and manifest.json
 with the geometry, normalisation, block order, SHA-256 of every file,
@@ -56,7 +65,8 @@ from onnxruntime.quantization import (CalibrationDataReader, CalibrationMethod, 
 from .data import Split
 from .model import STATE, PrimalDual
 from .equalize import equalise, prescale
-from .folder import sha256
+from .folder import load_state_dict, manifest_sha256, read_manifest, sha256
+from . import gptq
 from .qat import FORMS, calibration_batches, form_of
 from .operator import Operator
 from .train import tensors
@@ -74,6 +84,23 @@ def provenance(run, ck, tool, argv):
         "init": run.get("init"),
         "export_command": " ".join([f"python -m {tool}"] + (argv or sys.argv[1:])),
     }
+
+
+def folder_checkpoint(folder):
+    """(checkpoint-like dict, run.json, manifest) of a model folder, for
+    --from-model: the fp32 weights read back from its ONNX blocks."""
+    man = read_manifest(folder)
+    kind = man.get("kind")
+    n = sum(1 for e in man.get("blocks", []) if e.get("role") == "dual")
+    sd, man = load_state_dict(folder, kind, n)
+    with open(os.path.join(folder, "run.json")) as f:
+        run = json.load(f)
+    nm = man["normalisation"]
+    prov = man["provenance"]
+    ck = {"model": sd, "model_kind": kind, "blocks": n, "options": run["options"],
+          "stats": {"g_mean": nm["g_mean"], "g_std": nm["g_std"], "x_scale": nm["x_scale_per_mm"]},
+          "iteration": prov["iterations"], "elapsed_s": prov["training_minutes"] * 60}
+    return ck, run, man
 
 
 def trainer_validation(run_dir, level, flag):
@@ -230,7 +257,9 @@ def run_onnx_sessions(sessions, op, g, m, n_blocks, use_mask=True):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--run", required=True)
+    src = ap.add_mutually_exclusive_group(required=True)
+    src.add_argument("--run", help="a training run folder (checkpoint.pt, run.json)")
+    src.add_argument("--from-model", help="a model folder: keep its fp32 blocks, quantise anew")
     ap.add_argument("--data", required=True)
     ap.add_argument("--out", required=True)
     ap.add_argument("--name", default=None)
@@ -245,11 +274,25 @@ def main(argv=None):
                     help="conv-inputs: only the convolutions' inputs quantised (the concatenation "
                          "prescaled per channel); float-residual: every activation but the residual sum; "
                          "plain: onnxruntime's graph as it makes it")
+    ap.add_argument("--gptq", type=int, default=0,
+                    help="round the int8 weights by GPTQ on this many training slices (0: to the nearest)")
+    ap.add_argument("--gptq-asymmetric", action="store_true",
+                    help="with --gptq: each convolution's target is the float network's output on its own "
+                         "inputs, the bias refitted with the weights (gptq.py)")
     a = ap.parse_args(argv)
     logging.getLogger().setLevel(logging.ERROR)  # onnxruntime's pre-processing advice
-    ck = torch.load(os.path.join(a.run, "checkpoint.pt"), weights_only=False)
-    with open(os.path.join(a.run, "run.json")) as f:
-        run = json.load(f)
+    if a.gptq < 0 or (a.gptq and a.int8_form != "conv-inputs"):
+        sys.exit(f"--gptq {a.gptq}: a number of slices, for the conv-inputs form only")
+    if a.gptq_asymmetric and not a.gptq:
+        sys.exit("--gptq-asymmetric needs --gptq N")
+    if a.from_model:
+        ck, run, source = folder_checkpoint(a.from_model)
+        a.run = a.from_model  # its run.json and curve.csv are copied like a run's
+    else:
+        source = None
+        ck = torch.load(os.path.join(a.run, "checkpoint.pt"), weights_only=False)
+        with open(os.path.join(a.run, "run.json")) as f:
+            run = json.load(f)
     op = Operator(os.path.join(a.data, "operator"))
     kind = ck["model_kind"]
     if kind not in ("dbtor", "lpd"):
@@ -320,6 +363,12 @@ def main(argv=None):
                 for j in range(state.shape[0]):
                     samples.setdefault(k, []).append((state[j:j + 1], aux[j:j + 1]))
 
+    chain = None
+    if a.gptq:
+        rng = np.random.default_rng(gptq.GPTQ_SEED)
+        idx = rng.choice(train.n, size=min(a.gptq, train.n), replace=False)
+        chain = gptq.Chain(op, [tensors(train.batch(idx[s:s + 8]), stats)[:2] for s in range(0, len(idx), 8)],
+                           use_mask, a.gptq_asymmetric)
     blocks = []
     fp32_files, int8_files = [], []
     qblocks = {(role, i): blk for role, i, blk in blocks_in_order(qnet)}
@@ -337,7 +386,10 @@ def main(argv=None):
                               dynamo=False)
             onnx.checker.check_model(onnx.load(path))
 
-        to_onnx(blk, f32)
+        if source is None:
+            to_onnx(blk, f32)
+        else:
+            shutil.copyfile(os.path.join(a.from_model, source["blocks"][len(blocks)]["fp32"]), f32)
         q_src, q_blk, exclude = f32, qblocks[(role, i)], []
         if a.int8_form == "conv-inputs":
             # k from the concatenation's per-channel range on the calibration inputs
@@ -359,12 +411,19 @@ def main(argv=None):
             float_residual(i8)
         elif a.int8_form == "conv-inputs":
             conv_inputs_only(i8)
+        if chain is not None:
+            ins = chain.inputs(role)
+            for name, changed, before, after in gptq.round_block(i8, q_blk, ins):
+                print(f"{stem} {name}: GPTQ moved {changed:.1%} of the levels; output error "
+                      f"{before:.2e} -> {after:.2e} of |W x|", flush=True)
         for path in (f32, i8):
             # Intermediate shape annotations name the batch symbolically; a
             # runtime that fixes the input shapes (tract) infers them anew.
             mo = onnx.load(path)
             del mo.graph.value_info[:]
             onnx.save(mo, path)
+        if chain is not None:
+            chain.advance(role, i8, ins, q_blk)
         fp32_files.append(f32)
         int8_files.append(i8)
         blocks.append({"role": role, "index": i, "aux_channels": blk.aux_channels})
@@ -429,6 +488,10 @@ def main(argv=None):
                                  "prescaled per channel"),
                  "calibration": f"MinMax on {n_cal} training slices", "tool": f"onnxruntime {ort.__version__}",
                  "equalise_alpha": a.equalise, "form": a.int8_form,
+                 "weight_rounding": (f"GPTQ on {a.gptq} training slices (seed {gptq.GPTQ_SEED}), damp {gptq.DAMP}, "
+                                     "columns by decreasing Hessian diagonal"
+                                     + (", asymmetric: the float network's outputs as targets, biases refitted"
+                                        if a.gptq_asymmetric else "") if a.gptq else "to the nearest level"),
                  "weights_from": ("the fp32 blocks' run" if ck8 is None else
                                   f"quantisation-aware fine-tuning ({run8['command']}), "
                                   f"{ck8['iteration']} iterations")},
@@ -436,6 +499,12 @@ def main(argv=None):
         "sha256": {p: sha256(os.path.join(a.out, p)) for p in sorted(everything)},
         "provenance": provenance(run, ck, "dbtor.export", argv),
     }
+    if source is not None:
+        manifest["provenance"] = dict(source["provenance"], export_command=manifest["provenance"]["export_command"],
+                                      requantised_from={"model_folder": os.path.abspath(a.from_model),
+                                                        "name": source["name"],
+                                                        "manifest_sha256": manifest_sha256(a.from_model)})
+        manifest["validation"] = source.get("validation")
     if ck8 is not None:
         manifest["provenance"]["int8_run"] = {
             "train_command": run8["command"], "options": run8["options"], "iterations": ck8["iteration"],
