@@ -1,6 +1,6 @@
 //! `dbt-eval`: evaluation tables and pictures.
 
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
 use dbt_acquisition::NoiseLevel;
 use dbt_cli::Progress;
@@ -428,6 +428,12 @@ struct CalibrateArgs {
     /// Write here instead of the model folder.
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Fit nothing: carry this precision's calibrations (every input's) from
+    /// another model folder whose blocks of this precision are the same files
+    /// (their SHA-256 in both manifests), with the same geometry and
+    /// normalisation: a re-quantised folder keeps its fp32 fits.
+    #[arg(long)]
+    carry_from: Option<PathBuf>,
     #[command(flatten)]
     runtime: Runtime,
 }
@@ -1365,9 +1371,13 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
         noise,
         physics,
         out,
+        carry_from,
         runtime,
     } = args;
     use dbt_model::{manifest_sha256, CalibrationFile, CALIBRATION_FILE, CALIBRATION_FORMAT};
+    if let Some(from) = carry_from {
+        return carry_calibration(&model, &from, &precision, out, &runtime);
+    }
     let Physics {
         physics,
         linearise,
@@ -1483,6 +1493,112 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
             })).collect::<Vec<_>>(),
         }),
     );
+    write_json(&path, &file)?;
+    println!("wrote {}", path.display());
+    Ok(())
+}
+
+/// `dbt-eval calibrate --carry-from OLD`: copy `precision`'s entries of
+/// OLD's calibration file into `model`'s, after checking that the two
+/// folders run the same network in that precision (the same geometry,
+/// normalisation and block files), so that the fits OLD's commands made
+/// hold for `model` as they stand.
+fn carry_calibration(
+    model: &Path,
+    from: &Path,
+    precision: &str,
+    out: Option<PathBuf>,
+    runtime: &Runtime,
+) -> Result<()> {
+    use dbt_model::{manifest_sha256, CalibrationFile, CALIBRATION_FILE};
+    if precision != "fp32" && precision != "int8" {
+        bail!("--carry-from carries fp32 or int8 calibrations, not {precision:?}");
+    }
+    let load = |dir: &Path| -> Result<dbt_dbtor::Dbtor> {
+        load_models(Some(dir), precision, runtime)?
+            .pop()
+            .map(|(_, m)| m)
+            .with_context(|| format!("no model loaded from {}", dir.display()))
+    };
+    let (new, old) = (load(model)?, load(from)?);
+    let (nm, om) = (new.manifest(), old.manifest());
+    if nm.geometry != om.geometry || nm.normalisation != om.normalisation || nm.kind != om.kind {
+        bail!(
+            "{} and {} differ in geometry, normalisation or kind: their {precision} calibrations are not interchangeable",
+            model.display(),
+            from.display()
+        );
+    }
+    if nm.blocks.len() != om.blocks.len() {
+        bail!(
+            "{} has {} blocks, {} has {}",
+            model.display(),
+            nm.blocks.len(),
+            from.display(),
+            om.blocks.len()
+        );
+    }
+    for (a, b) in nm.blocks.iter().zip(&om.blocks) {
+        let (fa, fb) = if precision == "fp32" {
+            (&a.fp32, &b.fp32)
+        } else {
+            (&a.int8, &b.int8)
+        };
+        let (ha, hb) = (nm.sha256.get(fa), om.sha256.get(fb));
+        if ha.is_none() || ha != hb {
+            let hex = |h: Option<&String>| h.map_or("none".to_string(), |h| h.clone());
+            bail!(
+                "{precision} block {fa} of {} is not {fb} of {} (SHA-256 {} against {}): fit the calibration instead",
+                model.display(),
+                from.display(),
+                hex(ha),
+                hex(hb)
+            );
+        }
+    }
+    let old_file = CalibrationFile::read(&from.join(CALIBRATION_FILE), &old)?;
+    let path = out.unwrap_or_else(|| model.join(CALIBRATION_FILE));
+    let mut file = match CalibrationFile::read(&path, &new) {
+        Ok(f) if f.classification == old_file.classification => f,
+        _ => CalibrationFile {
+            calibrations: Default::default(),
+            fits: Default::default(),
+            model: nm.name.clone(),
+            manifest_sha256: manifest_sha256(&new)?,
+            ..old_file.clone()
+        },
+    };
+    let keys: Vec<&String> = old_file
+        .calibrations
+        .keys()
+        .filter(|k| k.as_str() == precision || k.starts_with(&format!("{precision} | ")))
+        .collect();
+    if keys.is_empty() {
+        bail!(
+            "{} has no {precision} calibration to carry",
+            from.join(CALIBRATION_FILE).display()
+        );
+    }
+    for k in keys {
+        let cal = old_file.calibrations[k];
+        file.calibrations.insert(k.clone(), cal);
+        file.fits.insert(
+            k.clone(),
+            serde_json::json!({
+                "carried_from": {
+                    "model": om.name,
+                    "manifest_sha256": old_file.manifest_sha256,
+                    "why": format!("the same {precision} blocks (SHA-256 checked), geometry and normalisation"),
+                    "command": std::env::args().collect::<Vec<_>>().join(" "),
+                },
+                "fit": old_file.fits.get(k),
+            }),
+        );
+        println!(
+            "carried {k}: G = {:+.5} + {:.5} x partial volume (from {})",
+            cal.offset, cal.slope, om.name
+        );
+    }
     write_json(&path, &file)?;
     println!("wrote {}", path.display());
     Ok(())
