@@ -31,7 +31,7 @@ struct Args {
     #[arg(long)]
     acquisition: PathBuf,
     /// The DBToR model folder (the shipped configuration's).
-    #[arg(long, default_value = "models/dbtor-x4t3")]
+    #[arg(long, default_value = "models/dbtor-x4t3qa")]
     model: PathBuf,
     /// Precisions, comma separated (`fp32`, `int8`).
     #[arg(long, default_value = "fp32,int8")]

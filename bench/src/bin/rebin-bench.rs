@@ -32,7 +32,7 @@ use std::time::Instant;
 #[command(name = "rebin-bench")]
 struct Args {
     /// The DBToR model whose geometry and slice time set the scale.
-    #[arg(long, default_value = "models/dbtor-x4t3")]
+    #[arg(long, default_value = "models/dbtor-x4t3qa")]
     model: PathBuf,
     /// Its precision (`fp32` or `int8`; the firmware ships int8 where the
     /// CPU has VNNI).
