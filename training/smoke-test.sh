@@ -2,7 +2,8 @@
 # CI smoke test of the whole training path, in about a minute on 2 cores:
 # a small dataset (binned x4 geometry, N8) from host-sim, DBToR with 2+2 blocks
 # trained for 4 iterations in two runs (the second resumes from the first's
-# checkpoint), exported (fp32 + int8 QDQ with equalisation, only the
+# checkpoint), the same under torchrun with 2 processes resumed by one (the
+# same weights), exported (fp32 + int8 QDQ with equalisation, only the
 # convolutions' inputs quantised, fixtures, manifest), re-quantised from its
 # folder with GPTQ-rounded weights, the int8 simulation checked against
 # onnxruntime, a 2-iteration quantisation-aware fine-tuning exported as the
@@ -27,6 +28,27 @@ $PY -m dbtor.train "${common[@]}" --stop-at 2
 $PY -m dbtor.train "${common[@]}" | tee "$tmp/second.log"
 grep -q "resumed at iteration 2" "$tmp/second.log" || { echo "smoke test: the second run did not resume"; exit 1; }
 [ "$(tail -n +2 "$tmp/run/curve.csv" | wc -l)" -ge 4 ] || { echo "smoke test: curve.csv is short"; exit 1; }
+# Under torchrun (DistributedDataParallel; gloo on the CPU): two processes to
+# iteration 2, resumed by one process to 4, give the one-process run's weights
+# (--batch is the global batch); --device cuda without a GPU is refused.
+ddp=(--data "$tmp/ds" --out "$tmp/ddp-run" --iters 4 --batch 2 --blocks 2 --val-every 2 --log-every 1 --device cpu)
+$PY -m torch.distributed.run --standalone --nproc_per_node 2 -m dbtor.train "${ddp[@]}" --stop-at 2 | tee "$tmp/ddp.log"
+grep -q "(2 processes on cpu)" "$tmp/ddp.log" || { echo "smoke test: the torchrun training did not run 2 processes"; exit 1; }
+$PY -m dbtor.train "${ddp[@]}" > "$tmp/ddp-resume.log"
+grep -q "resumed at iteration 2" "$tmp/ddp-resume.log" || { echo "smoke test: one process did not resume the torchrun run"; exit 1; }
+$PY - "$tmp/run/checkpoint.pt" "$tmp/ddp-run/checkpoint.pt" <<'PYEOF'
+import sys, torch
+a, b = (torch.load(p, weights_only=False)["model"] for p in sys.argv[1:])
+d = max(float((a[k] - b[k]).abs().max()) for k in a)
+assert d < 1e-5, f"2 processes then 1 moved the weights {d:.2e} from the one-process run's"
+print(f"torchrun (2 processes) + resume: weights within {d:.1e} of the one-process run's")
+PYEOF
+if ! $PY -c "import torch, sys; sys.exit(0 if torch.cuda.is_available() else 1)"; then
+    if $PY -m dbtor.train --data "$tmp/ds" --out "$tmp/cuda-run" --iters 1 --blocks 2 --device cuda 2> "$tmp/cuda.log"; then
+        echo "smoke test: --device cuda ran without a GPU"; exit 1
+    fi
+    grep -q "sees no CUDA device" "$tmp/cuda.log" || { echo "smoke test: the --device cuda refusal does not say why"; cat "$tmp/cuda.log"; exit 1; }
+fi
 mkdir -p "$tmp/model"
 $PY -m dbtor.plot --run "$tmp/run" --out "$tmp/model/training-curve.png"
 $PY -m dbtor.export --run "$tmp/run" --data "$tmp/ds" --out "$tmp/model" --calibration 2 --fixtures 1 | tee "$tmp/export.log"

@@ -33,6 +33,15 @@ class Operator:
             size=(n_rows, n_cols),
         )
         self.Pt = self.P.t().to_sparse_csr()
+        self.device = torch.device("cpu")
+
+    def to(self, device):
+        """The operator's matrices on `device` (train.py --device cuda: the
+        sparse products run on the GPU); returns self."""
+        self.device = torch.device(device)
+        self.P = self.P.to(self.device)
+        self.Pt = self.Pt.to(self.device)
+        return self
 
     def forward(self, img):
         """[B, 1, H, W] -> [B, 1, V, D], normalised operator."""
@@ -48,7 +57,7 @@ def _mm(a, x, out_shape):
     # --precision bf16 (train.py) only the convolutions run in bfloat16.
     b = x.shape[0]
     flat = x.reshape(b, -1).t().float().contiguous()
-    with torch.autocast("cpu", enabled=False):
+    with torch.autocast(flat.device.type, enabled=False):
         y = torch.sparse.mm(a, flat).t().contiguous()
     return y.reshape(b, 1, *out_shape)
 

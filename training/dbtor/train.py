@@ -22,6 +22,17 @@ validation; validation figures are then those of the simulated int8 network.
 Use it with --init from a trained run; export.py --int8-run takes the int8
 blocks from such a run.
 
+--device cuda (or auto, the default: cuda where PyTorch sees a GPU, else the
+CPU) runs the network, the projector's sparse products and the loss on the
+GPU, under torch.autocast(cuda, bfloat16) with --precision bf16. Launched by
+torchrun (`torchrun --standalone --nproc_per_node N -m dbtor.train ...`), one
+process per GPU (or per CPU share, backend gloo) trains one model with
+DistributedDataParallel: --batch is the global batch, split evenly over the
+processes, each drawing its share of the same random batch, so the run's
+arithmetic, checkpoint and resume do not depend on how many processes ran it
+(only rank 0 writes the checkpoint, curve and run.json and validates). A run
+may be resumed with another device or process count.
+
 The U-Net (unet.py) learns from the FBP of the sinograms (the dataset's
 `fbp-<level>`, made by `host-sim fbp`) instead of the sinograms; its input is
 scaled like the target (g_mean = 0, g_std = x_scale), and --blocks is unused.
@@ -65,13 +76,36 @@ def compile_convolutions(net):
 
 def loss_of(net, g, m, x, precision):
     """The training loss (mean squared error); with precision "bf16" the
-    forward pass runs under CPU autocast and the loss in float32."""
-    with torch.autocast("cpu", dtype=torch.bfloat16, enabled=precision == "bf16"):
+    forward pass runs under autocast on the inputs' device (CPU or CUDA) and
+    the loss in float32."""
+    with torch.autocast(g.device.type, dtype=torch.bfloat16, enabled=precision == "bf16"):
         z = net(g, m)
     return torch.mean((z.float() - x) ** 2)
 
 
-def validate(net, split, stats, n=32, batch=8):
+def pick_device(name, local_rank=0):
+    """--device: `cpu`, `cuda` (refused, naming why, where PyTorch sees no
+    GPU) or `auto` (cuda where there is one)."""
+    if name == "auto":
+        name = "cuda" if torch.cuda.is_available() else "cpu"
+    if name == "cuda":
+        if not torch.cuda.is_available():
+            sys.exit("--device cuda: PyTorch sees no CUDA device (torch "
+                     f"{torch.__version__}, CUDA build {torch.version.cuda}); use --device cpu")
+        return torch.device("cuda", local_rank % torch.cuda.device_count())
+    if name != "cpu":
+        sys.exit(f"--device {name!r}: cpu, cuda or auto")
+    return torch.device("cpu")
+
+
+def distributed():
+    """(rank, world size, local rank) from torchrun's environment; (0, 1, 0)
+    without it."""
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    return int(os.environ.get("RANK", "0")), world, int(os.environ.get("LOCAL_RANK", "0"))
+
+
+def validate(net, split, stats, n=32, batch=8, device=None):
     """Mean squared error (image units of x_scale) and PSNR (dB, data range of each
     truth) on the first `n` slices of an even spread over the validation split."""
     idx = np.linspace(0, split.n - 1, min(n, split.n)).astype(int)
@@ -79,7 +113,8 @@ def validate(net, split, stats, n=32, batch=8):
     net.eval()
     with torch.no_grad():
         for s in range(0, len(idx), batch):
-            g, m, x = tensors(split.batch(idx[s:s + batch]), stats)
+            g, m, x = (t.to(device) if device is not None else t
+                       for t in tensors(split.batch(idx[s:s + batch]), stats))
             z = net(g, m)
             e = ((z - x) ** 2).flatten(1).mean(1)
             rng = x.flatten(1).amax(1) - x.flatten(1).amin(1)
@@ -108,6 +143,8 @@ def main(argv=None):
     ap.add_argument("--precision", choices=["fp32", "bf16"], default="fp32",
                     help="bf16: convolutions under CPU autocast (weights and optimiser stay float32)")
     ap.add_argument("--compile", action="store_true", help="torch.compile each block's convolutions")
+    ap.add_argument("--device", default="auto",
+                    help="cpu, cuda or auto (cuda where PyTorch sees a GPU); not part of the run's options")
     ap.add_argument("--init", default=None,
                     help="start a new run from the weights of another run's checkpoint (RUN/checkpoint.pt or RUN) "
                          "or of a firmware model folder (models/NAME: its fp32 blocks, checksums verified): "
@@ -124,10 +161,21 @@ def main(argv=None):
     a = ap.parse_args(argv)
     if a.qat and a.model == "unet":
         sys.exit("--qat: DBToR or LPD only")
+    rank, world, local_rank = distributed()
+    if world > 1 and a.qat:
+        sys.exit("--qat runs in one process (its ranges are measured on the whole network); launch it without torchrun")
+    if a.batch % world:
+        sys.exit(f"--batch {a.batch} is the global batch: it must split evenly over the {world} processes")
+    device = pick_device(a.device, local_rank)
+    if world > 1:
+        torch.distributed.init_process_group("nccl" if device.type == "cuda" else "gloo")
+        if device.type == "cuda":
+            torch.cuda.set_device(device)
+    lead = rank == 0
     if a.threads:
         torch.set_num_threads(a.threads)
     os.makedirs(a.out, exist_ok=True)
-    op = Operator(os.path.join(a.data, "operator"))
+    op = Operator(os.path.join(a.data, "operator")).to(device)
     unet = a.model == "unet"
     source = "fbp" if unet else "sino"
     train = Split(a.data, "train", a.level, input=source)
@@ -141,6 +189,7 @@ def main(argv=None):
     opts = {k: getattr(a, k) for k in FIXED}
     torch.manual_seed(a.seed)
     net = UNet() if unet else PrimalDual(op, blocks=a.blocks, use_mask=(a.model == "dbtor"))
+    net.to(device)
     if a.qat:
         qat.enable(net, compile=a.compile, form=a.qat_form)
     elif a.compile:
@@ -150,7 +199,7 @@ def main(argv=None):
     rng = np.random.default_rng(a.seed)
     it, elapsed = 0, 0.0
     if os.path.exists(ckpt_path):
-        ck = torch.load(ckpt_path, weights_only=False)
+        ck = torch.load(ckpt_path, weights_only=False, map_location=device)
         # Runs made before --precision and --qat existed were float32 without QAT.
         if {"precision": "fp32", "qat": False, **ck["options"]} != opts:
             sys.exit(f"{ckpt_path}: made with {ck['options']}, asked for {opts}; use another --out")
@@ -158,9 +207,10 @@ def main(argv=None):
         adam.load_state_dict(ck["adam"])
         sched.load_state_dict(ck["schedule"])
         rng.bit_generator.state = ck["numpy_rng"]
-        torch.set_rng_state(ck["torch_rng"])
+        torch.set_rng_state(ck["torch_rng"].cpu())
         it, elapsed, stats = ck["iteration"], ck["elapsed_s"], ck["stats"]
-        print(f"resumed at iteration {it} ({elapsed / 60:.1f} min trained)", flush=True)
+        if lead:
+            print(f"resumed at iteration {it} ({elapsed / 60:.1f} min trained)", flush=True)
     else:
         init = None
         if a.init and folder.is_model_folder(a.init):
@@ -180,7 +230,7 @@ def main(argv=None):
             src = os.path.join(a.init, "checkpoint.pt") if os.path.isdir(a.init) else a.init
             if not os.path.exists(src):
                 sys.exit(f"--init {a.init}: no checkpoint at {src} (and no manifest.json: not a model folder)")
-            ick = torch.load(src, weights_only=False)
+            ick = torch.load(src, weights_only=False, map_location=device)
             if ick.get("model_kind") != a.model or ick.get("blocks") != a.blocks:
                 sys.exit(f"--init {src}: a {ick.get('model_kind')} of {ick.get('blocks')} blocks, "
                          f"not a {a.model} of {a.blocks}")
@@ -192,15 +242,26 @@ def main(argv=None):
         if unet:
             # The FBP input in the target's unit (x_scale), not standardised.
             stats.update(g_mean=0.0, g_std=stats["x_scale"])
-        with open(run_path, "w") as f:
-            json.dump({"options": opts, "data": os.path.abspath(a.data),
-                       "dataset_provenance": train.manifest["provenance"],
-                       "geometry": train.manifest["geometry"], "stats": stats,
-                       "operator_norm": op.norm, "init": init,
-                       "qat_form": a.qat_form if a.qat else None,
-                       "command": " ".join(["python -m dbtor.train"] + (argv or sys.argv[1:]))}, f, indent=2)
+        if lead:
+            with open(run_path, "w") as f:
+                json.dump({"options": opts, "data": os.path.abspath(a.data),
+                           "dataset_provenance": train.manifest["provenance"],
+                           "geometry": train.manifest["geometry"], "stats": stats,
+                           "operator_norm": op.norm, "init": init,
+                           "qat_form": a.qat_form if a.qat else None,
+                           "command": " ".join(["python -m dbtor.train"] + (argv or sys.argv[1:]))}, f, indent=2)
+
+    # Every process starts from rank 0's weights (a fresh run's random
+    # initialisation is the same on every rank: the same seed).
+    model = net
+    if world > 1:
+        model = torch.nn.parallel.DistributedDataParallel(
+            net, device_ids=[device.index] if device.type == "cuda" else None)
+    share = a.batch // world
 
     def save():
+        if not lead:
+            return
         tmp = ckpt_path + ".tmp"
         torch.save({"options": opts, "model": net.state_dict(), "adam": adam.state_dict(),
                     "schedule": sched.state_dict(), "numpy_rng": rng.bit_generator.state,
@@ -211,9 +272,9 @@ def main(argv=None):
     stop = {"now": False}
     signal.signal(signal.SIGTERM, lambda *_: stop.update(now=True))
     signal.signal(signal.SIGINT, lambda *_: stop.update(now=True))
-    curve = open(os.path.join(a.out, "curve.csv"), "a", newline="")
-    cw = csv.writer(curve)
-    if curve.tell() == 0:
+    curve = open(os.path.join(a.out, "curve.csv"), "a", newline="") if lead else None
+    cw = csv.writer(curve) if lead else None
+    if lead and curve.tell() == 0:
         cw.writerow(["iteration", "elapsed_s", "lr", "train_loss", "val_mse", "val_psnr_db"])
     def calibrate_int8():
         qat.calibrate(net, qat.calibration_batches(train, stats, a.qat_calibration))
@@ -223,23 +284,33 @@ def main(argv=None):
     t0, run_loss, run_n = time.time(), 0.0, 0
     start_elapsed = elapsed
     end = a.iters if a.stop_at is None else min(a.iters, a.stop_at)
-    while it < end and not stop["now"]:
-        g, m, x = tensors(train.batch(rng.choice(train.n, size=a.batch, replace=False)), stats)
-        loss = loss_of(net, g, m, x, a.precision)
+    while it < end:
+        # Every rank draws the same global batch and takes its share: the
+        # run does not depend on the number of processes.
+        idx = rng.choice(train.n, size=a.batch, replace=False)[rank * share:(rank + 1) * share]
+        g, m, x = (t.to(device, non_blocking=True) for t in tensors(train.batch(idx), stats))
+        loss = loss_of(model, g, m, x, a.precision)
         adam.zero_grad(set_to_none=True)
-        loss.backward()
+        loss.backward()  # DistributedDataParallel averages the gradients over the ranks
         adam.step()
         sched.step()
         it += 1
         elapsed = start_elapsed + time.time() - t0
+        if world > 1:
+            loss = loss.detach().clone()
+            torch.distributed.all_reduce(loss)
+            loss /= world
         run_loss += loss.item()
         run_n += 1
         val_mse = val_psnr = ""
         if it % a.val_every == 0 or it == end:
             if a.qat:
                 calibrate_int8()
-            val_mse, val_psnr = validate(net, val, stats)
-        if it % a.log_every == 0 or val_mse != "":
+            if lead:
+                val_mse, val_psnr = validate(net, val, stats, device=device)
+            if world > 1:
+                torch.distributed.barrier()
+        if lead and (it % a.log_every == 0 or val_mse != ""):
             cw.writerow([it, f"{elapsed:.1f}", f"{sched.get_last_lr()[0]:.3e}", f"{run_loss / run_n:.6f}",
                          val_mse, val_psnr])
             curve.flush()
@@ -248,10 +319,20 @@ def main(argv=None):
             run_loss, run_n = 0.0, 0
         if it % a.val_every == 0:
             save()
-        if a.max_minutes is not None and time.time() - t0 > 60 * a.max_minutes:
+        halt = stop["now"] or (a.max_minutes is not None and time.time() - t0 > 60 * a.max_minutes)
+        if world > 1:
+            # every rank stops at the same iteration: rank 0's signal and clock decide
+            flag = torch.tensor([float(halt)], device=device)
+            torch.distributed.broadcast(flag, 0)
+            halt = bool(flag.item())
+        if halt:
             break
     save()
-    print(f"stopped at iteration {it} of {a.iters}; checkpoint {ckpt_path}", flush=True)
+    if lead:
+        print(f"stopped at iteration {it} of {a.iters}; checkpoint {ckpt_path} "
+              f"({world} process{'es' if world > 1 else ''} on {device.type})", flush=True)
+    if world > 1:
+        torch.distributed.destroy_process_group()
 
 
 if __name__ == "__main__":
