@@ -389,7 +389,11 @@ def main(argv=None):
         if source is None:
             to_onnx(blk, f32)
         else:
-            shutil.copyfile(os.path.join(a.from_model, source["blocks"][len(blocks)]["fp32"]), f32)
+            entry = source["blocks"][len(blocks)]
+            if (entry["role"], entry["index"]) != (role, i):
+                sys.exit(f"--from-model {a.from_model}: block {len(blocks)} is {entry['role']} {entry['index']}, "
+                         f"not {role} {i}")
+            shutil.copyfile(os.path.join(a.from_model, entry["fp32"]), f32)
         q_src, q_blk, exclude = f32, qblocks[(role, i)], []
         if a.int8_form == "conv-inputs":
             # k from the concatenation's per-channel range on the calibration inputs

@@ -292,6 +292,24 @@ def self_test():
     assert torch.equal(q, torch.round(q))
     e_near, e_gptq = err(nearest), err(q)
     assert e_gptq < 0.5 * e_near, f"GPTQ's output error {e_gptq:.3e} is not well below nearest's {e_near:.3e}"
+    # A bias column (an input that is always 1) stays a float and takes the
+    # weights' errors: the output error falls below keeping the bias as it was.
+    b = 0.01 * torch.randn(rows, 1, generator=g, dtype=torch.float64)
+    x1 = torch.cat([x, torch.ones(1, x.shape[1], dtype=x.dtype)])
+    w1 = torch.cat([w, b], 1)
+    q1 = gptq_round(w1, x1 @ x1.T, s, free=1)
+    assert torch.equal(q1[:, :-1], torch.round(q1[:, :-1])) and not torch.equal(q1[:, -1], torch.round(q1[:, -1]))
+
+    def err1(levels, bias):
+        return float(torch.linalg.norm(w1 @ x1 - torch.cat([levels * s[:, None], bias], 1) @ x1)
+                     / torch.linalg.norm(w1 @ x1))
+
+    e_kept, e_free = err1(gptq_round(w, h, s), b), err1(q1[:, :-1], (q1[:, -1] * s)[:, None])
+    assert e_free < e_kept, f"the free bias column did not help: {e_free:.3e} against {e_kept:.3e}"
+    # The asymmetric target is the float weights themselves when the int8
+    # inputs are the float ones (C = H), whatever the damping.
+    t = asymmetric_target(w, b[:, 0], x1 @ x1.T, x1 @ x1.T)
+    assert torch.allclose(t, w1, rtol=0, atol=1e-12), "the asymmetric target moved without an input error"
     try:
         gptq_round(w, torch.eye(cols - 1, dtype=torch.float64), s)
     except ValueError as e:
@@ -299,7 +317,7 @@ def self_test():
     else:
         raise AssertionError("a Hessian of the wrong size was accepted")
     print(f"gptq self-test: H = I gives the nearest levels; correlated inputs: output error "
-          f"{e_near:.3e} (nearest) -> {e_gptq:.3e} (GPTQ)")
+          f"{e_near:.3e} (nearest) -> {e_gptq:.3e} (GPTQ); a free bias column {e_kept:.3e} -> {e_free:.3e}")
 
 
 if __name__ == "__main__":
