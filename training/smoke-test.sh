@@ -75,6 +75,11 @@ grep -q '"requantised_from"' "$tmp/gptq-model/manifest.json" || { echo "smoke te
 for f in "$tmp"/model/fp32/*.onnx; do
     cmp "$f" "$tmp/gptq-model/fp32/$(basename "$f")" || { echo "smoke test: --from-model changed $f"; exit 1; }
 done
+# the shipped form: the float network's outputs as targets, biases refitted
+$PY -m dbtor.export --from-model "$tmp/model" --data "$tmp/ds" --out "$tmp/gptqa-model" --calibration 2 \
+    --fixtures 1 --gptq 4 --gptq-asymmetric | grep -q "GPTQ moved" || { echo "smoke test: --gptq-asymmetric did not round"; exit 1; }
+grep -q 'asymmetric: the float network' "$tmp/gptqa-model/manifest.json" \
+    || { echo "smoke test: the manifest does not record the asymmetric rounding"; exit 1; }
 # A model folder read back into PyTorch (train.py --init MODEL, folder.py):
 # its fp32 blocks give exactly the run's weights; a folder with a changed
 # file is refused, naming the file.
@@ -117,6 +122,7 @@ cd ..
 ./target/release/dbtor-diag model "$tmp/model" --sign-off
 ./target/release/dbtor-diag model "$tmp/qat-model" --sign-off
 ./target/release/dbtor-diag model "$tmp/gptq-model" --sign-off
+./target/release/dbtor-diag model "$tmp/gptqa-model" --sign-off
 # The LPD baseline (no mask): trained, exported and checked the same way.
 cd training
 $PY -m dbtor.train --data "$tmp/ds" --out "$tmp/lpd-run" --model lpd --iters 2 --batch 2 --blocks 2 \

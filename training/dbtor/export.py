@@ -65,7 +65,7 @@ from onnxruntime.quantization import (CalibrationDataReader, CalibrationMethod, 
 from .data import Split
 from .model import STATE, PrimalDual
 from .equalize import equalise, prescale
-from .folder import load_state_dict, manifest_sha256, read_manifest, sha256
+from .folder import load_folder, manifest_sha256, sha256, stats_of
 from . import gptq
 from .qat import FORMS, calibration_batches, form_of
 from .operator import Operator
@@ -89,16 +89,11 @@ def provenance(run, ck, tool, argv):
 def folder_checkpoint(folder):
     """(checkpoint-like dict, run.json, manifest) of a model folder, for
     --from-model: the fp32 weights read back from its ONNX blocks."""
-    man = read_manifest(folder)
-    kind = man.get("kind")
-    n = sum(1 for e in man.get("blocks", []) if e.get("role") == "dual")
-    sd, man = load_state_dict(folder, kind, n)
+    sd, man, kind, n = load_folder(folder)
     with open(os.path.join(folder, "run.json")) as f:
         run = json.load(f)
-    nm = man["normalisation"]
     prov = man["provenance"]
-    ck = {"model": sd, "model_kind": kind, "blocks": n, "options": run["options"],
-          "stats": {"g_mean": nm["g_mean"], "g_std": nm["g_std"], "x_scale": nm["x_scale_per_mm"]},
+    ck = {"model": sd, "model_kind": kind, "blocks": n, "options": run["options"], "stats": stats_of(man),
           "iteration": prov["iterations"], "elapsed_s": prov["training_minutes"] * 60}
     return ck, run, man
 

@@ -96,6 +96,32 @@ def load_state_dict(folder, kind, blocks):
     return sd, man
 
 
+def load_folder(folder):
+    """(state_dict, manifest, kind, blocks) of a model folder: its kind and
+    block count as its manifest names them, checked by `load_state_dict`."""
+    man = read_manifest(folder)
+    kind = man.get("kind")
+    blocks = sum(1 for e in man.get("blocks", []) if e.get("role") == "dual")
+    sd, man = load_state_dict(folder, kind, blocks)
+    return sd, man, kind, blocks
+
+
+def stats_of(man):
+    """The trainer's normalisation dict (train.tensors) from a manifest's
+    `normalisation`."""
+    n = man["normalisation"]
+    return {"g_mean": n["g_mean"], "g_std": n["g_std"], "x_scale": n["x_scale_per_mm"]}
+
+
+def check_operator(man, op, data, model):
+    """Refuse (SystemExit, naming both) a dataset `data` whose operator `op`
+    is not the one the model `model` (its manifest `man`) was trained with."""
+    norm = man["normalisation"]["operator_norm"]
+    if abs(op.norm - norm) > 1e-6 * norm:
+        raise SystemExit(f"{data}: its operator (norm {op.norm}) is not the one {model} was trained with "
+                         f"(norm {norm}): another geometry")
+
+
 def manifest_sha256(folder):
     """SHA-256 of the folder's manifest.json: names the exact model a
     fine-tuning started from."""
@@ -123,17 +149,14 @@ def main(argv=None):
     ap.add_argument("--level", default="N8")
     a = ap.parse_args(argv)
     try:
-        man = read_manifest(a.model)
-        kind, blocks = man.get("kind"), sum(1 for e in man.get("blocks", []) if e.get("role") == "dual")
-        sd, man = load_state_dict(a.model, kind, blocks)
+        sd, man, kind, blocks = load_folder(a.model)
     except FolderError as e:
         sys.exit(str(e))
     op = Operator(os.path.join(a.data, "operator"))
     net = PrimalDual(op, blocks=blocks, use_mask=(kind == "dbtor"))
     net.load_state_dict(sd)
     net.eval()
-    n = man["normalisation"]
-    stats = {"g_mean": n["g_mean"], "g_std": n["g_std"], "x_scale": n["x_scale_per_mm"]}
+    stats = stats_of(man)
     val = Split(a.data, "validation", a.level)
     for fx in man.get("fixtures", []):
         f = fx["files"]

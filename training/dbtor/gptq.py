@@ -111,18 +111,24 @@ def patches(x, ones=False):
 
 
 def patch_moments(xs, c_in, ys=None):
-    """`sum_x x x^T` of the 3x3 zero-padded patches of every image in `xs`
-    ([n, c_in, h, w] each), float64; with `ys` (the float network's images,
-    the same shapes) also `sum y x^T`, both with a constant 1 appended."""
+    """`H = sum_x x x^T` of the 3x3 zero-padded patches of every image in
+    `xs` ([n, c_in, h, w] each), float64; with `ys` (the float network's
+    images, the same shapes) `(H, sum y x^T, sum y y^T)`, each with a
+    constant 1 appended to the patches."""
     d = c_in * 9 + (ys is not None)
     h = torch.zeros(d, d, dtype=torch.float64)
-    c = torch.zeros(d, d, dtype=torch.float64) if ys is not None else None
-    for k, x in enumerate(xs):
-        u = patches(x, ys is not None)
+    if ys is None:
+        for x in xs:
+            u = patches(x)
+            h += (u @ u.T).double()
+        return h
+    c, hy = torch.zeros_like(h), torch.zeros_like(h)
+    for x, y in zip(xs, ys):
+        u, v = patches(x, True), patches(y, True)
         h += (u @ u.T).double()
-        if ys is not None:
-            c += (patches(ys[k], True) @ u.T).double()
-    return h if ys is None else (h, c)
+        c += (v @ u.T).double()
+        hy += (v @ v.T).double()
+    return h, c, hy
 
 
 def fake_quant(x, scale, zero_point):
@@ -218,12 +224,11 @@ def round_block(path, q_blk, inputs):
         c_in = conv.weight.shape[1]
         s = torch.from_numpy(ws).reshape(-1, 1)
         if asym:
-            h, c = patch_moments(xs, c_in, fs)
+            h, c, hf = patch_moments(xs, c_in, fs)
             target = asymmetric_target(w, b, c, h)
             q = gptq_round(target, h, s, free=1)  # the bias column is not rounded
             levels, bias = q[:, :-1], q[:, -1] * s[:, 0]
             wa = torch.cat([w, b[:, None]], 1)
-            hf = patch_moments(fs, c_in, fs)[1]  # sum [x_f; 1][x_f; 1]^T
             ref = torch.trace(wa @ hf @ wa.T)
 
             def out_err(lv, bb):

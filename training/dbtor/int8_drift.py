@@ -26,6 +26,7 @@ import torch
 
 from .data import Split
 from .export import drop_quantisations, run_onnx_sessions
+from .folder import check_operator, stats_of
 from .operator import Operator
 from .train import tensors
 
@@ -41,11 +42,9 @@ def main(argv=None):
     a = ap.parse_args(argv)
     with open(os.path.join(a.model, "manifest.json")) as f:
         man = json.load(f)
-    nm = man["normalisation"]
-    stats = {"g_mean": nm["g_mean"], "g_std": nm["g_std"], "x_scale": nm["x_scale_per_mm"]}
+    stats = stats_of(man)
     op = Operator(os.path.join(a.data, "operator"))
-    if abs(op.norm - nm["operator_norm"]) > 1e-6 * nm["operator_norm"]:
-        raise SystemExit(f"{a.data}: operator norm {op.norm}, the model's {nm['operator_norm']}: another geometry")
+    check_operator(man, op, a.data, a.model)
     so = ort.SessionOptions()
     so.intra_op_num_threads = 2
     tmp = tempfile.mkdtemp()

@@ -20,6 +20,7 @@ from skimage.metrics import structural_similarity
 
 from .data import Split
 from .export import run_onnx_sessions
+from .folder import check_operator, stats_of
 from .operator import Operator
 from .train import tensors
 
@@ -49,12 +50,11 @@ def main(argv=None):
         man = json.load(f)
     nrm = man["normalisation"]
     op = Operator(os.path.join(a.data, "operator"))
-    if abs(op.norm - nrm["operator_norm"]) > 1e-6 * op.norm:
-        raise SystemExit(f"{a.data}: its operator is not the one {a.model} was trained with")
+    check_operator(man, op, a.data, a.model)
     use_mask = man.get("kind", "dbtor") == "dbtor"
     sessions = {p: [ort.InferenceSession(os.path.join(a.model, b[p]), providers=["CPUExecutionProvider"])
                     for b in man["blocks"]] for p in ("fp32", "int8")}
-    stats = {"g_mean": nrm["g_mean"], "g_std": nrm["g_std"], "x_scale": nrm["x_scale_per_mm"]}
+    stats = stats_of(man)
     val = Split(a.data, "validation", a.level)
     idx = np.linspace(0, val.n - 1, min(a.slices, val.n)).astype(int)
     g, m, x = tensors(val.batch(idx), stats)

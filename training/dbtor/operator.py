@@ -33,14 +33,12 @@ class Operator:
             size=(n_rows, n_cols),
         )
         self.Pt = self.P.t().to_sparse_csr()
-        self.device = torch.device("cpu")
 
     def to(self, device):
         """The operator's matrices on `device` (train.py --device cuda: the
         sparse products run on the GPU); returns self."""
-        self.device = torch.device(device)
-        self.P = self.P.to(self.device)
-        self.Pt = self.Pt.to(self.device)
+        self.P = self.P.to(device)
+        self.Pt = self.Pt.to(device)
         return self
 
     def forward(self, img):

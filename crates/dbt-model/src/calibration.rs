@@ -74,6 +74,30 @@ impl CalibrationFile {
     }
 }
 
+impl CalibrationFile {
+    /// The file at `path` to add `model`'s calibrations to: as read where
+    /// it was fit for `model` with `classification` (its other entries
+    /// kept), else an empty one bound to `model` (a missing, unreadable,
+    /// other model's or other classification's file is started afresh).
+    pub fn open_or_new(
+        path: &std::path::Path,
+        model: &dbt_dbtor::Dbtor,
+        classification: ClassifyOptions,
+    ) -> Result<Self, dbt_dbtor::DbtorError> {
+        match Self::read(path, model) {
+            Ok(f) if f.classification == classification => Ok(f),
+            _ => Ok(Self {
+                format: CALIBRATION_FORMAT.into(),
+                model: model.manifest().name.clone(),
+                manifest_sha256: manifest_sha256(model)?,
+                classification,
+                calibrations: Default::default(),
+                fits: Default::default(),
+            }),
+        }
+    }
+}
+
 /// SHA-256 of a loaded model's manifest.json.
 pub fn manifest_sha256(model: &dbt_dbtor::Dbtor) -> Result<String, dbt_dbtor::DbtorError> {
     dbt_dbtor::sha256_file(&model.root().join("manifest.json"))

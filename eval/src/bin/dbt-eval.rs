@@ -1374,7 +1374,7 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
         carry_from,
         runtime,
     } = args;
-    use dbt_model::{manifest_sha256, CalibrationFile, CALIBRATION_FILE, CALIBRATION_FORMAT};
+    use dbt_model::{CalibrationFile, CALIBRATION_FILE};
     if let Some(from) = carry_from {
         return carry_calibration(&model, &from, &precision, out, &runtime);
     }
@@ -1462,17 +1462,7 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
     let path = out.unwrap_or_else(|| model.join(CALIBRATION_FILE));
     // Keep the other precisions' entries of a file fit for this model
     // and classification; start afresh otherwise.
-    let mut file = match CalibrationFile::read(&path, &m) {
-        Ok(f) if f.classification == classify => f,
-        _ => CalibrationFile {
-            format: CALIBRATION_FORMAT.into(),
-            model: m.manifest().name.clone(),
-            manifest_sha256: manifest_sha256(&m)?,
-            classification: classify,
-            calibrations: Default::default(),
-            fits: Default::default(),
-        },
-    };
+    let mut file = CalibrationFile::open_or_new(&path, &m, classify)?;
     file.calibrations.insert(label.clone(), cal);
     file.fits.insert(
         label,
@@ -1510,7 +1500,7 @@ fn carry_calibration(
     out: Option<PathBuf>,
     runtime: &Runtime,
 ) -> Result<()> {
-    use dbt_model::{manifest_sha256, CalibrationFile, CALIBRATION_FILE};
+    use dbt_model::{CalibrationFile, CALIBRATION_FILE};
     if precision != "fp32" && precision != "int8" {
         bail!("--carry-from carries fp32 or int8 calibrations, not {precision:?}");
     }
@@ -1558,16 +1548,7 @@ fn carry_calibration(
     }
     let old_file = CalibrationFile::read(&from.join(CALIBRATION_FILE), &old)?;
     let path = out.unwrap_or_else(|| model.join(CALIBRATION_FILE));
-    let mut file = match CalibrationFile::read(&path, &new) {
-        Ok(f) if f.classification == old_file.classification => f,
-        _ => CalibrationFile {
-            calibrations: Default::default(),
-            fits: Default::default(),
-            model: nm.name.clone(),
-            manifest_sha256: manifest_sha256(&new)?,
-            ..old_file.clone()
-        },
-    };
+    let mut file = CalibrationFile::open_or_new(&path, &new, old_file.classification)?;
     let keys: Vec<&String> = old_file
         .calibrations
         .keys()
