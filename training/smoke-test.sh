@@ -77,7 +77,8 @@ for f in "$tmp"/model/fp32/*.onnx; do
 done
 # the shipped form: the float network's outputs as targets, biases refitted
 $PY -m dbtor.export --from-model "$tmp/model" --data "$tmp/ds" --out "$tmp/gptqa-model" --calibration 2 \
-    --fixtures 1 --gptq 4 --gptq-asymmetric | grep -q "GPTQ moved" || { echo "smoke test: --gptq-asymmetric did not round"; exit 1; }
+    --fixtures 1 --gptq 4 --gptq-asymmetric > "$tmp/gptqa.log"
+grep -q "GPTQ moved" "$tmp/gptqa.log" || { echo "smoke test: --gptq-asymmetric did not round"; exit 1; }
 grep -q 'asymmetric: the float network' "$tmp/gptqa-model/manifest.json" \
     || { echo "smoke test: the manifest does not record the asymmetric rounding"; exit 1; }
 # A model folder read back into PyTorch (train.py --init MODEL, folder.py):
