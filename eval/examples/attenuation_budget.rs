@@ -91,10 +91,8 @@ fn main() -> Result<()> {
                 dose_uncertainty: 0.2,
                 seed: 1,
                 classify: ClassifyOptions::default(),
-                calibration: None,
-                linearise: None,
-                descatter: None,
                 slice_step: 1,
+                ..Default::default()
             };
             let v = reconstruct_volume(&acq, &opts, &mut |_| {})?;
             ensure!(v.dims == dims, "volume {:?} against {:?}", v.dims, dims);

@@ -6,6 +6,7 @@
 
 use dbt_acquisition::NoiseLevel;
 use dbt_dose::patient::{dbt_views, mgd_to_uncertainty, Breast, Model};
+use dbt_dose::xray::AnodeFilter;
 use dbt_geometry::Geometry;
 use dbt_phantom::{LabelVolume, Population, PopulationKind};
 use dbt_pipeline::{process, PipelineOptions};
@@ -237,6 +238,7 @@ pub fn run_cases(
         geom,
         None,
         host_sim::Physics::Mono,
+        AnodeFilter::WRh,
         noise,
         opts,
         seed,
@@ -245,7 +247,7 @@ pub fn run_cases(
 
 /// [`run_cases`], the acquisition made on cone-beam `system` when given
 /// (issue #28: the firmware rebins it to slice-wise sinograms in `geom`),
-/// with `physics` (issue #27).
+/// with `physics` (issue #27) and the beam `beam`.
 #[allow(clippy::too_many_arguments)]
 pub fn run_cases_on(
     name: String,
@@ -253,18 +255,22 @@ pub fn run_cases_on(
     geom: &Geometry,
     system: Option<&dbt_geometry::ConeSystem>,
     physics: host_sim::Physics,
+    beam: AnodeFilter,
     noise: NoiseLevel,
     opts: &[PipelineOptions],
     seed: u64,
 ) -> anyhow::Result<Vec<Case>> {
     let _span = tracing::info_span!("case", %name).entered();
     let t0 = std::time::Instant::now();
-    let tech = Technique::default();
+    let tech = Technique {
+        anode_filter: beam,
+        ..Default::default()
+    };
     let root = "1.2.826.0.1.3680043.10.543.3";
-    // The gantry's automatic exposure: the paper's Table 3 kV for the
-    // thickness (the spectrum the acquisition, the correction and the dose
-    // then take from the header).
-    let kvp = f64::from(dbt_dose::xray::paper_technique(vol.thickness_mm()).0);
+    // The gantry's automatic exposure: the beam's kV for the thickness (the
+    // paper's Table 3 for W/Rh; the spectrum the acquisition, the
+    // correction and the dose then take from the header).
+    let kvp = f64::from(beam.aec_kv(vol.thickness_mm()));
     let acq = host_sim::simulate_on(
         vol, geom, system, noise, physics, seed, tech, kvp, "EVAL", root,
     )?;

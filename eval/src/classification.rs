@@ -101,9 +101,11 @@ pub struct VariantSummary {
 }
 
 /// Patient-specific MGD per unit kerma of a label volume for the DBT sweep
-/// and the paper's spectrum for `thickness_mm`, to relative uncertainty
-/// `target`.
+/// and the automatic exposure of `beam` for `thickness_mm`, to relative
+/// uncertainty `target`.
+#[allow(clippy::too_many_arguments)]
 fn mgd_per_kerma(
+    beam: dbt_dose::xray::AnodeFilter,
     labels: &[u8],
     dims: [usize; 3],
     voxel_mm: f64,
@@ -111,7 +113,7 @@ fn mgd_per_kerma(
     target: f64,
     seed: u64,
 ) -> anyhow::Result<f64> {
-    let tube = dbt_dose::xray::paper_spectrum(thickness_mm)?;
+    let tube = dbt_dose::xray::aec_spectrum(beam, thickness_mm)?;
     let spectrum = tube
         .spectrum
         .ok_or_else(|| anyhow::anyhow!("no spectrum for {thickness_mm} mm"))?;
@@ -133,8 +135,8 @@ fn mgd_per_kerma(
     .mgd_per_kerma)
 }
 
-/// Acquire `vol` (noise `noise`, physics `physics`, seed `seed`), reconstruct it with `opts`'
-/// reconstructor, and classify the volume with each of `variants`; with
+/// Acquire `vol` (noise `noise`, physics `physics`, beam `beam`, seed
+/// `seed`), reconstruct it with `opts`' reconstructor, and classify the volume with each of `variants`; with
 /// `dose` (a target relative uncertainty), also the patient-specific MGD of
 /// each classified volume against the phantom's own labels.
 #[allow(clippy::too_many_arguments)]
@@ -144,6 +146,7 @@ pub fn run_phantom(
     geom: &Geometry,
     noise: NoiseLevel,
     physics: host_sim::Physics,
+    beam: dbt_dose::xray::AnodeFilter,
     opts: &PipelineOptions,
     variants: &[ClassifyOptions],
     dose: Option<f64>,
@@ -156,8 +159,11 @@ pub fn run_phantom(
         noise,
         physics,
         seed,
-        Technique::default(),
-        f64::from(dbt_dose::xray::paper_technique(vol.thickness_mm()).0),
+        Technique {
+            anode_filter: beam,
+            ..Default::default()
+        },
+        f64::from(beam.aec_kv(vol.thickness_mm())),
         "EVAL",
         "1.2.826.0.1.3680043.10.543.3",
     )?;
@@ -168,7 +174,17 @@ pub fn run_phantom(
     let truth = truth_on_grid(vol, geom, dims)?;
     let t = vol.thickness_mm();
     let truth_mgd = dose
-        .map(|u| mgd_per_kerma(vol.labels(), vol.dims(), vol.voxel_mm(), t, u, seed + 7))
+        .map(|u| {
+            mgd_per_kerma(
+                beam,
+                vol.labels(),
+                vol.dims(),
+                vol.voxel_mm(),
+                t,
+                u,
+                seed + 7,
+            )
+        })
         .transpose()?;
     variants
         .iter()
@@ -176,9 +192,9 @@ pub fn run_phantom(
             let c = classify(&mu, dims, voxel_mm, o)?;
             let d = density(&mu, &c.labels, voxel_mm);
             let mgd_error_percent = match (dose, truth_mgd) {
-                (Some(u), Some(m)) => {
-                    Some(100.0 * (mgd_per_kerma(&c.labels, dims, voxel_mm, t, u, seed)? / m - 1.0))
-                }
+                (Some(u), Some(m)) => Some(
+                    100.0 * (mgd_per_kerma(beam, &c.labels, dims, voxel_mm, t, u, seed)? / m - 1.0),
+                ),
                 _ => None,
             };
             Ok(ClassCase {
@@ -289,6 +305,7 @@ mod tests {
             &g,
             noise,
             host_sim::Physics::Mono,
+            dbt_dose::xray::AnodeFilter::WRh,
             &opts,
             &variants,
             Some(0.05),
@@ -313,6 +330,7 @@ mod tests {
             &g,
             noise,
             host_sim::Physics::Mono,
+            dbt_dose::xray::AnodeFilter::WRh,
             &opts,
             &variants[..1],
             None,

@@ -1378,7 +1378,9 @@ mod tests {
         assert_eq!(c.descatter(p).unwrap(), None);
         let c = example(|t| t.replace("scatter = \"off\"", "scatter = \"kernel\"")).unwrap();
         let r = c.descatter(p).unwrap().unwrap();
-        assert_eq!(r.table.range_mm(), (20.0, 90.0));
+        for af in dbt_dose::xray::AnodeFilter::ALL {
+            assert_eq!(r.table(af).range_mm(), (20.0, 90.0));
+        }
         let e = example(|t| t.replace("scatter = \"off\"", "scatter = \"grid\""))
             .unwrap_err()
             .to_string();

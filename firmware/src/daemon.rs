@@ -22,6 +22,7 @@ use crate::link::{data_fault, receive, receive_from, to_acquisition, LinkError, 
 use crate::modbus::{read_registers, ModbusLink};
 use crate::status_page::{StateReader, StatusServer, PICTURE_FILE};
 use dbt_dicom::{Equipment, UidSource};
+use dbt_dose::xray::AnodeFilter;
 use dbt_pipeline::acquisition::Acquisition;
 use dbt_pipeline::{process, reports, PipelineOptions};
 use dbt_status::{AcquisitionRecord, FaultRecord, Status};
@@ -311,6 +312,7 @@ impl Daemon {
         if cfg.recon.reconstructor == Reconstructor::Dbtor {
             let signed = load_model(&cfg, &opts.classify)?;
             opts.calibration = signed.calibration;
+            opts.beam_calibrations = dbt_pipeline::beam_calibrations(&signed.beam_calibrations);
             opts.dbtor = Some(Arc::new(signed.model));
         }
         let reconstructor = dbt_pipeline::reconstructor_name(&opts);
@@ -688,6 +690,9 @@ impl Daemon {
             "saturated_pixels": rx.saturated,
             "modbus": gantry,
             "modbus_end": self.read_gantry(),
+            // The beam the stream's header stated (optional there; the
+            // register is checked against it before processing).
+            "header_anode_filter": rx.header.anode_filter,
             "data_fault": data_fault(&rx),
         });
         match self.spool(&id, &acq, &gantry_json) {
@@ -808,24 +813,40 @@ impl Daemon {
                 self.reject(id, "thickness", msg);
                 return;
             }
-            // The dose model's spectra are tungsten filtered by rhodium: an
-            // exposure with another anode or filter would be reported with
-            // the wrong dose (issue #27; the DICOM input checks its objects'
-            // Anode Target Material and Filter Material the same way).
+            // The dose model has spectra for tungsten filtered by rhodium or
+            // aluminium: an exposure with another anode or filter would be
+            // reported with the wrong dose (issue #27; the DICOM input
+            // checks its objects' Anode Target Material and Filter Material
+            // the same way). The register names the beam; a stream header
+            // that states another is a disagreement, not reported.
             let af = gantry["modbus"]["anode_filter"]
                 .as_str()
                 .unwrap_or("missing");
-            if af != dbt_pipeline::dicom_input::ANODE_FILTER {
+            let Ok(beam) = AnodeFilter::parse(af) else {
                 self.reject(
                     id,
                     "technique",
                     format!(
                         "anode/filter {af} (Modbus register 6): the dose model's spectra are {} only; not reported",
-                        dbt_pipeline::dicom_input::ANODE_FILTER
+                        AnodeFilter::supported()
+                    ),
+                );
+                return;
+            };
+            if let Some(stated) = gantry["header_anode_filter"]
+                .as_str()
+                .filter(|s| *s != beam.name())
+            {
+                self.reject(
+                    id,
+                    "technique",
+                    format!(
+                        "anode/filter disagreement: Modbus register 6 {beam}, acquisition header {stated}; not reported"
                     ),
                 );
                 return;
             }
+            acq.header.anode_filter = beam;
         }
         // The compression force the gantry reported at exposure time goes
         // into the dose SR (a DICOM object carries its own).

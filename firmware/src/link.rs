@@ -4,6 +4,7 @@
 //! transport here is TCP (the bench and test transport of the interface); the
 //! serial line carries the same bytes.
 
+use dbt_dose::xray::AnodeFilter;
 use dbt_gantry::assemble::{Assembler, Budget, Received, Reply};
 use dbt_gantry::frame::{
     encode, system_name, AcquisitionHeader as GantryHeader, Decoder, Frame, FrameError,
@@ -81,7 +82,7 @@ pub enum LinkError {
         configured: String,
     },
     /// The header states an exposure the dose model has no spectra for.
-    #[error("acquisition refused at its header: anode/filter {stated}: the dose model's spectra are {} only", dbt_pipeline::dicom_input::ANODE_FILTER)]
+    #[error("acquisition refused at its header: anode/filter {stated}: the dose model's spectra are {} only", AnodeFilter::supported())]
     Technique {
         /// The anode/filter the header states.
         stated: String,
@@ -113,16 +114,14 @@ impl Site {
 
     /// Refuse a header from another system than this site's, naming both,
     /// or of an exposure the dose model has no spectra for (an anode/filter
-    /// other than W/Rh), naming it.
+    /// other than W/Rh and W/Al), naming it.
     pub fn check_header(&self, h: &GantryHeader) -> Result<(), LinkError> {
-        if let Some(a) = h
-            .anode_filter
-            .as_deref()
-            .filter(|a| *a != dbt_pipeline::dicom_input::ANODE_FILTER)
-        {
-            return Err(LinkError::Technique {
-                stated: a.to_string(),
-            });
+        if let Some(a) = h.anode_filter.as_deref() {
+            if AnodeFilter::parse(a).is_err() {
+                return Err(LinkError::Technique {
+                    stated: a.to_string(),
+                });
+            }
         }
         let want = self.system.as_ref().map(|s| s.name.as_str());
         if h.system.as_deref() == want {
@@ -577,6 +576,14 @@ pub fn domain_header(h: &GantryHeader, site: &Site, flux: f64) -> AcquisitionHea
         slices: h.rows as usize,
         slice_spacing_mm: geom.image.pixel_mm,
         kvp: h.kvp,
+        // The header's beam (refused by `check_header` if unknown); where
+        // it states none, the paper's W/Rh until the daemon reads the
+        // gantry's register 6.
+        anode_filter: h
+            .anode_filter
+            .as_deref()
+            .and_then(|a| AnodeFilter::parse(a).ok())
+            .unwrap_or_default(),
         mas_total: h.mas_total,
         tube_output_mgy_per_mas: site.tube_output_mgy_per_mas,
         laterality: h.laterality.clone(),
@@ -814,8 +821,22 @@ mod tests {
             e.contains("anode/filter Mo/Mo") && e.contains("W/Rh"),
             "{e}"
         );
-        h.anode_filter = Some("W/Rh".into());
-        assert!(matches!(go(h, &fan), LinkError::Incomplete(_)));
+        h.anode_filter = Some("W/Ag".into());
+        let e = go(h.clone(), &fan).to_string();
+        assert!(
+            e.contains("anode/filter W/Ag") && e.contains("W/Rh, W/Al"),
+            "{e}"
+        );
+        for ok in ["W/Rh", "W/Al"] {
+            h.anode_filter = Some(ok.into());
+            assert!(matches!(go(h.clone(), &fan), LinkError::Incomplete(_)));
+        }
+        // The stated beam reaches the acquisition's header.
+        h.anode_filter = Some("W/Al".into());
+        let site = Site::fan(&dbt_geometry::Geometry::paper(), 0.11);
+        assert_eq!(domain_header(&h, &site, 1e4).anode_filter, AnodeFilter::WAl);
+        h.anode_filter = None;
+        assert_eq!(domain_header(&h, &site, 1e4).anode_filter, AnodeFilter::WRh);
     }
 
     /// One CRC error per frame must not write one log line each: at most one

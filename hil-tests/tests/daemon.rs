@@ -336,14 +336,15 @@ fn thickness_disagreement_is_a_fault_not_a_report() {
     assert!(String::from_utf8_lossy(&out.stdout).contains("thickness"));
 }
 
-/// An exposure with another anode/filter than the dose model's (W/Rh) is a
-/// `technique` fault naming it, kept in faulted/, never a report (issue
-/// #27).
+/// An exposure with another anode/filter than the dose model's (W/Rh,
+/// W/Al) is a `technique` fault naming it, kept in faulted/, never a report
+/// (issue #27); so is a register that names another beam than the
+/// stream's header.
 #[test]
 fn another_anode_filter_is_a_fault_not_a_report() {
     let dir = tempfile::tempdir().unwrap();
     let (acq, thickness) = acquire(dir.path());
-    let g = gantry_full(&acq, thickness, &[], &["--anode-filter", "W/Al"]);
+    let g = gantry_full(&acq, thickness, &[], &["--anode-filter", "W/Ag"]);
     let cfg = config(dir.path(), &g, 2);
     let st = daemon(&cfg, &["--once"]).wait().unwrap();
     assert_eq!(st.code(), Some(1), "--once after a fault exits 1");
@@ -351,7 +352,23 @@ fn another_anode_filter_is_a_fault_not_a_report() {
     let f = &s["faults"][0];
     assert_eq!(f["kind"], "technique", "{s}");
     let m = f["message"].as_str().unwrap();
-    assert!(m.contains("W/Al") && m.contains("W/Rh"), "{m}");
+    assert!(m.contains("W/Ag") && m.contains("W/Rh, W/Al"), "{m}");
+    drop(g);
+    // The stream's header says W/Rh (the acquisition's beam), the register
+    // W/Al: which beam was used is not known, nothing is reported.
+    let run = dir.path().join("disagree");
+    std::fs::create_dir_all(&run).unwrap();
+    let g = gantry_full(&acq, thickness, &[], &["--anode-filter", "W/Al"]);
+    let cfg = config(&run, &g, 2);
+    let st = daemon(&cfg, &["--once"]).wait().unwrap();
+    assert_eq!(st.code(), Some(1), "--once after a fault exits 1");
+    let s = status(&run);
+    let m = s["faults"][0]["message"].as_str().unwrap();
+    assert!(
+        m.contains("disagreement") && m.contains("W/Al") && m.contains("W/Rh"),
+        "{m}"
+    );
+    assert_eq!(entries(&run.join("spool/faulted")).len(), 1);
     assert_eq!(entries(&dir.path().join("spool/faulted")).len(), 1);
     assert!(entries(&dir.path().join("output"))
         .iter()
@@ -581,6 +598,69 @@ fn clinical_physics_is_reported_after_both_corrections() {
             assert_eq!(entries(&run.join("spool/faulted")).len(), 1);
         }
     }
+}
+
+/// A W/Al exposure end to end (issue #27): the clinical physics of a
+/// tungsten beam through 0.7 mm aluminium at its automatic exposure's kV
+/// (`host-sim acquire --anode-filter W/Al`), the stream's header and the
+/// gantry's register 6 both W/Al; the daemon removes the scatter with the
+/// W/Al kernels, linearises with the W/Al spectrum and computes the dose
+/// with it: reported within 3 pp, and the dose SR names the aluminium
+/// filter (CID 10006) and the W/Al beam's HVL.
+#[test]
+fn a_w_al_exposure_is_reported_with_its_own_beam() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model, digest, geometry, system) = shipped_model();
+    let acq = hil_tests::acquire_args(
+        dir.path(),
+        "acq",
+        1,
+        &geometry,
+        system.as_deref(),
+        &["--physics", "clinical", "--anode-filter", "W/Al"],
+    );
+    let thickness = thickness_of(&acq);
+    let h: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(acq.join("acquisition.json")).unwrap()).unwrap();
+    assert_eq!(h["anode_filter"], "W/Al", "{h}");
+    let truth = h["truth"]["glandularity"].as_f64().unwrap();
+    let g = gantry_full(&acq, thickness, &[], &["--anode-filter", "W/Al"]);
+    let cfg = write_config(
+        dir.path(),
+        &format!(
+            "transport = \"tcp\"\naddress = \"{}\"\ngeometry = \"{geometry}\"\n{}",
+            g.frames,
+            system
+                .as_ref()
+                .map(|s| format!("system = {s:?}"))
+                .unwrap_or_default()
+        ),
+        &format!(
+            "transport = \"tcp\"\naddress = \"{}\"\ntimeout_ms = 500\nattempts = 3\nthickness_tolerance_mm = 1.0",
+            g.registers
+        ),
+        &format!(
+            "reconstructor = \"dbtor\"\nmodel = {:?}\nmodel_digest = {digest:?}\nprecision = \"int8\"\nbeam_hardening = \"csi\"\nscatter = \"kernel\"",
+            model.display().to_string()
+        ),
+    );
+    let st = daemon(&cfg, &["--once"]).wait().unwrap();
+    let s = status(dir.path());
+    assert!(st.success(), "{st:?} {s}");
+    assert_eq!(s["processed"], 1, "{s}");
+    let gl = s["recent"][0]["glandularity_reported"].as_f64().unwrap();
+    assert!((gl - truth).abs() < 0.03, "reported {gl}, truth {truth}");
+    let dose = entries(&dir.path().join("output"))
+        .into_iter()
+        .find(|n| n.ends_with("-dose-sr.dcm"))
+        .expect("a dose SR");
+    let bytes = std::fs::read(dir.path().join("output").join(dose)).unwrap();
+    let has = |t: &str| bytes.windows(t.len()).any(|w| w == t.as_bytes());
+    assert!(
+        has("12503006") && has("Aluminum"),
+        "the SR names the aluminium filter"
+    );
+    assert!(!has("Rhodium"), "and no rhodium");
 }
 
 /// Data faults with valid CRCs: detector saturation in one projection is a

@@ -172,16 +172,17 @@ impl Physics {
         }
     }
 
-    /// The clinical model of an exposure at `kvp` of a breast
-    /// `thickness_mm` thick at `noise` (the spectrum:
+    /// The clinical model of an exposure with the beam `af` at `kvp` of a
+    /// breast `thickness_mm` thick at `noise` (the spectrum:
     /// `dbt_dose::xray::technique_spectrum`, as the dose's).
     fn clinical(
         detector: &dbt_acquisition::clinical::Detector,
+        af: dbt_dose::xray::AnodeFilter,
         kvp: f64,
         thickness_mm: f64,
         noise: NoiseLevel,
     ) -> Result<dbt_acquisition::clinical::ClinicalPhysics, SimError> {
-        let tube = dbt_dose::xray::technique_spectrum(kvp, thickness_mm)
+        let tube = dbt_dose::xray::technique_spectrum(af, kvp, thickness_mm)
             .map_err(|e| SimError::Options(e.to_string()))?;
         let spectrum = tube
             .spectrum
@@ -194,11 +195,16 @@ impl Physics {
 
 /// Signals of rays with per-material path lengths under `physics`'s
 /// clinical model (noise-free at `NoiseFree`); with scatter, the rays
-/// form the stack `layout` of a breast `thickness_mm` thick.
+/// form the stack `layout` of a breast `thickness_mm` thick exposed with
+/// the beam `af` (its shipped scatter table).
 fn clinical_signals(
     model: &dbt_acquisition::clinical::ClinicalPhysics,
     paths: &[Vec<f32>; 3],
-    scatter: Option<(&dbt_acquisition::clinical::StackLayout, f64)>,
+    scatter: Option<(
+        &dbt_acquisition::clinical::StackLayout,
+        f64,
+        dbt_dose::xray::AnodeFilter,
+    )>,
     noise: NoiseLevel,
     seed: u64,
 ) -> Result<Vec<f32>, SimError> {
@@ -206,8 +212,8 @@ fn clinical_signals(
     let noisy = noise != NoiseLevel::NoiseFree;
     match scatter {
         None => model.simulate(paths, noisy, seed).map_err(err),
-        Some((layout, thickness)) => {
-            let table = dbt_scatter::ScatterTable::shipped()
+        Some((layout, thickness, af)) => {
+            let table = dbt_scatter::ScatterTable::shipped_for(af.name())
                 .map_err(|e| SimError::Options(e.to_string()))?;
             Ok(model
                 .simulate_scattered(paths, layout, table, thickness, noisy, seed)
@@ -218,10 +224,13 @@ fn clinical_signals(
 }
 
 /// Technique of a simulated acquisition (plausible values, not a measured
-/// tube): the kV of the paper's Table 3 for the thickness, a sweep of
-/// `mas_total` and a tube output at the reference point.
+/// tube): the beam, a sweep of `mas_total` and a tube output at the
+/// reference point (the kV is the beam's automatic exposure for the
+/// thickness, `AnodeFilter::aec_kv`, passed beside it).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Technique {
+    /// Anode and filter (the default: the paper's W/Rh).
+    pub anode_filter: dbt_dose::xray::AnodeFilter,
     /// Tube loading of the sweep, mAs.
     pub mas_total: f64,
     /// Incident air kerma at the reference point per mAs, mGy/mAs.
@@ -231,6 +240,7 @@ pub struct Technique {
 impl Default for Technique {
     fn default() -> Self {
         Self {
+            anode_filter: Default::default(),
             mas_total: 60.0,
             tube_output_mgy_per_mas: 0.11,
         }
@@ -285,7 +295,13 @@ pub fn simulate_acquisition_with(
         return simulate_acquisition(vol, geom, noise, seed, technique, kvp, patient_id, uid_root);
     };
     let _span = tracing::info_span!("acquisition", patient_id, physics = physics.name()).entered();
-    let model = Physics::clinical(&detector, kvp, vol.thickness_mm(), noise)?;
+    let model = Physics::clinical(
+        &detector,
+        technique.anode_filter,
+        kvp,
+        vol.thickness_mm(),
+        noise,
+    )?;
     let proj = Projector::new(geom);
     let paths: Vec<[Vec<f32>; 3]> = (0..vol.n_coronal())
         .into_par_iter()
@@ -307,7 +323,7 @@ pub fn simulate_acquisition_with(
         let signals = clinical_signals(
             &model,
             &all,
-            Some((&layout, vol.thickness_mm())),
+            Some((&layout, vol.thickness_mm(), technique.anode_filter)),
             noise,
             mix_seed(seed, &[u64::MAX - 1]),
         )?;
@@ -356,6 +372,7 @@ fn simulate_acquisition_header(
         slices: 0,
         slice_spacing_mm: vol.voxel_mm(),
         kvp,
+        anode_filter: technique.anode_filter,
         mas_total: technique.mas_total,
         tube_output_mgy_per_mas: technique.tube_output_mgy_per_mas,
         laterality: "L".into(),
@@ -530,7 +547,13 @@ pub fn simulate_cone_acquisition_with(
             (a.counts, a.flux)
         }
         Physics::Clinical { detector, scatter } => {
-            let model = Physics::clinical(&detector, kvp, vol.thickness_mm(), noise)?;
+            let model = Physics::clinical(
+                &detector,
+                technique.anode_filter,
+                kvp,
+                vol.thickness_mm(),
+                noise,
+            )?;
             let paths: [Vec<f32>; 3] = [
                 projected[0].clone(),
                 projected[1].clone(),
@@ -540,7 +563,7 @@ pub fn simulate_cone_acquisition_with(
             let c = clinical_signals(
                 &model,
                 &paths,
-                scatter.then_some((&layout, vol.thickness_mm())),
+                scatter.then_some((&layout, vol.thickness_mm(), technique.anode_filter)),
                 noise,
                 mix_seed(seed, &[u64::MAX]),
             )?;

@@ -99,6 +99,11 @@ struct AcquireArgs {
     /// `clinical-primary` (the same without scatter).
     #[arg(long, default_value = "mono")]
     physics: String,
+    /// The beam: `W/Rh` (the paper's Table 3 kV for the thickness) or
+    /// `W/Al` (`dbt_dose::xray::W_AL_AEC`); the acquisition's header, the
+    /// stream's and the DICOM objects carry it.
+    #[arg(long, default_value = "W/Rh")]
+    anode_filter: String,
 }
 
 /// The options of `host-sim stream`.
@@ -293,14 +298,17 @@ fn run_acquire(args: AcquireArgs) -> Result<()> {
         population,
         system,
         physics,
+        anode_filter,
     } = args;
     let physics = host_sim::Physics::parse(&physics)?;
+    let anode_filter = dbt_dose::xray::AnodeFilter::parse(&anode_filter)
+        .with_context(|| format!("--anode-filter {anode_filter}"))?;
     let g = geometry.load()?;
     let vol = population
         .draw(&g, Population::TEST_SEED, index)
         .generate()?;
     let noise = NoiseLevel::parse(&noise)?;
-    let kvp = dbt_dose::xray::paper_technique(vol.thickness_mm()).0 as f64;
+    let kvp = f64::from(anode_filter.aec_kv(vol.thickness_mm()));
     let seed = host_sim::mix_seed(Population::TEST_SEED, &[index, 1]);
     let patient = format!("TEST{index:03}");
     let root = "1.2.826.0.1.3680043.10.543.2";
@@ -337,7 +345,10 @@ fn run_acquire(args: AcquireArgs) -> Result<()> {
         noise,
         physics,
         seed,
-        host_sim::Technique::default(),
+        host_sim::Technique {
+            anode_filter,
+            ..Default::default()
+        },
         kvp,
         &patient,
         root,
@@ -456,7 +467,14 @@ fn run_modbus(args: ModbusArgs) -> Result<()> {
         Some("silent") => Some(ModbusFault::Silent),
         Some(other) => bail!("--fault `{other}`: exception or silent"),
     };
-    let kvp = dbt_dose::xray::paper_technique(thickness_mm).0 as f64;
+    // The beam's automatic exposure (the paper's Table 3 for an anode/filter
+    // the dose model has no spectra for: the register is what is tested).
+    let kvp = f64::from(
+        dbt_dose::xray::AnodeFilter::parse(anode_filter)
+            .map_or(dbt_dose::xray::paper_technique(thickness_mm).0, |b| {
+                b.aec_kv(thickness_mm)
+            }),
+    );
     let regs = Registers {
         version: 1,
         state,
@@ -651,7 +669,8 @@ fn run_dicom_send(args: DicomSendArgs) -> Result<()> {
             exposure_ms_per_view: exposure_ms,
             view_interval_ms,
             modality_agd_mgy: organ_dose_mgy.unwrap_or(0.25 * kerma),
-            filter_rh_mm: dbt_dose::xray::paper_spectrum(h.thickness_mm)?.rh_mm,
+            filter_mm: dbt_dose::xray::technique_spectrum(h.anode_filter, h.kvp, h.thickness_mm)?
+                .filter_mm,
             content_date: &date,
             content_time: &time,
         },

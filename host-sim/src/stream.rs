@@ -122,8 +122,8 @@ pub fn frames_of(acq: &Acquisition) -> Result<Vec<Frame>, String> {
         columns: nd as u16,
         laterality: h.laterality.clone(),
         system: h.system.as_ref().map(|s| s.name.clone()),
-        // The simulated tube: tungsten, rhodium (the dose model's spectra).
-        anode_filter: Some("W/Rh".into()),
+        // The acquisition's beam.
+        anode_filter: Some(h.anode_filter.name().into()),
     })];
     for v in 0..nv {
         let mut counts = Vec::with_capacity(rows * nd);

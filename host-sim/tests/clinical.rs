@@ -10,6 +10,7 @@
 //! eval/README.md's.
 
 use dbt_acquisition::NoiseLevel;
+use dbt_dose::xray::AnodeFilter;
 use dbt_geometry::Geometry;
 use dbt_phantom::{Population, PopulationKind};
 use dbt_pipeline::{process, PipelineOptions};
@@ -90,7 +91,7 @@ fn scatter_is_added_and_removed() {
         .generate()
         .unwrap();
     let truth = vol.glandularity().unwrap();
-    let acq = |scatter, noise| {
+    let acq = |scatter, noise, af: AnodeFilter| {
         let a = host_sim::simulate_acquisition_with(
             &vol,
             &g,
@@ -100,8 +101,11 @@ fn scatter_is_added_and_removed() {
                 scatter,
             },
             5,
-            host_sim::Technique::default(),
-            dbt_dose::xray::paper_technique(vol.thickness_mm()).0 as f64,
+            host_sim::Technique {
+                anode_filter: af,
+                ..Default::default()
+            },
+            f64::from(af.aec_kv(vol.thickness_mm())),
             "SCAT",
             "1.2.826.0.1.3680043.10.543.3",
         )
@@ -111,44 +115,48 @@ fn scatter_is_added_and_removed() {
             counts: a.counts,
         }
     };
-    // Noise-free counts: removal against the primary.
-    let primary = acq(false, NoiseLevel::NoiseFree);
-    let scattered = acq(true, NoiseLevel::NoiseFree);
-    assert_eq!(
-        scattered.header.truth.as_ref().unwrap()["physics"],
-        "clinical"
-    );
+    // Noise-free counts: removal against the primary, each beam with its
+    // own kernels.
     let removal = dbt_pipeline::descatter::ScatterRemoval::shipped().unwrap();
-    let mut corrected = scattered.counts.clone();
-    let spr = removal.apply(&scattered.header, &mut corrected).unwrap();
-    let b = primary.header.flux as f32;
-    let (mut worst, mut n, mut spr_min, mut spr_max) = (0.0f64, 0, f64::MAX, 0.0f64);
-    for ((p, s), c) in primary
-        .counts
-        .iter()
-        .flatten()
-        .zip(scattered.counts.iter().flatten())
-        .zip(corrected.iter().flatten())
-    {
-        // Under the breast, away from its edge: at most 60 % of the flat.
-        if *p < 0.6 * b {
-            let ratio = f64::from(*s) / f64::from(*p) - 1.0;
-            spr_min = spr_min.min(ratio);
-            spr_max = spr_max.max(ratio);
-            worst = worst.max((f64::from(*c) / f64::from(*p) - 1.0).abs());
-            n += 1;
+    for af in AnodeFilter::ALL {
+        let primary = acq(false, NoiseLevel::NoiseFree, af);
+        let scattered = acq(true, NoiseLevel::NoiseFree, af);
+        assert_eq!(
+            scattered.header.truth.as_ref().unwrap()["physics"],
+            "clinical"
+        );
+        assert_eq!(scattered.header.anode_filter, af);
+        let mut corrected = scattered.counts.clone();
+        let spr = removal.apply(&scattered.header, &mut corrected).unwrap();
+        let b = primary.header.flux as f32;
+        let (mut worst, mut n, mut spr_min, mut spr_max) = (0.0f64, 0, f64::MAX, 0.0f64);
+        for ((p, s), c) in primary
+            .counts
+            .iter()
+            .flatten()
+            .zip(scattered.counts.iter().flatten())
+            .zip(corrected.iter().flatten())
+        {
+            // Under the breast, away from its edge: at most 60 % of the flat.
+            if *p < 0.6 * b {
+                let ratio = f64::from(*s) / f64::from(*p) - 1.0;
+                spr_min = spr_min.min(ratio);
+                spr_max = spr_max.max(ratio);
+                worst = worst.max((f64::from(*c) / f64::from(*p) - 1.0).abs());
+                n += 1;
+            }
         }
+        eprintln!(
+        "{af}: {n} elements: scatter / primary {spr_min:.2}..{spr_max:.2}, removed {spr:.2}, worst residual {worst:.4}"
+    );
+        assert!(
+            n > 10_000 && spr_min > 0.0 && spr_max > 1.0 && spr_max < 2.5,
+            "{af}: {spr_min} {spr_max}"
+        );
+        assert!(worst < 0.01, "{af}: worst residual after removal {worst}");
     }
-    eprintln!(
-        "{n} elements: scatter / primary {spr_min:.2}..{spr_max:.2}, removed {spr:.2}, worst residual {worst:.4}"
-    );
-    assert!(
-        n > 10_000 && spr_min > 0.0 && spr_max > 1.0 && spr_max < 2.5,
-        "{spr_min} {spr_max}"
-    );
-    assert!(worst < 0.01, "worst residual after removal {worst}");
 
-    let noisy = acq(true, NoiseLevel::Poisson(8));
+    let noisy = acq(true, NoiseLevel::Poisson(8), AnodeFilter::WRh);
     let bh = dbt_pipeline::linearise::BeamHardening {
         detector: Default::default(),
     };
@@ -164,7 +172,11 @@ fn scatter_is_added_and_removed() {
     let left = process(&noisy, &opts(None)).unwrap_err().to_string();
     assert!(left.contains("above the flat field"), "{left}");
     let removed = process(&noisy, &opts(Some(removal))).unwrap();
-    let reference = process(&acq(false, NoiseLevel::Poisson(8)), &opts(None)).unwrap();
+    let reference = process(
+        &acq(false, NoiseLevel::Poisson(8), AnodeFilter::WRh),
+        &opts(None),
+    )
+    .unwrap();
     let err = |r: &dbt_pipeline::ProcessResult| r.density.glandularity_partial_volume - truth;
     eprintln!(
         "partial-volume glandularity - truth: scatter removed {:+.4}, primary only {:+.4}",

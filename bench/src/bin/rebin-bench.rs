@@ -106,6 +106,7 @@ fn main() -> Result<()> {
         slices: rows,
         slice_spacing_mm: fan.image.pixel_mm,
         kvp: 28.0,
+        anode_filter: Default::default(),
         mas_total: 60.0,
         tube_output_mgy_per_mas: 0.11,
         laterality: "L".into(),

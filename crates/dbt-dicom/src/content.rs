@@ -224,3 +224,33 @@ mod tests {
         assert_eq!(format_ds(2.0), "2");
     }
 }
+
+/// An x-ray filter's material, as the objects name it: Filter Material
+/// (0018,7050) in the projections, CID 10006 "X-Ray Filter Materials" in
+/// the dose report.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FilterMaterial {
+    /// Rhodium (W/Rh beams).
+    Rhodium,
+    /// Aluminium (W/Al beams).
+    Aluminum,
+}
+
+impl FilterMaterial {
+    /// The Filter Material (0018,7050) defined term.
+    pub fn term(self) -> &'static str {
+        match self {
+            FilterMaterial::Rhodium => "RHODIUM",
+            FilterMaterial::Aluminum => "ALUMINUM",
+        }
+    }
+
+    /// The CID 10006 code (SNOMED CT; the legacy SRT codes were C-167F9
+    /// and C-120F9).
+    pub fn code(self) -> Code {
+        match self {
+            FilterMaterial::Rhodium => Code::new("59801003", "SCT", "Rhodium"),
+            FilterMaterial::Aluminum => Code::new("12503006", "SCT", "Aluminum"),
+        }
+    }
+}

@@ -504,7 +504,20 @@ pub fn read_input_object(
         exposure_mas,
         exposure_ms_per_view,
         anode: src.opt_text("AnodeTargetMaterial", tags::ANODE_TARGET_MATERIAL),
-        filter: src.opt_text("FilterMaterial", tags::FILTER_MATERIAL),
+        // Top level (the DM IOD), else the shared functional groups' X-Ray
+        // Filter Macro (a multi-frame object).
+        filter: src
+            .opt_text("FilterMaterial", tags::FILTER_MATERIAL)
+            .or_else(|| {
+                let shared = first(
+                    &o,
+                    tags::SHARED_FUNCTIONAL_GROUPS_SEQUENCE,
+                    "SharedFunctionalGroupsSequence",
+                )
+                .ok()?;
+                let f = first(&shared, tags::X_RAY_FILTER_SEQUENCE, "XRayFilterSequence").ok()?;
+                Source { o: &f, map: None }.opt_text("FilterMaterial", tags::FILTER_MATERIAL)
+            }),
         counts,
     })
 }

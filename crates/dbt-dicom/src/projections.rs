@@ -57,8 +57,10 @@ pub struct ProjectionSet<'a> {
     pub kvp: f64,
     /// Tube loading of each view, uAs.
     pub exposure_uas_per_view: f64,
-    /// Rhodium filter thickness, mm.
-    pub filter_rh_mm: f64,
+    /// Filter material.
+    pub filter_material: crate::FilterMaterial,
+    /// Filter thickness, mm.
+    pub filter_mm: f64,
     /// Counts, frame by frame, row-major (`frames x rows x columns`).
     pub counts: &'a [u16],
     /// Content date and time (`YYYYMMDD`, `HHMMSS`).
@@ -134,7 +136,7 @@ pub(crate) fn check(p: &ProjectionSet<'_>) -> Result<(), DicomError> {
         ),
         ("pixel_spacing_mm[0]", p.pixel_spacing_mm[0], 0.01, 10.0),
         ("pixel_spacing_mm[1]", p.pixel_spacing_mm[1], 0.01, 10.0),
-        ("filter_rh_mm", p.filter_rh_mm, 0.0, 1.0),
+        ("filter_mm", p.filter_mm, 0.0, 1.0),
         ("compression_force_n", p.compression_force_n, 0.0, 500.0),
         (
             "support_to_detector_mm",
@@ -457,6 +459,16 @@ pub fn projection_object(
                     VR::SS,
                     PrimitiveValue::from(1i16),
                 ),
+            ])],
+        ),
+        // X-Ray Filter Macro: the beam's filter.
+        seq(
+            tags::X_RAY_FILTER_SEQUENCE,
+            vec![item(vec![
+                s(tags::FILTER_TYPE, VR::CS, "FLAT"),
+                s(tags::FILTER_MATERIAL, VR::CS, p.filter_material.term()),
+                s(tags::FILTER_THICKNESS_MINIMUM, VR::DS, &ds(p.filter_mm)),
+                s(tags::FILTER_THICKNESS_MAXIMUM, VR::DS, &ds(p.filter_mm)),
             ])],
         ),
         seq(

@@ -211,8 +211,10 @@ pub struct DoseInput {
     pub compression_force_n: Option<f64>,
     /// First HVL, mm Al.
     pub hvl_mm_al: f64,
-    /// Rhodium filter thickness, mm.
-    pub filter_rh_mm: f64,
+    /// Filter material.
+    pub filter_material: crate::FilterMaterial,
+    /// Filter thickness, mm.
+    pub filter_mm: f64,
     /// Accumulated patient-specific AGD, mGy.
     pub accumulated_agd_mgy: f64,
     /// Relative statistical uncertainty of the accumulated AGD (1 s.d.).
@@ -854,8 +856,8 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
                             Rel::Contains,
                             Item::Code(
                                 dcm("113757", "X-Ray Filter Material"),
-                                // CID 10006 (legacy SRT: C-167F9).
-                                Code::new("59801003", "SCT", "Rhodium"),
+                                // CID 10006.
+                                input.filter_material.code(),
                                 vec![],
                             ),
                         ),
@@ -863,7 +865,7 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
                             Rel::Contains,
                             Item::Num(
                                 dcm("113758", "X-Ray Filter Thickness Minimum"),
-                                input.filter_rh_mm,
+                                input.filter_mm,
                                 Code::ucum("mm", "mm"),
                                 vec![],
                             ),
@@ -872,7 +874,7 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
                             Rel::Contains,
                             Item::Num(
                                 dcm("113773", "X-Ray Filter Thickness Maximum"),
-                                input.filter_rh_mm,
+                                input.filter_mm,
                                 Code::ucum("mm", "mm"),
                                 vec![],
                             ),

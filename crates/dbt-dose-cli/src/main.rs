@@ -3,6 +3,7 @@
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
 use dbt_dose::tg195;
+use dbt_dose::xray::AnodeFilter;
 use dbt_dose::{run_observed, Spectrum};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -63,6 +64,10 @@ struct ViewsArgs {
     /// Seed.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// The beam: `W/Rh` (the paper's Table 3 technique by thickness) or
+    /// `W/Al` (`dbt_dose::xray::W_AL_AEC`).
+    #[arg(long, default_value = "W/Rh", value_parser = parse_anode_filter)]
+    anode_filter: AnodeFilter,
     /// Keep the Monte Carlo views in this JSON file: read from it when it
     /// exists and was made with the same options (else refused, naming
     /// them), written after the runs when it does not (a refit of the model
@@ -80,7 +85,7 @@ impl ViewsArgs {
             "glandularity": self.glandularity, "radius": self.radius,
             "csi_um": self.csi_um, "pixel": self.pixel,
             "photons_per_mm": self.photons_per_mm, "open_photons": self.open_photons,
-            "seed": self.seed,
+            "seed": self.seed, "anode_filter": self.anode_filter,
         })
     }
 }
@@ -130,10 +135,14 @@ struct SprArgs {
     /// energy fluence).
     #[arg(long, default_value_t = 200.0)]
     csi_um: f64,
-    /// Monoenergetic source, keV, instead of the paper's Table 3 W/Rh
-    /// spectrum for each thickness.
+    /// Monoenergetic source, keV, instead of the beam's spectrum for each
+    /// thickness.
     #[arg(long)]
     energy: Option<f64>,
+    /// The beam: `W/Rh` (the paper's Table 3 technique by thickness) or
+    /// `W/Al` (`dbt_dose::xray::W_AL_AEC`).
+    #[arg(long, default_value = "W/Rh", value_parser = parse_anode_filter)]
+    anode_filter: AnodeFilter,
     /// Side of the square region of interest, mm.
     #[arg(long, default_value_t = 10.0)]
     roi: f64,
@@ -197,7 +206,7 @@ fn run_spectra() -> Result<()> {
                 "thickness_mm": [lo, hi],
                 "kv": kv,
                 "target_hvl_mm_al": hvl,
-                "rh_um": s.rh_mm * 1e3,
+                "rh_um": s.filter_mm * 1e3,
                 "hvl_mm_al": s.hvl_mm_al,
                 "mean_kev": s.mean_kev,
             }))
@@ -273,9 +282,12 @@ fn run_spr(a: SprArgs) -> Result<()> {
         let (spec, name) = match a.energy {
             Some(e) => (Spectrum::mono(e)?, format!("{e} keV")),
             None => {
-                let s = dbt_dose::xray::paper_spectrum(t)?;
-                let name = format!("W/Rh {} kV, HVL {:.3} mm Al", s.kv, s.hvl_mm_al);
-                (s.spectrum.context("paper spectrum")?, name)
+                let s = dbt_dose::xray::aec_spectrum(a.anode_filter, t)?;
+                let name = format!(
+                    "{} {} kV, HVL {:.3} mm Al",
+                    a.anode_filter, s.kv, s.hvl_mm_al
+                );
+                (s.spectrum.context("tube spectrum")?, name)
             }
         };
         for (k, &ang) in a.angle.iter().enumerate() {
@@ -360,9 +372,9 @@ fn run_views(a: &ViewsArgs) -> Result<Vec<View>> {
     let score = dbt_dose::scatter::paper_detector(a.csi_um, a.pixel)?;
     let mut out = Vec::new();
     for &t in &a.thickness {
-        let spec = dbt_dose::xray::paper_spectrum(t)?
+        let spec = dbt_dose::xray::aec_spectrum(a.anode_filter, t)?
             .spectrum
-            .context("paper spectrum")?;
+            .context("tube spectrum")?;
         let mut open: Vec<Option<dbt_dose::scatter::DetectorImages>> = vec![None; a.angle.len()];
         for (gi, &g) in a.glandularity.iter().enumerate() {
             let (dims, labels) = dbt_dose::scatter::half_cylinder(t, a.radius, g, 1.0)?;
@@ -462,11 +474,15 @@ fn run_scatter_fit(a: ScatterFitArgs) -> Result<()> {
     }
     let v = &a.views;
     let table = dbt_scatter::ScatterTable {
-        spectrum: "the paper's Table 3 W/Rh technique for each thickness (dbt_dose::xray::paper_spectrum: TASMICS, rhodium solved for the HVL)".into(),
+        spectrum: spectrum_description(v.anode_filter),
         geometry: "the dose engine's paper geometry (dbt_dose::patient): source 700 mm above the detector, detector rotating with it, 3 mm PET paddle, 2 mm PMMA support 18 mm above the detector, no grid".into(),
         detector: format!("{} um CsI, energy-integrating (absorbed energy, oblique incidence)", v.csi_um),
         provenance: format!(
-            "dbt-dose scatter-fit --thickness {} --angle {} --glandularity {} --radius {} --csi-um {} --pixel {} --photons-per-mm {} --open-photons {} --seed {} --knots {} ({:.0} s); homogeneous half-cylinders with 2 mm skin",
+            "dbt-dose scatter-fit{} --thickness {} --angle {} --glandularity {} --radius {} --csi-um {} --pixel {} --photons-per-mm {} --open-photons {} --seed {} --knots {} ({:.0} s); homogeneous half-cylinders with 2 mm skin",
+            match v.anode_filter {
+                AnodeFilter::WRh => String::new(),
+                af => format!(" --anode-filter {af}"),
+            },
             join(&v.thickness), join(&v.angle), join(&v.glandularity), v.radius, v.csi_um, v.pixel,
             v.photons_per_mm, v.open_photons, v.seed, a.knots, t0.elapsed().as_secs_f64()
         ) + &v.views_file.as_ref().map(|f| format!(" (views kept in {})", f.display())).unwrap_or_default(),
@@ -477,6 +493,21 @@ fn run_scatter_fit(a: ScatterFitArgs) -> Result<()> {
         .with_context(|| format!("writing {}", a.out.display()))?;
     eprintln!("wrote {}", a.out.display());
     Ok(())
+}
+
+/// The `spectrum` field of a scatter table made with `af`'s beam.
+fn spectrum_description(af: AnodeFilter) -> String {
+    match af {
+        AnodeFilter::WRh => "the paper's Table 3 W/Rh technique for each thickness (dbt_dose::xray::paper_spectrum: TASMICS, rhodium solved for the HVL)".into(),
+        AnodeFilter::WAl => format!(
+            "W/Al: TASMICS through {} mm Al at the kV of dbt_dose::xray::W_AL_AEC for each thickness (HVL-matched to the paper's Table 3)",
+            dbt_dose::xray::W_AL_FILTER_MM
+        ),
+    }
+}
+
+fn parse_anode_filter(s: &str) -> Result<AnodeFilter, String> {
+    AnodeFilter::parse(s).map_err(|e| e.to_string())
 }
 
 fn join(v: &[f64]) -> String {
@@ -493,7 +524,7 @@ fn run_scatter_check(a: ScatterCheckArgs) -> Result<()> {
             &std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
         )
         .with_context(|| format!("scatter table {}", p.display()))?,
-        None => dbt_scatter::ScatterTable::shipped()?.clone(),
+        None => dbt_scatter::ScatterTable::shipped_for(a.views.anode_filter.name())?.clone(),
     };
     let views = mc_views(&a.views)?;
     println!("| thickness (mm) | G | angle (deg) | SPR centre, MC | SPR centre, model | model / MC - 1 | scatter under the breast, model / MC - 1 | worst 16 mm block under the breast | primary under the breast after removal / true - 1 |");

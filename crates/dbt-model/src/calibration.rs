@@ -139,6 +139,31 @@ impl InputCorrections {
             format!("{precision_label} | {}", self.describe())
         }
     }
+
+    /// The key of a calibration for acquisitions with the beam `beam`
+    /// (an anode/filter name, e.g. `W/Al`) other than the paper's W/Rh,
+    /// whose calibration is [`key`](Self::key)'s: `key | beam W/Al`.
+    pub fn beam_key(&self, precision_label: &str, beam: &str) -> String {
+        format!("{} | beam {beam}", self.key(precision_label))
+    }
+}
+
+/// The entries of `f` for `precision_label` and `input` fit on another
+/// beam than W/Rh ([`InputCorrections::beam_key`]), as (beam name,
+/// calibration), by beam name.
+pub fn pick_beam_calibrations(
+    f: &CalibrationFile,
+    precision_label: &str,
+    input: InputCorrections,
+) -> Vec<(String, GlandularityCalibration)> {
+    let prefix = input.beam_key(precision_label, "");
+    f.calibrations
+        .iter()
+        .filter_map(|(k, c)| {
+            let beam = k.strip_prefix(&prefix)?;
+            (!beam.is_empty() && !beam.contains(" | ")).then(|| (beam.to_string(), *c))
+        })
+        .collect()
 }
 
 /// The entry of `f` for `precision_label` and `input`: the one fit on inputs
@@ -164,6 +189,26 @@ pub fn pick_calibration(
         );
     }
     Some((*c, plain))
+}
+
+/// The calibrations of `model` at its precision for `classify` and inputs
+/// corrected as `input` fit on other beams than W/Rh
+/// ([`pick_beam_calibrations`]): none where there is no file, or it was fit
+/// with another classification. A file of another model is an error.
+pub fn load_beam_calibrations(
+    model: &dbt_dbtor::Dbtor,
+    classify: &ClassifyOptions,
+    input: InputCorrections,
+) -> Result<Vec<(String, GlandularityCalibration)>, CalibrationError> {
+    let path = model.root().join(CALIBRATION_FILE);
+    if !path.is_file() {
+        return Ok(Vec::new());
+    }
+    let f = CalibrationFile::read(&path, model)?;
+    if &f.classification != classify {
+        return Ok(Vec::new());
+    }
+    Ok(pick_beam_calibrations(&f, &model.precision_label(), input))
 }
 
 /// The calibration of `model` at its precision for `classify` and inputs
@@ -192,5 +237,67 @@ pub fn load_calibration(
             tracing::warn!(path = %path.display(), precision = %label, "no calibration for this precision; glandularity reported uncalibrated");
             Ok(None)
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Another beam's calibrations sit under their own keys: picked by the
+    /// corrections and precision they were fit for, never as the W/Rh one.
+    #[test]
+    fn beam_calibrations_have_their_own_keys() {
+        let corrected = InputCorrections {
+            scatter_removed: true,
+            linearised: true,
+        };
+        assert_eq!(
+            corrected.beam_key("int8", "W/Al"),
+            "int8 | scatter removed + linearised | beam W/Al"
+        );
+        assert_eq!(
+            InputCorrections::default().beam_key("fp32", "W/Al"),
+            "fp32 | beam W/Al"
+        );
+        let cal = |o: f64| GlandularityCalibration {
+            offset: o,
+            slope: 1.0,
+        };
+        let f = CalibrationFile {
+            format: CALIBRATION_FORMAT.into(),
+            model: "m".into(),
+            manifest_sha256: "x".into(),
+            classification: ClassifyOptions::default(),
+            calibrations: [
+                ("int8".to_string(), cal(0.1)),
+                ("int8 | scatter removed + linearised".to_string(), cal(0.2)),
+                (
+                    "int8 | scatter removed + linearised | beam W/Al".to_string(),
+                    cal(0.3),
+                ),
+                (
+                    "fp32 | scatter removed + linearised | beam W/Al".to_string(),
+                    cal(0.4),
+                ),
+                ("int8 | beam W/Al".to_string(), cal(0.5)),
+            ]
+            .into_iter()
+            .collect(),
+            fits: Default::default(),
+        };
+        assert_eq!(
+            pick_beam_calibrations(&f, "int8", corrected),
+            vec![("W/Al".to_string(), cal(0.3))]
+        );
+        assert_eq!(
+            pick_beam_calibrations(&f, "int8", InputCorrections::default()),
+            vec![("W/Al".to_string(), cal(0.5))]
+        );
+        assert_eq!(
+            pick_calibration(&f, "int8", corrected).map(|(c, _)| c),
+            Some(cal(0.2))
+        );
+        assert!(pick_beam_calibrations(&f, "mixed", corrected).is_empty());
     }
 }

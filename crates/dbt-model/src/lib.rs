@@ -11,8 +11,9 @@ pub mod calibration;
 pub mod signoff;
 
 pub use calibration::{
-    load_calibration, manifest_sha256, pick_calibration, CalibrationError, CalibrationFile,
-    InputCorrections, CALIBRATION_FILE, CALIBRATION_FORMAT,
+    load_beam_calibrations, load_calibration, manifest_sha256, pick_beam_calibrations,
+    pick_calibration, CalibrationError, CalibrationFile, InputCorrections, CALIBRATION_FILE,
+    CALIBRATION_FORMAT,
 };
 pub use signoff::{sign_off, verify, Signoff, SIGNOFF_FILE, SIGNOFF_FORMAT};
 
@@ -69,6 +70,10 @@ pub struct SignedModel {
     /// Its glandularity calibration for the loaded precision, `None` only
     /// for a model signed off without a calibration file.
     pub calibration: Option<GlandularityCalibration>,
+    /// The calibrations for other beams than W/Rh (beam name, calibration:
+    /// [`pick_beam_calibrations`]); a beam without one is refused by the
+    /// pipeline while `calibration` is set.
+    pub beam_calibrations: Vec<(String, GlandularityCalibration)>,
     /// The verified sign-off.
     pub signoff: Signoff,
 }
@@ -96,6 +101,7 @@ pub fn load_signed(
             cause: source,
         }
     })?;
+    let mut beam_calibrations = Vec::new();
     let calibration = if signoff.files.contains_key(CALIBRATION_FILE) {
         let path = dir.join(CALIBRATION_FILE);
         let f = CalibrationFile::read(&path, &model)?;
@@ -106,6 +112,10 @@ pub fn load_signed(
                 reason: "fit with another tissue classification than the configured one; refit with `dbt-eval calibrate`".into(),
             }
             .into());
+        }
+        beam_calibrations = pick_beam_calibrations(&f, &label, input);
+        for (beam, c) in &beam_calibrations {
+            tracing::info!(model = %dir.display(), %beam, offset = c.offset, slope = c.slope, "glandularity calibration for a beam");
         }
         match pick_calibration(&f, &label, input) {
             Some((c, key)) => {
@@ -130,6 +140,7 @@ pub fn load_signed(
     Ok(SignedModel {
         model,
         calibration,
+        beam_calibrations,
         signoff,
     })
 }

@@ -71,6 +71,12 @@ pub struct AcquisitionHeader {
     pub slice_spacing_mm: f64,
     /// Tube voltage, kV.
     pub kvp: f64,
+    /// Anode and filter of the exposure (`W/Rh`, `W/Al`; absent in a file
+    /// written before issue #27's W/Al: `W/Rh`, the only beam then). The
+    /// dose, the beam-hardening correction and the scatter removal use this
+    /// beam's spectra (`dbt_dose::xray::technique_spectrum`).
+    #[serde(default)]
+    pub anode_filter: dbt_dose::xray::AnodeFilter,
     /// Tube loading of the whole sweep, mAs.
     pub mas_total: f64,
     /// Incident air kerma at the reference point per mAs, mGy/mAs.

@@ -21,6 +21,7 @@
 
 use crate::acquisition::AcquisitionHeader;
 use dbt_acquisition::clinical::StackLayout;
+use dbt_dose::xray::AnodeFilter;
 use dbt_scatter::{block_mean, upsample, ScatterTable};
 use thiserror::Error;
 
@@ -47,19 +48,33 @@ pub const MIN_PRIMARY: f64 = 0.05;
 /// Counts above pass as read (the counts check names them).
 pub const MAX_SIGNAL: f64 = 1.5;
 
-/// The site's scatter removal: the shipped kernel table.
+/// The site's scatter removal: the shipped kernel tables, one per beam
+/// (`dbt_scatter::ScatterTable::shipped_for`), the acquisition's chosen by
+/// its anode/filter.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ScatterRemoval {
-    /// The kernels.
-    pub table: &'static ScatterTable,
+    w_rh: &'static ScatterTable,
+    w_al: &'static ScatterTable,
 }
 
 impl ScatterRemoval {
-    /// The shipped table's removal.
+    /// The shipped tables' removal.
     pub fn shipped() -> Result<Self, DescatterError> {
+        let t = |af: AnodeFilter| {
+            ScatterTable::shipped_for(af.name()).map_err(|e| DescatterError::Model(e.to_string()))
+        };
         Ok(Self {
-            table: ScatterTable::shipped().map_err(|e| DescatterError::Model(e.to_string()))?,
+            w_rh: t(AnodeFilter::WRh)?,
+            w_al: t(AnodeFilter::WAl)?,
         })
+    }
+
+    /// The kernels of a beam.
+    pub fn table(&self, af: AnodeFilter) -> &'static ScatterTable {
+        match af {
+            AnodeFilter::WRh => self.w_rh,
+            AnodeFilter::WAl => self.w_al,
+        }
     }
 
     /// How the counts of `h` form the views' detector images.
@@ -81,7 +96,8 @@ impl ScatterRemoval {
         counts: &mut [Vec<f32>],
     ) -> Result<f64, DescatterError> {
         let l = Self::layout(h);
-        let (lo, hi) = self.table.range_mm();
+        let table = self.table(h.anode_filter);
+        let (lo, hi) = table.range_mm();
         if !(lo..=hi).contains(&h.thickness_mm) {
             tracing::warn!(
                 thickness_mm = h.thickness_mm,
@@ -114,8 +130,7 @@ impl ScatterRemoval {
                 }
             }
             let (mc, coarse) = block_mean(&m, &fine, fr, fc);
-            let (_, s) = self
-                .table
+            let (_, s) = table
                 .remove(&mc, &coarse, h.thickness_mm, l.tan_angles[v], ITERATIONS)
                 .map_err(|e| fail(e.to_string()))?;
             // The scatter is smooth in counts (not as a fraction of them:

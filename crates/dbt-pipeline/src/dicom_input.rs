@@ -12,6 +12,7 @@ use crate::acquisition::{
 };
 use dbt_dicom::input::Layout;
 use dbt_dicom::projections::{ProjectionSet, ReceivedProjections};
+use dbt_dose::xray::AnodeFilter;
 use dbt_geometry::{ConeSystem, Geometry};
 
 /// The configured system the objects must come from.
@@ -83,15 +84,47 @@ const SPACING_TOL: f64 = 1e-3;
 /// (DS rounding; a paddle that moved between views is a new acquisition).
 const THICKNESS_TOL_MM: f64 = 0.5;
 
-/// The anode the dose model's spectra are for (TASMICS tungsten spectra,
-/// `dbt-dose`), as DICOM's Anode Target Material names it.
-pub const ANODE: &str = "TUNGSTEN";
-/// The filter the dose model's spectra are for (rhodium), as DICOM's Filter
-/// Material names it.
-pub const FILTER: &str = "RHODIUM";
-/// The same, as the gantry's anode/filter register names it
-/// (GANTRY_INTERFACE.md section 1).
-pub const ANODE_FILTER: &str = "W/Rh";
+/// The beam of an object from its Anode Target Material (0018,1191) and
+/// Filter Material (0018,7050): a tungsten anode with rhodium or aluminium
+/// (`dbt_dose::xray::AnodeFilter`, the beams the dose model has spectra
+/// for); another anode or filter is refused naming the attribute and its
+/// value, never reported with another beam's dose. Where the object
+/// states neither (both are optional in the DM IOD), the paper's W/Rh;
+/// a filter without an anode is taken on a tungsten anode.
+pub fn beam(p: &ReceivedProjections) -> Result<AnodeFilter, HeaderError> {
+    let anode = p.anode.as_deref().unwrap_or("TUNGSTEN");
+    if anode.trim() != AnodeFilter::WRh.dicom_anode() {
+        return Err(refuse(
+            "AnodeTargetMaterial",
+            anode,
+            format!(
+                "the dose model's spectra are for a {} anode",
+                AnodeFilter::WRh.dicom_anode()
+            ),
+        ));
+    }
+    let Some(f) = p.filter.as_deref() else {
+        return Ok(AnodeFilter::WRh);
+    };
+    AnodeFilter::from_dicom(anode, f).ok_or_else(|| {
+        refuse(
+            "FilterMaterial",
+            f,
+            format!(
+                "the dose model's spectra are for one filter of {}",
+                AnodeFilter::ALL.map(AnodeFilter::dicom_filter).join(" or ")
+            ),
+        )
+    })
+}
+
+/// The DICOM filter material of a beam.
+pub fn filter_material(af: AnodeFilter) -> dbt_dicom::FilterMaterial {
+    match af {
+        AnodeFilter::WRh => dbt_dicom::FilterMaterial::Rhodium,
+        AnodeFilter::WAl => dbt_dicom::FilterMaterial::Aluminum,
+    }
+}
 
 fn refuse(field: &'static str, value: impl ToString, reason: impl Into<String>) -> HeaderError {
     HeaderError {
@@ -164,24 +197,9 @@ pub fn check_object(p: &ReceivedProjections, system: &System) -> Result<(), Head
             ));
         }
     }
-    // The dose model's spectra are W/Rh: another anode or filter would be
-    // reported with the wrong dose.
-    if let Some(a) = p.anode.as_deref().filter(|a| *a != ANODE) {
-        return Err(refuse(
-            "AnodeTargetMaterial",
-            a,
-            format!("the dose model is for a {ANODE} anode"),
-        ));
-    }
-    if let Some(f) = p.filter.as_deref() {
-        if f.split('\\').any(|m| m.trim() != FILTER) {
-            return Err(refuse(
-                "FilterMaterial",
-                f,
-                format!("the dose model is for a {FILTER} filter"),
-            ));
-        }
-    }
+    // Another anode or filter than the dose model's would be reported
+    // with the wrong dose.
+    beam(p)?;
     Ok(())
 }
 
@@ -241,6 +259,7 @@ pub fn acquisition_from_projections(
             None => p.pixel_spacing_mm[0],
         },
         kvp: p.kvp,
+        anode_filter: beam(p)?,
         mas_total: p.exposure_mas,
         tube_output_mgy_per_mas: system.tube_output_mgy_per_mas,
         laterality: h.laterality.letter().into(),
@@ -432,8 +451,8 @@ pub struct Sweep<'a> {
     pub view_interval_ms: f64,
     /// The modality's own dose estimate of the sweep, mGy.
     pub modality_agd_mgy: f64,
-    /// Rhodium filter, mm.
-    pub filter_rh_mm: f64,
+    /// Filter thickness, mm (its material: the acquisition's beam).
+    pub filter_mm: f64,
     /// Content date and time.
     pub content_date: &'a str,
     /// See `content_date`.
@@ -523,7 +542,8 @@ pub fn projection_set<'a>(
         entrance_dose_mgy: h.mas_total * h.tube_output_mgy_per_mas,
         kvp: h.kvp,
         exposure_uas_per_view: h.mas_total * 1000.0 / views as f64,
-        filter_rh_mm: sweep.filter_rh_mm,
+        filter_material: filter_material(h.anode_filter),
+        filter_mm: sweep.filter_mm,
         counts,
         content_date: sweep.content_date,
         content_time: sweep.content_time,

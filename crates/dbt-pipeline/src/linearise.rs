@@ -27,6 +27,7 @@
 
 use crate::acquisition::AcquisitionHeader;
 use dbt_acquisition::clinical::{ClinicalPhysics, Detector};
+use dbt_dose::xray::AnodeFilter;
 use dbt_materials::Tissue;
 use thiserror::Error;
 
@@ -88,14 +89,20 @@ impl BeamHardening {
         })
     }
 
-    /// The table for an exposure at `kvp` of a breast `thickness_mm`
-    /// thick (its spectrum: [`dbt_dose::xray::technique_spectrum`]).
-    pub fn table(&self, kvp: f64, thickness_mm: f64) -> Result<Linearisation, LineariseError> {
+    /// The table for an exposure with the beam `af` at `kvp` of a breast
+    /// `thickness_mm` thick (its spectrum:
+    /// [`dbt_dose::xray::technique_spectrum`]).
+    pub fn table(
+        &self,
+        af: AnodeFilter,
+        kvp: f64,
+        thickness_mm: f64,
+    ) -> Result<Linearisation, LineariseError> {
         let fail = |reason: String| LineariseError::Model {
             thickness_mm,
             reason,
         };
-        let tube = dbt_dose::xray::technique_spectrum(kvp, thickness_mm)
+        let tube = dbt_dose::xray::technique_spectrum(af, kvp, thickness_mm)
             .map_err(|e| fail(e.to_string()))?;
         let spectrum = tube.spectrum.ok_or_else(|| fail("no spectrum".into()))?;
         // The photon number scales the signal only: 1 photon, flat = 1.
@@ -124,7 +131,7 @@ impl BeamHardening {
         h: &AcquisitionHeader,
         counts: &mut [Vec<f32>],
     ) -> Result<usize, LineariseError> {
-        let t = self.table(h.kvp, h.thickness_mm)?;
+        let t = self.table(h.anode_filter, h.kvp, h.thickness_mm)?;
         let b = h.flux;
         let mut n = 0;
         for c in counts.iter_mut().flat_map(|s| s.iter_mut()) {
@@ -191,58 +198,80 @@ mod tests {
             .starts_with("5 um"));
     }
 
+    /// Each beam's spectrum at its automatic exposure for a 50 mm breast.
+    fn beams() -> Vec<(AnodeFilter, f64, dbt_dose::Spectrum)> {
+        AnodeFilter::ALL
+            .into_iter()
+            .map(|af| {
+                let s = dbt_dose::xray::aec_spectrum(af, 50.0).unwrap();
+                (af, f64::from(s.kv), s.spectrum.unwrap())
+            })
+            .collect()
+    }
+
     /// Exact for the reference tissue: its polychromatic signal through any
-    /// path maps to the paper's 20 keV line integral of that path.
+    /// path maps to the paper's 20 keV line integral of that path, for
+    /// either beam.
     #[test]
     fn the_reference_tissue_is_linearised_exactly() {
         let b = bh();
-        let t = b.table(29.0, 50.0).unwrap();
-        let s = dbt_dose::xray::paper_spectrum(50.0)
-            .unwrap()
-            .spectrum
-            .unwrap();
-        let m = ClinicalPhysics::new(&s, 1.0, &Detector::default(), 1.0).unwrap();
-        for l in [0.0, 3.3, 25.0, 50.0, 77.7, 140.0] {
-            let p = -m.expected([l / 2.0, l / 2.0, 0.0]).0.ln();
-            let want = l * (0.0512 + 0.0798) / 2.0;
-            assert!(
-                (t.mono(p) - want).abs() < 1e-4,
-                "{l} mm: {} vs {want}",
-                t.mono(p)
-            );
+        for (af, kv, s) in beams() {
+            let t = b.table(af, kv, 50.0).unwrap();
+            let m = ClinicalPhysics::new(&s, 1.0, &Detector::default(), 1.0).unwrap();
+            for l in [0.0, 3.3, 25.0, 50.0, 77.7, 140.0] {
+                let p = -m.expected([l / 2.0, l / 2.0, 0.0]).0.ln();
+                let want = l * (0.0512 + 0.0798) / 2.0;
+                assert!(
+                    (t.mono(p) - want).abs() < 1e-4,
+                    "{af} {l} mm: {} vs {want}",
+                    t.mono(p)
+                );
+            }
         }
+        // The W/Rh table is the paper's Table 3 spectrum's.
+        assert_eq!(beams()[0].1, 29.0);
     }
 
-    /// Another tissue: all fat or all dense tissue of a 50 mm breast is
-    /// corrected to within 1 % of its 20 keV line integral (the second-order
-    /// error of one reference; uncorrected: fat +1.4 %, dense tissue -4.3 %,
-    /// dense tissue hardening the beam more).
+    /// Another tissue: all fat or all dense tissue of a 50 mm breast. W/Rh
+    /// is corrected to within 1 % of its 20 keV line integral (the
+    /// second-order error of one reference; uncorrected: fat +1.4 %, dense
+    /// tissue -4.3 %, dense tissue hardening the beam more). The broader,
+    /// harder W/Al beam (32 kV, mean 21.1 keV against 19.4) reads both far
+    /// lower uncorrected (-12.8 %, -22.3 %) and keeps +3.2 % and -2.8 %
+    /// after the correction: one reference cannot undo the fat-to-dense
+    /// contrast lost at its higher energies (14 % of it; W/Rh 4 %), which
+    /// is why the glandularity calibration is per beam (eval/README.md,
+    /// "W/Al").
     #[test]
     fn other_tissues_are_corrected_to_the_second_order() {
-        let t = bh().table(29.0, 50.0).unwrap();
-        let s = dbt_dose::xray::paper_spectrum(50.0)
-            .unwrap()
-            .spectrum
-            .unwrap();
-        let m = ClinicalPhysics::new(&s, 1.0, &Detector::default(), 1.0).unwrap();
-        for (paths, mu, uncorrected_pct) in [
-            ([50.0, 0.0, 0.0], 0.0512, 1.4),
-            ([0.0, 50.0, 0.0], 0.0798, -4.3),
-        ] {
-            let p = -m.expected(paths).0.ln();
-            let want = 50.0 * mu;
-            // The figures eval/README.md quotes, to their last digit.
-            let off = 100.0 * (p / want - 1.0);
-            assert!((off - uncorrected_pct).abs() < 0.05, "{paths:?}: {off} %");
-            let got = t.mono(p);
-            assert!(
-                (got / want - 1.0).abs() < 0.01,
-                "{paths:?}: {got} vs {want}"
-            );
-            assert!(
-                (got - want).abs() < (p - want).abs(),
-                "{paths:?}: {got} vs {p}"
-            );
+        for (af, kv, s) in beams() {
+            let t = bh().table(af, kv, 50.0).unwrap();
+            let m = ClinicalPhysics::new(&s, 1.0, &Detector::default(), 1.0).unwrap();
+            for (paths, mu, uncorrected_pct) in [
+                ([50.0, 0.0, 0.0], 0.0512, 1.4),
+                ([0.0, 50.0, 0.0], 0.0798, -4.3),
+            ] {
+                let p = -m.expected(paths).0.ln();
+                let want = 50.0 * mu;
+                let off = 100.0 * (p / want - 1.0);
+                if af == AnodeFilter::WRh {
+                    // The figures eval/README.md quotes, to their last digit.
+                    assert!((off - uncorrected_pct).abs() < 0.05, "{paths:?}: {off} %");
+                }
+                let got = t.mono(p);
+                let bound = match af {
+                    AnodeFilter::WRh => 0.01,
+                    AnodeFilter::WAl => 0.035,
+                };
+                assert!(
+                    (got / want - 1.0).abs() < bound,
+                    "{af} {paths:?}: {got} vs {want} (uncorrected {off} %)"
+                );
+                assert!(
+                    (got - want).abs() < (p - want).abs(),
+                    "{af} {paths:?}: {got} vs {p}"
+                );
+            }
         }
     }
 
@@ -257,6 +286,7 @@ mod tests {
             slices: 1,
             slice_spacing_mm: 0.2,
             kvp: 28.0,
+            anode_filter: Default::default(),
             mas_total: 60.0,
             tube_output_mgy_per_mas: 0.11,
             laterality: "L".into(),

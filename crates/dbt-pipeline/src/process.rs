@@ -17,6 +17,7 @@ use dbt_dicom::{
     ProcedureIntent, Report, UidSource,
 };
 use dbt_dose::patient::{dbt_views, mgd_to_uncertainty, Breast, MgdResult, Model};
+use dbt_dose::xray::AnodeFilter;
 use dbt_projector::Projector;
 use dbt_recon::{mltr, MltrOptions};
 use dbt_tissue::{
@@ -66,6 +67,9 @@ pub enum PipelineError {
     /// Cone-beam projections could not be rebinned.
     #[error("cone-beam rebinning: {0}")]
     Rebin(#[from] crate::rebin::RebinError),
+    /// The model's glandularity calibration is not for this beam.
+    #[error("anode/filter {0}: the model has no glandularity calibration for this beam (fit one on validation acquisitions with `dbt-eval calibrate --anode-filter {0}`); not reported")]
+    NoBeamCalibration(AnodeFilter),
 }
 
 /// Options of the processing.
@@ -87,6 +91,13 @@ pub struct PipelineOptions {
     /// this reconstructor on validation phantoms
     /// (`dbt_model::load_calibration` reads it from the model folder).
     pub calibration: Option<GlandularityCalibration>,
+    /// The calibrations of acquisitions with another beam than the paper's
+    /// W/Rh, which `calibration` is for (issue #27: the linearisation of a
+    /// W/Al beam leaves another contrast, eval/README.md "W/Al"); a beam
+    /// without one is refused while `calibration` is set, never reported
+    /// with the W/Rh calibration.
+    #[serde(skip)]
+    pub beam_calibrations: Vec<(AnodeFilter, GlandularityCalibration)>,
     /// Beam-hardening linearisation of a polychromatic detector's counts
     /// before anything reads them (issue #27); `None`: the counts are
     /// taken as mono-energetic.
@@ -113,9 +124,51 @@ impl Default for PipelineOptions {
             seed: 1,
             classify: ClassifyOptions::default(),
             calibration: None,
+            beam_calibrations: Vec::new(),
             linearise: None,
             descatter: None,
             slice_step: 1,
+        }
+    }
+}
+
+/// A model's calibrations for other beams as its calibration file names
+/// them (`dbt_model::pick_beam_calibrations`), by beam; a name that is no
+/// beam the dose model knows is left out, logged.
+pub fn beam_calibrations(
+    named: &[(String, GlandularityCalibration)],
+) -> Vec<(AnodeFilter, GlandularityCalibration)> {
+    named
+        .iter()
+        .filter_map(|(name, c)| match AnodeFilter::parse(name) {
+            Ok(b) => Some((b, *c)),
+            Err(e) => {
+                tracing::warn!(beam = %name, "calibration for an unknown beam left out: {e}");
+                None
+            }
+        })
+        .collect()
+}
+
+impl PipelineOptions {
+    /// The options for an acquisition with the beam `beam`: `calibration`
+    /// replaced by the beam's own for another beam than W/Rh; refused
+    /// (naming the beam) when the options are calibrated but not for that
+    /// beam.
+    pub fn for_beam(
+        &self,
+        beam: AnodeFilter,
+    ) -> Result<std::borrow::Cow<'_, PipelineOptions>, PipelineError> {
+        use std::borrow::Cow;
+        if beam == AnodeFilter::WRh || self.calibration.is_none() {
+            return Ok(Cow::Borrowed(self));
+        }
+        match self.beam_calibrations.iter().find(|(b, _)| *b == beam) {
+            Some((_, c)) => Ok(Cow::Owned(PipelineOptions {
+                calibration: Some(*c),
+                ..self.clone()
+            })),
+            None => Err(PipelineError::NoBeamCalibration(beam)),
         }
     }
 }
@@ -527,6 +580,9 @@ pub fn process_with_progress(
         s
     };
     let mut stage_seconds = StageSeconds::default();
+    // The calibration of the acquisition's beam (before any work).
+    let beam_opts = opts.for_beam(acq.header.anode_filter)?;
+    let opts = beam_opts.as_ref();
     let corrected = correct_counts(acq, opts)?;
     let acq = corrected.as_ref();
     // A cone-beam acquisition is then made the slice-wise fan-beam one: its
@@ -604,7 +660,7 @@ pub fn process_with_progress(
     progress(Stage::Dose);
     // The exposure's spectrum from the kV received (the one place the
     // technique becomes a spectrum: dbt_dose::xray::technique_spectrum).
-    let tube = dbt_dose::xray::technique_spectrum(h.kvp, h.thickness_mm)?;
+    let tube = dbt_dose::xray::technique_spectrum(h.anode_filter, h.kvp, h.thickness_mm)?;
     let spectrum = tube
         .spectrum
         .clone()
@@ -755,7 +811,8 @@ pub fn reports(
             compression_mm: h.thickness_mm,
             compression_force_n: h.compression_force_n,
             hvl_mm_al: tube.hvl_mm_al,
-            filter_rh_mm: tube.rh_mm,
+            filter_material: crate::dicom_input::filter_material(h.anode_filter),
+            filter_mm: tube.filter_mm,
             accumulated_agd_mgy: res.mgd_mgy,
             relative_uncertainty: res.dose_patient.mgd_rel_uncertainty,
             model_agd_mgy: res.model_mgd_mgy,
@@ -786,4 +843,50 @@ pub fn reports(
         uids,
     )?;
     Ok((dose, dens))
+}
+
+#[cfg(test)]
+mod beam_tests {
+    use super::*;
+
+    /// A calibrated W/Al acquisition reads the W/Al calibration, or is
+    /// refused naming the beam; W/Rh and uncalibrated options are unchanged.
+    #[test]
+    fn each_beam_reads_its_own_calibration() {
+        let cal = |o: f64| GlandularityCalibration {
+            offset: o,
+            slope: 1.0,
+        };
+        let plain = PipelineOptions::default();
+        assert_eq!(plain.for_beam(AnodeFilter::WAl).unwrap().calibration, None);
+        let w_rh_only = PipelineOptions {
+            calibration: Some(cal(0.1)),
+            ..Default::default()
+        };
+        assert_eq!(
+            w_rh_only.for_beam(AnodeFilter::WRh).unwrap().calibration,
+            Some(cal(0.1))
+        );
+        let e = w_rh_only
+            .for_beam(AnodeFilter::WAl)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("W/Al") && e.contains("not reported"), "{e}");
+        let both = PipelineOptions {
+            beam_calibrations: beam_calibrations(&[
+                ("W/Al".into(), cal(0.3)),
+                ("Mo/Mo".into(), cal(0.9)),
+            ]),
+            ..w_rh_only
+        };
+        assert_eq!(both.beam_calibrations.len(), 1, "the unknown beam left out");
+        assert_eq!(
+            both.for_beam(AnodeFilter::WAl).unwrap().calibration,
+            Some(cal(0.3))
+        );
+        assert_eq!(
+            both.for_beam(AnodeFilter::WRh).unwrap().calibration,
+            Some(cal(0.1))
+        );
+    }
 }

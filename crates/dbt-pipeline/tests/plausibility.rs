@@ -28,6 +28,7 @@ fn header(slices: usize, thickness: f64) -> AcquisitionHeader {
         flux: FLUX,
         slices,
         kvp: 28.0,
+        anode_filter: Default::default(),
         mas_total: 60.0,
         tube_output_mgy_per_mas: 0.11,
         laterality: "L".into(),
@@ -425,7 +426,7 @@ fn written_and_read(
             exposure_ms_per_view: 60.0,
             view_interval_ms: 150.0,
             modality_agd_mgy: 1.5,
-            filter_rh_mm: 0.05,
+            filter_mm: 0.05,
             content_date: "20261124",
             content_time: "101500",
         },
@@ -532,6 +533,53 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
     let mut other_angle = views.clone();
     other_angle[2].angles_deg[0] += 0.7;
     named(&other_angle, "no configured view is at this angle");
+
+    // The beam travels in both forms: a W/Al sweep reads back as W/Al (the
+    // multi-frame object's X-Ray Filter Macro, each view's Filter
+    // Material); another filter or anode is refused naming the attribute
+    // and its value (issue #27).
+    let mut w_al = acq.clone();
+    w_al.header.anode_filter = dbt_dose::xray::AnodeFilter::WAl;
+    let (received, objects) = written_and_read(&w_al, &angles);
+    assert_eq!(received.filter.as_deref(), Some("ALUMINUM"));
+    let back = acquisition_from_projections(&received, &system).unwrap();
+    assert_eq!(back.header.anode_filter, dbt_dose::xray::AnodeFilter::WAl);
+    let views: Vec<_> = objects.iter().map(|(_, o)| o.clone()).collect();
+    let swept = assemble(&views, &system).unwrap();
+    assert_eq!(swept.filter.as_deref(), Some("ALUMINUM"));
+    let from_views = acquisition_from_projections(&swept, &system).unwrap();
+    assert_eq!(
+        from_views.header.anode_filter,
+        dbt_dose::xray::AnodeFilter::WAl
+    );
+    for (anode, filter, field, value) in [
+        (None, Some("SILVER"), "FilterMaterial", "SILVER"),
+        (
+            None,
+            Some("ALUMINUM\\RHODIUM"),
+            "FilterMaterial",
+            "ALUMINUM\\RHODIUM",
+        ),
+        (
+            Some("MOLYBDENUM"),
+            Some("RHODIUM"),
+            "AnodeTargetMaterial",
+            "MOLYBDENUM",
+        ),
+    ] {
+        let mut r = received.clone();
+        r.anode = anode.map(String::from).or(r.anode);
+        r.filter = filter.map(String::from);
+        let e = acquisition_from_projections(&r, &system)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(field) && e.contains(value), "{e}");
+    }
+    // Neither stated (both optional in the DM IOD): the paper's W/Rh.
+    let mut r = received.clone();
+    (r.anode, r.filter) = (None, None);
+    let plain = acquisition_from_projections(&r, &system).unwrap();
+    assert_eq!(plain.header.anode_filter, dbt_dose::xray::AnodeFilter::WRh);
 }
 
 /// A cone-beam sweep (issue #28) written as Breast Projection X-Ray and as

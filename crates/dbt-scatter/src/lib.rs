@@ -226,6 +226,10 @@ pub struct ScatterTable {
 /// The shipped table (paper geometry, Table 3 W/Rh spectra, 200 um CsI):
 /// `data/w-rh-paper.json`, made by `dbt-dose scatter-fit`.
 pub const SHIPPED_JSON: &str = include_str!("../data/w-rh-paper.json");
+/// The shipped table of the W/Al beam (paper geometry, the W/Al automatic
+/// exposure, 200 um CsI): `data/w-al-paper.json`, made by `dbt-dose
+/// scatter-fit --anode-filter W/Al`.
+pub const SHIPPED_W_AL_JSON: &str = include_str!("../data/w-al-paper.json");
 
 impl ScatterTable {
     /// Parse and check a table.
@@ -243,6 +247,24 @@ impl ScatterTable {
         T.get_or_init(|| Self::from_json(SHIPPED_JSON))
             .as_ref()
             .map_err(Clone::clone)
+    }
+
+    /// The shipped table of a beam named as the gantry's anode/filter
+    /// register names it (`W/Rh`, `W/Al`), parsed once; another name is
+    /// refused, naming it.
+    pub fn shipped_for(anode_filter: &str) -> Result<&'static ScatterTable, ScatterError> {
+        static T: std::sync::OnceLock<Result<ScatterTable, ScatterError>> =
+            std::sync::OnceLock::new();
+        match anode_filter {
+            "W/Rh" => Self::shipped(),
+            "W/Al" => T
+                .get_or_init(|| Self::from_json(SHIPPED_W_AL_JSON))
+                .as_ref()
+                .map_err(Clone::clone),
+            other => Err(ScatterError::Table(format!(
+                "no scatter table for the anode/filter `{other}` (W/Rh, W/Al)"
+            ))),
+        }
     }
 
     /// Check every entry and their order.

@@ -260,6 +260,11 @@ struct PhysicsArgs {
     /// (`dbt_pipeline::descatter`, the shipped kernel model).
     #[arg(long)]
     descatter: bool,
+    /// The beam: `W/Rh` (the paper's Table 3 kV for each thickness) or
+    /// `W/Al` (`dbt_dose::xray::W_AL_AEC`); the acquisition's header carries
+    /// it to the corrections and the dose.
+    #[arg(long, default_value = "W/Rh")]
+    anode_filter: String,
 }
 
 /// [`PhysicsArgs`] resolved.
@@ -272,6 +277,8 @@ struct Physics {
     descatter: Option<dbt_pipeline::descatter::ScatterRemoval>,
     /// The corrections, as the calibration's key names them.
     input: dbt_model::InputCorrections,
+    /// The beam.
+    beam: dbt_dose::xray::AnodeFilter,
 }
 
 impl PhysicsArgs {
@@ -292,6 +299,8 @@ impl PhysicsArgs {
                 scatter_removed: self.descatter,
                 linearised: self.linearise,
             },
+            beam: dbt_dose::xray::AnodeFilter::parse(&self.anode_filter)
+                .with_context(|| format!("--anode-filter {}", self.anode_filter))?,
         })
     }
 }
@@ -1018,6 +1027,7 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
         linearise,
         descatter,
         input,
+        beam,
     } = physics.resolve()?;
     let skin = match skin {
         Some(v) => parse_skin_variant(&v)?,
@@ -1060,9 +1070,14 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
             other => format!("dbtor-{other}"),
         };
         // The model's calibration, as the firmware loads it.
-        let calibration = match (&dbtor, no_calibration) {
-            (Some(m), false) => dbt_model::load_calibration(m, &skin, input)?,
-            _ => None,
+        let (calibration, beam_calibrations) = match (&dbtor, no_calibration) {
+            (Some(m), false) => (
+                dbt_model::load_calibration(m, &skin, input)?,
+                dbt_pipeline::beam_calibrations(&dbt_model::load_beam_calibrations(
+                    m, &skin, input,
+                )?),
+            ),
+            _ => (None, Vec::new()),
         };
         for &slice_step in &steps {
             let opts = dbt_pipeline::PipelineOptions {
@@ -1072,11 +1087,15 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
                 seed: 1,
                 classify: skin,
                 calibration,
+                beam_calibrations: beam_calibrations.clone(),
                 linearise,
                 descatter,
                 slice_step,
             };
             let label = dbt_pipeline::reconstructor_name(&opts);
+            // The calibration this run's beam reads (a beam the model has
+            // none for is refused at the first phantom, naming it).
+            let calibration = opts.for_beam(beam).map_or(calibration, |o| o.calibration);
             let label = match calibration {
                 Some(c) => format!("{label} [G = {:+.4} + {:.4} x PV]", c.offset, c.slope),
                 None => label,
@@ -1157,6 +1176,7 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
             &g_acq,
             system.as_ref(),
             physics,
+            beam,
             noise,
             &opts,
             1000 + k as u64,
@@ -1296,6 +1316,7 @@ fn run_classification(args: ClassificationArgs) -> Result<()> {
             &g,
             noise,
             host_sim::Physics::Mono,
+            dbt_dose::xray::AnodeFilter::WRh,
             &opts,
             &variants,
             dose_uncertainty,
@@ -1383,6 +1404,7 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
         linearise,
         descatter,
         input,
+        beam,
     } = physics.resolve()?;
     let m = load_models(Some(&model), &precision, &runtime)?
         .pop()
@@ -1417,6 +1439,7 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
             &g,
             noise,
             physics,
+            beam,
             &opts,
             &[classify],
             None,
@@ -1444,7 +1467,13 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
         )
     };
     let (before, after) = (pp(&|e| e), pp(&|e| cal.apply(e)));
-    let label = input.key(&m.precision_label());
+    // The paper's W/Rh beam under the corrections' key; another beam's
+    // calibration under its own (`| beam W/Al`), read for that beam's
+    // acquisitions only.
+    let label = match beam {
+        dbt_dose::xray::AnodeFilter::WRh => input.key(&m.precision_label()),
+        b => input.beam_key(&m.precision_label(), b.name()),
+    };
     println!(
         "Calibration of {} ({label}) on {phantoms} phantoms of the {} split, {}, {} physics ({:.0} s): G = {:+.5} + {:.5} x partial volume",
         m.manifest().name,
@@ -1473,6 +1502,7 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
             "phantoms": phantoms,
             "noise": noise.name(),
             "physics": physics.name(),
+            "anode_filter": beam.name(),
             "input_corrections": input.describe(),
             "estimator": "partial volume",
             "error_before_pp": before,

@@ -134,6 +134,7 @@ fn run(cli: Cli) -> Result<()> {
         )
         .with_context(|| format!("loading the DBToR model {}", dir.display()))?;
         opts.calibration = signed.calibration;
+        opts.beam_calibrations = dbt_pipeline::beam_calibrations(&signed.beam_calibrations);
         opts.dbtor = Some(std::sync::Arc::new(signed.model));
     }
     let acq = dbt_store::acquisition::read_acquisition(&acq_dir)?;
