@@ -33,6 +33,8 @@
 # scatter and linearises the beam hardening (--descatter --csi-um 200: the
 # daemon's [recon] scatter = "kernel", beam_hardening = "csi"). Default mono
 # (the paper's simulated detector, the shipped model's training world).
+# ANODE_FILTER=W/Al: the exposure's beam (default W/Rh, the paper's): the
+# stream's header carries it, the corrections and the dose use its spectra.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=out/main-job
@@ -57,7 +59,7 @@ case "$PHYSICS" in
     clinical) CORRECTIONS=(--descatter --csi-um 200) ;;
     *) echo "PHYSICS=$PHYSICS: expected mono or clinical" >&2; exit 2 ;;
 esac
-./target/release/host-sim acquire --out "$OUT/gantry-acquisition" --index 0 --geometry "$GEOMETRY" --binning "$BINNING" "${SYSTEM_ARGS[@]}" --noise N8 --physics "$PHYSICS" 2>/dev/null
+./target/release/host-sim acquire --out "$OUT/gantry-acquisition" --index 0 --geometry "$GEOMETRY" --binning "$BINNING" "${SYSTEM_ARGS[@]}" --noise N8 --physics "$PHYSICS" --anode-filter "${ANODE_FILTER:-W/Rh}" 2>/dev/null
 PORT=$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
 ./target/release/host-sim stream --acq "$OUT/gantry-acquisition" --listen "127.0.0.1:$PORT" 2>/dev/null &
 SIM=$!
@@ -69,9 +71,10 @@ python3 - "$OUT/summary.json" "$OUT/gantry-acquisition/acquisition.json" <<'PY' 
 import json, sys
 d = json.load(open(sys.argv[1]))
 # The truth stays with the simulator: the gantry never sends it.
-r, t = d["result"], json.load(open(sys.argv[2])).get("truth") or {}
+h = json.load(open(sys.argv[2]))
+r, t = d["result"], h.get("truth") or {}
 rss = d.get("peak_rss_mib")
-print(f"processed {d['acquisition']} in {d['seconds']:.1f} s ({r['reconstructor']}; {t.get('physics', 'mono')} physics); "
+print(f"processed {d['acquisition']} in {d['seconds']:.1f} s ({r['reconstructor']}; {t.get('physics', 'mono')} physics, {h.get('anode_filter', 'W/Rh')}); "
       f"peak resident memory {'%.0f MiB' % rss if rss else 'not reported'}")
 print(f"glandularity: reported {r['glandularity']:.3f} ({'calibrated ' if r['calibrated'] else ''}partial volume), "
       f"labels {r['density']['glandularity_labels']:.3f}, partial volume "

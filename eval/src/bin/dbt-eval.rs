@@ -1231,6 +1231,7 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
         "physics": physics.name(),
         "linearised": linearise.is_some(),
         "descattered": descatter.is_some(),
+        "anode_filter": beam.name(),
         "phantoms": match &phantom {
             Some(p) => p.display().to_string(),
             None => split.describe(),
