@@ -159,6 +159,38 @@ fn config(dir: &Path, g: &Gantry, iterations: usize) -> PathBuf {
     )
 }
 
+/// A configuration for the gantry `g` running the shipped model
+/// (`shipped_model()`) in int8 on its geometry and system, the beam
+/// hardening linearised and the scatter removal `scatter` (`kernel` or
+/// `off`).
+fn clinical_config(
+    dir: &Path,
+    g: &Gantry,
+    shipped: &(PathBuf, String, String, Option<String>),
+    scatter: &str,
+) -> PathBuf {
+    let (model, digest, geometry, system) = shipped;
+    write_config(
+        dir,
+        &format!(
+            "transport = \"tcp\"\naddress = \"{}\"\ngeometry = \"{geometry}\"\n{}",
+            g.frames,
+            system
+                .as_ref()
+                .map(|s| format!("system = {s:?}"))
+                .unwrap_or_default()
+        ),
+        &format!(
+            "transport = \"tcp\"\naddress = \"{}\"\ntimeout_ms = 500\nattempts = 3\nthickness_tolerance_mm = 1.0",
+            g.registers
+        ),
+        &format!(
+            "reconstructor = \"dbtor\"\nmodel = {:?}\nmodel_digest = {digest:?}\nprecision = \"int8\"\nbeam_hardening = \"csi\"\nscatter = \"{scatter}\"",
+            model.display().to_string()
+        ),
+    )
+}
+
 fn daemon(cfg: &Path, extra: &[&str]) -> Child {
     Command::new(workspace_bin("dbtor-daemon"))
         .arg("--config")
@@ -540,12 +572,13 @@ fn clean_acquisition_over_serial_lines() {
 #[test]
 fn clinical_physics_is_reported_after_both_corrections() {
     let dir = tempfile::tempdir().unwrap();
-    let (model, digest, geometry, system) = shipped_model();
+    let shipped = shipped_model();
+    let (geometry, system) = (&shipped.2, &shipped.3);
     let acq = hil_tests::acquire_args(
         dir.path(),
         "acq",
         1,
-        &geometry,
+        geometry,
         system.as_deref(),
         &["--physics", "clinical"],
     );
@@ -560,25 +593,7 @@ fn clinical_physics_is_reported_after_both_corrections() {
         let run = dir.path().join(scatter);
         std::fs::create_dir_all(&run).unwrap();
         let g = gantry(&acq, thickness);
-        let cfg = write_config(
-            &run,
-            &format!(
-                "transport = \"tcp\"\naddress = \"{}\"\ngeometry = \"{geometry}\"\n{}",
-                g.frames,
-                system
-                    .as_ref()
-                    .map(|s| format!("system = {s:?}"))
-                    .unwrap_or_default()
-            ),
-            &format!(
-                "transport = \"tcp\"\naddress = \"{}\"\ntimeout_ms = 500\nattempts = 3\nthickness_tolerance_mm = 1.0",
-                g.registers
-            ),
-            &format!(
-                "reconstructor = \"dbtor\"\nmodel = {:?}\nmodel_digest = {digest:?}\nprecision = \"int8\"\nbeam_hardening = \"csi\"\nscatter = \"{scatter}\"",
-                model.display().to_string()
-            ),
-        );
+        let cfg = clinical_config(&run, &g, &shipped, scatter);
         let st = daemon(&cfg, &["--once"]).wait().unwrap();
         let s = status(&run);
         if scatter == "kernel" {
@@ -606,16 +621,17 @@ fn clinical_physics_is_reported_after_both_corrections() {
 /// gantry's register 6 both W/Al; the daemon removes the scatter with the
 /// W/Al kernels, linearises with the W/Al spectrum and computes the dose
 /// with it: reported within 3 pp, and the dose SR names the aluminium
-/// filter (CID 10006) and the W/Al beam's HVL.
+/// filter (CID 10006), not rhodium.
 #[test]
 fn a_w_al_exposure_is_reported_with_its_own_beam() {
     let dir = tempfile::tempdir().unwrap();
-    let (model, digest, geometry, system) = shipped_model();
+    let shipped = shipped_model();
+    let (geometry, system) = (&shipped.2, &shipped.3);
     let acq = hil_tests::acquire_args(
         dir.path(),
         "acq",
         1,
-        &geometry,
+        geometry,
         system.as_deref(),
         &["--physics", "clinical", "--anode-filter", "W/Al"],
     );
@@ -625,25 +641,7 @@ fn a_w_al_exposure_is_reported_with_its_own_beam() {
     assert_eq!(h["anode_filter"], "W/Al", "{h}");
     let truth = h["truth"]["glandularity"].as_f64().unwrap();
     let g = gantry_full(&acq, thickness, &[], &["--anode-filter", "W/Al"]);
-    let cfg = write_config(
-        dir.path(),
-        &format!(
-            "transport = \"tcp\"\naddress = \"{}\"\ngeometry = \"{geometry}\"\n{}",
-            g.frames,
-            system
-                .as_ref()
-                .map(|s| format!("system = {s:?}"))
-                .unwrap_or_default()
-        ),
-        &format!(
-            "transport = \"tcp\"\naddress = \"{}\"\ntimeout_ms = 500\nattempts = 3\nthickness_tolerance_mm = 1.0",
-            g.registers
-        ),
-        &format!(
-            "reconstructor = \"dbtor\"\nmodel = {:?}\nmodel_digest = {digest:?}\nprecision = \"int8\"\nbeam_hardening = \"csi\"\nscatter = \"kernel\"",
-            model.display().to_string()
-        ),
-    );
+    let cfg = clinical_config(dir.path(), &g, &shipped, "kernel");
     let st = daemon(&cfg, &["--once"]).wait().unwrap();
     let s = status(dir.path());
     assert!(st.success(), "{st:?} {s}");

@@ -172,17 +172,17 @@ impl Physics {
         }
     }
 
-    /// The clinical model of an exposure with the beam `af` at `kvp` of a
-    /// breast `thickness_mm` thick at `noise` (the spectrum:
+    /// The clinical model of an exposure with `technique`'s beam at `kvp`
+    /// of a breast `thickness_mm` thick at `noise` (the spectrum:
     /// `dbt_dose::xray::technique_spectrum`, as the dose's).
     fn clinical(
         detector: &dbt_acquisition::clinical::Detector,
-        af: dbt_dose::xray::AnodeFilter,
+        technique: Technique,
         kvp: f64,
         thickness_mm: f64,
         noise: NoiseLevel,
     ) -> Result<dbt_acquisition::clinical::ClinicalPhysics, SimError> {
-        let tube = dbt_dose::xray::technique_spectrum(af, kvp, thickness_mm)
+        let tube = dbt_dose::xray::technique_spectrum(technique.anode_filter, kvp, thickness_mm)
             .map_err(|e| SimError::Options(e.to_string()))?;
         let spectrum = tube
             .spectrum
@@ -295,13 +295,7 @@ pub fn simulate_acquisition_with(
         return simulate_acquisition(vol, geom, noise, seed, technique, kvp, patient_id, uid_root);
     };
     let _span = tracing::info_span!("acquisition", patient_id, physics = physics.name()).entered();
-    let model = Physics::clinical(
-        &detector,
-        technique.anode_filter,
-        kvp,
-        vol.thickness_mm(),
-        noise,
-    )?;
+    let model = Physics::clinical(&detector, technique, kvp, vol.thickness_mm(), noise)?;
     let proj = Projector::new(geom);
     let paths: Vec<[Vec<f32>; 3]> = (0..vol.n_coronal())
         .into_par_iter()
@@ -547,13 +541,7 @@ pub fn simulate_cone_acquisition_with(
             (a.counts, a.flux)
         }
         Physics::Clinical { detector, scatter } => {
-            let model = Physics::clinical(
-                &detector,
-                technique.anode_filter,
-                kvp,
-                vol.thickness_mm(),
-                noise,
-            )?;
+            let model = Physics::clinical(&detector, technique, kvp, vol.thickness_mm(), noise)?;
             let paths: [Vec<f32>; 3] = [
                 projected[0].clone(),
                 projected[1].clone(),
