@@ -159,6 +159,16 @@ fn config(dir: &Path, g: &Gantry, iterations: usize) -> PathBuf {
     )
 }
 
+/// Test phantom 1 acquired on the shipped model's geometry and system
+/// with the `host-sim acquire` arguments `extra`.
+fn acquire_shipped(
+    dir: &Path,
+    shipped: &(PathBuf, String, String, Option<String>),
+    extra: &[&str],
+) -> PathBuf {
+    hil_tests::acquire_args(dir, "acq", 1, &shipped.2, shipped.3.as_deref(), extra)
+}
+
 /// A configuration for the gantry `g` running the shipped model
 /// (`shipped_model()`) in int8 on its geometry and system, the beam
 /// hardening linearised and the scatter removal `scatter` (`kernel` or
@@ -573,15 +583,7 @@ fn clean_acquisition_over_serial_lines() {
 fn clinical_physics_is_reported_after_both_corrections() {
     let dir = tempfile::tempdir().unwrap();
     let shipped = shipped_model();
-    let (geometry, system) = (&shipped.2, &shipped.3);
-    let acq = hil_tests::acquire_args(
-        dir.path(),
-        "acq",
-        1,
-        geometry,
-        system.as_deref(),
-        &["--physics", "clinical"],
-    );
+    let acq = acquire_shipped(dir.path(), &shipped, &["--physics", "clinical"]);
     let thickness = thickness_of(&acq);
     let truth = {
         let h: serde_json::Value =
@@ -626,13 +628,9 @@ fn clinical_physics_is_reported_after_both_corrections() {
 fn a_w_al_exposure_is_reported_with_its_own_beam() {
     let dir = tempfile::tempdir().unwrap();
     let shipped = shipped_model();
-    let (geometry, system) = (&shipped.2, &shipped.3);
-    let acq = hil_tests::acquire_args(
+    let acq = acquire_shipped(
         dir.path(),
-        "acq",
-        1,
-        geometry,
-        system.as_deref(),
+        &shipped,
         &["--physics", "clinical", "--anode-filter", "W/Al"],
     );
     let thickness = thickness_of(&acq);
