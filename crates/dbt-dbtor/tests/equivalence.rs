@@ -57,17 +57,12 @@ fn lpd_matches_pytorch_and_onnxruntime() {
 /// The models on taller images, on both engines and precisions, with the
 /// same rules: `models/dbtor-x4t3qa` (paper-tall, 250 x 100 pixels), the
 /// firmware's default (dbtor-x4t3's fp32 blocks, int8 rounded by GPTQ),
-/// `models/dbtor-x4t3` and `models/dbtor-x4b` (paper-104, 250 x 130, trained
-/// on the anatomical and procedural mixture). The models dbtor-x4t3 was
-/// fine-tuned from, and dbtor-x4a, are retired from the tree
-/// (models/README.md).
+/// and `models/dbtor-x4t3` (its fp32 source). The models dbtor-x4t3 was
+/// fine-tuned from, and the anatomical dbtor-x4a and dbtor-x4b (paper-104,
+/// never shipped), are retired from the tree (models/README.md).
 #[test]
 fn tall_models_match_pytorch_and_onnxruntime() {
-    for (name, rows) in [
-        ("dbtor-x4t3qa", 100),
-        ("dbtor-x4t3", 100),
-        ("dbtor-x4b", 130),
-    ] {
+    for (name, rows) in [("dbtor-x4t3qa", 100), ("dbtor-x4t3", 100)] {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("../../models")
             .join(name);
