@@ -304,8 +304,24 @@ pub struct ReportConfig {
     /// Device serial number in the reports.
     #[serde(default = "default_serial")]
     pub device_serial: String,
-    /// Tube output at the reference point, mGy/mAs (from the QC).
+    /// Tube output at the reference point, mGy/mAs (from the QC), of the
+    /// W/Rh beam.
     pub tube_output_mgy_per_mas: f64,
+    /// The same for the W/Al beam (its own QC figure: the filters pass
+    /// different shares of the tube's output); absent, W/Al exposures are
+    /// refused rather than dosed with the W/Rh output.
+    #[serde(default)]
+    pub tube_output_w_al_mgy_per_mas: Option<f64>,
+}
+
+impl ReportConfig {
+    /// The tube output of `beam`, if configured.
+    pub fn tube_output(&self, beam: dbt_dose::xray::AnodeFilter) -> Option<f64> {
+        match beam {
+            dbt_dose::xray::AnodeFilter::WRh => Some(self.tube_output_mgy_per_mas),
+            dbt_dose::xray::AnodeFilter::WAl => self.tube_output_w_al_mgy_per_mas,
+        }
+    }
 }
 
 fn default_serial() -> String {
@@ -854,13 +870,19 @@ impl Config {
         // The acquisition header's limit: a configuration every acquisition's
         // header would be refused for is refused at start instead.
         let max = dbt_pipeline::acquisition::limits::TUBE_OUTPUT_MAX_MGY_PER_MAS;
-        if !(self.report.tube_output_mgy_per_mas > 0.0
-            && self.report.tube_output_mgy_per_mas <= max)
-        {
-            return Err(bad(
+        for (key, v) in [
+            (
                 "report.tube_output_mgy_per_mas",
-                format!("must be in (0, {max}] mGy/mAs"),
-            ));
+                Some(self.report.tube_output_mgy_per_mas),
+            ),
+            (
+                "report.tube_output_w_al_mgy_per_mas",
+                self.report.tube_output_w_al_mgy_per_mas,
+            ),
+        ] {
+            if let Some(v) = v.filter(|v| !(*v > 0.0 && *v <= max)) {
+                return Err(bad(key, format!("{v}: must be in (0, {max}] mGy/mAs")));
+            }
         }
         Ok(())
     }
@@ -1282,6 +1304,23 @@ mod tests {
             "tube_output_mgy_per_mas = 1.0"
         ))
         .is_ok());
+        // The W/Al beam's own output: optional, checked alike.
+        let al = |v: &str| {
+            example(|t| {
+                t.replace(
+                    "tube_output_w_al_mgy_per_mas = 0.11",
+                    &format!("tube_output_w_al_mgy_per_mas = {v}"),
+                )
+            })
+        };
+        let c = al("0.2").unwrap();
+        use dbt_dose::xray::AnodeFilter;
+        assert_eq!(c.report.tube_output(AnodeFilter::WAl), Some(0.2));
+        assert_eq!(c.report.tube_output(AnodeFilter::WRh), Some(0.11));
+        let e = al("0").unwrap_err().to_string();
+        assert!(e.contains("report.tube_output_w_al_mgy_per_mas"), "{e}");
+        let absent = example(|t| t.replace("tube_output_w_al_mgy_per_mas = 0.11\n", "")).unwrap();
+        assert_eq!(absent.report.tube_output(AnodeFilter::WAl), None);
     }
 
     /// fp32 blocks are an int8 option: listed with fp32 they are refused,

@@ -682,8 +682,20 @@ impl Daemon {
                 return Err(ReceiveFault::link(format!("acquisition not received: {e} (nothing spooled; the gantry keeps it for a resend)")));
             }
         };
-        let acq = to_acquisition(&rx, &self.site)
+        let mut acq = to_acquisition(&rx, &self.site)
             .map_err(|e| ReceiveFault::link(format!("acquisition rejected: {e}")))?;
+        // A stream header that states no beam takes register 6's, so the
+        // spooled acquisition (replayed by `dbtor-diag replay` and
+        // `dbtor-process`) carries the beam it was exposed with; a beam the
+        // dose model has no spectra for is refused at processing, naming it.
+        if rx.header.anode_filter.is_none() {
+            if let Some(b) = gantry["anode_filter"]
+                .as_str()
+                .and_then(|a| AnodeFilter::parse(a).ok())
+            {
+                acq.header.anode_filter = b;
+            }
+        }
         let id = entry_id(&acq.header.patient.id);
         let gantry_json = serde_json::json!({
             "link": stats,
@@ -847,6 +859,22 @@ impl Daemon {
                 return;
             }
             acq.header.anode_filter = beam;
+        }
+        // The dose's incident kerma is the beam's own tube output (QC), not
+        // another beam's: a beam without one configured is not reported.
+        match self.cfg.report.tube_output(acq.header.anode_filter) {
+            Some(t) => acq.header.tube_output_mgy_per_mas = t,
+            None => {
+                let beam = acq.header.anode_filter;
+                self.reject(
+                    id,
+                    "technique",
+                    format!(
+                        "anode/filter {beam}: no tube output configured for this beam ([report] tube_output_w_al_mgy_per_mas); its dose cannot be computed; not reported"
+                    ),
+                );
+                return;
+            }
         }
         // The compression force the gantry reported at exposure time goes
         // into the dose SR (a DICOM object carries its own).

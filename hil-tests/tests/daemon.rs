@@ -140,6 +140,7 @@ address = "127.0.0.1:0"
 [report]
 uid_root = "1.2.826.0.1.3680043.10.543.1"
 tube_output_mgy_per_mas = 0.11
+tube_output_w_al_mgy_per_mas = 0.11
 "#
     );
     let p = dir.join("dbtor.toml");
@@ -623,7 +624,9 @@ fn clinical_physics_is_reported_after_both_corrections() {
 /// gantry's register 6 both W/Al; the daemon removes the scatter with the
 /// W/Al kernels, linearises with the W/Al spectrum and computes the dose
 /// with it: reported within 3 pp, and the dose SR names the aluminium
-/// filter (CID 10006), not rhodium.
+/// filter (CID 10006), not rhodium. Without a W/Al tube output in the
+/// configuration the same exposure is a `technique` fault, not a report
+/// dosed with the W/Rh output.
 #[test]
 fn a_w_al_exposure_is_reported_with_its_own_beam() {
     let dir = tempfile::tempdir().unwrap();
@@ -638,6 +641,22 @@ fn a_w_al_exposure_is_reported_with_its_own_beam() {
         serde_json::from_slice(&std::fs::read(acq.join("acquisition.json")).unwrap()).unwrap();
     assert_eq!(h["anode_filter"], "W/Al", "{h}");
     let truth = h["truth"]["glandularity"].as_f64().unwrap();
+    let no_output = dir.path().join("no-w-al-output");
+    std::fs::create_dir_all(&no_output).unwrap();
+    let g = gantry_full(&acq, thickness, &[], &["--anode-filter", "W/Al"]);
+    let cfg = clinical_config(&no_output, &g, &shipped, "kernel");
+    let text = std::fs::read_to_string(&cfg).unwrap();
+    std::fs::write(
+        &cfg,
+        text.replace("tube_output_w_al_mgy_per_mas = 0.11\n", ""),
+    )
+    .unwrap();
+    let st = daemon(&cfg, &["--once"]).wait().unwrap();
+    assert_eq!(st.code(), Some(1), "--once after a fault exits 1");
+    let s = status(&no_output);
+    let m = s["faults"][0]["message"].as_str().unwrap();
+    assert!(m.contains("W/Al") && m.contains("tube output"), "{m}");
+    drop(g);
     let g = gantry_full(&acq, thickness, &[], &["--anode-filter", "W/Al"]);
     let cfg = clinical_config(dir.path(), &g, &shipped, "kernel");
     let st = daemon(&cfg, &["--once"]).wait().unwrap();

@@ -504,22 +504,59 @@ pub fn read_input_object(
         exposure_mas,
         exposure_ms_per_view,
         anode: src.opt_text("AnodeTargetMaterial", tags::ANODE_TARGET_MATERIAL),
-        // Top level (the DM IOD), else the shared functional groups' X-Ray
-        // Filter Macro (a multi-frame object).
-        filter: src
-            .opt_text("FilterMaterial", tags::FILTER_MATERIAL)
-            .or_else(|| {
-                let shared = first(
-                    &o,
-                    tags::SHARED_FUNCTIONAL_GROUPS_SEQUENCE,
-                    "SharedFunctionalGroupsSequence",
-                )
-                .ok()?;
-                let f = first(&shared, tags::X_RAY_FILTER_SEQUENCE, "XRayFilterSequence").ok()?;
-                Source { o: &f, map: None }.opt_text("FilterMaterial", tags::FILTER_MATERIAL)
-            }),
+        // Top level (the DM IOD), else the X-Ray Filter Macro of a
+        // multi-frame object's functional groups.
+        filter: match src.opt_text("FilterMaterial", tags::FILTER_MATERIAL) {
+            Some(f) => Some(f),
+            None => frame_filter(&o)?,
+        },
         counts,
     })
+}
+
+/// The Filter Material of a multi-frame object's X-Ray Filter Macro, each
+/// frame's (per frame, else shared): `None` where no frame states one; the
+/// frames stating different materials, or some none, is refused.
+fn frame_filter(o: &InMemDicomObject) -> Result<Option<String>, InputError> {
+    let shared = first(
+        o,
+        tags::SHARED_FUNCTIONAL_GROUPS_SEQUENCE,
+        "SharedFunctionalGroupsSequence",
+    )
+    .ok();
+    let per_frame = items(
+        o,
+        tags::PER_FRAME_FUNCTIONAL_GROUPS_SEQUENCE,
+        "PerFrameFunctionalGroupsSequence",
+    )
+    .unwrap_or_default();
+    let material = |g: &InMemDicomObject| {
+        first(g, tags::X_RAY_FILTER_SEQUENCE, "XRayFilterSequence")
+            .ok()
+            .and_then(|f| {
+                Source { o: &f, map: None }.opt_text("FilterMaterial", tags::FILTER_MATERIAL)
+            })
+    };
+    let from_shared = shared.as_ref().and_then(material);
+    if per_frame.is_empty() {
+        return Ok(from_shared);
+    }
+    let frames: Vec<Option<String>> = per_frame
+        .iter()
+        .map(|g| material(g).or_else(|| from_shared.clone()))
+        .collect();
+    match frames.iter().position(|f| *f != frames[0]) {
+        None => Ok(frames[0].clone()),
+        Some(k) => Err(attr(
+            "FilterMaterial",
+            format!(
+                "frame {} states {:?}, frame 1 {:?}: one sweep, one filter",
+                k + 1,
+                frames[k],
+                frames[0]
+            ),
+        )),
+    }
 }
 
 struct Geometry {

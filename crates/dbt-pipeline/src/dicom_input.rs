@@ -383,7 +383,7 @@ pub fn assemble(
 
 /// Whether `p` is a view of the same sweep as `first`: refused naming the
 /// attribute where they differ (patient, series, class, detector, spacing,
-/// kV, thickness).
+/// kV, anode and filter as stated, thickness).
 pub fn check_same_sweep(
     first: &ReceivedProjections,
     p: &ReceivedProjections,
@@ -423,6 +423,18 @@ pub fn check_same_sweep(
             format!("{:?}", p.pixel_spacing_mm),
         ),
         differs("KVP", first.kvp.to_string(), p.kvp.to_string()),
+        // The beam as each view states it (a view that omits it while
+        // another states it is a mixed sweep too).
+        differs(
+            "AnodeTargetMaterial",
+            format!("{:?}", first.anode),
+            format!("{:?}", p.anode),
+        ),
+        differs(
+            "FilterMaterial",
+            format!("{:?}", first.filter),
+            format!("{:?}", p.filter),
+        ),
         ((first.thickness_mm - p.thickness_mm).abs() > THICKNESS_TOL_MM).then(|| {
             refuse(
                 "BodyPartThickness",

@@ -152,15 +152,15 @@ pub fn beam_calibrations(
 
 impl PipelineOptions {
     /// The options for an acquisition with the beam `beam`: `calibration`
-    /// replaced by the beam's own for another beam than W/Rh; refused
-    /// (naming the beam) when the options are calibrated but not for that
-    /// beam.
+    /// replaced by the beam's own for another beam than W/Rh where there is
+    /// one; refused (naming the beam) when there is none and the options
+    /// are calibrated (for W/Rh).
     pub fn for_beam(
         &self,
         beam: AnodeFilter,
     ) -> Result<std::borrow::Cow<'_, PipelineOptions>, PipelineError> {
         use std::borrow::Cow;
-        if beam == AnodeFilter::WRh || self.calibration.is_none() {
+        if beam == AnodeFilter::WRh {
             return Ok(Cow::Borrowed(self));
         }
         match self.beam_calibrations.iter().find(|(b, _)| *b == beam) {
@@ -168,7 +168,8 @@ impl PipelineOptions {
                 calibration: Some(*c),
                 ..self.clone()
             })),
-            None => Err(PipelineError::NoBeamCalibration(beam)),
+            None if self.calibration.is_some() => Err(PipelineError::NoBeamCalibration(beam)),
+            None => Ok(Cow::Borrowed(self)),
         }
     }
 }
@@ -887,6 +888,20 @@ mod beam_tests {
         assert_eq!(
             both.for_beam(AnodeFilter::WRh).unwrap().calibration,
             Some(cal(0.1))
+        );
+        // A W/Al calibration alone (no W/Rh one for these corrections):
+        // W/Al reads it, W/Rh stays uncalibrated.
+        let w_al_only = PipelineOptions {
+            calibration: None,
+            ..both
+        };
+        assert_eq!(
+            w_al_only.for_beam(AnodeFilter::WAl).unwrap().calibration,
+            Some(cal(0.3))
+        );
+        assert_eq!(
+            w_al_only.for_beam(AnodeFilter::WRh).unwrap().calibration,
+            None
         );
     }
 }

@@ -533,6 +533,11 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
     let mut other_angle = views.clone();
     other_angle[2].angles_deg[0] += 0.7;
     named(&other_angle, "no configured view is at this angle");
+    let mut mixed_beam = views.clone();
+    mixed_beam[4].filter = Some("ALUMINUM".into());
+    named(&mixed_beam, "FilterMaterial");
+    mixed_beam[4].filter = None;
+    named(&mixed_beam, "FilterMaterial");
 
     // The beam travels in both forms: a W/Al sweep reads back as W/Al (the
     // multi-frame object's X-Ray Filter Macro, each view's Filter
