@@ -540,6 +540,47 @@ fn projection_object_reads_back_and_bad_input_is_named() {
         r.to_bytes().unwrap()
     };
     named(&sr, "is not one the input reads");
+    // The X-Ray Filter Macro per frame instead of shared: read per frame,
+    // and the frames must agree.
+    let per_frame_filters = |materials: &dyn Fn(usize) -> &'static str| {
+        edited(&|r| {
+            use dicom_core::value::DataSetSequence;
+            use dicom_core::{DataElement, VR};
+            use dicom_object::InMemDicomObject;
+            let ds = r.dataset_mut();
+            let items_of = |ds: &mut InMemDicomObject, t| -> Vec<InMemDicomObject> {
+                ds.take_element(t).unwrap().items().unwrap().to_vec()
+            };
+            let mut shared = items_of(ds, tags::SHARED_FUNCTIONAL_GROUPS_SEQUENCE);
+            let filter = shared[0].take_element(tags::X_RAY_FILTER_SEQUENCE).unwrap();
+            let mut frames = items_of(ds, tags::PER_FRAME_FUNCTIONAL_GROUPS_SEQUENCE);
+            for (k, f) in frames.iter_mut().enumerate() {
+                let mut item = filter.items().unwrap()[0].clone();
+                item.put(DataElement::new(
+                    tags::FILTER_MATERIAL,
+                    VR::CS,
+                    materials(k),
+                ));
+                f.put(DataElement::new(
+                    tags::X_RAY_FILTER_SEQUENCE,
+                    VR::SQ,
+                    DataSetSequence::from(vec![item]),
+                ));
+            }
+            for (t, v) in [
+                (tags::SHARED_FUNCTIONAL_GROUPS_SEQUENCE, shared),
+                (tags::PER_FRAME_FUNCTIONAL_GROUPS_SEQUENCE, frames),
+            ] {
+                ds.put(DataElement::new(t, VR::SQ, DataSetSequence::from(v)));
+            }
+        })
+    };
+    let got = read_projection_object(&per_frame_filters(&|_| "ALUMINUM")).unwrap();
+    assert_eq!(got.filter.as_deref(), Some("ALUMINUM"));
+    named(
+        &per_frame_filters(&|k| if k == 3 { "RHODIUM" } else { "ALUMINUM" }),
+        "FilterMaterial: frame 4",
+    );
     named(
         &edited(&|r| {
             r.dataset_mut().put(dicom_core::DataElement::new(
