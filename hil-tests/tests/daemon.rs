@@ -671,6 +671,27 @@ fn a_w_al_exposure_is_reported_with_its_own_beam() {
         .expect("a dose SR");
     let bytes = std::fs::read(dir.path().join("output").join(dose)).unwrap();
     let has = |t: &str| bytes.windows(t.len()).any(|w| w == t.as_bytes());
+    // A stream header that does not state the beam (optional there): the
+    // register's is taken and spooled with the acquisition, so a replay of
+    // the entry keeps it.
+    let unstated = dir.path().join("unstated");
+    std::fs::create_dir_all(&unstated).unwrap();
+    let g2 = gantry_full(&acq, thickness, &["anode:0"], &["--anode-filter", "W/Al"]);
+    let cfg2 = clinical_config(&unstated, &g2, &shipped, "kernel");
+    let st2 = daemon(&cfg2, &["--once"]).wait().unwrap();
+    let s2 = status(&unstated);
+    assert!(st2.success(), "{st2:?} {s2}");
+    assert_eq!(
+        s2["recent"][0]["glandularity_reported"].as_f64(),
+        Some(gl),
+        "the same W/Al processing: {s2}"
+    );
+    let done = unstated.join("spool/done");
+    let entry = entries(&done).into_iter().next().expect("a done entry");
+    let spooled: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(done.join(entry).join("acquisition.json")).unwrap())
+            .unwrap();
+    assert_eq!(spooled["anode_filter"], "W/Al", "{spooled}");
     assert!(
         has("12503006") && has("Aluminum"),
         "the SR names the aluminium filter"

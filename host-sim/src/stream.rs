@@ -38,7 +38,8 @@ pub enum Fault {
     Freeze(u32),
     /// The header's tube loading set to this many mAs (`mas:0`: no exposure).
     Mas(u32),
-    /// The header's anode/filter set to register 6's code (`anode:2`: W/Al).
+    /// The header's anode/filter set to register 6's code (`anode:2`: W/Al;
+    /// `anode:0`: not stated, the field being optional).
     Anode(u32),
     /// The header's tube voltage set to this many kV (`kvp:0`: none).
     Kvp(u32),
@@ -234,8 +235,8 @@ pub fn serve_stream<S: Read + Write>(
             Fault::Anode(code) => {
                 if let Some(Frame::Header(h)) = owned.get_mut(0) {
                     let a = dbt_gantry::registers::ANODES.get((code as usize).wrapping_sub(1));
-                    h.anode_filter =
-                        Some(a.map_or_else(|| format!("code {code}"), |a| a.to_string()));
+                    h.anode_filter = (code != 0)
+                        .then(|| a.map_or_else(|| format!("code {code}"), |a| a.to_string()));
                 }
             }
             _ => {}
