@@ -191,53 +191,49 @@ pub fn pick_calibration(
     Some((*c, plain))
 }
 
-/// The calibrations of `model` at its precision for `classify` and inputs
-/// corrected as `input` fit on other beams than W/Rh
-/// ([`pick_beam_calibrations`]): none where there is no file, or it was fit
-/// with another classification. A file of another model is an error.
-pub fn load_beam_calibrations(
-    model: &dbt_dbtor::Dbtor,
-    classify: &ClassifyOptions,
-    input: InputCorrections,
-) -> Result<Vec<(String, GlandularityCalibration)>, CalibrationError> {
-    let path = model.root().join(CALIBRATION_FILE);
-    if !path.is_file() {
-        return Ok(Vec::new());
-    }
-    let f = CalibrationFile::read(&path, model)?;
-    if &f.classification != classify {
-        return Ok(Vec::new());
-    }
-    Ok(pick_beam_calibrations(&f, &model.precision_label(), input))
-}
+/// A model's calibrations for one precision, classification and input
+/// corrections: the paper's W/Rh beam's and those of other beams.
+pub type Calibrations = (
+    Option<GlandularityCalibration>,
+    Vec<(String, GlandularityCalibration)>,
+);
 
-/// The calibration of `model` at its precision for `classify` and inputs
-/// corrected as `input` ([`pick_calibration`]), if its folder has one
-/// ([`CALIBRATION_FILE`]); `None` where there is no file, or no entry for
-/// this precision and classification (the estimate is then reported
-/// uncalibrated, and a warning logged). A file of another model is an error.
-pub fn load_calibration(
+/// The calibrations of `model` at its precision for `classify` and inputs
+/// corrected as `input`, read once from its folder ([`CALIBRATION_FILE`]):
+/// the W/Rh one ([`pick_calibration`]) and the other beams'
+/// ([`pick_beam_calibrations`]). None where there is no file or it was fit
+/// with another classification, no W/Rh one where it has no entry for this
+/// precision (the estimate is then reported uncalibrated, and a warning
+/// logged). A file of another model is an error.
+pub fn load_calibrations(
     model: &dbt_dbtor::Dbtor,
     classify: &ClassifyOptions,
     input: InputCorrections,
-) -> Result<Option<GlandularityCalibration>, CalibrationError> {
+) -> Result<Calibrations, CalibrationError> {
     let path = model.root().join(CALIBRATION_FILE);
     if !path.is_file() {
-        return Ok(None);
+        return Ok((None, Vec::new()));
     }
     let f = CalibrationFile::read(&path, model)?;
     let label = model.precision_label();
     if &f.classification != classify {
         tracing::warn!(path = %path.display(), "the calibration was fit with another classification; glandularity reported uncalibrated");
-        return Ok(None);
+        return Ok((None, Vec::new()));
     }
-    match pick_calibration(&f, &label, input) {
-        Some((c, _)) => Ok(Some(c)),
-        None => {
-            tracing::warn!(path = %path.display(), precision = %label, "no calibration for this precision; glandularity reported uncalibrated");
-            Ok(None)
-        }
+    let base = pick_calibration(&f, &label, input).map(|(c, _)| c);
+    if base.is_none() {
+        tracing::warn!(path = %path.display(), precision = %label, "no calibration for this precision; glandularity reported uncalibrated");
     }
+    Ok((base, pick_beam_calibrations(&f, &label, input)))
+}
+
+/// The W/Rh calibration of [`load_calibrations`].
+pub fn load_calibration(
+    model: &dbt_dbtor::Dbtor,
+    classify: &ClassifyOptions,
+    input: InputCorrections,
+) -> Result<Option<GlandularityCalibration>, CalibrationError> {
+    Ok(load_calibrations(model, classify, input)?.0)
 }
 
 #[cfg(test)]

@@ -11,8 +11,8 @@ pub mod calibration;
 pub mod signoff;
 
 pub use calibration::{
-    load_beam_calibrations, load_calibration, manifest_sha256, pick_beam_calibrations,
-    pick_calibration, CalibrationError, CalibrationFile, InputCorrections, CALIBRATION_FILE,
+    load_calibration, load_calibrations, manifest_sha256, pick_beam_calibrations, pick_calibration,
+    CalibrationError, CalibrationFile, Calibrations, InputCorrections, CALIBRATION_FILE,
     CALIBRATION_FORMAT,
 };
 pub use signoff::{sign_off, verify, Signoff, SIGNOFF_FILE, SIGNOFF_FORMAT};

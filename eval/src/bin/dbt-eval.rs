@@ -1071,12 +1071,10 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
         };
         // The model's calibration, as the firmware loads it.
         let (calibration, beam_calibrations) = match (&dbtor, no_calibration) {
-            (Some(m), false) => (
-                dbt_model::load_calibration(m, &skin, input)?,
-                dbt_pipeline::beam_calibrations(&dbt_model::load_beam_calibrations(
-                    m, &skin, input,
-                )?),
-            ),
+            (Some(m), false) => {
+                let (base, beams) = dbt_model::load_calibrations(m, &skin, input)?;
+                (base, dbt_pipeline::beam_calibrations(&beams))
+            }
             _ => (None, Vec::new()),
         };
         for &slice_step in &steps {
