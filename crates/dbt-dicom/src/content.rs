@@ -225,6 +225,10 @@ mod tests {
     }
 }
 
+/// The tube's Anode Target Material (0018,1191) as the objects name it:
+/// tungsten, the anode of every beam the dose model has spectra for.
+pub const ANODE_TUNGSTEN: &str = "TUNGSTEN";
+
 /// An x-ray filter's material, as the objects name it: Filter Material
 /// (0018,7050) in the projections, CID 10006 "X-Ray Filter Materials" in
 /// the dose report.

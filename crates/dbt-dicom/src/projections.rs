@@ -203,7 +203,7 @@ pub(crate) fn common_elements(p: &ProjectionSet<'_>) -> Vec<DataElement<InMemDic
         s(tags::STUDY_INSTANCE_UID, VR::UI, &h.study_uid),
         s(tags::STUDY_ID, VR::SH, &h.study_id),
         s(tags::FOCAL_SPOTS, VR::DS, "0.3"),
-        s(tags::ANODE_TARGET_MATERIAL, VR::CS, "TUNGSTEN"),
+        s(tags::ANODE_TARGET_MATERIAL, VR::CS, crate::ANODE_TUNGSTEN),
         s(tags::COMPRESSION_FORCE, VR::DS, &ds(p.compression_force_n)),
         s(tags::PADDLE_DESCRIPTION, VR::LO, "flat compression paddle"),
         s(tags::BREAST_IMPLANT_PRESENT, VR::CS, "NO"),

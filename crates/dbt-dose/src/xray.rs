@@ -97,29 +97,6 @@ impl AnodeFilter {
         Self::ALL.map(|a| a.name()).join(", ")
     }
 
-    /// DICOM's Anode Target Material (0018,1191) of the beam.
-    pub fn dicom_anode(self) -> &'static str {
-        "TUNGSTEN"
-    }
-
-    /// DICOM's Filter Material (0018,7050) of the beam.
-    pub fn dicom_filter(self) -> &'static str {
-        match self {
-            AnodeFilter::WRh => "RHODIUM",
-            AnodeFilter::WAl => "ALUMINUM",
-        }
-    }
-
-    /// The combination whose DICOM anode and filter materials these are
-    /// (a filter material may list several layers, `\`-separated: all must
-    /// be the one filter), else `None`.
-    pub fn from_dicom(anode: &str, filter: &str) -> Option<Self> {
-        Self::ALL.into_iter().find(|a| {
-            anode.trim() == a.dicom_anode()
-                && filter.split('\\').all(|m| m.trim() == a.dicom_filter())
-        })
-    }
-
     /// The automatic exposure's tube voltage for a compressed thickness:
     /// the paper's Table 3 for W/Rh ([`paper_technique`]), [`W_AL_AEC`]
     /// for W/Al (the nearest tabulated thickness; beyond the table, its
@@ -474,10 +451,6 @@ mod tests {
     fn anode_filters_are_parsed_or_refused_by_name() {
         for a in AnodeFilter::ALL {
             assert_eq!(AnodeFilter::parse(a.name()).unwrap(), a);
-            assert_eq!(
-                AnodeFilter::from_dicom("TUNGSTEN", a.dicom_filter()),
-                Some(a)
-            );
             let json = serde_json::to_string(&a).unwrap();
             assert_eq!(json, format!("\"{}\"", a.name()));
         }
@@ -488,16 +461,6 @@ mod tests {
                 "{e}"
             );
         }
-        assert_eq!(AnodeFilter::from_dicom("MOLYBDENUM", "RHODIUM"), None);
-        assert_eq!(AnodeFilter::from_dicom("TUNGSTEN", "SILVER"), None);
-        assert_eq!(
-            AnodeFilter::from_dicom("TUNGSTEN", "ALUMINUM\\ALUMINUM"),
-            Some(AnodeFilter::WAl)
-        );
-        assert_eq!(
-            AnodeFilter::from_dicom("TUNGSTEN", "ALUMINUM\\RHODIUM"),
-            None
-        );
     }
 
     #[test]

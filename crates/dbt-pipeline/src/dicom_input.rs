@@ -92,30 +92,38 @@ const THICKNESS_TOL_MM: f64 = 0.5;
 /// states neither (both are optional in the DM IOD), the paper's W/Rh;
 /// a filter without an anode is taken on a tungsten anode.
 pub fn beam(p: &ReceivedProjections) -> Result<AnodeFilter, HeaderError> {
-    let anode = p.anode.as_deref().unwrap_or("TUNGSTEN");
-    if anode.trim() != AnodeFilter::WRh.dicom_anode() {
+    use dbt_dicom::ANODE_TUNGSTEN;
+    let anode = p.anode.as_deref().unwrap_or(ANODE_TUNGSTEN);
+    if anode.trim() != ANODE_TUNGSTEN {
         return Err(refuse(
             "AnodeTargetMaterial",
             anode,
-            format!(
-                "the dose model's spectra are for a {} anode",
-                AnodeFilter::WRh.dicom_anode()
-            ),
+            format!("the dose model's spectra are for a {ANODE_TUNGSTEN} anode"),
         ));
     }
     let Some(f) = p.filter.as_deref() else {
         return Ok(AnodeFilter::WRh);
     };
-    AnodeFilter::from_dicom(anode, f).ok_or_else(|| {
-        refuse(
-            "FilterMaterial",
-            f,
-            format!(
-                "the dose model's spectra are for one filter of {}",
-                AnodeFilter::ALL.map(AnodeFilter::dicom_filter).join(" or ")
-            ),
-        )
-    })
+    // A filter of several layers (`\`-separated) is one beam's only if
+    // every layer is that beam's filter.
+    AnodeFilter::ALL
+        .into_iter()
+        .find(|a| {
+            let term = filter_material(*a).term();
+            f.split('\\').all(|m| m.trim() == term)
+        })
+        .ok_or_else(|| {
+            refuse(
+                "FilterMaterial",
+                f,
+                format!(
+                    "the dose model's spectra are for one filter of {}",
+                    AnodeFilter::ALL
+                        .map(|a| filter_material(a).term())
+                        .join(" or ")
+                ),
+            )
+        })
 }
 
 /// The DICOM filter material of a beam.

@@ -580,6 +580,19 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
             .to_string();
         assert!(e.contains(field) && e.contains(value), "{e}");
     }
+    // Each beam's filter on a tungsten anode, a filter of several layers of
+    // one material too.
+    use dbt_dose::xray::AnodeFilter;
+    for (filter, want) in [
+        ("RHODIUM", AnodeFilter::WRh),
+        ("ALUMINUM", AnodeFilter::WAl),
+        ("ALUMINUM\\ALUMINUM", AnodeFilter::WAl),
+    ] {
+        let mut r = received.clone();
+        (r.anode, r.filter) = (Some("TUNGSTEN".into()), Some(filter.into()));
+        let got = acquisition_from_projections(&r, &system).unwrap();
+        assert_eq!(got.header.anode_filter, want, "{filter}");
+    }
     // Neither stated (both optional in the DM IOD): the paper's W/Rh.
     let mut r = received.clone();
     (r.anode, r.filter) = (None, None);
