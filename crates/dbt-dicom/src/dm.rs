@@ -14,7 +14,7 @@
 //! configured one (see `docs/conformance.md`).
 
 use crate::projections::{
-    bad, check, code, common_elements, distance_elements, ds, frame_datetime, sq,
+    bad, check, code, common_elements, distance_elements, ds, filter_elements, frame_datetime, sq,
     view_dose_elements, ProjectionSet,
 };
 use crate::reports::{Laterality, Report};
@@ -86,9 +86,6 @@ pub fn view_objects(
                 VR::IS,
                 &format!("{}", p.exposure_uas_per_view.round() as i64),
             ),
-            s(tags::FILTER_MATERIAL, VR::CS, p.filter_material.term()),
-            s(tags::FILTER_THICKNESS_MINIMUM, VR::DS, &ds(p.filter_mm)),
-            s(tags::FILTER_THICKNESS_MAXIMUM, VR::DS, &ds(p.filter_mm)),
             s(tags::IMAGER_PIXEL_SPACING, VR::DS, &spacing),
             s(tags::POSITIONER_PRIMARY_ANGLE, VR::DS, &ds(*angle)),
             s(tags::POSITIONER_SECONDARY_ANGLE, VR::DS, "0"),
@@ -105,6 +102,7 @@ pub fn view_objects(
             s(tags::PARTIAL_VIEW, VR::CS, "NO"),
         ]
         .into_iter()
+        .chain(filter_elements(p))
         .chain(view_dose_elements(p))
         {
             o.put(e);

@@ -220,6 +220,17 @@ pub(crate) fn common_elements(p: &ProjectionSet<'_>) -> Vec<DataElement<InMemDic
     ]
 }
 
+/// The beam's filter: Filter Material and its thickness (minimum =
+/// maximum), at the DM object's top level and in the multi-frame object's
+/// X-Ray Filter Macro alike.
+pub(crate) fn filter_elements(p: &ProjectionSet<'_>) -> [DataElement<InMemDicomObject>; 3] {
+    [
+        DataElement::new(tags::FILTER_MATERIAL, VR::CS, p.filter_material.term()),
+        DataElement::new(tags::FILTER_THICKNESS_MINIMUM, VR::DS, ds(p.filter_mm)),
+        DataElement::new(tags::FILTER_THICKNESS_MAXIMUM, VR::DS, ds(p.filter_mm)),
+    ]
+}
+
 /// One view's share of the modality's dose estimates: Organ Dose (dGy) and
 /// Entrance Dose (mGy), the sweep's divided equally over its views.
 pub(crate) fn view_dose_elements(p: &ProjectionSet<'_>) -> [DataElement<InMemDicomObject>; 2] {
@@ -464,12 +475,12 @@ pub fn projection_object(
         // X-Ray Filter Macro: the beam's filter.
         seq(
             tags::X_RAY_FILTER_SEQUENCE,
-            vec![item(vec![
-                s(tags::FILTER_TYPE, VR::CS, "FLAT"),
-                s(tags::FILTER_MATERIAL, VR::CS, p.filter_material.term()),
-                s(tags::FILTER_THICKNESS_MINIMUM, VR::DS, &ds(p.filter_mm)),
-                s(tags::FILTER_THICKNESS_MAXIMUM, VR::DS, &ds(p.filter_mm)),
-            ])],
+            vec![item(
+                [s(tags::FILTER_TYPE, VR::CS, "FLAT")]
+                    .into_iter()
+                    .chain(filter_elements(p))
+                    .collect(),
+            )],
         ),
         seq(
             tags::COLLIMATOR_SHAPE_SEQUENCE,
