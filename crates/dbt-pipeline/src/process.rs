@@ -89,7 +89,7 @@ pub struct PipelineOptions {
     pub classify: ClassifyOptions,
     /// Calibration of the reported (partial-volume) glandularity, fit for
     /// this reconstructor on validation phantoms
-    /// (`dbt_model::load_calibration` reads it from the model folder).
+    /// (`dbt_model::load_calibrations` reads it from the model folder).
     pub calibration: Option<GlandularityCalibration>,
     /// The calibrations of acquisitions with another beam than the paper's
     /// W/Rh, which `calibration` is for (issue #27: the linearisation of a
