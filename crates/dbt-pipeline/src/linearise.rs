@@ -259,6 +259,14 @@ mod tests {
                     assert!((off - uncorrected_pct).abs() < 0.05, "{paths:?}: {off} %");
                 }
                 let got = t.mono(p);
+                // The figures the doc above and eval/README.md ("The W/Al
+                // beam") quote: `cargo test -p dbt-pipeline --lib linearise
+                // -- --nocapture`.
+                eprintln!(
+                    "{af} {kv} kV (mean {:.1} keV) {paths:?}: uncorrected {off:+.1} %, corrected {:+.2} %",
+                    s.mean(),
+                    100.0 * (got / want - 1.0)
+                );
                 let bound = match af {
                     AnodeFilter::WRh => 0.01,
                     AnodeFilter::WAl => 0.035,
