@@ -1,11 +1,49 @@
 //! Helpers shared by the hardware-in-the-loop tests in `tests/`.
 
-/// A loopback TCP port that was free a moment ago.
+/// A loopback TCP port that was free a moment ago, and that no other call in
+/// this test process has handed out: the tests of one binary run in
+/// parallel, and a port the kernel gives twice (once released, a bound port
+/// is free again) would let one test's daemon connect to another test's
+/// gantry and take its acquisition (a hang seen in CI: the other daemon
+/// waited for a stream that had gone elsewhere).
 pub fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .map(|a| a.port())
-        .unwrap_or(0)
+    static GIVEN: std::sync::Mutex<Vec<u16>> = std::sync::Mutex::new(Vec::new());
+    let mut given = GIVEN.lock().unwrap_or_else(|e| e.into_inner());
+    for _ in 0..1000 {
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .and_then(|l| l.local_addr())
+            .map(|a| a.port())
+            .expect("a loopback port");
+        if !given.contains(&port) {
+            given.push(port);
+            return port;
+        }
+    }
+    panic!("no loopback port that this process has not handed out already");
+}
+
+/// Wait for `child` to exit, at most `limit`: past it the child is killed
+/// and the test fails naming `what`, so that a process that never exits is a
+/// failure in minutes, not a CI run that never ends.
+pub fn wait_exit(
+    child: &mut std::process::Child,
+    limit: std::time::Duration,
+    what: &str,
+) -> std::process::ExitStatus {
+    let t0 = std::time::Instant::now();
+    loop {
+        match child.try_wait() {
+            Ok(Some(st)) => return st,
+            Ok(None) => {}
+            Err(e) => panic!("{what}: waiting for process {}: {e}", child.id()),
+        }
+        if t0.elapsed() > limit {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("{what}: still running after {limit:?}; killed");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
 }
 
 /// A workspace binary (`host-sim`, or one of the firmware's), (re)built first
@@ -279,4 +317,52 @@ pub fn storescu(called: &str, calling: &str, port: u16, file: &Path) -> std::pro
         .arg(file)
         .output()
         .expect("storescu (dcmtk; .ci/run installs it)")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Ports handed out in one process never repeat, from any thread (the
+    /// kernel's own choice does repeat once a port is released).
+    #[test]
+    fn free_ports_are_never_handed_out_twice() {
+        let threads: Vec<_> = (0..4)
+            .map(|_| std::thread::spawn(|| (0..100).map(|_| free_port()).collect::<Vec<u16>>()))
+            .collect();
+        let mut all: Vec<u16> = threads
+            .into_iter()
+            .flat_map(|t| t.join().expect("thread"))
+            .collect();
+        assert!(all.iter().all(|&p| p != 0));
+        let n = all.len();
+        all.sort_unstable();
+        all.dedup();
+        assert_eq!(all.len(), n, "a port was handed out twice");
+    }
+
+    /// A process past its limit is killed and the failure names it.
+    #[test]
+    fn a_process_past_its_limit_is_killed_and_named() {
+        let mut c = std::process::Command::new("sleep")
+            .arg("30")
+            .spawn()
+            .expect("sleep");
+        let pid = c.id();
+        let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            wait_exit(&mut c, std::time::Duration::from_millis(200), "the sleeper")
+        }));
+        let msg = r.expect_err("must fail");
+        let msg = msg.downcast_ref::<String>().cloned().unwrap_or_default();
+        assert!(
+            msg.contains("the sleeper") && msg.contains("killed"),
+            "{msg}"
+        );
+        assert!(
+            c.try_wait().expect("reaped").is_some(),
+            "pid {pid} still runs"
+        );
+        let mut quick = std::process::Command::new("true").spawn().expect("true");
+        assert!(wait_exit(&mut quick, std::time::Duration::from_secs(10), "true").success());
+    }
 }

@@ -5,7 +5,7 @@
 //! between the Modbus register and the acquisition header is a fault, not a
 //! report; a bad configuration is refused naming the key.
 
-use hil_tests::{free_port, pty_pair, workspace_bin};
+use hil_tests::{free_port, pty_pair, wait_exit, workspace_bin};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -212,6 +212,16 @@ fn daemon(cfg: &Path, extra: &[&str]) -> Child {
         .unwrap()
 }
 
+/// `dbtor-daemon --once` on `cfg`, its exit status; a daemon still running
+/// after 5 minutes (one acquisition takes seconds) fails the test.
+fn once(cfg: &Path) -> std::process::ExitStatus {
+    wait_exit(
+        &mut daemon(cfg, &["--once"]),
+        Duration::from_secs(300),
+        &format!("dbtor-daemon --once --config {}", cfg.display()),
+    )
+}
+
 fn status(dir: &Path) -> serde_json::Value {
     hil_tests::daemon_status(dir)
 }
@@ -268,7 +278,7 @@ fn sigkill_mid_processing_then_restart_reports_exactly_once() {
     });
     let id = s["current"].as_str().unwrap().to_string();
     d.kill().unwrap(); // SIGKILL
-    d.wait().unwrap();
+    wait_exit(&mut d, Duration::from_secs(60), "the killed daemon");
     assert_eq!(
         entries(&dir.path().join("spool/incoming")),
         vec![id.clone()],
@@ -349,7 +359,7 @@ fn thickness_disagreement_is_a_fault_not_a_report() {
     let (acq, thickness) = acquire(dir.path());
     let g = gantry(&acq, thickness + 5.0);
     let cfg = config(dir.path(), &g, 2);
-    let st = daemon(&cfg, &["--once"]).wait().unwrap();
+    let st = once(&cfg);
     assert_eq!(st.code(), Some(1), "--once after a fault exits 1");
     let s = status(dir.path());
     let faults = s["faults"].as_array().unwrap();
@@ -389,7 +399,7 @@ fn another_anode_filter_is_a_fault_not_a_report() {
     let (acq, thickness) = acquire(dir.path());
     let g = gantry_full(&acq, thickness, &[], &["--anode-filter", "W/Ag"]);
     let cfg = config(dir.path(), &g, 2);
-    let st = daemon(&cfg, &["--once"]).wait().unwrap();
+    let st = once(&cfg);
     assert_eq!(st.code(), Some(1), "--once after a fault exits 1");
     let s = status(dir.path());
     let f = &s["faults"][0];
@@ -403,7 +413,7 @@ fn another_anode_filter_is_a_fault_not_a_report() {
     std::fs::create_dir_all(&run).unwrap();
     let g = gantry_full(&acq, thickness, &[], &["--anode-filter", "W/Al"]);
     let cfg = config(&run, &g, 2);
-    let st = daemon(&cfg, &["--once"]).wait().unwrap();
+    let st = once(&cfg);
     assert_eq!(st.code(), Some(1), "--once after a fault exits 1");
     let s = status(&run);
     let m = s["faults"][0]["message"].as_str().unwrap();
@@ -597,7 +607,7 @@ fn clinical_physics_is_reported_after_both_corrections() {
         std::fs::create_dir_all(&run).unwrap();
         let g = gantry(&acq, thickness);
         let cfg = clinical_config(&run, &g, &shipped, scatter);
-        let st = daemon(&cfg, &["--once"]).wait().unwrap();
+        let st = once(&cfg);
         let s = status(&run);
         if scatter == "kernel" {
             assert!(st.success(), "{st:?} {s}");
@@ -651,7 +661,7 @@ fn a_w_al_exposure_is_reported_with_its_own_beam() {
         text.replace("tube_output_w_al_mgy_per_mas = 0.11\n", ""),
     )
     .unwrap();
-    let st = daemon(&cfg, &["--once"]).wait().unwrap();
+    let st = once(&cfg);
     assert_eq!(st.code(), Some(1), "--once after a fault exits 1");
     let s = status(&no_output);
     let m = s["faults"][0]["message"].as_str().unwrap();
@@ -659,7 +669,7 @@ fn a_w_al_exposure_is_reported_with_its_own_beam() {
     drop(g);
     let g = gantry_full(&acq, thickness, &[], &["--anode-filter", "W/Al"]);
     let cfg = clinical_config(dir.path(), &g, &shipped, "kernel");
-    let st = daemon(&cfg, &["--once"]).wait().unwrap();
+    let st = once(&cfg);
     let s = status(dir.path());
     assert!(st.success(), "{st:?} {s}");
     assert_eq!(s["processed"], 1, "{s}");
@@ -678,7 +688,7 @@ fn a_w_al_exposure_is_reported_with_its_own_beam() {
     std::fs::create_dir_all(&unstated).unwrap();
     let g2 = gantry_full(&acq, thickness, &["anode:0"], &["--anode-filter", "W/Al"]);
     let cfg2 = clinical_config(&unstated, &g2, &shipped, "kernel");
-    let st2 = daemon(&cfg2, &["--once"]).wait().unwrap();
+    let st2 = once(&cfg2);
     let s2 = status(&unstated);
     assert!(st2.success(), "{st2:?} {s2}");
     assert_eq!(
@@ -713,7 +723,7 @@ fn saturated_counts_and_nan_flat_field_are_faults_not_reports() {
         let g = gantry_with(&acq, thickness, &[fault]);
         let cfg = config(dir.path(), &g, 2);
         // With --once, a fault is a failure (exit 1), and the status names it.
-        let st = daemon(&cfg, &["--once"]).wait().unwrap();
+        let st = once(&cfg);
         assert_eq!(st.code(), Some(1), "{fault}");
         let s = status(dir.path());
         let f = &s["faults"].as_array().unwrap()[0];
@@ -775,7 +785,7 @@ fn absurd_or_changing_thickness_is_a_fault() {
             registers: listen.clone(),
         };
         let cfg = config(dir.path(), &g, 2);
-        assert_eq!(daemon(&cfg, &["--once"]).wait().unwrap().code(), Some(1));
+        assert_eq!(once(&cfg).code(), Some(1));
         let s = status(dir.path());
         let f = &s["faults"].as_array().unwrap()[0];
         assert_eq!(f["kind"], "thickness", "{extra:?}: {s}");
@@ -798,7 +808,7 @@ fn an_all_zero_stream_is_refused_not_reported() {
     let (acq, thickness) = acquire(dir.path());
     let g = gantry_with(&acq, thickness, &["zeros:1"]);
     let cfg = config(dir.path(), &g, 2);
-    let st = daemon(&cfg, &["--once"]).wait().unwrap();
+    let st = once(&cfg);
     assert_eq!(st.code(), Some(1));
     let s = status(dir.path());
     let f = &s["faults"].as_array().unwrap()[0];
@@ -1007,7 +1017,7 @@ fn a_stream_from_another_system_is_refused_and_the_next_one_reported() {
         |s| s["processed"] == 1,
     );
     assert_eq!(s["faults"].as_array().unwrap().len(), 1, "{s}");
-    let st = g.stream.wait().unwrap();
+    let st = wait_exit(&mut g.stream, Duration::from_secs(60), "host-sim stream");
     assert_eq!(st.code(), Some(0), "host-sim: delivered");
     sigterm(&mut d.0);
     let done = entries(&dir.path().join("spool/done"));

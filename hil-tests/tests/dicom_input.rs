@@ -7,7 +7,7 @@
 //! gantry (other detector) is refused with a named reason, kept in
 //! `faulted/`, recorded as an `input` fault, and the daemon keeps serving.
 
-use hil_tests::{free_port, http_get, wait_for_status, workspace_bin, Orthanc};
+use hil_tests::{free_port, http_get, wait_exit, wait_for_status, workspace_bin, Orthanc};
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
@@ -111,7 +111,7 @@ flat_field_counts = {flux}
     wait_for_status(dir.path(), "the frame-link report", limit, |s| {
         s["processed"] == 1
     });
-    let _ = stream.wait();
+    wait_exit(&mut stream, Duration::from_secs(60), "host-sim stream");
     // 2. DICOM.
     let out = dicom_send(&acq, dport);
     assert!(
@@ -229,6 +229,10 @@ flat_field_counts = {flux}
         .status()
         .unwrap()
         .success());
-    let _ = daemon.wait();
+    wait_exit(
+        &mut daemon,
+        Duration::from_secs(60),
+        "the daemon after SIGTERM",
+    );
     orthanc.stop();
 }

@@ -15,7 +15,7 @@
 //! (`scripts/status-page-screenshot.sh` makes docs/figures/status-page.png
 //! that way), else into the test's folder.
 
-use hil_tests::{free_port, workspace_bin};
+use hil_tests::{free_port, wait_exit, workspace_bin};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -192,13 +192,13 @@ address = "127.0.0.1:0"
     wait_for(dir.path(), "the link fault", |s| {
         s["fault_counts"]["link"].as_u64() >= Some(1)
     });
-    let _ = cut.wait();
+    wait_exit(&mut cut, Duration::from_secs(60), "the cut host-sim stream");
     for (k, acq) in acqs.iter().enumerate() {
         let mut g = stream(acq, &frames, &[]);
         wait_for(dir.path(), "a report", |s| {
             s["processed"].as_u64() == Some(k as u64 + 1) && s["state"] == "waiting"
         });
-        let _ = g.wait();
+        wait_exit(&mut g, Duration::from_secs(60), "host-sim stream");
     }
 
     // The page in chromium: loaded, script run, figures decoded.
