@@ -982,6 +982,7 @@ impl Config {
         dbt_model::InputCorrections {
             scatter_removed: self.recon.scatter == ScatterMode::Kernel,
             linearised: self.recon.beam_hardening == BeamHardeningMode::Csi,
+            ..Default::default()
         }
     }
 

@@ -236,6 +236,7 @@ fn the_glandularity_calibration_is_bound_to_the_model() {
     let corrected = InputCorrections {
         scatter_removed: true,
         linearised: true,
+        ..Default::default()
     };
     use dbt_tissue::{ClassifyOptions, GlandularityCalibration};
     let t = tempfile::tempdir().unwrap();
@@ -287,6 +288,7 @@ fn the_glandularity_calibration_is_bound_to_the_model() {
     let descattered = InputCorrections {
         scatter_removed: true,
         linearised: false,
+        ..Default::default()
     };
     assert_eq!(
         load_calibration(&m, &classify, descattered).unwrap(),

@@ -50,6 +50,11 @@ pub struct ExportOptions {
     /// beam hardening linearised; `dbt_pipeline::correct_counts`); exactly
     /// one noise level.
     pub physics: Physics,
+    /// With a clinical physics: the counts as the detector gives them, no
+    /// correction (scatter and beam hardening in the sinograms): the data of
+    /// the other design issue #27 compares, a network trained on uncorrected
+    /// clinical acquisitions. Refused with the mono physics.
+    pub uncorrected: bool,
 }
 
 /// Add `fbp-<level>` to every split of the dataset in `dir`: the FBP
@@ -125,6 +130,7 @@ fn phantom_records(
     proj: &Projector,
     levels: &[NoiseLevel],
     physics: Physics,
+    uncorrected: bool,
     noise_seed: u64,
 ) -> Result<(PhantomEntry, Vec<SimSlice>), SimError> {
     let vol = spec.generate()?;
@@ -170,8 +176,12 @@ fn phantom_records(
             linearise: Some(dbt_pipeline::linearise::BeamHardening { detector }),
             ..Default::default()
         };
-        let corrected = dbt_pipeline::correct_counts(&acq, &opts)
-            .map_err(|e| SimError::Options(format!("correcting the clinical counts: {e}")))?;
+        let corrected = if uncorrected {
+            std::borrow::Cow::Borrowed(&acq)
+        } else {
+            dbt_pipeline::correct_counts(&acq, &opts)
+                .map_err(|e| SimError::Options(format!("correcting the clinical counts: {e}")))?
+        };
         for s in &mut slices {
             let counts = corrected.counts.get(s.depth).ok_or_else(|| {
                 SimError::Options(format!(
@@ -287,6 +297,12 @@ pub fn export_observed(
             opts.levels.len()
         )));
     }
+    if opts.uncorrected && opts.physics == Physics::Mono {
+        return Err(SimError::Options(
+            "uncorrected counts are a clinical physics' (the mono physics has nothing to correct)"
+                .into(),
+        ));
+    }
     let geom = &opts.geometry;
     let proj = Projector::new(geom);
     let kind = opts.population;
@@ -304,6 +320,10 @@ pub fn export_observed(
         "masks": "1 on every image row whose centre lies within the compressed thickness above the support (bottom row), across the full width; 0 above",
         "sinograms": match opts.physics {
             Physics::Mono => "g = ln(b / max(y, 0.5)) of the simulated counts y, view-major [views, elements]".to_string(),
+            Physics::Clinical { scatter, .. } if opts.uncorrected => format!(
+                "g = ln(b / max(y, 0.5)) of the clinical acquisition's counts y as the detector gives them, uncorrected ({}, polychromatic: no linearisation); b the header's flux; view-major [views, elements]",
+                if scatter { "the scatter in them" } else { "no scatter simulated" }
+            ),
             Physics::Clinical { scatter, .. } => format!(
                 "g = ln(b / max(y, 0.5)) of the counts y the firmware reconstructs: the clinical acquisition's counts {}, then linearised to 20 keV (dbt_pipeline::correct_counts); b the header's flux; view-major [views, elements]",
                 if scatter { "with the scatter removed (the shipped kernel model)" } else { "(no scatter simulated)" }
@@ -327,6 +347,13 @@ pub fn export_observed(
         .unwrap_or_default(),
         "population_kind": kind.name(),
         "physics": opts.physics.name(),
+        "corrections": if opts.physics == Physics::Mono {
+            "none (mono-energetic, no scatter)"
+        } else if opts.uncorrected {
+            "none: the detector's counts"
+        } else {
+            "the firmware's: scatter removed, beam hardening linearised"
+        },
         "train_seed": opts.seed,
         "test_seed": Population::TEST_SEED,
         "validation_rule": "population index % 10 == 9",
@@ -356,6 +383,7 @@ pub fn export_observed(
                     &proj,
                     &opts.levels,
                     opts.physics,
+                    opts.uncorrected,
                     mix_seed(opts.seed, &[i, 1]),
                 )
             })
@@ -388,6 +416,7 @@ pub fn export_observed(
             &proj,
             &opts.levels,
             opts.physics,
+            opts.uncorrected,
             mix_seed(Population::TEST_SEED, &[i, 1]),
         )?;
         write_phantom(&mut w, "test", entry, i, &slices)?;
@@ -426,6 +455,7 @@ mod tests {
             batch: 1,
             population: PopulationKind::Procedural,
             physics: Physics::Mono,
+            uncorrected: false,
         };
         let d = tempfile::tempdir().unwrap();
         export(d.path(), &opts).unwrap();
@@ -459,6 +489,7 @@ mod tests {
             batch: 2,
             population: PopulationKind::Procedural,
             physics: Physics::Mono,
+            uncorrected: false,
         };
         let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
         let ma = export(a.path(), &opts).unwrap();
@@ -523,6 +554,7 @@ mod tests {
             batch: 1,
             population: PopulationKind::Anatomical,
             physics: Physics::Mono,
+            uncorrected: false,
         };
         let d = tempfile::tempdir().unwrap();
         let m = export(d.path(), &opts).unwrap();
@@ -568,6 +600,7 @@ mod tests {
             batch: 1,
             population: PopulationKind::Procedural,
             physics: Physics::parse("clinical").unwrap(),
+            uncorrected: false,
         };
         let d = tempfile::tempdir().unwrap();
         let m = export(d.path(), &opts).unwrap();
@@ -605,5 +638,54 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("one noise level"), "{e}");
+        // Uncorrected: the same acquisitions' counts as detected, the
+        // scatter adding photons and the hardened beam losing fewer, so the
+        // log signal under the breast reads well below the 20 keV line
+        // integrals (the scatter alone, SPR 0.3-1 at these thicknesses,
+        // takes ln(1 + SPR) = 0.26-0.69 off each ray's few units), and the
+        // mono physics refuses the option.
+        let raw = ExportOptions {
+            uncorrected: true,
+            levels: vec![NoiseLevel::Poisson(8)],
+            ..two
+        };
+        let d = tempfile::tempdir().unwrap();
+        let m = export(d.path(), &raw).unwrap();
+        assert!(
+            m.provenance["corrections"]
+                .as_str()
+                .is_some_and(|c| c.starts_with("none")),
+            "{}",
+            m.provenance
+        );
+        let ds = Dataset::open(d.path()).unwrap();
+        let (images, sinos) = (
+            ds.array("train", "images").unwrap(),
+            ds.array("train", "sino-N8").unwrap(),
+        );
+        let n = ds.manifest().splits[0].slices.len();
+        let i = n / 2;
+        proj.forward(&images.f32s(i).unwrap(), &mut p).unwrap();
+        let g = sinos.f32s(i).unwrap();
+        let (mut sum_g, mut sum_p) = (0.0f64, 0.0f64);
+        for (x, y) in p.iter().zip(&g) {
+            if *x > 1.0 {
+                sum_p += *x as f64;
+                sum_g += *y as f64;
+            }
+        }
+        assert!(
+            sum_g / sum_p < 0.9,
+            "uncorrected log signal {:.3} of the line integrals",
+            sum_g / sum_p
+        );
+        let mono = ExportOptions {
+            physics: Physics::Mono,
+            ..raw
+        };
+        let e = export(tempfile::tempdir().unwrap().path(), &mono)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("uncorrected"), "{e}");
     }
 }

@@ -193,6 +193,11 @@ struct DatasetArgs {
     /// linearisation, DATASET.md).
     #[arg(long, default_value = "mono")]
     physics: String,
+    /// With `clinical`: the detector's counts, uncorrected (scatter and
+    /// beam hardening left in): the data of a network trained on what the
+    /// gantry sends (issue #27's other design).
+    #[arg(long)]
+    uncorrected: bool,
 }
 
 /// The options of `host-sim dicom-send`.
@@ -527,6 +532,7 @@ fn run_dataset(args: DatasetArgs) -> Result<()> {
         batch,
         population,
         physics,
+        uncorrected,
     } = args;
     let physics = host_sim::Physics::parse(&physics)?;
     let levels = levels
@@ -545,6 +551,7 @@ fn run_dataset(args: DatasetArgs) -> Result<()> {
         batch,
         population,
         physics,
+        uncorrected,
     };
     let t = Instant::now();
     let bar = Progress::new(slices as u64, "dataset", "slices", false);

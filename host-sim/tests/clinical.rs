@@ -171,6 +171,37 @@ fn scatter_is_added_and_removed() {
     // above the flat field (the paddle's and support's own scatter).
     let left = process(&noisy, &opts(None)).unwrap_err().to_string();
     assert!(left.contains("above the flat field"), "{left}");
+    // For a network that reads the detector's counts (issue #27's other
+    // design), the scatter beside the breast is expected: the brightest
+    // count of this acquisition stays under the bound the check then uses
+    // (the flat field x (1 + SCATTER_AIR_MAX)), and the counts pass.
+    let brightest = noisy
+        .counts
+        .iter()
+        .flatten()
+        .fold(0.0f64, |m, &c| m.max(f64::from(c)))
+        / noisy.header.flux;
+    eprintln!("brightest count with the scatter in: {brightest:.3} x the flat field");
+    assert!(brightest > 1.05 && brightest < 1.0 + dbt_pipeline::plausibility::SCATTER_AIR_MAX);
+    let as_detected = PipelineOptions {
+        mltr_iterations: 5,
+        dose_uncertainty: 0.3,
+        scatter_in_input: true,
+        ..Default::default()
+    };
+    assert!(
+        dbt_pipeline::plausibility::check_counts_with(&noisy.header, &noisy.counts, true)
+            .unwrap()
+            .is_empty()
+    );
+    process(&noisy, &as_detected).unwrap();
+    // Corrected counts cannot also be read as detected.
+    let both = PipelineOptions {
+        linearise: Some(bh),
+        ..as_detected.clone()
+    };
+    let e = process(&noisy, &both).unwrap_err().to_string();
+    assert!(e.contains("scatter_in_input"), "{e}");
     let removed = process(&noisy, &opts(Some(removal))).unwrap();
     let reference = process(
         &acq(false, NoiseLevel::Poisson(8), AnodeFilter::WRh),

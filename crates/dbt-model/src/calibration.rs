@@ -115,12 +115,19 @@ pub struct InputCorrections {
     pub scatter_removed: bool,
     /// The beam hardening was linearised (`dbt_pipeline::linearise`).
     pub linearised: bool,
+    /// Neither, on purpose: a polychromatic detector's counts with their
+    /// scatter, read by a network trained on such acquisitions (issue
+    /// #27's other design; `dbt_pipeline::PipelineOptions::scatter_in_input`).
+    pub uncorrected_clinical: bool,
 }
 
 impl InputCorrections {
     /// The corrections in words (`none`, `scatter removed`, `linearised`,
     /// `scatter removed + linearised`).
     pub fn describe(&self) -> &'static str {
+        if self.uncorrected_clinical {
+            return "uncorrected clinical counts";
+        }
         match (self.scatter_removed, self.linearised) {
             (false, false) => "none",
             (true, false) => "scatter removed",
@@ -247,7 +254,13 @@ mod tests {
         let corrected = InputCorrections {
             scatter_removed: true,
             linearised: true,
+            ..Default::default()
         };
+        let raw = InputCorrections {
+            uncorrected_clinical: true,
+            ..Default::default()
+        };
+        assert_eq!(raw.key("int8"), "int8 | uncorrected clinical counts");
         assert_eq!(
             corrected.beam_key("int8", "W/Al"),
             "int8 | scatter removed + linearised | beam W/Al"

@@ -9,7 +9,7 @@
 
 use crate::acquisition::{validate_header, Acquisition, HeaderError};
 use crate::plausibility::{
-    check_counts, check_volume, footprint_mm, CountsCheck, Implausible, VolumeCheck,
+    check_counts_with, check_volume, footprint_mm, CountsCheck, Implausible, VolumeCheck,
 };
 use dbt_acquisition::log_transform;
 use dbt_dicom::{
@@ -113,6 +113,13 @@ pub struct PipelineOptions {
     /// slice. The volume keeps every slice's depth, so the dose grid stays
     /// isotropic.
     pub slice_step: usize,
+    /// The reconstructor reads counts with their scatter and beam hardening
+    /// left in (a network trained on uncorrected clinical acquisitions:
+    /// issue #27's other design, `dbt-eval --uncorrected`): the counts check
+    /// then expects elements beside the breast above the flat field
+    /// ([`crate::plausibility::check_counts_with`]). Refused together with
+    /// either correction.
+    pub scatter_in_input: bool,
 }
 
 impl Default for PipelineOptions {
@@ -128,6 +135,7 @@ impl Default for PipelineOptions {
             linearise: None,
             descatter: None,
             slice_step: 1,
+            scatter_in_input: false,
         }
     }
 }
@@ -404,6 +412,13 @@ pub fn correct_counts<'a>(
     opts: &PipelineOptions,
 ) -> Result<std::borrow::Cow<'a, Acquisition>, PipelineError> {
     validate_header(&acq.header)?;
+    if opts.scatter_in_input && (opts.descatter.is_some() || opts.linearise.is_some()) {
+        return Err(PipelineError::Input(
+            "counts read with their scatter left in (scatter_in_input) cannot also be corrected: \
+             a network reads either the corrected counts or the detector's"
+                .into(),
+        ));
+    }
     if opts.descatter.is_none() && opts.linearise.is_none() {
         return Ok(std::borrow::Cow::Borrowed(acq));
     }
@@ -480,7 +495,7 @@ pub fn reconstruct_volume(
         }
     }
     // The counts last: every cheaper refusal above comes first.
-    let defects = check_counts(h, &acq.counts)?;
+    let defects = check_counts_with(h, &acq.counts, opts.scatter_in_input)?;
     let corrected;
     let (counts, counts_check) = if defects.is_empty() {
         (&acq.counts, defects.check)
@@ -594,7 +609,7 @@ pub fn process_with_progress(
     let mut raw_check = None;
     let cone = acq.header.system.clone();
     let acq = if acq.header.system.is_some() {
-        let defects = check_counts(&acq.header, &acq.counts)?;
+        let defects = check_counts_with(&acq.header, &acq.counts, opts.scatter_in_input)?;
         rebinned = if defects.is_empty() {
             raw_check = Some(defects.check);
             crate::rebin::fan_acquisition(acq)?

@@ -260,6 +260,13 @@ struct PhysicsArgs {
     /// (`dbt_pipeline::descatter`, the shipped kernel model).
     #[arg(long)]
     descatter: bool,
+    /// The clinical counts as the detector gives them, scatter and beam
+    /// hardening left in, for a network trained on such acquisitions
+    /// (`host-sim dataset --uncorrected`; issue #27's other design):
+    /// neither correction (refused with either), and the counts check
+    /// expects the scatter beside the breast above the flat field.
+    #[arg(long)]
+    uncorrected: bool,
     /// The beam: `W/Rh` (the paper's Table 3 kV for each thickness) or
     /// `W/Al` (`dbt_dose::xray::W_AL_AEC`); the acquisition's header carries
     /// it to the corrections and the dose.
@@ -275,6 +282,8 @@ struct Physics {
     linearise: Option<dbt_pipeline::linearise::BeamHardening>,
     /// The scatter removal, if asked for.
     descatter: Option<dbt_pipeline::descatter::ScatterRemoval>,
+    /// The counts go to the network uncorrected, their scatter in them.
+    scatter_in_input: bool,
     /// The corrections, as the calibration's key names them.
     input: dbt_model::InputCorrections,
     /// The beam.
@@ -283,6 +292,14 @@ struct Physics {
 
 impl PhysicsArgs {
     fn resolve(&self) -> Result<Physics> {
+        anyhow::ensure!(
+            !(self.uncorrected && (self.linearise || self.descatter)),
+            "--uncorrected feeds the detector's counts as they are: not with --linearise or --descatter"
+        );
+        anyhow::ensure!(
+            !self.uncorrected || self.physics != "mono",
+            "--uncorrected is for a clinical physics (--physics clinical): mono counts have nothing to correct"
+        );
         Ok(Physics {
             physics: host_sim::Physics::parse(&self.physics)?,
             linearise: self
@@ -298,7 +315,9 @@ impl PhysicsArgs {
             input: dbt_model::InputCorrections {
                 scatter_removed: self.descatter,
                 linearised: self.linearise,
+                uncorrected_clinical: self.uncorrected,
             },
+            scatter_in_input: self.uncorrected,
             beam: dbt_dose::xray::AnodeFilter::parse(&self.anode_filter)
                 .with_context(|| format!("--anode-filter {}", self.anode_filter))?,
         })
@@ -1026,6 +1045,7 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
         physics,
         linearise,
         descatter,
+        scatter_in_input,
         input,
         beam,
     } = physics.resolve()?;
@@ -1089,6 +1109,7 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
                 linearise,
                 descatter,
                 slice_step,
+                scatter_in_input,
             };
             let label = dbt_pipeline::reconstructor_name(&opts);
             // The calibration this run's beam reads (a beam the model has
@@ -1229,6 +1250,7 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
         "physics": physics.name(),
         "linearised": linearise.is_some(),
         "descattered": descatter.is_some(),
+        "uncorrected_input": scatter_in_input,
         "anode_filter": beam.name(),
         "phantoms": match &phantom {
             Some(p) => p.display().to_string(),
@@ -1402,6 +1424,7 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
         physics,
         linearise,
         descatter,
+        scatter_in_input,
         input,
         beam,
     } = physics.resolve()?;
@@ -1423,6 +1446,7 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
         classify,
         linearise,
         descatter,
+        scatter_in_input,
         ..Default::default()
     };
     let t0 = Instant::now();

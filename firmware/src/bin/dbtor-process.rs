@@ -129,6 +129,7 @@ fn run(cli: Cli) -> Result<()> {
             dbt_model::InputCorrections {
                 scatter_removed: opts.descatter.is_some(),
                 linearised: opts.linearise.is_some(),
+                uncorrected_clinical: opts.scatter_in_input,
             },
             cli.model_digest.as_deref(),
         )
