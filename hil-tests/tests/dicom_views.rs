@@ -199,7 +199,11 @@ impl Daemon {
         let _ = Command::new("kill")
             .args(["-TERM", &self.0.id().to_string()])
             .status();
-        let _ = self.0.wait();
+        hil_tests::wait_exit(
+            &mut self.0,
+            std::time::Duration::from_secs(60),
+            "the daemon after SIGTERM",
+        );
     }
 }
 

@@ -286,7 +286,11 @@ tube_output_mgy_per_mas = 0.11
             // The cable is pulled: the daemon records a link fault, the
             // gantry keeps the acquisition and sends it again.
             let mut s = stream(&acq, &frames, &["cut:8"]);
-            let _ = s.0.wait();
+            hil_tests::wait_exit(
+                &mut s.0,
+                std::time::Duration::from_secs(120),
+                "the cut host-sim stream",
+            );
             *expected_faults.entry("link").or_default() += 1;
         }
         let s = stream(&acq, &frames, &faults);

@@ -164,21 +164,21 @@ fn phantom_records(
             "DATASET",
             "1.2.826.0.1.3680043.10.543.3",
         )?;
-        let opts = dbt_pipeline::PipelineOptions {
-            descatter: if scatter {
-                Some(
-                    dbt_pipeline::descatter::ScatterRemoval::shipped()
-                        .map_err(|e| SimError::Options(e.to_string()))?,
-                )
-            } else {
-                None
-            },
-            linearise: Some(dbt_pipeline::linearise::BeamHardening { detector }),
-            ..Default::default()
-        };
         let corrected = if uncorrected {
             std::borrow::Cow::Borrowed(&acq)
         } else {
+            let opts = dbt_pipeline::PipelineOptions {
+                descatter: if scatter {
+                    Some(
+                        dbt_pipeline::descatter::ScatterRemoval::shipped()
+                            .map_err(|e| SimError::Options(e.to_string()))?,
+                    )
+                } else {
+                    None
+                },
+                linearise: Some(dbt_pipeline::linearise::BeamHardening { detector }),
+                ..Default::default()
+            };
             dbt_pipeline::correct_counts(&acq, &opts)
                 .map_err(|e| SimError::Options(format!("correcting the clinical counts: {e}")))?
         };
@@ -351,8 +351,10 @@ pub fn export_observed(
             "none (mono-energetic, no scatter)"
         } else if opts.uncorrected {
             "none: the detector's counts"
-        } else {
+        } else if matches!(opts.physics, Physics::Clinical { scatter: true, .. }) {
             "the firmware's: scatter removed, beam hardening linearised"
+        } else {
+            "the firmware's: beam hardening linearised (no scatter simulated)"
         },
         "train_seed": opts.seed,
         "test_seed": Population::TEST_SEED,

@@ -123,7 +123,9 @@ pub struct InputCorrections {
 
 impl InputCorrections {
     /// The corrections in words (`none`, `scatter removed`, `linearised`,
-    /// `scatter removed + linearised`).
+    /// `scatter removed + linearised`, or `uncorrected clinical counts`,
+    /// which takes precedence: whose callers refuse it together with a
+    /// correction).
     pub fn describe(&self) -> &'static str {
         if self.uncorrected_clinical {
             return "uncorrected clinical counts";
@@ -137,8 +139,10 @@ impl InputCorrections {
     }
 
     /// The key of a calibration for `precision_label` fit on inputs so
-    /// corrected: the label alone for uncorrected inputs (the files written
-    /// before issue #27 keep their meaning), else `label | corrections`.
+    /// corrected: the label alone for plain (mono-energetic, uncorrected)
+    /// inputs (the files written before issue #27 keep their meaning), else
+    /// `label | corrections` (`int8 | uncorrected clinical counts` for the
+    /// detector's clinical counts read as they are).
     pub fn key(&self, precision_label: &str) -> String {
         if *self == Self::default() {
             precision_label.to_string()
@@ -174,8 +178,12 @@ pub fn pick_beam_calibrations(
 }
 
 /// The entry of `f` for `precision_label` and `input`: the one fit on inputs
-/// corrected as `input` where there is one, else the one fit on uncorrected
-/// inputs (logged as a warning naming both), else `None`. Returns the
+/// corrected as `input` where there is one, else the plain one (fit on
+/// mono-energetic inputs, which the corrections aim to reproduce; logged as
+/// a warning naming both), else `None`. Uncorrected clinical counts
+/// ([`InputCorrections::uncorrected_clinical`]) are nothing like
+/// mono-energetic ones: they read only their own entry, never the plain
+/// one (`None` and a warning naming the refit otherwise). Returns the
 /// calibration and the key it was found under.
 pub fn pick_calibration(
     f: &CalibrationFile,
@@ -186,13 +194,20 @@ pub fn pick_calibration(
     if let Some(c) = f.calibrations.get(&exact) {
         return Some((*c, exact));
     }
+    if input.uncorrected_clinical {
+        tracing::warn!(
+            wanted = %exact,
+            "no calibration fit on uncorrected clinical counts; reporting uncalibrated (fit one with `dbt-eval calibrate --physics clinical --uncorrected`)"
+        );
+        return None;
+    }
     let plain = InputCorrections::default().key(precision_label);
     let c = f.calibrations.get(&plain)?;
     if input != InputCorrections::default() {
         tracing::warn!(
             wanted = %exact,
             using = %plain,
-            "no calibration fit on inputs with these corrections; using the one fit on uncorrected inputs (refit with `dbt-eval calibrate --physics clinical`)"
+            "no calibration fit on inputs with these corrections; using the plain one, fit on mono-energetic inputs (refit with `dbt-eval calibrate --physics clinical` and the corrections)"
         );
     }
     Some((*c, plain))
@@ -261,6 +276,30 @@ mod tests {
             ..Default::default()
         };
         assert_eq!(raw.key("int8"), "int8 | uncorrected clinical counts");
+        // Uncorrected clinical counts never read the plain (mono) entry.
+        let mono = GlandularityCalibration {
+            offset: 0.0,
+            slope: 1.0,
+        };
+        let mut only_plain = CalibrationFile {
+            format: CALIBRATION_FORMAT.into(),
+            model: "m".into(),
+            manifest_sha256: String::new(),
+            classification: Default::default(),
+            calibrations: [("int8".to_string(), mono)].into_iter().collect(),
+            fits: Default::default(),
+        };
+        assert!(pick_calibration(&only_plain, "int8", raw).is_none());
+        assert!(pick_calibration(&only_plain, "int8", corrected).is_some());
+        let own = GlandularityCalibration {
+            offset: 0.1,
+            slope: 1.2,
+        };
+        only_plain.calibrations.insert(raw.key("int8"), own);
+        assert_eq!(
+            pick_calibration(&only_plain, "int8", raw).map(|(c, _)| c),
+            Some(own)
+        );
         assert_eq!(
             corrected.beam_key("int8", "W/Al"),
             "int8 | scatter removed + linearised | beam W/Al"

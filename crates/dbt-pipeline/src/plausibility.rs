@@ -369,7 +369,10 @@ pub const SCATTER_AIR_MAX: f64 = 1.0;
 /// `scatter_in_counts` (the input of a network trained on uncorrected
 /// clinical acquisitions, issue #27's other design): the elements beside
 /// the breast then read above the flat field by its scatter, and only
-/// counts above [`SCATTER_AIR_MAX`] of it are defects.
+/// counts above `(1 + SCATTER_AIR_MAX) x` the flat field are hot. That
+/// bound holds for every element, so a hot element under the breast is
+/// caught only above it too: the price of reading counts with scatter.
+/// Saturation is judged on the flat field alone, as without scatter.
 pub fn check_counts_with(
     h: &AcquisitionHeader,
     counts: &[Vec<f32>],
@@ -404,8 +407,9 @@ pub fn check_counts_with(
     } else {
         hot_bound(b)
     };
-    // A record of a 16-bit detector: its flat field lies below the maximum.
-    let saturable = (DETECTOR_MAX_COUNT as f64) > hot;
+    // A record of a 16-bit detector: its flat field lies below the maximum
+    // (the flat field's own bound, whatever scatter the counts may hold).
+    let saturable = (DETECTOR_MAX_COUNT as f64) > hot_bound(b);
     let mut chk = CountsCheck {
         rays: nr * counts.len(),
         ..Default::default()

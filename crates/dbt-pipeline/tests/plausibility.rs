@@ -103,6 +103,46 @@ fn a_clean_acquisition_passes_without_corrections() {
     assert!(check_counts(&h, &[c.clone(), c]).unwrap().is_empty());
 }
 
+/// Counts that hold their scatter (issue #27's other design): beside the
+/// breast up to `1 + SCATTER_AIR_MAX` times the flat field passes, beyond
+/// is hot; the 16-bit maximum stays a saturation whatever the scatter bound
+/// (a flat field of 40,000 puts twice it above 65,535).
+#[test]
+fn counts_with_scatter_have_their_own_hot_bound_and_still_saturate() {
+    use dbt_pipeline::plausibility::{check_counts_with, SCATTER_AIR_MAX};
+    let a = acquisition(2, 50.0, 120.0, 50.0, 4);
+    let scaled = |f: f32| -> Vec<Vec<f32>> {
+        a.counts
+            .iter()
+            .map(|s| s.iter().map(|c| c * f).collect())
+            .collect()
+    };
+    let lifted = scaled(1.5);
+    assert_eq!(
+        refused_kind(check_counts(&a.header, &lifted)),
+        "above the flat field"
+    );
+    assert!(check_counts_with(&a.header, &lifted, true)
+        .unwrap()
+        .is_empty());
+    let beyond = scaled((1.0 + SCATTER_AIR_MAX as f32) * 1.1);
+    assert_eq!(
+        refused_kind(check_counts_with(&a.header, &beyond, true)),
+        "above the flat field"
+    );
+    let mut h = a.header.clone();
+    h.flux = 40_000.0;
+    let n = a.counts[0].len();
+    assert_eq!(
+        refused_kind(check_counts_with(
+            &h,
+            &[vec![DETECTOR_MAX_COUNT; n], vec![DETECTOR_MAX_COUNT; n]],
+            true
+        )),
+        "saturated"
+    );
+}
+
 fn refused_kind(r: Result<dbt_pipeline::plausibility::Defects, Implausible>) -> String {
     match r {
         Err(Implausible::Counts { kind, .. }) => kind.to_string(),

@@ -297,8 +297,9 @@ impl PhysicsArgs {
             "--uncorrected feeds the detector's counts as they are: not with --linearise or --descatter"
         );
         anyhow::ensure!(
-            !self.uncorrected || self.physics != "mono",
-            "--uncorrected is for a clinical physics (--physics clinical): mono counts have nothing to correct"
+            !self.uncorrected || self.physics == "clinical",
+            "--uncorrected is for --physics clinical (its counts hold scatter and beam hardening), not {:?}",
+            self.physics
         );
         Ok(Physics {
             physics: host_sim::Physics::parse(&self.physics)?,
