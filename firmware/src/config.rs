@@ -312,9 +312,27 @@ pub struct ReportConfig {
     /// refused rather than dosed with the W/Rh output.
     #[serde(default)]
     pub tube_output_w_al_mgy_per_mas: Option<f64>,
+    /// The beam of an acquisition whose input does not state it (a DICOM
+    /// object without Filter Material; a stream header without
+    /// `anode_filter` where no Modbus register 6 is read): `"W/Rh"` (the
+    /// default, the paper's), `"W/Al"`, or `"refuse"` for a site whose
+    /// gantry uses more than one beam: such an acquisition is then a
+    /// `technique` fault, never dosed with a beam taken for granted.
+    #[serde(default = "default_unstated_beam")]
+    pub unstated_beam: String,
+}
+
+fn default_unstated_beam() -> String {
+    "W/Rh".into()
 }
 
 impl ReportConfig {
+    /// [`Self::unstated_beam`]: the beam, or `None` for `"refuse"`. Checked
+    /// by [`Config::validate`]; an unknown value reads as `None` (refuse).
+    pub fn unstated_beam(&self) -> Option<dbt_dose::xray::AnodeFilter> {
+        dbt_dose::xray::AnodeFilter::parse(&self.unstated_beam).ok()
+    }
+
     /// The tube output of `beam`, if configured.
     pub fn tube_output(&self, beam: dbt_dose::xray::AnodeFilter) -> Option<f64> {
         match beam {
@@ -884,6 +902,24 @@ impl Config {
                 return Err(bad(key, format!("{v}: must be in (0, {max}] mGy/mAs")));
             }
         }
+        let unstated = &self.report.unstated_beam;
+        if unstated != "refuse" {
+            match dbt_dose::xray::AnodeFilter::parse(unstated) {
+                Ok(b) if self.report.tube_output(b).is_none() => {
+                    return Err(bad(
+                        "report.unstated_beam",
+                        format!("{unstated}: no tube output is configured for it (report.tube_output_w_al_mgy_per_mas)"),
+                    ))
+                }
+                Ok(_) => {}
+                Err(e) => {
+                    return Err(bad(
+                        "report.unstated_beam",
+                        format!("{unstated:?}: {e}; or \"refuse\""),
+                    ))
+                }
+            }
+        }
         Ok(())
     }
 
@@ -1322,6 +1358,36 @@ mod tests {
         assert!(e.contains("report.tube_output_w_al_mgy_per_mas"), "{e}");
         let absent = example(|t| t.replace("tube_output_w_al_mgy_per_mas = 0.11\n", "")).unwrap();
         assert_eq!(absent.report.tube_output(AnodeFilter::WAl), None);
+        // The beam of an input that states none: the site's, or refused.
+        let unstated = |v: &str| {
+            example(|t| {
+                t.replace(
+                    "unstated_beam = \"W/Rh\"",
+                    &format!("unstated_beam = {v:?}"),
+                )
+            })
+        };
+        assert_eq!(c.report.unstated_beam(), Some(AnodeFilter::WRh));
+        assert_eq!(
+            unstated("W/Al").unwrap().report.unstated_beam(),
+            Some(AnodeFilter::WAl)
+        );
+        assert_eq!(unstated("refuse").unwrap().report.unstated_beam(), None);
+        let e = unstated("W/Ag").unwrap_err().to_string();
+        assert!(
+            e.contains("report.unstated_beam") && e.contains("W/Ag"),
+            "{e}"
+        );
+        let e = example(|t| {
+            t.replace("tube_output_w_al_mgy_per_mas = 0.11\n", "")
+                .replace("unstated_beam = \"W/Rh\"", "unstated_beam = \"W/Al\"")
+        })
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("report.unstated_beam") && e.contains("tube output"),
+            "{e}"
+        );
     }
 
     /// fp32 blocks are an int8 option: listed with fp32 they are refused,

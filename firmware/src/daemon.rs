@@ -383,6 +383,7 @@ impl Daemon {
                     cone: d.site.system.clone(),
                     flux: di.flat_field_counts,
                     tube_output_mgy_per_mas: d.cfg.report.tube_output_mgy_per_mas,
+                    unstated_beam: d.cfg.report.unstated_beam(),
                 },
                 quiet_time: di.quiet_time,
                 max_associations: di.max_associations,
@@ -859,6 +860,21 @@ impl Daemon {
                 return;
             }
             acq.header.anode_filter = beam;
+        } else if gantry["source"] != "dicom" && gantry["header_anode_filter"].is_null() {
+            // Frames without a Modbus register, from a header that states no
+            // beam: the site's unstated beam, or refused (a DICOM object's
+            // was settled by the input, `dicom_input::beam`).
+            match self.cfg.report.unstated_beam() {
+                Some(b) => acq.header.anode_filter = b,
+                None => {
+                    self.reject(
+                        id,
+                        "technique",
+                        "anode/filter: neither the acquisition header nor a Modbus register states the beam, and this site takes none for granted ([report] unstated_beam = \"refuse\"); not reported".into(),
+                    );
+                    return;
+                }
+            }
         }
         // The dose's incident kerma is the beam's own tube output (QC), not
         // another beam's: a beam without one configured is not reported.

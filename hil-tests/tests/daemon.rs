@@ -392,7 +392,9 @@ fn thickness_disagreement_is_a_fault_not_a_report() {
 /// An exposure with another anode/filter than the dose model's (W/Rh,
 /// W/Al) is a `technique` fault naming it, kept in faulted/, never a report
 /// (issue #27); so is a register that names another beam than the
-/// stream's header.
+/// stream's header, and, at a site that takes no beam for granted
+/// (`[report] unstated_beam = "refuse"`), a stream whose header states none
+/// without a register to say it.
 #[test]
 fn another_anode_filter_is_a_fault_not_a_report() {
     let dir = tempfile::tempdir().unwrap();
@@ -426,6 +428,37 @@ fn another_anode_filter_is_a_fault_not_a_report() {
     assert!(entries(&dir.path().join("output"))
         .iter()
         .all(|n| !n.ends_with(".dcm")));
+    // No register and a header that states no beam: a site that takes no
+    // beam for granted refuses it (kept in faulted/); one that names its
+    // beam (the default, W/Rh) reports it.
+    for (unstated, code) in [("refuse", 1), ("W/Rh", 0)] {
+        let run = dir.path().join(unstated.replace('/', "-"));
+        std::fs::create_dir_all(&run).unwrap();
+        let g = gantry_with(&acq, thickness, &["anode:0"]);
+        let cfg = write_config(
+            &run,
+            &format!("transport = \"tcp\"\naddress = \"{}\"", g.frames),
+            "transport = \"off\"",
+            "reconstructor = \"mltr\"\nmltr_iterations = 20",
+        );
+        let text = std::fs::read_to_string(&cfg).unwrap().replace(
+            "tube_output_w_al_mgy_per_mas = 0.11",
+            &format!("tube_output_w_al_mgy_per_mas = 0.11\nunstated_beam = {unstated:?}"),
+        );
+        std::fs::write(&cfg, text).unwrap();
+        let st = once(&cfg);
+        let s = status(&run);
+        assert_eq!(st.code(), Some(code), "unstated_beam {unstated}: {s}");
+        if code == 1 {
+            let f = &s["faults"][0];
+            assert_eq!(f["kind"], "technique", "{s}");
+            let m = f["message"].as_str().unwrap();
+            assert!(m.contains("unstated_beam") && m.contains("refuse"), "{m}");
+            assert_eq!(entries(&run.join("spool/faulted")).len(), 1);
+        } else {
+            assert_eq!(s["processed"], 1, "{s}");
+        }
+    }
 }
 
 /// Start the daemon on `cfg`, expect exit 2 (refused at start), return its

@@ -31,6 +31,13 @@ pub struct System {
     pub flux: f64,
     /// Incident air kerma at the reference point per mAs, mGy/mAs.
     pub tube_output_mgy_per_mas: f64,
+    /// The beam of an object that does not state its filter (Filter
+    /// Material is optional in the DM IOD and the X-Ray Filter Macro in the
+    /// BPXR one): the site's one beam (the firmware's `[report]
+    /// unstated_beam`), or `None`, a site with several beams: such an
+    /// object is refused, naming the attribute, never dosed with a beam
+    /// taken for granted.
+    pub unstated_beam: Option<AnodeFilter>,
 }
 
 impl System {
@@ -88,10 +95,14 @@ const THICKNESS_TOL_MM: f64 = 0.5;
 /// Filter Material (0018,7050): a tungsten anode with rhodium or aluminium
 /// (`dbt_dose::xray::AnodeFilter`, the beams the dose model has spectra
 /// for); another anode or filter is refused naming the attribute and its
-/// value, never reported with another beam's dose. Where the object
-/// states neither (both are optional in the DM IOD), the paper's W/Rh;
-/// a filter without an anode is taken on a tungsten anode.
-pub fn beam(p: &ReceivedProjections) -> Result<AnodeFilter, HeaderError> {
+/// value, never reported with another beam's dose. Where the object does
+/// not state its filter (optional in the DM IOD), the site's `unstated`
+/// beam ([`System::unstated_beam`]; `None` refuses it, naming Filter
+/// Material); a filter without an anode is taken on a tungsten anode.
+pub fn beam(
+    p: &ReceivedProjections,
+    unstated: Option<AnodeFilter>,
+) -> Result<AnodeFilter, HeaderError> {
     use dbt_dicom::ANODE_TUNGSTEN;
     let anode = p.anode.as_deref().unwrap_or(ANODE_TUNGSTEN);
     if anode.trim() != ANODE_TUNGSTEN {
@@ -102,7 +113,14 @@ pub fn beam(p: &ReceivedProjections) -> Result<AnodeFilter, HeaderError> {
         ));
     }
     let Some(f) = p.filter.as_deref() else {
-        return Ok(AnodeFilter::WRh);
+        return unstated.ok_or_else(|| {
+            refuse(
+                "FilterMaterial",
+                "(absent)",
+                "the object does not state its filter, and this site takes no beam for granted \
+                 ([report] unstated_beam = \"refuse\")",
+            )
+        });
     };
     // A filter of several layers (`\`-separated) is one beam's only if
     // every layer is that beam's filter.
@@ -207,7 +225,7 @@ pub fn check_object(p: &ReceivedProjections, system: &System) -> Result<(), Head
     }
     // Another anode or filter than the dose model's would be reported
     // with the wrong dose.
-    beam(p)?;
+    beam(p, system.unstated_beam)?;
     Ok(())
 }
 
@@ -267,7 +285,7 @@ pub fn acquisition_from_projections(
             None => p.pixel_spacing_mm[0],
         },
         kvp: p.kvp,
-        anode_filter: beam(p)?,
+        anode_filter: beam(p, system.unstated_beam)?,
         mas_total: p.exposure_mas,
         tube_output_mgy_per_mas: system.tube_output_mgy_per_mas,
         laterality: h.laterality.letter().into(),

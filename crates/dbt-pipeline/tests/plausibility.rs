@@ -506,6 +506,7 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
         cone: None,
         flux: h.flux,
         tube_output_mgy_per_mas: h.tube_output_mgy_per_mas,
+        unstated_beam: Some(dbt_dose::xray::AnodeFilter::WRh),
     };
     let back = acquisition_from_projections(&received, &system).unwrap();
     let rounded: Vec<Vec<f32>> = acq
@@ -633,11 +634,33 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
         let got = acquisition_from_projections(&r, &system).unwrap();
         assert_eq!(got.header.anode_filter, want, "{filter}");
     }
-    // Neither stated (both optional in the DM IOD): the paper's W/Rh.
-    let mut r = received.clone();
-    (r.anode, r.filter) = (None, None);
-    let plain = acquisition_from_projections(&r, &system).unwrap();
-    assert_eq!(plain.header.anode_filter, dbt_dose::xray::AnodeFilter::WRh);
+    // No filter stated (optional in the DM IOD): the site's unstated beam,
+    // whichever it is, or refused naming the attribute where the site takes
+    // none for granted; an anode without a filter likewise.
+    for anode in [None, Some("TUNGSTEN")] {
+        let mut r = received.clone();
+        (r.anode, r.filter) = (anode.map(String::from), None);
+        let plain = acquisition_from_projections(&r, &system).unwrap();
+        assert_eq!(plain.header.anode_filter, AnodeFilter::WRh);
+        let w_al_site = System {
+            unstated_beam: Some(AnodeFilter::WAl),
+            ..system.clone()
+        };
+        let got = acquisition_from_projections(&r, &w_al_site).unwrap();
+        assert_eq!(got.header.anode_filter, AnodeFilter::WAl);
+        let strict = System {
+            unstated_beam: None,
+            ..system.clone()
+        };
+        let e = acquisition_from_projections(&r, &strict)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("FilterMaterial") && e.contains("unstated_beam"),
+            "{e}"
+        );
+        assert!(dbt_pipeline::dicom_input::check_object(&r, &strict).is_err());
+    }
 }
 
 /// A cone-beam sweep (issue #28) written as Breast Projection X-Ray and as
@@ -683,6 +706,7 @@ fn a_cone_beam_projection_object_reads_back_on_its_system() {
         cone: Some(sys.clone()),
         flux: h.flux,
         tube_output_mgy_per_mas: h.tube_output_mgy_per_mas,
+        unstated_beam: Some(dbt_dose::xray::AnodeFilter::WRh),
     };
     let back = acquisition_from_projections(&received, &system).unwrap();
     assert_eq!(back.counts, acq.counts);
