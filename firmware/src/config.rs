@@ -305,13 +305,13 @@ pub struct ReportConfig {
     #[serde(default = "default_serial")]
     pub device_serial: String,
     /// Tube output at the reference point, mGy/mAs (from the QC), of the
-    /// W/Rh beam.
-    pub tube_output_mgy_per_mas: f64,
+    /// W/Rh beam: one figure, or the QC's figures by kV ([`TubeOutput`]).
+    pub tube_output_mgy_per_mas: TubeOutput,
     /// The same for the W/Al beam (its own QC figure: the filters pass
     /// different shares of the tube's output); absent, W/Al exposures are
     /// refused rather than dosed with the W/Rh output.
     #[serde(default)]
-    pub tube_output_w_al_mgy_per_mas: Option<f64>,
+    pub tube_output_w_al_mgy_per_mas: Option<TubeOutput>,
     /// The beam of an acquisition whose input does not state it (a DICOM
     /// object without Filter Material; a stream header without
     /// `anode_filter` where no Modbus register 6 is read): `"W/Rh"` (the
@@ -326,6 +326,101 @@ fn default_unstated_beam() -> String {
     "W/Rh".into()
 }
 
+/// A beam's tube output at the reference point, mGy/mAs: one figure for
+/// every kV (`tube_output_mgy_per_mas = 0.11`), or the QC's measurements by
+/// kV (`tube_output_mgy_per_mas = { kv = [25, 30, 35], mgy_per_mas = [0.06,
+/// 0.09, 0.12] }`): the output of a tungsten tube rises steeply with the
+/// kV (roughly as its square), so one figure misstates the incident air
+/// kerma, and with it the MGD, by tens of per cent a few kV away from where
+/// it was measured; a physicist who measured it at several kV enters them. Between two measured kV the output is taken as a
+/// power of the kV (linear in log-log); outside the measured range the
+/// exposure is refused (a technique fault), never extrapolated.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(untagged)]
+pub enum TubeOutput {
+    /// One figure at every kV.
+    Single(f64),
+    /// Measured at ascending `kv` (at least two), `mgy_per_mas` at each.
+    ByKv {
+        /// kV of each measurement, ascending.
+        kv: Vec<f64>,
+        /// Output at each, mGy/mAs.
+        mgy_per_mas: Vec<f64>,
+    },
+}
+
+impl TubeOutput {
+    /// The output at `kvp`; outside a table's measured range, why not.
+    pub fn at(&self, kvp: f64) -> Result<f64, String> {
+        match self {
+            TubeOutput::Single(v) => Ok(*v),
+            TubeOutput::ByKv { kv, mgy_per_mas } => {
+                let (Some(&lo), Some(&hi)) = (kv.first(), kv.last()) else {
+                    return Err("an empty tube output table".into());
+                };
+                if !(kvp >= lo && kvp <= hi) {
+                    return Err(format!(
+                        "{kvp} kV is outside the tube output's measured {lo}-{hi} kV"
+                    ));
+                }
+                let k = kv.partition_point(|&x| x < kvp).clamp(1, kv.len() - 1);
+                let (k0, k1) = (kv[k - 1], kv[k]);
+                let (o0, o1) = (mgy_per_mas[k - 1], mgy_per_mas[k]);
+                if kvp == k0 {
+                    return Ok(o0);
+                }
+                let t = (kvp / k0).ln() / (k1 / k0).ln();
+                Ok(o0 * (o1 / o0).powf(t))
+            }
+        }
+    }
+
+    /// The first figure (the one output, or the table's lowest kV's): a
+    /// placeholder where no kV is known yet; the processing replaces it
+    /// with [`Self::at`] the exposure's kV.
+    pub fn nominal(&self) -> f64 {
+        match self {
+            TubeOutput::Single(v) => *v,
+            TubeOutput::ByKv { mgy_per_mas, .. } => mgy_per_mas.first().copied().unwrap_or(0.0),
+        }
+    }
+
+    /// Every figure in `(0, max]`; a table's kV ascending, within the
+    /// header's kV limits, as many outputs as kV, at least two.
+    fn check(&self, max: f64) -> Result<(), String> {
+        let out_ok = |v: f64| v > 0.0 && v <= max;
+        match self {
+            TubeOutput::Single(v) if out_ok(*v) => Ok(()),
+            TubeOutput::Single(v) => Err(format!("{v}: must be in (0, {max}] mGy/mAs")),
+            TubeOutput::ByKv { kv, mgy_per_mas } => {
+                use dbt_pipeline::acquisition::limits::{KVP_MAX, KVP_MIN};
+                let kv_range = KVP_MIN..=KVP_MAX;
+                if kv.len() < 2 || kv.len() != mgy_per_mas.len() {
+                    return Err(format!(
+                        "a table needs at least two kV and one output per kV ({} kV, {} outputs)",
+                        kv.len(),
+                        mgy_per_mas.len()
+                    ));
+                }
+                if let Some(k) = kv.iter().find(|k| !kv_range.contains(*k)) {
+                    return Err(format!(
+                        "kv {k}: outside {}-{} kV",
+                        kv_range.start(),
+                        kv_range.end()
+                    ));
+                }
+                if let Some(w) = kv.windows(2).find(|w| w[1] <= w[0]) {
+                    return Err(format!("kv {} then {}: must ascend", w[0], w[1]));
+                }
+                if let Some(v) = mgy_per_mas.iter().find(|v| !out_ok(**v)) {
+                    return Err(format!("mgy_per_mas {v}: must be in (0, {max}] mGy/mAs"));
+                }
+                Ok(())
+            }
+        }
+    }
+}
+
 impl ReportConfig {
     /// [`Self::unstated_beam`]: the beam, or `None` for `"refuse"`. Checked
     /// by [`Config::validate`]; an unknown value reads as `None` (refuse).
@@ -334,10 +429,10 @@ impl ReportConfig {
     }
 
     /// The tube output of `beam`, if configured.
-    pub fn tube_output(&self, beam: dbt_dose::xray::AnodeFilter) -> Option<f64> {
+    pub fn tube_output(&self, beam: dbt_dose::xray::AnodeFilter) -> Option<&TubeOutput> {
         match beam {
-            dbt_dose::xray::AnodeFilter::WRh => Some(self.tube_output_mgy_per_mas),
-            dbt_dose::xray::AnodeFilter::WAl => self.tube_output_w_al_mgy_per_mas,
+            dbt_dose::xray::AnodeFilter::WRh => Some(&self.tube_output_mgy_per_mas),
+            dbt_dose::xray::AnodeFilter::WAl => self.tube_output_w_al_mgy_per_mas.as_ref(),
         }
     }
 }
@@ -891,15 +986,15 @@ impl Config {
         for (key, v) in [
             (
                 "report.tube_output_mgy_per_mas",
-                Some(self.report.tube_output_mgy_per_mas),
+                Some(&self.report.tube_output_mgy_per_mas),
             ),
             (
                 "report.tube_output_w_al_mgy_per_mas",
-                self.report.tube_output_w_al_mgy_per_mas,
+                self.report.tube_output_w_al_mgy_per_mas.as_ref(),
             ),
         ] {
-            if let Some(v) = v.filter(|v| !(*v > 0.0 && *v <= max)) {
-                return Err(bad(key, format!("{v}: must be in (0, {max}] mGy/mAs")));
+            if let Some(Err(e)) = v.map(|t| t.check(max)) {
+                return Err(bad(key, e));
             }
         }
         let unstated = &self.report.unstated_beam;
@@ -995,7 +1090,7 @@ impl Config {
         Ok(crate::link::Site {
             geometry: self.gantry_geometry(path)?,
             system: self.gantry_system(path)?,
-            tube_output_mgy_per_mas: self.report.tube_output_mgy_per_mas,
+            tube_output_mgy_per_mas: self.report.tube_output_mgy_per_mas.nominal(),
         })
     }
 
@@ -1352,12 +1447,51 @@ mod tests {
         };
         let c = al("0.2").unwrap();
         use dbt_dose::xray::AnodeFilter;
-        assert_eq!(c.report.tube_output(AnodeFilter::WAl), Some(0.2));
-        assert_eq!(c.report.tube_output(AnodeFilter::WRh), Some(0.11));
+        let at30 = |b| c.report.tube_output(b).map(|t| t.at(30.0).unwrap());
+        assert_eq!(at30(AnodeFilter::WAl), Some(0.2));
+        assert_eq!(at30(AnodeFilter::WRh), Some(0.11));
         let e = al("0").unwrap_err().to_string();
         assert!(e.contains("report.tube_output_w_al_mgy_per_mas"), "{e}");
         let absent = example(|t| t.replace("tube_output_w_al_mgy_per_mas = 0.11\n", "")).unwrap();
         assert_eq!(absent.report.tube_output(AnodeFilter::WAl), None);
+        // The QC's outputs by kV: a power law between measured kV, exact at
+        // them, refused outside; bad tables refused naming the key.
+        let table = example(|t| {
+            t.replace(
+                "tube_output_mgy_per_mas = 0.11\n",
+                "tube_output_mgy_per_mas = { kv = [25, 30, 35], mgy_per_mas = [0.06, 0.09, 0.12] }\n",
+            )
+        })
+        .unwrap();
+        let t = table.report.tube_output(AnodeFilter::WRh).unwrap();
+        assert_eq!(t.at(25.0), Ok(0.06));
+        assert_eq!(t.at(35.0), Ok(0.12));
+        assert!((t.at(30.0).unwrap() - 0.09).abs() < 1e-12);
+        // 0.06 (27.5/25)^(ln 1.5 / ln 1.2): between the neighbours, below
+        // the straight line's 0.075 (the output is convex in kV).
+        let mid = t.at(27.5).unwrap();
+        let want = 0.06 * (27.5f64 / 25.0).powf(1.5f64.ln() / 1.2f64.ln());
+        assert!((mid - want).abs() < 1e-12 && mid < 0.075, "{mid}");
+        let e = t.at(36.0).unwrap_err();
+        assert!(e.contains("36") && e.contains("25-35"), "{e}");
+        assert!(t.at(24.9).is_err());
+        for bad in [
+            "{ kv = [30], mgy_per_mas = [0.09] }",
+            "{ kv = [25, 30], mgy_per_mas = [0.06] }",
+            "{ kv = [30, 25], mgy_per_mas = [0.06, 0.09] }",
+            "{ kv = [25, 60], mgy_per_mas = [0.06, 0.09] }",
+            "{ kv = [25, 30], mgy_per_mas = [0.06, -1] }",
+        ] {
+            let e = example(|t| {
+                t.replace(
+                    "tube_output_mgy_per_mas = 0.11\n",
+                    &format!("tube_output_mgy_per_mas = {bad}\n"),
+                )
+            })
+            .unwrap_err()
+            .to_string();
+            assert!(e.contains("report.tube_output_mgy_per_mas"), "{bad}: {e}");
+        }
         // The beam of an input that states none: the site's, or refused.
         let unstated = |v: &str| {
             example(|t| {

@@ -382,7 +382,7 @@ impl Daemon {
                     geometry: d.site.geometry.clone(),
                     cone: d.site.system.clone(),
                     flux: di.flat_field_counts,
-                    tube_output_mgy_per_mas: d.cfg.report.tube_output_mgy_per_mas,
+                    tube_output_mgy_per_mas: d.cfg.report.tube_output_mgy_per_mas.nominal(),
                     unstated_beam: d.cfg.report.unstated_beam(),
                 },
                 quiet_time: di.quiet_time,
@@ -878,8 +878,22 @@ impl Daemon {
         }
         // The dose's incident kerma is the beam's own tube output (QC), not
         // another beam's: a beam without one configured is not reported.
+        // At the exposure's kV where the QC measured it by kV.
         match self.cfg.report.tube_output(acq.header.anode_filter) {
-            Some(t) => acq.header.tube_output_mgy_per_mas = t,
+            Some(t) => {
+                match t.at(acq.header.kvp) {
+                    Ok(v) => acq.header.tube_output_mgy_per_mas = v,
+                    Err(e) => {
+                        let beam = acq.header.anode_filter;
+                        self.reject(
+                        id,
+                        "technique",
+                        format!("tube output of {beam}: {e}; its dose cannot be computed; not reported"),
+                    );
+                        return;
+                    }
+                }
+            }
             None => {
                 let beam = acq.header.anode_filter;
                 self.reject(

@@ -394,7 +394,8 @@ fn thickness_disagreement_is_a_fault_not_a_report() {
 /// (issue #27); so is a register that names another beam than the
 /// stream's header, and, at a site that takes no beam for granted
 /// (`[report] unstated_beam = "refuse"`), a stream whose header states none
-/// without a register to say it.
+/// without a register to say it; and an exposure whose kV the site's tube
+/// output table does not cover.
 #[test]
 fn another_anode_filter_is_a_fault_not_a_report() {
     let dir = tempfile::tempdir().unwrap();
@@ -459,6 +460,25 @@ fn another_anode_filter_is_a_fault_not_a_report() {
             assert_eq!(s["processed"], 1, "{s}");
         }
     }
+    // A tube output measured by kV that does not reach the exposure's kV
+    // (the QC's table of another technique range): not extrapolated, a
+    // technique fault naming the range.
+    let run = dir.path().join("kv-table");
+    std::fs::create_dir_all(&run).unwrap();
+    let g = gantry(&acq, thickness);
+    let cfg = config(&run, &g, 20);
+    let text = std::fs::read_to_string(&cfg).unwrap().replace(
+        "tube_output_mgy_per_mas = 0.11\n",
+        "tube_output_mgy_per_mas = { kv = [20, 21], mgy_per_mas = [0.05, 0.055] }\n",
+    );
+    std::fs::write(&cfg, text).unwrap();
+    assert_eq!(once(&cfg).code(), Some(1));
+    let s = status(&run);
+    let f = &s["faults"][0];
+    assert_eq!(f["kind"], "technique", "{s}");
+    let m = f["message"].as_str().unwrap();
+    assert!(m.contains("tube output") && m.contains("20-21 kV"), "{m}");
+    assert_eq!(entries(&run.join("spool/faulted")).len(), 1);
 }
 
 /// Start the daemon on `cfg`, expect exit 2 (refused at start), return its
