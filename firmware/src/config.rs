@@ -336,17 +336,25 @@ fn default_unstated_beam() -> String {
 /// power of the kV (linear in log-log); outside the measured range the
 /// exposure is refused (a technique fault), never extrapolated.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
-#[serde(untagged)]
+#[serde(
+    untagged,
+    expecting = "a tube output: a number (mGy/mAs) or a table { kv = [...], mgy_per_mas = [...] }"
+)]
 pub enum TubeOutput {
     /// One figure at every kV.
     Single(f64),
-    /// Measured at ascending `kv` (at least two), `mgy_per_mas` at each.
-    ByKv {
-        /// kV of each measurement, ascending.
-        kv: Vec<f64>,
-        /// Output at each, mGy/mAs.
-        mgy_per_mas: Vec<f64>,
-    },
+    /// Measured at ascending kV.
+    ByKv(KvTable),
+}
+
+/// The QC's tube outputs by kV.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct KvTable {
+    /// kV of each measurement, ascending (at least two).
+    pub kv: Vec<f64>,
+    /// Output at each, mGy/mAs.
+    pub mgy_per_mas: Vec<f64>,
 }
 
 impl TubeOutput {
@@ -354,7 +362,7 @@ impl TubeOutput {
     pub fn at(&self, kvp: f64) -> Result<f64, String> {
         match self {
             TubeOutput::Single(v) => Ok(*v),
-            TubeOutput::ByKv { kv, mgy_per_mas } => {
+            TubeOutput::ByKv(KvTable { kv, mgy_per_mas }) => {
                 let (Some(&lo), Some(&hi)) = (kv.first(), kv.last()) else {
                     return Err("an empty tube output table".into());
                 };
@@ -369,6 +377,9 @@ impl TubeOutput {
                 if kvp == k0 {
                     return Ok(o0);
                 }
+                if kvp == k1 {
+                    return Ok(o1);
+                }
                 let t = (kvp / k0).ln() / (k1 / k0).ln();
                 Ok(o0 * (o1 / o0).powf(t))
             }
@@ -381,7 +392,7 @@ impl TubeOutput {
     pub fn nominal(&self) -> f64 {
         match self {
             TubeOutput::Single(v) => *v,
-            TubeOutput::ByKv { mgy_per_mas, .. } => mgy_per_mas.first().copied().unwrap_or(0.0),
+            TubeOutput::ByKv(t) => t.mgy_per_mas.first().copied().unwrap_or(0.0),
         }
     }
 
@@ -392,7 +403,7 @@ impl TubeOutput {
         match self {
             TubeOutput::Single(v) if out_ok(*v) => Ok(()),
             TubeOutput::Single(v) => Err(format!("{v}: must be in (0, {max}] mGy/mAs")),
-            TubeOutput::ByKv { kv, mgy_per_mas } => {
+            TubeOutput::ByKv(KvTable { kv, mgy_per_mas }) => {
                 use dbt_pipeline::acquisition::limits::{KVP_MAX, KVP_MIN};
                 let kv_range = KVP_MIN..=KVP_MAX;
                 if kv.len() < 2 || kv.len() != mgy_per_mas.len() {
@@ -1481,6 +1492,9 @@ mod tests {
             "{ kv = [30, 25], mgy_per_mas = [0.06, 0.09] }",
             "{ kv = [25, 60], mgy_per_mas = [0.06, 0.09] }",
             "{ kv = [25, 30], mgy_per_mas = [0.06, -1] }",
+            "{ kv = [25, 30], mgy = [0.06, 0.09] }",
+            "{ kv = [25, 30], mgy_per_mas = [0.06, 0.09], beam = \"W/Al\" }",
+            "\"0.11\"",
         ] {
             let e = example(|t| {
                 t.replace(

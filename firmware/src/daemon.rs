@@ -791,6 +791,7 @@ impl Daemon {
                 return;
             }
         };
+        let spooled = acq.header.clone();
         // Thickness: the register at exposure time against the header.
         let gantry: serde_json::Value = std::fs::read(dir.join("gantry.json"))
             .ok()
@@ -860,10 +861,14 @@ impl Daemon {
                 return;
             }
             acq.header.anode_filter = beam;
-        } else if gantry["source"] != "dicom" && gantry["header_anode_filter"].is_null() {
-            // Frames without a Modbus register, from a header that states no
-            // beam: the site's unstated beam, or refused (a DICOM object's
-            // was settled by the input, `dicom_input::beam`).
+        } else if gantry["source"] != "dicom"
+            && gantry["header_anode_filter"].is_null()
+            && gantry["modbus"]["anode_filter"].as_str().is_none()
+        {
+            // Frames from a header that states no beam, and no register read
+            // at receipt (a register's beam was spooled with the entry): the
+            // site's unstated beam, or refused (a DICOM object's was settled
+            // by the input, `dicom_input::beam`).
             match self.cfg.report.unstated_beam() {
                 Some(b) => acq.header.anode_filter = b,
                 None => {
@@ -912,6 +917,19 @@ impl Daemon {
             acq.header.compression_force_n = gantry["modbus"]["force_n"]
                 .as_f64()
                 .filter(|f| f.is_finite() && *f > 0.0 && *f <= 500.0);
+        }
+        // What was settled here (the beam, the tube output at the
+        // exposure's kV, the force) goes into the spooled header, so that
+        // `dbtor-diag replay` and `dbtor-process` on the entry compute what
+        // the daemon reports.
+        if acq.header != spooled {
+            let h = dir.join("acquisition.json");
+            let written = serde_json::to_vec_pretty(&acq.header)
+                .map_err(std::io::Error::other)
+                .and_then(|b| write_durable(&h, &b));
+            if let Err(e) = written {
+                tracing::warn!(path = %h.display(), error = %e, "the settled header was not written back; a replay of this entry may differ");
+            }
         }
         let t0 = Instant::now();
         let res = match process(&acq, &self.opts) {

@@ -479,6 +479,55 @@ fn another_anode_filter_is_a_fault_not_a_report() {
     let m = f["message"].as_str().unwrap();
     assert!(m.contains("tube output") && m.contains("20-21 kV"), "{m}");
     assert_eq!(entries(&run.join("spool/faulted")).len(), 1);
+    // A table that does: the dose is the output at the exposure's kV (twice
+    // the flat 0.11 here, while the table's first figure, the placeholder
+    // of the spooled header, is 0.05), and the spooled header keeps it, so
+    // a replay of the entry computes the same dose.
+    let header: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(acq.join("acquisition.json")).unwrap()).unwrap();
+    let kv = header["kvp"].as_f64().unwrap();
+    let mut mgd = Vec::new();
+    for (name, output) in [
+        ("flat", "0.11".to_string()),
+        (
+            "kv-table-in",
+            format!("{{ kv = [20, {kv}, 49], mgy_per_mas = [0.05, 0.22, 0.3] }}"),
+        ),
+    ] {
+        let run = dir.path().join(name);
+        std::fs::create_dir_all(&run).unwrap();
+        let g = gantry(&acq, thickness);
+        let cfg = config(&run, &g, 20);
+        let text = std::fs::read_to_string(&cfg).unwrap().replace(
+            "tube_output_mgy_per_mas = 0.11\n",
+            &format!("tube_output_mgy_per_mas = {output}\n"),
+        );
+        std::fs::write(&cfg, text).unwrap();
+        assert_eq!(once(&cfg).code(), Some(0), "{name}: {}", status(&run));
+        mgd.push(status(&run)["recent"][0]["mgd_mgy"].as_f64().unwrap());
+        let done = entries(&run.join("spool/done"));
+        let spooled: serde_json::Value = serde_json::from_slice(
+            &std::fs::read(
+                run.join("spool/done")
+                    .join(&done[0])
+                    .join("acquisition.json"),
+            )
+            .unwrap(),
+        )
+        .unwrap();
+        let want = if name == "flat" { 0.11 } else { 0.22 };
+        assert_eq!(
+            spooled["tube_output_mgy_per_mas"].as_f64(),
+            Some(want),
+            "{name}"
+        );
+    }
+    assert!(
+        (mgd[1] / mgd[0] - 2.0).abs() < 1e-6,
+        "MGD {} with the table against {} flat",
+        mgd[1],
+        mgd[0]
+    );
 }
 
 /// Start the daemon on `cfg`, expect exit 2 (refused at start), return its
