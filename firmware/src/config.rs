@@ -332,9 +332,10 @@ fn default_unstated_beam() -> String {
 /// 0.09, 0.12] }`): the output of a tungsten tube rises steeply with the
 /// kV (roughly as its square), so one figure misstates the incident air
 /// kerma, and with it the MGD, by tens of per cent a few kV away from where
-/// it was measured; a physicist who measured it at several kV enters them. Between two measured kV the output is taken as a
-/// power of the kV (linear in log-log); outside the measured range the
-/// exposure is refused (a technique fault), never extrapolated.
+/// it was measured; a physicist who measured it at several kV enters them.
+/// Between two measured kV the output is taken as a power of the kV (linear
+/// in log-log); outside the measured range the exposure is refused (a
+/// technique fault), never extrapolated.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(
     untagged,

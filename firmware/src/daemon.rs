@@ -884,30 +884,25 @@ impl Daemon {
         // The dose's incident kerma is the beam's own tube output (QC), not
         // another beam's: a beam without one configured is not reported.
         // At the exposure's kV where the QC measured it by kV.
-        match self.cfg.report.tube_output(acq.header.anode_filter) {
-            Some(t) => {
-                match t.at(acq.header.kvp) {
-                    Ok(v) => acq.header.tube_output_mgy_per_mas = v,
-                    Err(e) => {
-                        let beam = acq.header.anode_filter;
-                        self.reject(
-                        id,
-                        "technique",
-                        format!("tube output of {beam}: {e}; its dose cannot be computed; not reported"),
-                    );
-                        return;
-                    }
-                }
-            }
-            None => {
-                let beam = acq.header.anode_filter;
-                self.reject(
-                    id,
-                    "technique",
-                    format!(
-                        "anode/filter {beam}: no tube output configured for this beam ([report] tube_output_w_al_mgy_per_mas); its dose cannot be computed; not reported"
-                    ),
-                );
+        let beam = acq.header.anode_filter;
+        let output = self
+            .cfg
+            .report
+            .tube_output(beam)
+            .ok_or_else(|| {
+                format!(
+                    "anode/filter {beam}: no tube output configured for this beam ([report] tube_output_w_al_mgy_per_mas); its dose cannot be computed; not reported"
+                )
+            })
+            .and_then(|t| {
+                t.at(acq.header.kvp).map_err(|e| {
+                    format!("tube output of {beam}: {e}; its dose cannot be computed; not reported")
+                })
+            });
+        match output {
+            Ok(v) => acq.header.tube_output_mgy_per_mas = v,
+            Err(msg) => {
+                self.reject(id, "technique", msg);
                 return;
             }
         }
