@@ -1114,6 +1114,7 @@ impl Config {
                     csi_um: self.recon.csi_um,
                     ..Default::default()
                 },
+                path: dbt_pipeline::linearise::PathModel::Reference,
             }
         })
     }

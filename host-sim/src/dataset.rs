@@ -176,7 +176,10 @@ fn phantom_records(
                 } else {
                     None
                 },
-                linearise: Some(dbt_pipeline::linearise::BeamHardening { detector }),
+                linearise: Some(dbt_pipeline::linearise::BeamHardening {
+                    detector,
+                    path: dbt_pipeline::linearise::PathModel::Reference,
+                }),
                 ..Default::default()
             };
             dbt_pipeline::correct_counts(&acq, &opts)

@@ -58,6 +58,7 @@ fn linearised_clinical_counts_read_like_mono_ones() {
     let raw = process(&clinical, &opts(None)).unwrap();
     let bh = dbt_pipeline::linearise::BeamHardening {
         detector: Default::default(),
+        path: dbt_pipeline::linearise::PathModel::Reference,
     };
     let lin = process(&clinical, &opts(Some(bh))).unwrap();
     let mono = process(&acq(host_sim::Physics::Mono), &opts(None)).unwrap();
@@ -159,6 +160,7 @@ fn scatter_is_added_and_removed() {
     let noisy = acq(true, NoiseLevel::Poisson(8), AnodeFilter::WRh);
     let bh = dbt_pipeline::linearise::BeamHardening {
         detector: Default::default(),
+        path: dbt_pipeline::linearise::PathModel::Reference,
     };
     let opts = |descatter| PipelineOptions {
         mltr_iterations: 20,

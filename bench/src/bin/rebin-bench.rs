@@ -137,6 +137,7 @@ fn main() -> Result<()> {
     });
     let bh = dbt_pipeline::linearise::BeamHardening {
         detector: Default::default(),
+        path: dbt_pipeline::linearise::PathModel::Reference,
     };
     let linearise_ms = median_ms(1, a.reps, || {
         let mut f = frames.clone();

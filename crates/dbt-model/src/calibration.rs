@@ -115,6 +115,9 @@ pub struct InputCorrections {
     pub scatter_removed: bool,
     /// The beam hardening was linearised (`dbt_pipeline::linearise`).
     pub linearised: bool,
+    /// ... on each ray's known path (`dbt_pipeline::linearise::PathModel::Known`)
+    /// rather than as one reference tissue; with `linearised` only.
+    pub known_path: bool,
     /// Neither, on purpose: a polychromatic detector's counts with their
     /// scatter, read by a network trained on such acquisitions (issue
     /// #27's other design; `dbt_pipeline::PipelineOptions::scatter_in_input`).
@@ -123,18 +126,21 @@ pub struct InputCorrections {
 
 impl InputCorrections {
     /// The corrections in words (`none`, `scatter removed`, `linearised`,
-    /// `scatter removed + linearised`, or `uncorrected clinical counts`,
+    /// `scatter removed + linearised`, each linearisation also `... on the
+    /// known path`, or `uncorrected clinical counts`,
     /// which takes precedence: whose callers refuse it together with a
     /// correction).
     pub fn describe(&self) -> &'static str {
         if self.uncorrected_clinical {
             return "uncorrected clinical counts";
         }
-        match (self.scatter_removed, self.linearised) {
-            (false, false) => "none",
-            (true, false) => "scatter removed",
-            (false, true) => "linearised",
-            (true, true) => "scatter removed + linearised",
+        match (self.scatter_removed, self.linearised, self.known_path) {
+            (false, false, _) => "none",
+            (true, false, _) => "scatter removed",
+            (false, true, false) => "linearised",
+            (true, true, false) => "scatter removed + linearised",
+            (false, true, true) => "linearised on the known path",
+            (true, true, true) => "scatter removed + linearised on the known path",
         }
     }
 
@@ -263,7 +269,8 @@ mod tests {
     use super::*;
 
     /// Another beam's calibrations sit under their own keys: picked by the
-    /// corrections and precision they were fit for, never as the W/Rh one.
+    /// corrections and precision they were fit for, never as the W/Rh one;
+    /// so do the known-path linearisation's.
     #[test]
     fn beam_calibrations_have_their_own_keys() {
         let corrected = InputCorrections {
@@ -347,5 +354,20 @@ mod tests {
             Some(cal(0.2))
         );
         assert!(pick_beam_calibrations(&f, "mixed", corrected).is_empty());
+        // The known path's inputs are others: they never read the one
+        // reference's calibrations (only the plain one, with a warning).
+        let known = InputCorrections {
+            known_path: true,
+            ..corrected
+        };
+        assert_eq!(
+            known.beam_key("int8", "W/Al"),
+            "int8 | scatter removed + linearised on the known path | beam W/Al"
+        );
+        assert!(pick_beam_calibrations(&f, "int8", known).is_empty());
+        assert_eq!(
+            pick_calibration(&f, "int8", known),
+            Some((cal(0.1), "int8".to_string()))
+        );
     }
 }

@@ -256,6 +256,12 @@ struct PhysicsArgs {
     /// (`dbt_pipeline::linearise`, the clinical physics' CsI detector).
     #[arg(long)]
     linearise: bool,
+    /// Linearise on each ray's known path through the compressed breast
+    /// (`dbt_pipeline::linearise::PathModel::Known`, skin
+    /// `NOMINAL_SKIN_MM`) rather than as one reference tissue; with
+    /// `--linearise`.
+    #[arg(long, requires = "linearise")]
+    known_path: bool,
     /// Remove the scatter before the linearisation
     /// (`dbt_pipeline::descatter`, the shipped kernel model).
     #[arg(long)]
@@ -303,11 +309,19 @@ impl PhysicsArgs {
         );
         Ok(Physics {
             physics: host_sim::Physics::parse(&self.physics)?,
-            linearise: self
-                .linearise
-                .then(|| dbt_pipeline::linearise::BeamHardening {
+            linearise: if self.linearise {
+                let bh = dbt_pipeline::linearise::BeamHardening {
                     detector: Default::default(),
-                }),
+                    path: dbt_pipeline::linearise::PathModel::Reference,
+                };
+                Some(if self.known_path {
+                    bh.on_known_path(dbt_pipeline::linearise::NOMINAL_SKIN_MM)?
+                } else {
+                    bh
+                })
+            } else {
+                None
+            },
             descatter: if self.descatter {
                 Some(dbt_pipeline::descatter::ScatterRemoval::shipped()?)
             } else {
@@ -316,6 +330,7 @@ impl PhysicsArgs {
             input: dbt_model::InputCorrections {
                 scatter_removed: self.descatter,
                 linearised: self.linearise,
+                known_path: self.known_path,
                 uncorrected_clinical: self.uncorrected,
             },
             scatter_in_input: self.uncorrected,
@@ -1250,6 +1265,7 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
         "system": system.as_ref().map(|s| s.name.clone()),
         "physics": physics.name(),
         "linearised": linearise.is_some(),
+        "linearised_on_known_path": linearise.is_some_and(|l| l.path != dbt_pipeline::linearise::PathModel::Reference),
         "descattered": descatter.is_some(),
         "uncorrected_input": scatter_in_input,
         "anode_filter": beam.name(),

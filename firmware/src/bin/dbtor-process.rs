@@ -129,6 +129,9 @@ fn run(cli: Cli) -> Result<()> {
             dbt_model::InputCorrections {
                 scatter_removed: opts.descatter.is_some(),
                 linearised: opts.linearise.is_some(),
+                known_path: opts
+                    .linearise
+                    .is_some_and(|l| l.path != dbt_pipeline::linearise::PathModel::Reference),
                 uncorrected_clinical: opts.scatter_in_input,
             },
             cli.model_digest.as_deref(),
