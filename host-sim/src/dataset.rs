@@ -353,7 +353,9 @@ pub fn export_observed(
         "corrections": if opts.physics == Physics::Mono {
             "none (mono-energetic, no scatter)"
         } else if opts.uncorrected {
-            "none: the detector's counts"
+            // What a model trained on it is then fed: checked at load
+            // (`dbt_model::check_training_input`).
+            dbt_dbtor::UNCORRECTED_CLINICAL_COUNTS
         } else if matches!(opts.physics, Physics::Clinical { scatter: true, .. }) {
             "the firmware's: scatter removed, beam hardening linearised"
         } else {
@@ -663,10 +665,10 @@ mod tests {
         };
         let d = tempfile::tempdir().unwrap();
         let m = export(d.path(), &raw).unwrap();
-        assert!(
-            m.provenance["corrections"]
-                .as_str()
-                .is_some_and(|c| c.starts_with("none")),
+        // The value a model's load checks its configured input against.
+        assert_eq!(
+            m.provenance["corrections"].as_str(),
+            Some(dbt_dbtor::UNCORRECTED_CLINICAL_COUNTS),
             "{}",
             m.provenance
         );

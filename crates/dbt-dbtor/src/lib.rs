@@ -20,7 +20,8 @@ pub use dbt_conv::Kernel;
 pub use fixtures::{check_fixtures, FixtureCheck, FP32_TOL_NETWORK_UNITS};
 
 pub use manifest::{
-    sha256_file, verify_checksums, BlockEntry, Fixture, ModelManifest, Normalisation, Role, FORMAT,
+    sha256_file, verify_checksums, BlockEntry, Fixture, ModelManifest, Normalisation, Role,
+    TrainingInput, FORMAT, UNCORRECTED_CLINICAL_COUNTS,
 };
 
 use dbt_conv::{Fp32Block, Fp32Workspace, Int8Block, Int8Workspace};

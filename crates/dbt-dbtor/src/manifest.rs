@@ -128,7 +128,38 @@ pub fn sha256_file(path: &Path) -> Result<String, DbtorError> {
     Ok(h.finalize().iter().map(|b| format!("{b:02x}")).collect())
 }
 
+/// What a training dataset's counts went through before the network, as
+/// `host-sim dataset` writes it (`provenance.corrections`) and a model's
+/// manifest carries it (`provenance.dataset_provenance.corrections`): the
+/// value for the detector's clinical counts left uncorrected (issue #27's
+/// other design).
+pub const UNCORRECTED_CLINICAL_COUNTS: &str = "none: the detector's counts";
+
+/// The counts a network was trained to read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TrainingInput {
+    /// On the paper's mono-energetic scale: simulated mono-energetic
+    /// counts, or clinical counts corrected as the firmware corrects them
+    /// (and every model whose manifest states no dataset corrections,
+    /// written before issue #27).
+    MonoScale,
+    /// A polychromatic detector's counts with their scatter and beam
+    /// hardening ([`UNCORRECTED_CLINICAL_COUNTS`]).
+    UncorrectedClinical,
+}
+
 impl ModelManifest {
+    /// The counts the network was trained on, from its dataset's
+    /// provenance.
+    pub fn training_input(&self) -> TrainingInput {
+        let corrections = self.provenance["dataset_provenance"]["corrections"].as_str();
+        if corrections == Some(UNCORRECTED_CLINICAL_COUNTS) {
+            TrainingInput::UncorrectedClinical
+        } else {
+            TrainingInput::MonoScale
+        }
+    }
+
     /// Whether the blocks see the thickness mask (`dbtor`) or not (`lpd`).
     pub fn uses_mask(&self) -> bool {
         self.kind == "dbtor"

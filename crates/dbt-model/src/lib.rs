@@ -52,6 +52,19 @@ pub enum ModelError {
     /// The calibration file is unusable.
     #[error(transparent)]
     Calibration(#[from] CalibrationError),
+    /// The network was trained on other counts than the configured
+    /// corrections give it.
+    #[error("model {dir}: trained on {trained}, but fed {fed}: it would read them wrongly; {fix}")]
+    Input {
+        /// The folder.
+        dir: PathBuf,
+        /// What its manifest says it was trained on.
+        trained: &'static str,
+        /// What the configuration gives it.
+        fed: String,
+        /// What to configure instead.
+        fix: &'static str,
+    },
 }
 
 impl ModelError {
@@ -60,6 +73,38 @@ impl ModelError {
             path: path.to_path_buf(),
             cause: source,
         }
+    }
+}
+
+/// Refuse a network fed other counts than it was trained on: one trained on
+/// a detector's uncorrected clinical counts
+/// ([`dbt_dbtor::TrainingInput::UncorrectedClinical`], its manifest's
+/// dataset provenance) read only such counts (`input.uncorrected_clinical`),
+/// and every other network never reads them.
+pub fn check_training_input(
+    dir: &Path,
+    model: &Dbtor,
+    input: InputCorrections,
+) -> Result<(), ModelError> {
+    use dbt_dbtor::TrainingInput;
+    let refuse = |trained, fix| {
+        Err(ModelError::Input {
+            dir: dir.to_path_buf(),
+            trained,
+            fed: format!("counts with corrections: {}", input.describe()),
+            fix,
+        })
+    };
+    match (model.manifest().training_input(), input.uncorrected_clinical) {
+        (TrainingInput::UncorrectedClinical, false) => refuse(
+            "a detector's uncorrected clinical counts (its manifest's dataset provenance: corrections \"none: the detector's counts\")",
+            "configure a model trained on mono-energetic or corrected counts",
+        ),
+        (TrainingInput::MonoScale, true) => refuse(
+            "counts on the mono-energetic scale (simulated, or clinical counts corrected)",
+            "correct the counts (scatter removal and linearisation) or configure a model trained on uncorrected clinical counts",
+        ),
+        _ => Ok(()),
     }
 }
 
@@ -101,6 +146,7 @@ pub fn load_signed(
             cause: source,
         }
     })?;
+    check_training_input(dir, &model, input)?;
     let mut beam_calibrations = Vec::new();
     let calibration = if signoff.files.contains_key(CALIBRATION_FILE) {
         let path = dir.join(CALIBRATION_FILE);

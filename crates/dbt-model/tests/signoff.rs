@@ -161,3 +161,64 @@ fn the_signed_load_requires_the_calibration_of_its_precision() {
     .to_string();
     assert!(e.contains("another tissue classification"), "{e}");
 }
+
+/// A network is fed only the counts it was trained on: one trained on a
+/// detector's uncorrected clinical counts (its manifest's dataset
+/// provenance) is refused with corrected or mono-energetic counts, and a
+/// network trained on the mono-energetic scale is refused with uncorrected
+/// clinical counts; each refusal names what the model was trained on and
+/// what it would be fed.
+#[test]
+fn a_network_is_fed_only_the_counts_it_was_trained_on() {
+    let (_t, dir) = copy_model("dbtor-x4t3");
+    std::fs::remove_file(dir.join(CALIBRATION_FILE)).unwrap();
+    let classify = ClassifyOptions::default();
+    let raw = InputCorrections {
+        uncorrected_clinical: true,
+        ..Default::default()
+    };
+    let corrected = InputCorrections {
+        scatter_removed: true,
+        linearised: true,
+        ..Default::default()
+    };
+    let load = |input: InputCorrections| {
+        let s = sign_off(&dir).unwrap();
+        load_signed(
+            &dir,
+            Precision::Fp32,
+            &[],
+            Engine::Fast,
+            &classify,
+            input,
+            Some(&s.digest),
+        )
+    };
+    // The shipped network, trained on mono-energetic counts.
+    assert!(load(InputCorrections::default()).is_ok());
+    assert!(load(corrected).is_ok());
+    let e = load(raw).err().expect("refused").to_string();
+    assert!(
+        e.contains("trained on counts on the mono-energetic scale")
+            && e.contains("uncorrected clinical counts"),
+        "{e}"
+    );
+    // The same network as if trained on uncorrected clinical counts.
+    let path = dir.join("manifest.json");
+    let mut m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    m["provenance"]["dataset_provenance"]["corrections"] =
+        serde_json::json!(dbt_dbtor::UNCORRECTED_CLINICAL_COUNTS);
+    std::fs::write(&path, serde_json::to_string_pretty(&m).unwrap()).unwrap();
+    assert!(load(raw).is_ok());
+    for input in [InputCorrections::default(), corrected] {
+        let e = load(input).err().expect("refused");
+        assert!(matches!(e, ModelError::Input { .. }), "{e}");
+        let e = e.to_string();
+        assert!(
+            e.contains("trained on a detector's uncorrected clinical counts")
+                && e.contains(&format!("corrections: {}", input.describe())),
+            "{e}"
+        );
+    }
+}
