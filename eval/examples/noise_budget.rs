@@ -4,6 +4,7 @@
 //! ```sh
 //! cargo run --release -p dbt-eval --example noise_budget -- 8          # validation phantoms 0..8
 //! cargo run --release -p dbt-eval --example noise_budget -- 8 W/Al
+//! cargo run --release -p dbt-eval --example noise_budget -- 8 W/Rh match   # noise matched to N8
 //! ```
 //!
 //! Each validation phantom (the calibration's: procedural, training seed
@@ -35,9 +36,17 @@ fn main() -> Result<()> {
     let g = dbt_geometry::Geometry::builtin("paper-tall")
         .context("paper-tall")?
         .binned(4)?;
+    let matched = args.get(2).map(String::as_str) == Some("match");
     let opts = PipelineOptions {
         descatter: Some(dbt_pipeline::descatter::ScatterRemoval::shipped()?),
         linearise: Some(dbt_pipeline::linearise::BeamHardening::csi(200.0)?),
+        noise_match: if matched {
+            Some(dbt_pipeline::noise_match::NoiseMatch::to_photons(
+                NoiseLevel::Poisson(8).flux(),
+            )?)
+        } else {
+            None
+        },
         ..Default::default()
     };
     let tech = Technique {
@@ -47,7 +56,10 @@ fn main() -> Result<()> {
     let root = "1.2.826.0.1.3680043.10.543.3";
     // Per bin of the noise-free l: [rays, sum d, sum d^2, sum exp(l)/b].
     let mut acc = [[[0f64; 4]; BINS.len()]; 2];
-    println!("{beam}, validation phantoms 0..{n}, N8 against noise-free, rays under the breast");
+    println!(
+        "{beam}, validation phantoms 0..{n}, N8 against noise-free, rays under the breast{}",
+        if matched { "; clinical noise matched to N8" } else { "" }
+    );
     for (k, p) in split_phantoms(&g, Split::Validation { seed: 2024 }, PopulationKind::Procedural, n).enumerate() {
         let (name, vol) = p?;
         let kvp = f64::from(beam.aec_kv(vol.thickness_mm()));
@@ -61,7 +73,18 @@ fn main() -> Result<()> {
                     a
                 })
             };
-            let (noisy, clean) = (acq(NoiseLevel::Poisson(8))?, acq(NoiseLevel::NoiseFree)?);
+            let noisy = acq(NoiseLevel::Poisson(8))?;
+            // The noise-free reference is never matched (no noise to
+            // measure on its open field).
+            let clean = {
+                let a = simulate_on(&vol, &g, None, NoiseLevel::NoiseFree, physics, seed, tech, kvp, "NB", root)?;
+                if i == 1 {
+                    let o = PipelineOptions { noise_match: None, ..opts.clone() };
+                    correct_counts(&a, &o)?.into_owned()
+                } else {
+                    a
+                }
+            };
             let (bn, bc) = (noisy.header.flux, clean.header.flux);
             for (rn, rc) in noisy.counts.iter().zip(&clean.counts) {
                 for (&cn, &cc) in rn.iter().zip(rc) {

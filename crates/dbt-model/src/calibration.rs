@@ -118,6 +118,9 @@ pub struct InputCorrections {
     /// ... on each ray's known path (`dbt_pipeline::linearise::PathModel::Known`)
     /// rather than as one reference tissue; with `linearised` only.
     pub known_path: bool,
+    /// ... and the noise matched to the training level's
+    /// (`dbt_pipeline::noise_match`); with `linearised` only.
+    pub noise_matched: bool,
     /// Neither, on purpose: a polychromatic detector's counts with their
     /// scatter, read by a network trained on such acquisitions (issue
     /// #27's other design; `dbt_pipeline::PipelineOptions::scatter_in_input`).
@@ -127,10 +130,20 @@ pub struct InputCorrections {
 impl InputCorrections {
     /// The corrections in words (`none`, `scatter removed`, `linearised`,
     /// `scatter removed + linearised`, each linearisation also `... on the
-    /// known path`, or `uncorrected clinical counts`,
+    /// known path`, each linearisation also `... + noise matched`, or
+    /// `uncorrected clinical counts`,
     /// which takes precedence: whose callers refuse it together with a
     /// correction).
-    pub fn describe(&self) -> &'static str {
+    pub fn describe(&self) -> String {
+        let base = self.describe_corrections();
+        if self.noise_matched && self.linearised && !self.uncorrected_clinical {
+            format!("{base} + noise matched")
+        } else {
+            base.to_string()
+        }
+    }
+
+    fn describe_corrections(&self) -> &'static str {
         if self.uncorrected_clinical {
             return "uncorrected clinical counts";
         }

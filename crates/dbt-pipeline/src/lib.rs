@@ -8,12 +8,15 @@
 //! * [`plausibility`]: the counts against the flat field and the thickness,
 //!   and the reconstructed breast against its tissues and its box;
 //! * [`process`]: reconstruction, classification, density, dose, reports;
-//! * [`rebin`]: cone-beam projections as slice-wise fan-beam sinograms.
+//! * [`rebin`]: cone-beam projections as slice-wise fan-beam sinograms;
+//! * [`descatter`], [`linearise`], [`noise_match`]: a polychromatic
+//!   detector's counts corrected to what the network was trained on.
 
 pub mod acquisition;
 pub mod descatter;
 pub mod dicom_input;
 pub mod linearise;
+pub mod noise_match;
 pub mod plausibility;
 pub mod process;
 pub mod rebin;

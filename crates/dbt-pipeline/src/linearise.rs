@@ -457,6 +457,15 @@ impl Linearisation {
         self.mu_ref * l
     }
 
+    /// `d mono / d p` at the polychromatic log signal `p`: the slope of the
+    /// table's segment `p` falls in (the first one below it, the last
+    /// one's beyond it).
+    pub fn slope(&self, p: f64) -> f64 {
+        let last = self.poly.len() - 1;
+        let k = self.poly.partition_point(|&q| q < p).clamp(1, last);
+        self.mu_ref * L_STEP_MM / (self.poly[k] - self.poly[k - 1])
+    }
+
     /// Polychromatic log signal per mm of reference tissue at table step `k`.
     fn slope_at(&self, k: usize) -> f64 {
         (self.poly[k + 1] - self.poly[k]) / L_STEP_MM

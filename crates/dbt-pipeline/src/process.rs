@@ -107,6 +107,10 @@ pub struct PipelineOptions {
     /// counts are taken as primary.
     #[serde(skip)]
     pub descatter: Option<crate::descatter::ScatterRemoval>,
+    /// Noise matching after the linearisation (issue #27,
+    /// [`crate::noise_match`]); `None`: the corrected counts as they are.
+    #[serde(skip)]
+    pub noise_match: Option<crate::noise_match::NoiseMatch>,
     /// Reconstruct every `slice_step`-th coronal slice (and the last one),
     /// the slices between interpolated linearly in depth (issue #29 point
     /// 5: density and dose may not need every detector row); 1: every
@@ -134,6 +138,7 @@ impl Default for PipelineOptions {
             beam_calibrations: Vec::new(),
             linearise: None,
             descatter: None,
+            noise_match: None,
             slice_step: 1,
             scatter_in_input: false,
         }
@@ -419,6 +424,12 @@ pub fn correct_counts<'a>(
                 .into(),
         ));
     }
+    if opts.noise_match.is_some() && opts.linearise.is_none() {
+        return Err(PipelineError::Input(
+            "noise matching works on linearised counts: configure the beam-hardening linearisation too"
+                .into(),
+        ));
+    }
     if opts.descatter.is_none() && opts.linearise.is_none() {
         return Ok(std::borrow::Cow::Borrowed(acq));
     }
@@ -429,11 +440,25 @@ pub fn correct_counts<'a>(
             .map_err(|e| PipelineError::Input(e.to_string()))?;
         tracing::debug!(spr, "scatter removed");
     }
+    // The primary the scatter removal left: the noise matching's input.
+    let primary = opts.noise_match.map(|_| a.counts.clone());
     if let Some(bh) = &opts.linearise {
         let n = bh
             .apply(&a.header, &mut a.counts)
             .map_err(|e| PipelineError::Input(e.to_string()))?;
         tracing::debug!(counts = n, "beam hardening linearised");
+        if let (Some(nm), Some(primary)) = (&opts.noise_match, &primary) {
+            let r = nm
+                .apply(&a.header, bh, &acq.counts, primary, &mut a.counts)
+                .map_err(|e| PipelineError::Input(e.to_string()))?;
+            tracing::debug!(
+                variance_per_signal = r.variance_per_signal,
+                air_pairs = r.air_pairs,
+                matched = r.matched,
+                mean_ratio = r.mean_ratio,
+                "noise matched"
+            );
+        }
     }
     Ok(std::borrow::Cow::Owned(a))
 }

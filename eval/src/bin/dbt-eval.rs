@@ -262,6 +262,11 @@ struct PhysicsArgs {
     /// `--linearise`.
     #[arg(long, requires = "linearise")]
     known_path: bool,
+    /// Match the corrected counts' noise to this training level's (the
+    /// network's: its manifest's `level`, e.g. `N8`;
+    /// `dbt_pipeline::noise_match`); with `--linearise`.
+    #[arg(long, requires = "linearise")]
+    noise_match: Option<String>,
     /// Remove the scatter before the linearisation
     /// (`dbt_pipeline::descatter`, the shipped kernel model).
     #[arg(long)]
@@ -288,6 +293,8 @@ struct Physics {
     linearise: Option<dbt_pipeline::linearise::BeamHardening>,
     /// The scatter removal, if asked for.
     descatter: Option<dbt_pipeline::descatter::ScatterRemoval>,
+    /// The noise matching, if asked for.
+    noise_match: Option<dbt_pipeline::noise_match::NoiseMatch>,
     /// The counts go to the network uncorrected, their scatter in them.
     scatter_in_input: bool,
     /// The corrections, as the calibration's key names them.
@@ -322,6 +329,18 @@ impl PhysicsArgs {
             } else {
                 None
             },
+            noise_match: match &self.noise_match {
+                Some(level) => {
+                    let n = dbt_acquisition::NoiseLevel::parse(level)
+                        .with_context(|| format!("--noise-match {level}"))?;
+                    anyhow::ensure!(
+                        n != dbt_acquisition::NoiseLevel::NoiseFree,
+                        "--noise-match {level}: a network's training level has noise"
+                    );
+                    Some(dbt_pipeline::noise_match::NoiseMatch::to_photons(n.flux())?)
+                }
+                None => None,
+            },
             descatter: if self.descatter {
                 Some(dbt_pipeline::descatter::ScatterRemoval::shipped()?)
             } else {
@@ -331,6 +350,7 @@ impl PhysicsArgs {
                 scatter_removed: self.descatter,
                 linearised: self.linearise,
                 known_path: self.known_path,
+                noise_matched: self.noise_match.is_some(),
                 uncorrected_clinical: self.uncorrected,
             },
             scatter_in_input: self.uncorrected,
@@ -1061,6 +1081,7 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
         physics,
         linearise,
         descatter,
+        noise_match,
         scatter_in_input,
         input,
         beam,
@@ -1124,6 +1145,7 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
                 beam_calibrations: beam_calibrations.clone(),
                 linearise,
                 descatter,
+                noise_match,
                 slice_step,
                 scatter_in_input,
             };
@@ -1266,6 +1288,7 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
         "physics": physics.name(),
         "linearised": linearise.is_some(),
         "linearised_on_known_path": linearise.is_some_and(|l| l.path != dbt_pipeline::linearise::PathModel::Reference),
+        "noise_matched_to_photons": noise_match.map(|n| n.target_photons),
         "descattered": descatter.is_some(),
         "uncorrected_input": scatter_in_input,
         "anode_filter": beam.name(),
@@ -1441,6 +1464,7 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
         physics,
         linearise,
         descatter,
+        noise_match,
         scatter_in_input,
         input,
         beam,
@@ -1463,6 +1487,7 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
         classify,
         linearise,
         descatter,
+        noise_match,
         scatter_in_input,
         ..Default::default()
     };

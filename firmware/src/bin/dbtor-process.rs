@@ -132,6 +132,7 @@ fn run(cli: Cli) -> Result<()> {
                 known_path: opts
                     .linearise
                     .is_some_and(|l| l.path != dbt_pipeline::linearise::PathModel::Reference),
+                noise_matched: opts.noise_match.is_some(),
                 uncorrected_clinical: opts.scatter_in_input,
             },
             cli.model_digest.as_deref(),

@@ -1,0 +1,283 @@
+//! Noise matching (issue #27): the corrected clinical counts brought to the
+//! noise of the counts the network was trained on.
+//!
+//! # Why
+//! At an N8-equivalent dose the counts of an energy-integrating detector,
+//! once the scatter is removed and the beam hardening linearised, carry
+//! 1.5-2.75 times the variance that an N8 photon count has at the same
+//! line integral, most under thick breasts (the scatter's photons, the
+//! linearisation's stretch of the hardened log signal, the energy
+//! weighting: eval/README.md, "The clinical counts' noise"). A network
+//! trained at N8 reads noisier input than it learned, and its reading
+//! shifts with the noise.
+//!
+//! # The correction
+//! For every ray, with `l = ln(b / q)` its linearised line integral:
+//! 1. its variance `V = a c / p^2 (dl/dP)^2`: `c` the detector's count,
+//!    `p` the primary left by the scatter removal, `P = ln(b / p)` the
+//!    polychromatic log signal and `dl/dP` the linearisation's slope
+//!    there ([`crate::linearise::Linearisation::slope`]); `a` the
+//!    detector's variance per unit of signal, measured on the acquisition
+//!    itself: the open field beside the breast, as half the mean square
+//!    difference of neighbouring elements there over their mean (a smooth
+//!    scatter cancels in the difference);
+//! 2. the variance an N8 photon count has at that line integral,
+//!    `W = e^l / n`, `n` the training level's photons per element
+//!    ([`NoiseMatch::target_photons`]);
+//! 3. where `V > W`, `l` is averaged with the same ray (view, element) of
+//!    the neighbouring detector rows (the coronal slices of a slice-wise
+//!    acquisition, a cone-beam detector's rows: both along the depth),
+//!    `(1 - 2w) l + w (l_up + l_down)`, `w` the weight that brings `V` to
+//!    `W` for independent neighbours of like variance (at most 1/3: a
+//!    third of the variance; a row with one neighbour, `(1 - w) l + w l_n`,
+//!    at most a half);
+//! 4. the log's excess bias is taken off: `(V - W) / 2` (the log of a
+//!    noisy count reads high by half its relative variance; the training
+//!    counts' own, `W / 2`, stays).
+//!
+//! Linear in the line integrals: the partial volume is kept on average. The
+//! price is depth resolution where the counts were noisier than N8.
+
+use crate::acquisition::AcquisitionHeader;
+use crate::linearise::{BeamHardening, PathModel};
+use thiserror::Error;
+
+/// Why the noise cannot be matched.
+#[derive(Debug, Error, PartialEq)]
+pub enum NoiseMatchError {
+    /// The training level's photons are not a positive number.
+    #[error("noise matching to {0} photons per element: must be a positive number")]
+    TargetPhotons(f64),
+    /// Too little open field to measure the detector's noise.
+    #[error("noise matching: {pairs} pairs of neighbouring elements in the open field beside the breast, at least {MIN_AIR_PAIRS} are needed to measure the detector's noise")]
+    OpenField {
+        /// The pairs found.
+        pairs: usize,
+    },
+    /// The counts are not the header's stack, or a correction is missing.
+    #[error("noise matching: {0}")]
+    Input(String),
+}
+
+/// Fewest pairs of open-field elements the detector's noise is measured
+/// on (its relative standard error about `sqrt(2 / pairs)`: 1.4 % at
+/// 10,000).
+pub const MIN_AIR_PAIRS: usize = 10_000;
+
+/// An element is open field where the scatter removal left at least this
+/// share of the flat field (the breast's edge attenuates more).
+pub const AIR_PRIMARY: f64 = 0.97;
+
+/// The heaviest neighbour weight with two neighbours (a third of the
+/// variance) and with one (a half).
+const W_MAX: [f64; 2] = [0.5, 1.0 / 3.0];
+
+/// The site's noise matching: the photons per element of the level the
+/// network was trained at.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NoiseMatch {
+    /// Photons per detector element without the breast of the training
+    /// level (N8: 16,000, `dbt_acquisition::NoiseLevel::flux`).
+    pub target_photons: f64,
+}
+
+/// What the matching did, for the logs.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NoiseMatchReport {
+    /// The detector's variance per unit of signal measured on the open
+    /// field (1 for a photon-counting detector in photons).
+    pub variance_per_signal: f64,
+    /// Open-field pairs it was measured on.
+    pub air_pairs: usize,
+    /// Rays averaged with their neighbours.
+    pub matched: usize,
+    /// Their mean variance ratio `V / W` before.
+    pub mean_ratio: f64,
+}
+
+impl NoiseMatch {
+    /// The matching to `target_photons` per element (refused unless a
+    /// positive number).
+    pub fn to_photons(target_photons: f64) -> Result<Self, NoiseMatchError> {
+        if target_photons.is_finite() && target_photons > 0.0 {
+            Ok(Self { target_photons })
+        } else {
+            Err(NoiseMatchError::TargetPhotons(target_photons))
+        }
+    }
+
+    /// Match the linearised counts `lin` in place, from the detector's
+    /// counts `raw` and the scatter removal's primary `primary` of the same
+    /// acquisition (all `[row][view * cols + element]`; the header
+    /// validated), linearised by `bh` (one reference tissue: the known path
+    /// is refused).
+    pub fn apply(
+        &self,
+        h: &AcquisitionHeader,
+        bh: &BeamHardening,
+        raw: &[Vec<f32>],
+        primary: &[Vec<f32>],
+        lin: &mut [Vec<f32>],
+    ) -> Result<NoiseMatchReport, NoiseMatchError> {
+        let bad = |s: String| NoiseMatchError::Input(s);
+        if bh.path != PathModel::Reference {
+            return Err(bad(
+                "implemented for the one-reference linearisation only".into(),
+            ));
+        }
+        let (rows, views, cols) = match &h.system {
+            Some(sys) => (sys.detector.rows, sys.n_views(), sys.detector.columns),
+            None => (h.slices, h.geometry.n_views(), h.geometry.n_det()),
+        };
+        let per_row = views * cols;
+        for (what, c) in [("detector", raw), ("primary", primary), ("linearised", &*lin)] {
+            if c.len() != rows || c.iter().any(|r| r.len() != per_row) {
+                return Err(bad(format!(
+                    "{} rows of {what} counts for a stack of {rows} rows x {views} views x {cols} elements",
+                    c.len()
+                )));
+            }
+        }
+        let table = bh
+            .table(h.anode_filter, h.kvp, h.thickness_mm)
+            .map_err(|e| bad(e.to_string()))?;
+        let b = h.flux;
+        // The detector's variance per unit of signal, on the open field.
+        let (mut sq, mut sum, mut pairs) = (0.0, 0.0, 0usize);
+        for (rr, rp) in raw.iter().zip(primary) {
+            for v in 0..views {
+                let o = v * cols;
+                for k in o..o + cols - 1 {
+                    let (c0, c1) = (f64::from(rr[k]), f64::from(rr[k + 1]));
+                    let (p0, p1) = (f64::from(rp[k]), f64::from(rp[k + 1]));
+                    let open = |p: f64| p >= AIR_PRIMARY * b && p <= b / AIR_PRIMARY;
+                    if open(p0) && open(p1) && c0.is_finite() && c1.is_finite() {
+                        sq += (c0 - c1) * (c0 - c1);
+                        sum += c0 + c1;
+                        pairs += 1;
+                    }
+                }
+            }
+        }
+        if pairs < MIN_AIR_PAIRS {
+            return Err(NoiseMatchError::OpenField { pairs });
+        }
+        // E[(c0 - c1)^2] = 2 a mean: a = sq / pairs / 2 / (sum / 2 / pairs).
+        let a = sq / sum;
+        // Each ray's line integral and its variance ratio V / W (NaN where
+        // the counts are none a breast gives: left as read).
+        let l: Vec<Vec<f64>> = lin
+            .iter()
+            .map(|r| r.iter().map(|&q| ln_ratio(b, q)).collect())
+            .collect();
+        let ratio: Vec<Vec<f64>> = (0..rows)
+            .map(|r| {
+                (0..per_row)
+                    .map(|i| {
+                        let (c, p, li) = (f64::from(raw[r][i]), f64::from(primary[r][i]), l[r][i]);
+                        if !(li.is_finite() && c > 0.0 && p > 0.0 && p <= b) {
+                            return f64::NAN;
+                        }
+                        let s = table.slope((b / p).ln());
+                        let var = a * c / (p * p) * s * s;
+                        var / (li.exp() / self.target_photons)
+                    })
+                    .collect()
+            })
+            .collect();
+        let (mut matched, mut ratio_sum) = (0usize, 0.0);
+        for r in 0..rows {
+            for i in 0..per_row {
+                let (li, ri) = (l[r][i], ratio[r][i]);
+                if !(ri > 1.0) {
+                    continue;
+                }
+                let neighbours: Vec<f64> = [r.checked_sub(1), (r + 1 < rows).then_some(r + 1)]
+                    .into_iter()
+                    .flatten()
+                    .map(|n| l[n][i])
+                    .filter(|x| x.is_finite())
+                    .collect();
+                let m = neighbours.len();
+                if m == 0 {
+                    continue;
+                }
+                let w = weight(ri, m);
+                let mean_n = neighbours.iter().sum::<f64>() / m as f64;
+                let smoothed = (1.0 - m as f64 * w) * li + m as f64 * w * mean_n;
+                // The excess log bias: (V - W) / 2, W = e^l / n.
+                let target = li.exp() / self.target_photons;
+                let out = smoothed - (ri - 1.0) * target / 2.0;
+                lin[r][i] = (b * (-out).exp()) as f32;
+                matched += 1;
+                ratio_sum += ri;
+            }
+        }
+        Ok(NoiseMatchReport {
+            variance_per_signal: a,
+            air_pairs: pairs,
+            matched,
+            mean_ratio: if matched > 0 {
+                ratio_sum / matched as f64
+            } else {
+                1.0
+            },
+        })
+    }
+}
+
+/// `ln(b / q)` of a count a breast can give (`0 < q <= b`), else NaN.
+fn ln_ratio(b: f64, q: f32) -> f64 {
+    let q = f64::from(q);
+    if q > 0.0 && q <= b {
+        (b / q).ln()
+    } else {
+        f64::NAN
+    }
+}
+
+/// The neighbour weight `w` that divides a ray's variance by `ratio` with
+/// `m` independent neighbours of like variance (1 or 2): the variance
+/// factor is `(1 - m w)^2 + m w^2`; at most [`W_MAX`] (its minimum).
+pub fn weight(ratio: f64, m: usize) -> f64 {
+    let (mf, wmax) = if m >= 2 {
+        (2.0, W_MAX[1])
+    } else {
+        (1.0, W_MAX[0])
+    };
+    if !(ratio > 1.0) {
+        return 0.0;
+    }
+    // (m^2 + m) w^2 - 2 m w + (1 - 1 / ratio) = 0, the smaller root.
+    let (qa, qb, qc) = (mf * mf + mf, -2.0 * mf, 1.0 - 1.0 / ratio);
+    let disc = qb * qb - 4.0 * qa * qc;
+    if disc <= 0.0 {
+        return wmax;
+    }
+    ((-qb - disc.sqrt()) / (2.0 * qa)).min(wmax)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The weight gives the variance factor asked for, with one neighbour
+    /// and with two, and stops at the factor's minimum.
+    #[test]
+    fn the_weight_divides_the_variance_as_asked() {
+        for m in [1usize, 2] {
+            let mf = m as f64;
+            for ratio in [1.0001, 1.3, 1.53, 2.0, 2.6] {
+                let w = weight(ratio, m);
+                let factor = (1.0 - mf * w).powi(2) + mf * w * w;
+                if ratio <= 1.0 / (if m == 2 { 1.0 / 3.0 } else { 0.5 }) {
+                    assert!((factor - 1.0 / ratio).abs() < 1e-12, "m {m} ratio {ratio}: {factor}");
+                }
+            }
+            let wmax = if m == 2 { 1.0 / 3.0 } else { 0.5 };
+            assert!((weight(10.0, m) - wmax).abs() < 1e-12);
+            assert_eq!(weight(0.8, m), 0.0);
+            assert_eq!(weight(f64::NAN, m), 0.0);
+        }
+    }
+}
