@@ -30,8 +30,10 @@
 # PHYSICS=clinical (issue #27): the gantry's exposure is polychromatic (W/Rh),
 # recorded by an energy-integrating CsI detector with scatter and no grid
 # (host-sim acquire --physics clinical); dbtor-process then removes the
-# scatter and linearises the beam hardening (--descatter --csi-um 200: the
-# daemon's [recon] scatter = "kernel", beam_hardening = "csi"). Default mono
+# scatter, linearises the beam hardening and matches the noise to the
+# model's training level (--descatter --csi-um 200 --noise-match: the
+# daemon's [recon] scatter = "kernel", beam_hardening = "csi",
+# noise_match = "training-level"). Default mono
 # (the paper's simulated detector, the shipped model's training world).
 # ANODE_FILTER=W/Al: the exposure's beam (default W/Rh, the paper's): the
 # stream's header carries it, the corrections and the dose use its spectra.
@@ -56,7 +58,7 @@ PHYSICS=${PHYSICS:-mono}
 CORRECTIONS=()
 case "$PHYSICS" in
     mono) ;;
-    clinical) CORRECTIONS=(--descatter --csi-um 200) ;;
+    clinical) CORRECTIONS=(--descatter --csi-um 200 --noise-match) ;;
     *) echo "PHYSICS=$PHYSICS: expected mono or clinical" >&2; exit 2 ;;
 esac
 ./target/release/host-sim acquire --out "$OUT/gantry-acquisition" --index 0 --geometry "$GEOMETRY" --binning "$BINNING" "${SYSTEM_ARGS[@]}" --noise N8 --physics "$PHYSICS" --anode-filter "${ANODE_FILTER:-W/Rh}" 2>/dev/null

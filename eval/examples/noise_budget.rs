@@ -30,7 +30,10 @@ const BINS: [f64; 7] = [0.5, 1.5, 2.5, 3.0, 3.5, 4.0, 5.0];
 
 fn main() -> Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    ensure!(!args.is_empty(), "usage: noise_budget N_VALIDATION_PHANTOMS [W/Rh|W/Al]");
+    ensure!(
+        !args.is_empty(),
+        "usage: noise_budget N_VALIDATION_PHANTOMS [W/Rh|W/Al]"
+    );
     let n: usize = args[0].parse().context("the number of phantoms")?;
     let beam = AnodeFilter::parse(args.get(1).map_or("W/Rh", String::as_str))?;
     let g = dbt_geometry::Geometry::builtin("paper-tall")
@@ -58,13 +61,27 @@ fn main() -> Result<()> {
     let mut acc = [[[0f64; 4]; BINS.len()]; 2];
     println!(
         "{beam}, validation phantoms 0..{n}, N8 against noise-free, rays under the breast{}",
-        if matched { "; clinical noise matched to N8" } else { "" }
+        if matched {
+            "; clinical noise matched to N8"
+        } else {
+            ""
+        }
     );
-    for (k, p) in split_phantoms(&g, Split::Validation { seed: 2024 }, PopulationKind::Procedural, n).enumerate() {
+    for (k, p) in split_phantoms(
+        &g,
+        Split::Validation { seed: 2024 },
+        PopulationKind::Procedural,
+        n,
+    )
+    .enumerate()
+    {
         let (name, vol) = p?;
         let kvp = f64::from(beam.aec_kv(vol.thickness_mm()));
         let seed = k as u64 + 1;
-        for (i, physics) in [Physics::Mono, Physics::parse("clinical")?].into_iter().enumerate() {
+        for (i, physics) in [Physics::Mono, Physics::parse("clinical")?]
+            .into_iter()
+            .enumerate()
+        {
             let acq = |noise| -> Result<_> {
                 let a = simulate_on(&vol, &g, None, noise, physics, seed, tech, kvp, "NB", root)?;
                 Ok(if i == 1 {
@@ -77,9 +94,23 @@ fn main() -> Result<()> {
             // The noise-free reference is never matched (no noise to
             // measure on its open field).
             let clean = {
-                let a = simulate_on(&vol, &g, None, NoiseLevel::NoiseFree, physics, seed, tech, kvp, "NB", root)?;
+                let a = simulate_on(
+                    &vol,
+                    &g,
+                    None,
+                    NoiseLevel::NoiseFree,
+                    physics,
+                    seed,
+                    tech,
+                    kvp,
+                    "NB",
+                    root,
+                )?;
                 if i == 1 {
-                    let o = PipelineOptions { noise_match: None, ..opts.clone() };
+                    let o = PipelineOptions {
+                        noise_match: None,
+                        ..opts.clone()
+                    };
                     correct_counts(&a, &o)?.into_owned()
                 } else {
                     a
@@ -119,7 +150,10 @@ fn main() -> Result<()> {
         let hi = BINS.get(j + 1).map_or("".to_string(), |h| format!("{h}"));
         println!(
             "| {}-{hi} | {} / {} | {bm:+.5} / {bcl:+.5} | {vm:.5} / {vc:.5} | {pm:.5} | {:.2} |",
-            BINS[j], m[0], c[0], vc / vm
+            BINS[j],
+            m[0],
+            c[0],
+            vc / vm
         );
     }
     Ok(())

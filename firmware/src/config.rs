@@ -217,6 +217,12 @@ pub struct ReconConfig {
     /// The CsI scintillator's thickness, um (with `beam_hardening = "csi"`).
     #[serde(default = "default_csi_um")]
     pub csi_um: f64,
+    /// Noise matching (issue #27, `dbt_pipeline::noise_match`): `off`, or
+    /// `training-level` (the linearised counts brought to the noise of the
+    /// DBToR model's training level; with `beam_hardening = "csi"` and
+    /// `reconstructor = "dbtor"`).
+    #[serde(default)]
+    pub noise_match: NoiseMatchMode,
     /// Scatter (issue #27): `off` (counts taken as primary: the paper's
     /// simulated detector, or a gantry with a grid) or `kernel` (removed
     /// before the linearisation with the shipped kernel model fitted to
@@ -240,6 +246,17 @@ pub enum ScatterMode {
     Off,
     /// Removed with the shipped kernel model.
     Kernel,
+}
+
+/// Whether the corrected counts' noise is matched to the network's.
+#[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum NoiseMatchMode {
+    /// The corrected counts as they are.
+    #[default]
+    Off,
+    /// Matched to the DBToR model's training noise level.
+    TrainingLevel,
 }
 
 /// How the counts' beam hardening is handled.
@@ -912,6 +929,15 @@ impl Config {
         if let Err(e) = dbt_pipeline::linearise::BeamHardening::csi(self.recon.csi_um) {
             return Err(bad("recon.csi_um", e.to_string()));
         }
+        if self.recon.noise_match == NoiseMatchMode::TrainingLevel
+            && (self.recon.beam_hardening != BeamHardeningMode::Csi
+                || self.recon.reconstructor != Reconstructor::Dbtor)
+        {
+            return Err(bad(
+                "recon.noise_match",
+                "\"training-level\" matches linearised counts to a DBToR model's training noise: it needs beam_hardening = \"csi\" and reconstructor = \"dbtor\"".into(),
+            ));
+        }
         match self.recon.reconstructor {
             Reconstructor::Dbtor => {
                 let m = self.recon.model.as_ref().ok_or_else(|| {
@@ -1126,6 +1152,7 @@ impl Config {
         dbt_model::InputCorrections {
             scatter_removed: self.recon.scatter == ScatterMode::Kernel,
             linearised: self.recon.beam_hardening == BeamHardeningMode::Csi,
+            noise_matched: self.recon.noise_match == NoiseMatchMode::TrainingLevel,
             ..Default::default()
         }
     }
@@ -1625,6 +1652,38 @@ mod tests {
         );
     }
 
+    /// Noise matching: off as shipped; `training-level` with the CsI
+    /// linearisation and DBToR; without them, or another word, refused
+    /// naming the key.
+    #[test]
+    fn noise_matching_is_configured() {
+        let c = example(|t| t).unwrap();
+        assert_eq!(c.recon.noise_match, NoiseMatchMode::Off);
+        assert!(!c.input_corrections().noise_matched);
+        let on = |t: String| {
+            t.replace("beam_hardening = \"off\"", "beam_hardening = \"csi\"")
+                .replace("noise_match = \"off\"", "noise_match = \"training-level\"")
+        };
+        let c = example(on).unwrap();
+        assert_eq!(c.recon.noise_match, NoiseMatchMode::TrainingLevel);
+        assert!(c.input_corrections().noise_matched);
+        let e = example(|t| t.replace("noise_match = \"off\"", "noise_match = \"training-level\""))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("recon.noise_match") && e.contains("beam_hardening"),
+            "{e}"
+        );
+        let e = example(|t| on(t).replace("reconstructor = \"dbtor\"", "reconstructor = \"mltr\""))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("recon.noise_match"), "{e}");
+        let e = example(|t| t.replace("noise_match = \"off\"", "noise_match = \"n8\""))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("noise_match") && e.contains("n8"), "{e}");
+    }
+
     /// The scatter removal: off as shipped, the kernel model on request;
     /// another word is refused naming the key.
     #[test]
@@ -1656,6 +1715,10 @@ mod tests {
                 .replace("beam_hardening = \"off\"", "beam_hardening = \"csi\"")
         };
         assert_eq!(key(&both), "int8 | scatter removed + linearised");
+        assert_eq!(
+            key(&|t| both(t).replace("noise_match = \"off\"", "noise_match = \"training-level\"")),
+            "int8 | scatter removed + linearised + noise matched"
+        );
         assert_eq!(
             key(&|t| t.replace("beam_hardening = \"off\"", "beam_hardening = \"csi\"")),
             "int8 | linearised"

@@ -311,6 +311,15 @@ impl Daemon {
         };
         if cfg.recon.reconstructor == Reconstructor::Dbtor {
             let signed = load_model(&cfg, &opts.classify)?;
+            if cfg.recon.noise_match == crate::config::NoiseMatchMode::TrainingLevel {
+                opts.noise_match = Some(
+                    dbt_pipeline::noise_match::NoiseMatch::for_model(signed.model.manifest())
+                        .map_err(|e| DaemonError::Resource {
+                            what: "recon.noise_match = \"training-level\"".into(),
+                            reason: e.to_string(),
+                        })?,
+                );
+            }
             opts.calibration = signed.calibration;
             opts.beam_calibrations = dbt_pipeline::beam_calibrations(&signed.beam_calibrations);
             opts.dbtor = Some(Arc::new(signed.model));

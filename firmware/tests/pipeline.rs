@@ -159,10 +159,12 @@ fn acquisition_to_reports() {
     // The report carries the partial-volume estimate (the evaluation's choice).
     assert!((pft - 100.0 * d.glandularity_partial_volume).abs() < 1e-9);
     // With a calibration, the reported glandularity and the report's are
-    // the calibrated estimate.
+    // the calibrated estimate (its thickness term at the acquisition's
+    // compressed thickness), and the Algorithm Version states it.
     let cal = dbt_tissue::GlandularityCalibration {
         offset: -0.02,
         slope: 1.05,
+        per_mm: 0.0004,
     };
     let cal_opts = PipelineOptions {
         calibration: Some(cal),
@@ -173,7 +175,18 @@ fn acquisition_to_reports() {
     assert_eq!(res_cal.density, d);
     assert_eq!(
         res_cal.glandularity,
-        cal.apply(d.glandularity_partial_volume)
+        cal.apply(d.glandularity_partial_volume, acq.header.thickness_mm)
+    );
+    assert_ne!(
+        cal.apply(d.glandularity_partial_volume, acq.header.thickness_mm),
+        cal.apply(d.glandularity_partial_volume, 50.0)
+    );
+    assert!(
+        res_cal
+            .algorithm_version
+            .contains("+0.000400 x (thickness - 50 mm)"),
+        "{}",
+        res_cal.algorithm_version
     );
     let mut uids = UidSource::new("1.2.3", 8).unwrap();
     let (_, dens_cal) = reports(&acq, &res_cal, &eq, &mut uids, "20261122", "120000").unwrap();
@@ -248,6 +261,7 @@ fn the_glandularity_calibration_is_bound_to_the_model() {
     let cal = GlandularityCalibration {
         offset: -0.015,
         slope: 1.03,
+        per_mm: 0.0,
     };
     let mut file = CalibrationFile {
         format: CALIBRATION_FORMAT.into(),
@@ -274,6 +288,7 @@ fn the_glandularity_calibration_is_bound_to_the_model() {
     let clinical = GlandularityCalibration {
         offset: -0.02,
         slope: 1.05,
+        per_mm: 0.0,
     };
     file.calibrations
         .insert("fp32 | scatter removed + linearised".into(), clinical);

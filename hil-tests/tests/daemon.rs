@@ -173,7 +173,8 @@ fn acquire_shipped(
 /// A configuration for the gantry `g` running the shipped model
 /// (`shipped_model()`) in int8 on its geometry and system, the beam
 /// hardening linearised and the scatter removal `scatter` (`kernel` or
-/// `off`).
+/// `off`); with the removal, the noise matched to the model's training
+/// level (the clinical setup eval/README.md measures).
 fn clinical_config(
     dir: &Path,
     g: &Gantry,
@@ -196,8 +197,9 @@ fn clinical_config(
             g.registers
         ),
         &format!(
-            "reconstructor = \"dbtor\"\nmodel = {:?}\nmodel_digest = {digest:?}\nprecision = \"int8\"\nbeam_hardening = \"csi\"\nscatter = \"{scatter}\"",
-            model.display().to_string()
+            "reconstructor = \"dbtor\"\nmodel = {:?}\nmodel_digest = {digest:?}\nprecision = \"int8\"\nbeam_hardening = \"csi\"\nscatter = \"{scatter}\"\nnoise_match = \"{}\"",
+            model.display().to_string(),
+            if scatter == "kernel" { "training-level" } else { "off" }
         ),
     )
 }

@@ -78,6 +78,11 @@ pub struct CorrectionArgs {
     /// linearisation (the daemon's `recon.scatter = "kernel"`).
     #[arg(long)]
     pub descatter: bool,
+    /// Match the linearised counts' noise to the DBToR model's training
+    /// level (the daemon's `recon.noise_match = "training-level"`); with
+    /// `--csi-um` and a model.
+    #[arg(long, requires = "csi_um")]
+    pub noise_match: bool,
 }
 
 impl CorrectionArgs {

@@ -300,6 +300,7 @@ mod tests {
         let mono = GlandularityCalibration {
             offset: 0.0,
             slope: 1.0,
+            per_mm: 0.0,
         };
         let mut only_plain = CalibrationFile {
             format: CALIBRATION_FORMAT.into(),
@@ -314,6 +315,7 @@ mod tests {
         let own = GlandularityCalibration {
             offset: 0.1,
             slope: 1.2,
+            per_mm: 0.0,
         };
         only_plain.calibrations.insert(raw.key("int8"), own);
         assert_eq!(
@@ -331,6 +333,7 @@ mod tests {
         let cal = |o: f64| GlandularityCalibration {
             offset: o,
             slope: 1.0,
+            per_mm: 0.0,
         };
         let f = CalibrationFile {
             format: CALIBRATION_FORMAT.into(),

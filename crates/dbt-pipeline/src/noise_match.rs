@@ -106,6 +106,27 @@ impl NoiseMatch {
         }
     }
 
+    /// The matching to the noise level `model` was trained at (its
+    /// manifest's `provenance.options.level`, e.g. `N8`); a manifest that
+    /// names none, or a noise-free one, is refused naming it.
+    pub fn for_model(model: &dbt_dbtor::ModelManifest) -> Result<Self, NoiseMatchError> {
+        let level = model.provenance["options"]["level"]
+            .as_str()
+            .ok_or_else(|| {
+                NoiseMatchError::Input(format!(
+                "model {} names no training noise level (its manifest's provenance.options.level)",
+                model.name
+            ))
+            })?;
+        match dbt_acquisition::NoiseLevel::parse(level) {
+            Ok(n @ dbt_acquisition::NoiseLevel::Poisson(_)) => Self::to_photons(n.flux()),
+            _ => Err(NoiseMatchError::Input(format!(
+                "model {}: training noise level {level:?} is not a photon level such as N8",
+                model.name
+            ))),
+        }
+    }
+
     /// Match the linearised counts `lin` in place, from the detector's
     /// counts `raw` and the scatter removal's primary `primary` of the same
     /// acquisition (all `[row][view * cols + element]`; the header
@@ -122,7 +143,7 @@ impl NoiseMatch {
         let bad = |s: String| NoiseMatchError::Input(s);
         if bh.path != PathModel::Reference {
             return Err(bad(
-                "implemented for the one-reference linearisation only".into(),
+                "implemented for the one-reference linearisation only".into()
             ));
         }
         let (rows, views, cols) = match &h.system {
@@ -130,7 +151,11 @@ impl NoiseMatch {
             None => (h.slices, h.geometry.n_views(), h.geometry.n_det()),
         };
         let per_row = views * cols;
-        for (what, c) in [("detector", raw), ("primary", primary), ("linearised", &*lin)] {
+        for (what, c) in [
+            ("detector", raw),
+            ("primary", primary),
+            ("linearised", &*lin),
+        ] {
             if c.len() != rows || c.iter().any(|r| r.len() != per_row) {
                 return Err(bad(format!(
                     "{} rows of {what} counts for a stack of {rows} rows x {views} views x {cols} elements",
@@ -164,23 +189,52 @@ impl NoiseMatch {
         }
         // E[(c0 - c1)^2] = 2 a mean: a = sq / pairs / 2 / (sum / 2 / pairs).
         let a = sq / sum;
-        // Each ray's line integral and its variance ratio V / W (NaN where
-        // the counts are none a breast gives: left as read).
+        // Each ray's line integral (NaN where the counts are none a breast
+        // gives: left as read) and its own V and W.
         let l: Vec<Vec<f64>> = lin
             .iter()
             .map(|r| r.iter().map(|&q| ln_ratio(b, q)).collect())
             .collect();
-        let ratio: Vec<Vec<f64>> = (0..rows)
+        let vw: Vec<Vec<(f64, f64)>> = (0..rows)
             .map(|r| {
                 (0..per_row)
                     .map(|i| {
                         let (c, p, li) = (f64::from(raw[r][i]), f64::from(primary[r][i]), l[r][i]);
                         if !(li.is_finite() && c > 0.0 && p > 0.0 && p <= b) {
-                            return f64::NAN;
+                            return (f64::NAN, f64::NAN);
                         }
                         let s = table.slope((b / p).ln());
-                        let var = a * c / (p * p) * s * s;
-                        var / (li.exp() / self.target_photons)
+                        (a * c / (p * p) * s * s, li.exp() / self.target_photons)
+                    })
+                    .collect()
+            })
+            .collect();
+        // Each ray's ratio V / W and W, as the mean of its 3 x 3
+        // neighbourhood's (rows x elements of its view) but itself: a
+        // weight taken from the ray's own noisy reading would pull its high
+        // readings down more than its low ones up.
+        let rw: Vec<Vec<(f64, f64)>> = (0..rows)
+            .map(|r| {
+                (0..per_row)
+                    .map(|i| {
+                        let (v, k) = (i / cols, i % cols);
+                        let (mut sr, mut sw, mut n) = (0.0, 0.0, 0.0);
+                        let r0 = r.saturating_sub(1);
+                        for (rr, row) in vw.iter().enumerate().skip(r0).take(r + 2 - r0) {
+                            for kk in k.saturating_sub(1)..(k + 2).min(cols) {
+                                let (vj, wj) = row[v * cols + kk];
+                                if (rr, kk) != (r, k) && vj.is_finite() && wj > 0.0 {
+                                    sr += vj / wj;
+                                    sw += wj;
+                                    n += 1.0;
+                                }
+                            }
+                        }
+                        if n > 0.0 && l[r][i].is_finite() {
+                            (sr / n, sw / n)
+                        } else {
+                            (f64::NAN, f64::NAN)
+                        }
                     })
                     .collect()
             })
@@ -188,8 +242,9 @@ impl NoiseMatch {
         let (mut matched, mut ratio_sum) = (0usize, 0.0);
         for r in 0..rows {
             for i in 0..per_row {
-                let (li, ri) = (l[r][i], ratio[r][i]);
-                if !(ri > 1.0) {
+                let (li, (ri, target)) = (l[r][i], rw[r][i]);
+                // NaN compares false: left as read.
+                if ri.partial_cmp(&1.0) != Some(std::cmp::Ordering::Greater) {
                     continue;
                 }
                 let neighbours: Vec<f64> = [r.checked_sub(1), (r + 1 < rows).then_some(r + 1)]
@@ -205,8 +260,8 @@ impl NoiseMatch {
                 let w = weight(ri, m);
                 let mean_n = neighbours.iter().sum::<f64>() / m as f64;
                 let smoothed = (1.0 - m as f64 * w) * li + m as f64 * w * mean_n;
-                // The excess log bias: (V - W) / 2, W = e^l / n.
-                let target = li.exp() / self.target_photons;
+                // The excess log bias: (V - W) / 2, W = e^l / n (of the
+                // neighbourhood's mean l, as the ratio).
                 let out = smoothed - (ri - 1.0) * target / 2.0;
                 lin[r][i] = (b * (-out).exp()) as f32;
                 matched += 1;
@@ -245,7 +300,7 @@ pub fn weight(ratio: f64, m: usize) -> f64 {
     } else {
         (1.0, W_MAX[0])
     };
-    if !(ratio > 1.0) {
+    if ratio.partial_cmp(&1.0) != Some(std::cmp::Ordering::Greater) {
         return 0.0;
     }
     // (m^2 + m) w^2 - 2 m w + (1 - 1 / ratio) = 0, the smaller root.
@@ -260,6 +315,172 @@ pub fn weight(ratio: f64, m: usize) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rand::{Rng, SeedableRng};
+
+    /// A slice-wise acquisition header of `slices` rows on the paper
+    /// geometry binned x4 (25 views of 320 elements).
+    fn header(slices: usize) -> AcquisitionHeader {
+        AcquisitionHeader {
+            format: crate::acquisition::ACQ_FORMAT.into(),
+            geometry: dbt_geometry::Geometry::builtin("paper")
+                .unwrap()
+                .binned(4)
+                .unwrap(),
+            thickness_mm: 50.0,
+            flux: 16_000.0,
+            slices,
+            slice_spacing_mm: 0.8,
+            kvp: 29.0,
+            anode_filter: Default::default(),
+            mas_total: 60.0,
+            tube_output_mgy_per_mas: 0.11,
+            laterality: "L".into(),
+            compression_force_n: None,
+            exposure_ms_per_view: None,
+            system: None,
+            patient: Default::default(),
+            study: Default::default(),
+            truth: None,
+        }
+    }
+
+    /// The detector's counts of a uniform breast (elements 80..240 of every
+    /// view) beside the open field: primary `p0` under the breast plus as
+    /// much scatter (SPR 1), the flat field beside it; each count drawn
+    /// with the variance `a c` (Gaussian; `a` the detector's variance per
+    /// unit of signal). Returns the counts and the primary (the counts less
+    /// the known scatter).
+    fn counts(h: &AcquisitionHeader, p0: f64, a: f64, seed: u64) -> [Vec<Vec<f32>>; 2] {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let (views, cols) = (h.geometry.n_views(), h.geometry.n_det());
+        let mut normal = move || {
+            // Box-Muller: two uniforms, one standard normal.
+            let (u, v): (f64, f64) = (rng.random_range(1e-12..1.0), rng.random());
+            (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+        };
+        let (mut raw, mut primary) = (Vec::new(), Vec::new());
+        for _ in 0..h.slices {
+            let (mut r, mut p) = (Vec::new(), Vec::new());
+            for i in 0..views * cols {
+                let scatter = if (80..240).contains(&(i % cols)) {
+                    p0
+                } else {
+                    0.0
+                };
+                let c = if scatter > 0.0 { p0 + scatter } else { h.flux };
+                let x = c + (a * c).sqrt() * normal();
+                r.push(x as f32);
+                p.push((x - scatter) as f32);
+            }
+            raw.push(r);
+            primary.push(p);
+        }
+        [raw, primary]
+    }
+
+    /// The detector's noise is measured on the open field; a uniform
+    /// breast's rays, noisier than an N8 count at their line integral (the
+    /// scatter's photons), come out with the N8 count's variance (within 10
+    /// %) and their mean line integral less the log's excess bias; the open
+    /// field, no noisier than N8, is left as it was.
+    #[test]
+    fn a_noisier_breast_is_brought_to_the_target_variance() {
+        let h = header(40);
+        let bh = BeamHardening::csi(200.0).unwrap();
+        let (p0, a) = (800.0, 1.1);
+        let [raw, primary] = counts(&h, p0, a, 7);
+        let mut lin = primary.clone();
+        bh.apply(&h, &mut lin).unwrap();
+        let before = lin.clone();
+        let nm = NoiseMatch::to_photons(h.flux).unwrap();
+        let r = nm.apply(&h, &bh, &raw, &primary, &mut lin).unwrap();
+        assert!((r.variance_per_signal / a - 1.0).abs() < 0.03, "{r:?}");
+        // What the breast's rays should read: V = a c / p^2 (dl/dP)^2
+        // against W = e^l / n.
+        let table = bh.table(h.anode_filter, h.kvp, h.thickness_mm).unwrap();
+        let p_poly = (h.flux / p0).ln();
+        let l0 = table.mono(p_poly);
+        let v0 = a * 2.0 * p0 / (p0 * p0) * table.slope(p_poly).powi(2);
+        let w = l0.exp() / h.flux;
+        let ratio = v0 / w;
+        assert!(ratio > 1.3 && ratio < 3.0, "{ratio}");
+        assert!(
+            (r.mean_ratio / ratio - 1.0).abs() < 0.05,
+            "{r:?} against {ratio}"
+        );
+        let cols = h.geometry.n_det();
+        let stats = |c: &[Vec<f32>], breast: bool| {
+            let l: Vec<f64> = c[1..c.len() - 1]
+                .iter()
+                .flat_map(|row| {
+                    row.iter()
+                        .enumerate()
+                        .filter(move |(i, _)| {
+                            let k = i % cols;
+                            if breast {
+                                (80..240).contains(&k)
+                            } else {
+                                !(79..241).contains(&k)
+                            }
+                        })
+                        .map(|(_, &q)| (h.flux / f64::from(q)).ln())
+                })
+                .collect();
+            let m = l.iter().sum::<f64>() / l.len() as f64;
+            (
+                m,
+                l.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / l.len() as f64,
+            )
+        };
+        let ((m_before, v_before), (m_after, v_after)) = (stats(&before, true), stats(&lin, true));
+        assert!((v_before / v0 - 1.0).abs() < 0.1, "{v_before} {v0}");
+        assert!(
+            (v_after / w - 1.0).abs() < 0.1,
+            "{v_after} against the target {w}"
+        );
+        let bias = (v0 - w) / 2.0;
+        assert!(
+            (m_before - m_after - bias).abs() < 0.15 * bias,
+            "{m_before} {m_after} {bias}"
+        );
+        // Every matched ray is the breast's; the open field is left.
+        // (within one element of the breast's edge a ray's neighbourhood
+        // holds both: the open field's beside it may be averaged with the
+        // open field of the neighbouring rows, the breast's edge left)
+        let breast = h.slices * h.geometry.n_views() * 160;
+        let edges = h.slices * h.geometry.n_views() * 2;
+        assert!(r.matched.abs_diff(breast) <= edges, "{r:?}");
+        let ((_, v_air_before), (_, v_air_after)) = (stats(&before, false), stats(&lin, false));
+        assert_eq!(v_air_before, v_air_after);
+    }
+
+    /// Without enough open field the detector's noise cannot be measured:
+    /// refused, naming the pairs; so is the known-path linearisation and a
+    /// stack that is not the header's; a target that is not a positive
+    /// number is refused naming it.
+    #[test]
+    fn what_cannot_be_matched_is_refused() {
+        let h = header(2);
+        let bh = BeamHardening::csi(200.0).unwrap();
+        let [raw, _] = counts(&h, 800.0, 1.0, 1);
+        let mut lin = raw.clone();
+        let nm = NoiseMatch::to_photons(16_000.0).unwrap();
+        let e = nm.apply(&h, &bh, &raw, &raw, &mut lin).unwrap_err();
+        assert!(matches!(e, NoiseMatchError::OpenField { .. }), "{e}");
+        assert!(e.to_string().contains("at least 10000"), "{e}");
+        let kp = bh.on_known_path(1.5).unwrap();
+        let e = nm.apply(&h, &kp, &raw, &raw, &mut lin).unwrap_err();
+        assert!(e.to_string().contains("one-reference"), "{e}");
+        let e = nm.apply(&h, &bh, &raw[..1], &raw, &mut lin).unwrap_err();
+        assert!(e.to_string().contains("1 rows of detector counts"), "{e}");
+        for bad in [0.0, -5.0, f64::NAN] {
+            assert!(matches!(
+                NoiseMatch::to_photons(bad),
+                Err(NoiseMatchError::TargetPhotons(_))
+            ));
+        }
+        assert_eq!(lin, raw);
+    }
 
     /// The weight gives the variance factor asked for, with one neighbour
     /// and with two, and stops at the factor's minimum.
@@ -271,7 +492,10 @@ mod tests {
                 let w = weight(ratio, m);
                 let factor = (1.0 - mf * w).powi(2) + mf * w * w;
                 if ratio <= 1.0 / (if m == 2 { 1.0 / 3.0 } else { 0.5 }) {
-                    assert!((factor - 1.0 / ratio).abs() < 1e-12, "m {m} ratio {ratio}: {factor}");
+                    assert!(
+                        (factor - 1.0 / ratio).abs() < 1e-12,
+                        "m {m} ratio {ratio}: {factor}"
+                    );
                 }
             }
             let wmax = if m == 2 { 1.0 / 3.0 } else { 0.5 };

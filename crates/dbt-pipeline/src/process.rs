@@ -381,9 +381,23 @@ pub fn algorithm_version(opts: &PipelineOptions) -> String {
     } else {
         software.to_string()
     };
+    let calibration = match &opts.calibration {
+        Some(c) if c.per_mm != 0.0 => format!(
+            "glandularity calibrated G = {:.5} + {:.5} x partial-volume estimate {:+.6} x (thickness - {} mm)",
+            c.offset,
+            c.slope,
+            c.per_mm,
+            dbt_tissue::CALIBRATION_THICKNESS_REF_MM
+        ),
+        Some(c) => format!(
+            "glandularity calibrated G = {:.5} + {:.5} x partial-volume estimate",
+            c.offset, c.slope
+        ),
+        None => "glandularity uncalibrated (partial-volume estimate)".into(),
+    };
     match &opts.dbtor {
         Some(m) => format!(
-            "model {} (manifest sha256:{}), {} on the {} engine, {}; {software}",
+            "model {} (manifest sha256:{}), {} on the {} engine, {calibration}; {software}",
             m.manifest().name,
             if m.manifest().file_sha256.is_empty() {
                 "unknown"
@@ -392,13 +406,12 @@ pub fn algorithm_version(opts: &PipelineOptions) -> String {
             },
             m.precision_label(),
             m.engine(),
-            match &opts.calibration {
-                Some(c) => format!(
-                    "glandularity calibrated G = {:.5} + {:.5} x partial-volume estimate",
-                    c.offset, c.slope
-                ),
-                None => "glandularity uncalibrated (partial-volume estimate)".into(),
-            }
+        ),
+        // Uncalibrated MLTR says no more than it did (the calibration is a
+        // learned model's); a calibrated one states it.
+        None if opts.calibration.is_some() => format!(
+            "MLTR, {} iterations (no learned model), {calibration}; {software}",
+            opts.mltr_iterations
         ),
         None => format!(
             "MLTR, {} iterations (no learned model); {software}",
@@ -753,7 +766,7 @@ pub fn process_with_progress(
         glandularity: opts
             .calibration
             .map_or(dens.glandularity_partial_volume, |c| {
-                c.apply(dens.glandularity_partial_volume)
+                c.apply(dens.glandularity_partial_volume, h.thickness_mm)
             }),
         calibrated: opts.calibration.is_some(),
         density: dens,
@@ -897,6 +910,7 @@ mod beam_tests {
         let cal = |o: f64| GlandularityCalibration {
             offset: o,
             slope: 1.0,
+            per_mm: 0.0,
         };
         let plain = PipelineOptions::default();
         assert_eq!(plain.for_beam(AnodeFilter::WAl).unwrap().calibration, None);

@@ -581,24 +581,116 @@ pub fn density(mu: &[f32], labels: &[u8], voxel_mm: f64) -> Density {
     }
 }
 
+/// The compressed thickness a calibration's thickness term is centred on,
+/// mm.
+pub const CALIBRATION_THICKNESS_REF_MM: f64 = 50.0;
+
 /// A linear calibration of a glandularity estimate, `G = offset + slope *
-/// estimate` (clamped to 0..1), fit by least squares on phantoms whose truth
+/// estimate + per_mm * (T - 50 mm)` (clamped to 0..1; `T` the compressed
+/// thickness; `per_mm` 0 unless fit with [`Self::fit_with_thickness`]), fit by
+/// least squares on phantoms whose truth
 /// is known: the validation phantoms of the reconstructor it corrects, never
 /// the test set. It removes a systematic, density-dependent error of the
-/// reconstruction (blur reads fatty breasts slightly dense); it cannot remove
-/// noise.
+/// reconstruction (blur reads fatty breasts slightly dense) and, with the
+/// thickness term, a size-dependent one (small, thin breasts read dense:
+/// eval/README.md, "The clinical counts' noise"); it cannot remove noise.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, serde::Deserialize)]
 pub struct GlandularityCalibration {
     /// Intercept (glandularity fraction).
     pub offset: f64,
     /// Slope.
     pub slope: f64,
+    /// Per mm of compressed thickness above [`CALIBRATION_THICKNESS_REF_MM`]
+    /// (glandularity fraction; absent, 0, in the files written before it).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub per_mm: f64,
+}
+
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
 }
 
 impl GlandularityCalibration {
-    /// The calibrated glandularity of an estimate.
-    pub fn apply(&self, estimate: f64) -> f64 {
-        (self.offset + self.slope * estimate).clamp(0.0, 1.0)
+    /// The calibrated glandularity of an estimate for a breast compressed
+    /// to `thickness_mm`.
+    pub fn apply(&self, estimate: f64, thickness_mm: f64) -> f64 {
+        (self.offset
+            + self.slope * estimate
+            + self.per_mm * (thickness_mm - CALIBRATION_THICKNESS_REF_MM))
+            .clamp(0.0, 1.0)
+    }
+
+    /// Least-squares fit of `truth = offset + slope * estimate + per_mm *
+    /// (thickness - 50 mm)`; needs at least five cases whose estimates span
+    /// more than 1 percentage point and whose thicknesses span more than 10
+    /// mm, all finite.
+    pub fn fit_with_thickness(
+        estimates: &[f64],
+        truths: &[f64],
+        thicknesses_mm: &[f64],
+    ) -> Result<Self, TissueError> {
+        let n = estimates.len();
+        if n != truths.len() || n != thicknesses_mm.len() || n < 5 {
+            return Err(TissueError::Calibration(format!(
+                "{n} estimates, {} truths and {} thicknesses: need at least 5 cases of each",
+                truths.len(),
+                thicknesses_mm.len()
+            )));
+        }
+        // The estimates' checks are the two-parameter fit's.
+        Self::fit(estimates, truths)?;
+        if thicknesses_mm.iter().any(|v| !v.is_finite()) {
+            return Err(TissueError::Calibration("a thickness is not finite".into()));
+        }
+        let (lo, hi) = thicknesses_mm
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &t| {
+                (a.min(t), b.max(t))
+            });
+        if hi - lo <= 10.0 {
+            return Err(TissueError::Calibration(format!(
+                "the thicknesses span {:.1} mm: too narrow to fit a thickness term",
+                hi - lo
+            )));
+        }
+        // Normal equations of [1, e, t - 50], solved by Gaussian elimination
+        // with partial pivoting.
+        let mut m = [[0.0f64; 4]; 3];
+        for ((&e, &y), &t) in estimates.iter().zip(truths).zip(thicknesses_mm) {
+            let x = [1.0, e, t - CALIBRATION_THICKNESS_REF_MM];
+            for i in 0..3 {
+                for j in 0..3 {
+                    m[i][j] += x[i] * x[j];
+                }
+                m[i][3] += x[i] * y;
+            }
+        }
+        for c in 0..3 {
+            let p = (c..3)
+                .max_by(|&a, &b| m[a][c].abs().total_cmp(&m[b][c].abs()))
+                .unwrap_or(c);
+            m.swap(c, p);
+            if m[c][c].abs() < 1e-12 {
+                return Err(TissueError::Calibration(
+                    "the estimates and the thicknesses are collinear: no thickness term can be fit"
+                        .into(),
+                ));
+            }
+            let pivot = m[c];
+            for (r, row) in m.iter_mut().enumerate() {
+                if r != c {
+                    let f = row[c] / pivot[c];
+                    for (x, p) in row.iter_mut().zip(pivot).skip(c) {
+                        *x -= f * p;
+                    }
+                }
+            }
+        }
+        Ok(Self {
+            offset: m[0][3] / m[0][0],
+            slope: m[1][3] / m[1][1],
+            per_mm: m[2][3] / m[2][2],
+        })
     }
 
     /// Least-squares fit of `truth = offset + slope * estimate`; needs at
@@ -636,6 +728,7 @@ impl GlandularityCalibration {
         Ok(Self {
             offset: my - slope * mx,
             slope,
+            per_mm: 0.0,
         })
     }
 }
@@ -794,14 +887,45 @@ mod tests {
 
     /// The fit recovers an exact line, and refuses what cannot be fit.
     #[test]
+    fn calibration_fits_a_plane_with_the_thickness() {
+        let est = [0.05, 0.2, 0.4, 0.6, 0.3, 0.1];
+        let t = [32.0, 70.0, 45.0, 58.0, 36.0, 64.0];
+        let truth: Vec<f64> = est
+            .iter()
+            .zip(&t)
+            .map(|(e, t)| -0.02 + 1.05 * e - 0.0004 * (t - 50.0))
+            .collect();
+        let c = GlandularityCalibration::fit_with_thickness(&est, &truth, &t).unwrap();
+        assert!((c.offset + 0.02).abs() < 1e-12, "{c:?}");
+        assert!((c.slope - 1.05).abs() < 1e-12, "{c:?}");
+        assert!((c.per_mm + 0.0004).abs() < 1e-12, "{c:?}");
+        assert!((c.apply(0.3, 60.0) - (-0.02 + 0.315 - 0.004)).abs() < 1e-12);
+        // Thicknesses too alike, too few cases, a NaN: refused.
+        let flat = [50.0, 52.0, 55.0, 51.0, 58.0, 53.0];
+        for bad in [
+            GlandularityCalibration::fit_with_thickness(&est, &truth, &flat),
+            GlandularityCalibration::fit_with_thickness(&est[..4], &truth[..4], &t[..4]),
+            GlandularityCalibration::fit_with_thickness(&est, &truth, &[f64::NAN; 6]),
+        ] {
+            assert!(matches!(bad, Err(TissueError::Calibration(_))), "{bad:?}");
+        }
+        // A file written before the term reads as without it.
+        let old: GlandularityCalibration =
+            serde_json::from_str(r#"{"offset": 0.1, "slope": 1.0}"#).unwrap();
+        assert_eq!(old.per_mm, 0.0);
+        assert_eq!(old.apply(0.2, 70.0), old.apply(0.2, 30.0));
+        assert!(!serde_json::to_string(&old).unwrap().contains("per_mm"));
+    }
+
+    #[test]
     fn calibration_fits_a_line_and_clamps() {
         let est = [0.05, 0.2, 0.4, 0.6];
         let truth: Vec<f64> = est.iter().map(|e| -0.015 + 1.03 * e).collect();
         let c = GlandularityCalibration::fit(&est, &truth).unwrap();
         assert!((c.offset + 0.015).abs() < 1e-12 && (c.slope - 1.03).abs() < 1e-12);
-        assert_eq!(c.apply(0.0), 0.0);
-        assert_eq!(c.apply(1.0), 1.0);
-        assert!((c.apply(0.5) - (-0.015 + 0.515)).abs() < 1e-12);
+        assert_eq!(c.apply(0.0, 42.0), 0.0);
+        assert_eq!(c.apply(1.0, 42.0), 1.0);
+        assert!((c.apply(0.5, 42.0) - (-0.015 + 0.515)).abs() < 1e-12);
         for bad in [
             GlandularityCalibration::fit(&est[..2], &truth[..2]),
             GlandularityCalibration::fit(&est, &truth[..3]),

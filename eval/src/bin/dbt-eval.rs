@@ -498,6 +498,10 @@ struct CalibrateArgs {
     /// normalisation: a re-quantised folder keeps its fp32 fits.
     #[arg(long)]
     carry_from: Option<PathBuf>,
+    /// Fit a thickness term too: `G = a + b PV + c (T - 50 mm)`, `T` the
+    /// compressed thickness (`dbt_tissue::GlandularityCalibration::fit_with_thickness`).
+    #[arg(long)]
+    thickness_term: bool,
     #[command(flatten)]
     runtime: Runtime,
 }
@@ -1154,6 +1158,10 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
             // none for is refused at the first phantom, naming it).
             let calibration = opts.for_beam(beam).map_or(calibration, |o| o.calibration);
             let label = match calibration {
+                Some(c) if c.per_mm != 0.0 => format!(
+                    "{label} [G = {:+.4} + {:.4} x PV {:+.6} x (T - 50 mm)]",
+                    c.offset, c.slope, c.per_mm
+                ),
                 Some(c) => format!("{label} [G = {:+.4} + {:.4} x PV]", c.offset, c.slope),
                 None => label,
             };
@@ -1454,6 +1462,7 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
         physics,
         out,
         carry_from,
+        thickness_term,
         runtime,
     } = args;
     use dbt_model::{CalibrationFile, CALIBRATION_FILE};
@@ -1522,16 +1531,41 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
     bar.finish();
     let (est, truth): (Vec<f64>, Vec<f64>) =
         cases.iter().map(|c| (c.g_partial_volume, c.g_true)).unzip();
-    let cal = dbt_tissue::GlandularityCalibration::fit(&est, &truth)?;
-    let pp = |f: &dyn Fn(f64) -> f64| {
+    let thick: Vec<f64> = cases.iter().map(|c| c.thickness_mm).collect();
+    let fit = |idx: &[usize]| {
+        let pick = |v: &[f64]| idx.iter().map(|&i| v[i]).collect::<Vec<_>>();
+        if thickness_term {
+            dbt_tissue::GlandularityCalibration::fit_with_thickness(
+                &pick(&est),
+                &pick(&truth),
+                &pick(&thick),
+            )
+        } else {
+            dbt_tissue::GlandularityCalibration::fit(&pick(&est), &pick(&truth))
+        }
+    };
+    let all: Vec<usize> = (0..cases.len()).collect();
+    let cal = fit(&all)?;
+    let pp = |f: &dyn Fn(usize) -> f64| {
         dbt_eval::accuracy::agreement(
-            &est.iter()
-                .zip(&truth)
-                .map(|(e, t)| 100.0 * (f(*e) - t))
+            &all.iter()
+                .map(|&i| 100.0 * (f(i) - truth[i]))
                 .collect::<Vec<_>>(),
         )
     };
-    let (before, after) = (pp(&|e| e), pp(&|e| cal.apply(e)));
+    let (before, after) = (pp(&|i| est[i]), pp(&|i| cal.apply(est[i], thick[i])));
+    // Leave-one-out: each phantom read with the calibration fit on the
+    // others (what a phantom outside the fit can expect, the parameters'
+    // own overfit counted).
+    let loo: Vec<f64> = all
+        .iter()
+        .map(|&i| {
+            let rest: Vec<usize> = all.iter().copied().filter(|&j| j != i).collect();
+            Ok(100.0 * (fit(&rest)?.apply(est[i], thick[i]) - truth[i]))
+        })
+        .collect::<Result<_>>()?;
+    let loo_rms = (loo.iter().map(|e| e * e).sum::<f64>() / loo.len() as f64).sqrt();
+    let loo_max = loo.iter().fold(0.0f64, |a, e| a.max(e.abs()));
     // The paper's W/Rh beam under the corrections' key; another beam's
     // calibration under its own (`| beam W/Al`), read for that beam's
     // acquisitions only.
@@ -1540,17 +1574,22 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
         b => input.beam_key(&m.precision_label(), b.name()),
     };
     println!(
-        "Calibration of {} ({label}) on {phantoms} phantoms of the {} split, {}, {} physics ({:.0} s): G = {:+.5} + {:.5} x partial volume",
+        "Calibration of {} ({label}) on {phantoms} phantoms of the {} split, {}, {} physics ({:.0} s): G = {:+.5} + {:.5} x partial volume{}",
         m.manifest().name,
         split.describe(),
         noise.name(),
         physics.name(),
         t0.elapsed().as_secs_f64(),
         cal.offset,
-        cal.slope
+        cal.slope,
+        if thickness_term {
+            format!(" {:+.6} x (T - 50 mm)", cal.per_mm)
+        } else {
+            String::new()
+        }
     );
     println!(
-        "  on these phantoms: error before bias {:+.2} sd {:.2} max {:.2} pp; after bias {:+.2} sd {:.2} max {:.2} pp",
+        "  on these phantoms: error before bias {:+.2} sd {:.2} max {:.2} pp; after bias {:+.2} sd {:.2} max {:.2} pp; leave-one-out rms {loo_rms:.3} max {loo_max:.2} pp",
         before.bias, before.sd, before.max_abs, after.bias, after.sd, after.max_abs
     );
     let path = out.unwrap_or_else(|| model.join(CALIBRATION_FILE));
@@ -1572,6 +1611,8 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
             "estimator": "partial volume",
             "error_before_pp": before,
             "error_after_pp": after,
+            "thickness_term": thickness_term,
+            "error_loo_pp": { "rms": loo_rms, "max_abs": loo_max, "n": loo.len() },
             "cases": cases.iter().map(|c| serde_json::json!({
                 "phantom": c.phantom, "thickness_mm": c.thickness_mm,
                 "g_true": c.g_true, "g_partial_volume": c.g_partial_volume,

@@ -111,6 +111,10 @@ fn run(cli: Cli) -> Result<()> {
         precision,
         engine,
     } = cli.model;
+    anyhow::ensure!(
+        !cli.corrections.noise_match || model.is_some(),
+        "--noise-match matches the counts to a DBToR model's training noise: give --model"
+    );
     if let Some(dir) = &model {
         let fp32_blocks = cli
             .fp32_blocks
@@ -132,12 +136,18 @@ fn run(cli: Cli) -> Result<()> {
                 known_path: opts
                     .linearise
                     .is_some_and(|l| l.path != dbt_pipeline::linearise::PathModel::Reference),
-                noise_matched: opts.noise_match.is_some(),
+                noise_matched: cli.corrections.noise_match,
                 uncorrected_clinical: opts.scatter_in_input,
             },
             cli.model_digest.as_deref(),
         )
         .with_context(|| format!("loading the DBToR model {}", dir.display()))?;
+        if cli.corrections.noise_match {
+            opts.noise_match = Some(
+                dbt_pipeline::noise_match::NoiseMatch::for_model(signed.model.manifest())
+                    .context("--noise-match")?,
+            );
+        }
         opts.calibration = signed.calibration;
         opts.beam_calibrations = dbt_pipeline::beam_calibrations(&signed.beam_calibrations);
         opts.dbtor = Some(std::sync::Arc::new(signed.model));
