@@ -40,6 +40,7 @@
 
 use crate::acquisition::AcquisitionHeader;
 use crate::linearise::{BeamHardening, PathModel};
+use rayon::prelude::*;
 use thiserror::Error;
 
 /// Why the noise cannot be matched.
@@ -192,10 +193,11 @@ impl NoiseMatch {
         // Each ray's line integral (NaN where the counts are none a breast
         // gives: left as read) and its own V and W.
         let l: Vec<Vec<f64>> = lin
-            .iter()
+            .par_iter()
             .map(|r| r.iter().map(|&q| ln_ratio(b, q)).collect())
             .collect();
         let vw: Vec<Vec<(f64, f64)>> = (0..rows)
+            .into_par_iter()
             .map(|r| {
                 (0..per_row)
                     .map(|i| {
@@ -214,6 +216,7 @@ impl NoiseMatch {
         // weight taken from the ray's own noisy reading would pull its high
         // readings down more than its low ones up.
         let rw: Vec<Vec<(f64, f64)>> = (0..rows)
+            .into_par_iter()
             .map(|r| {
                 (0..per_row)
                     .map(|i| {
@@ -239,35 +242,47 @@ impl NoiseMatch {
                     .collect()
             })
             .collect();
-        let (mut matched, mut ratio_sum) = (0usize, 0.0);
-        for r in 0..rows {
-            for i in 0..per_row {
-                let (li, (ri, target)) = (l[r][i], rw[r][i]);
-                // NaN compares false: left as read.
-                if ri.partial_cmp(&1.0) != Some(std::cmp::Ordering::Greater) {
-                    continue;
+        // Row by row on rayon's pool (each ray reads the unmatched line
+        // integrals only: the same result whatever the pool's size).
+        let per_row_counts: Vec<(usize, f64)> = lin
+            .par_iter_mut()
+            .enumerate()
+            .map(|(r, out_row)| {
+                let (mut matched, mut ratio_sum) = (0usize, 0.0);
+                for i in 0..per_row {
+                    let (li, (ri, target)) = (l[r][i], rw[r][i]);
+                    // NaN compares false: left as read.
+                    if ri.partial_cmp(&1.0) != Some(std::cmp::Ordering::Greater) {
+                        continue;
+                    }
+                    let (mut sum_n, mut m) = (0.0, 0usize);
+                    for n in [r.checked_sub(1), (r + 1 < rows).then_some(r + 1)]
+                        .into_iter()
+                        .flatten()
+                    {
+                        if l[n][i].is_finite() {
+                            sum_n += l[n][i];
+                            m += 1;
+                        }
+                    }
+                    if m == 0 {
+                        continue;
+                    }
+                    let w = weight(ri, m);
+                    let mean_n = sum_n / m as f64;
+                    let smoothed = (1.0 - m as f64 * w) * li + m as f64 * w * mean_n;
+                    // The excess log bias: (V - W) / 2, W = e^l / n (of the
+                    // neighbourhood's mean l, as the ratio).
+                    let out = smoothed - (ri - 1.0) * target / 2.0;
+                    out_row[i] = (b * (-out).exp()) as f32;
+                    matched += 1;
+                    ratio_sum += ri;
                 }
-                let neighbours: Vec<f64> = [r.checked_sub(1), (r + 1 < rows).then_some(r + 1)]
-                    .into_iter()
-                    .flatten()
-                    .map(|n| l[n][i])
-                    .filter(|x| x.is_finite())
-                    .collect();
-                let m = neighbours.len();
-                if m == 0 {
-                    continue;
-                }
-                let w = weight(ri, m);
-                let mean_n = neighbours.iter().sum::<f64>() / m as f64;
-                let smoothed = (1.0 - m as f64 * w) * li + m as f64 * w * mean_n;
-                // The excess log bias: (V - W) / 2, W = e^l / n (of the
-                // neighbourhood's mean l, as the ratio).
-                let out = smoothed - (ri - 1.0) * target / 2.0;
-                lin[r][i] = (b * (-out).exp()) as f32;
-                matched += 1;
-                ratio_sum += ri;
-            }
-        }
+                (matched, ratio_sum)
+            })
+            .collect();
+        let matched: usize = per_row_counts.iter().map(|c| c.0).sum();
+        let ratio_sum: f64 = per_row_counts.iter().map(|c| c.1).sum();
         Ok(NoiseMatchReport {
             variance_per_signal: a,
             air_pairs: pairs,
