@@ -218,9 +218,9 @@ pub struct ReconConfig {
     #[serde(default = "default_csi_um")]
     pub csi_um: f64,
     /// Noise matching (issue #27, `dbt_pipeline::noise_match`): `off`, or
-    /// `training-level` (the linearised counts brought to the noise of the
-    /// DBToR model's training level; with `beam_hardening = "csi"` and
-    /// `reconstructor = "dbtor"`).
+    /// `training-level` (the corrected counts brought to the noise of the
+    /// DBToR model's training level; with `beam_hardening = "csi"`,
+    /// `scatter = "kernel"` and `reconstructor = "dbtor"`).
     #[serde(default)]
     pub noise_match: NoiseMatchMode,
     /// Scatter (issue #27): `off` (counts taken as primary: the paper's
@@ -931,11 +931,12 @@ impl Config {
         }
         if self.recon.noise_match == NoiseMatchMode::TrainingLevel
             && (self.recon.beam_hardening != BeamHardeningMode::Csi
+                || self.recon.scatter != ScatterMode::Kernel
                 || self.recon.reconstructor != Reconstructor::Dbtor)
         {
             return Err(bad(
                 "recon.noise_match",
-                "\"training-level\" matches linearised counts to a DBToR model's training noise: it needs beam_hardening = \"csi\" and reconstructor = \"dbtor\"".into(),
+                "\"training-level\" matches corrected counts to a DBToR model's training noise, as measured with both corrections: it needs beam_hardening = \"csi\", scatter = \"kernel\" and reconstructor = \"dbtor\"".into(),
             ));
         }
         match self.recon.reconstructor {
@@ -1652,8 +1653,8 @@ mod tests {
         );
     }
 
-    /// Noise matching: off as shipped; `training-level` with the CsI
-    /// linearisation and DBToR; without them, or another word, refused
+    /// Noise matching: off as shipped; `training-level` with both
+    /// corrections and DBToR; without them, or another word, refused
     /// naming the key.
     #[test]
     fn noise_matching_is_configured() {
@@ -1662,6 +1663,7 @@ mod tests {
         assert!(!c.input_corrections().noise_matched);
         let on = |t: String| {
             t.replace("beam_hardening = \"off\"", "beam_hardening = \"csi\"")
+                .replace("scatter = \"off\"", "scatter = \"kernel\"")
                 .replace("noise_match = \"off\"", "noise_match = \"training-level\"")
         };
         let c = example(on).unwrap();
@@ -1672,6 +1674,14 @@ mod tests {
             .to_string();
         assert!(
             e.contains("recon.noise_match") && e.contains("beam_hardening"),
+            "{e}"
+        );
+        // Without the scatter removal: refused too (never measured).
+        let e = example(|t| on(t).replace("scatter = \"kernel\"", "scatter = \"off\""))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("recon.noise_match") && e.contains("scatter"),
             "{e}"
         );
         let e = example(|t| on(t).replace("reconstructor = \"dbtor\"", "reconstructor = \"mltr\""))

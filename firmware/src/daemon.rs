@@ -121,6 +121,17 @@ pub fn preflight(cfg: &Config, config_path: &Path) -> Result<Vec<String>, Daemon
     }
     if cfg.recon.reconstructor == Reconstructor::Dbtor {
         let signed = load_model(cfg, &PipelineOptions::default().classify)?;
+        if cfg.recon.noise_match == crate::config::NoiseMatchMode::TrainingLevel {
+            let m = dbt_pipeline::noise_match::NoiseMatch::for_model(signed.model.manifest())
+                .map_err(|e| DaemonError::Resource {
+                    what: "recon.noise_match = \"training-level\"".into(),
+                    reason: e.to_string(),
+                })?;
+            done.push(format!(
+                "noise matching: to the model's training level, {} photons per element",
+                m.target_photons
+            ));
+        }
         done.push(format!(
             "model: {} ({}), {} files match the sign-off {}, calibration {}",
             signed.model.manifest().name,

@@ -165,6 +165,7 @@ fn acquisition_to_reports() {
         offset: -0.02,
         slope: 1.05,
         per_mm: 0.0004,
+        thickness_range_mm: None,
     };
     let cal_opts = PipelineOptions {
         calibration: Some(cal),
@@ -262,6 +263,7 @@ fn the_glandularity_calibration_is_bound_to_the_model() {
         offset: -0.015,
         slope: 1.03,
         per_mm: 0.0,
+        thickness_range_mm: None,
     };
     let mut file = CalibrationFile {
         format: CALIBRATION_FORMAT.into(),
@@ -289,6 +291,7 @@ fn the_glandularity_calibration_is_bound_to_the_model() {
         offset: -0.02,
         slope: 1.05,
         per_mm: 0.0,
+        thickness_range_mm: None,
     };
     file.calibrations
         .insert("fp32 | scatter removed + linearised".into(), clinical);

@@ -178,6 +178,8 @@ fn main() -> Result<()> {
     let matching = dbt_pipeline::noise_match::NoiseMatch::to_photons(flux)?;
     let mut open_lin = open.clone();
     bh.apply(&header, &mut open_lin)?;
+    // Once checked: a refusal would time nothing.
+    matching.apply(&header, &bh, &open, &open, &mut open_lin.clone())?;
     let match_ms = median_ms(1, a.reps, || {
         let mut f = open_lin.clone();
         let _ = matching.apply(&header, &bh, &open, &open, &mut f);

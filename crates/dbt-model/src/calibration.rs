@@ -178,6 +178,31 @@ impl InputCorrections {
     }
 }
 
+/// `c` of the entry `key` of `f`, with the thicknesses its thickness term
+/// was fit on: the ones it states, else those of its fit's cases (the
+/// files written before the range was stored beside the calibration).
+fn with_fitted_range(
+    f: &CalibrationFile,
+    key: &str,
+    mut c: GlandularityCalibration,
+) -> GlandularityCalibration {
+    if c.per_mm != 0.0 && c.thickness_range_mm.is_none() {
+        let t: Vec<f64> = f.fits.get(key).map_or_else(Vec::new, |fit| {
+            fit["cases"].as_array().map_or_else(Vec::new, |cs| {
+                cs.iter()
+                    .filter_map(|x| x["thickness_mm"].as_f64())
+                    .collect()
+            })
+        });
+        if !t.is_empty() {
+            let lo = t.iter().copied().fold(f64::INFINITY, f64::min);
+            let hi = t.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            c.thickness_range_mm = Some([lo, hi]);
+        }
+    }
+    c
+}
+
 /// The entries of `f` for `precision_label` and `input` fit on another
 /// beam than W/Rh ([`InputCorrections::beam_key`]), as (beam name,
 /// calibration), by beam name.
@@ -191,7 +216,8 @@ pub fn pick_beam_calibrations(
         .iter()
         .filter_map(|(k, c)| {
             let beam = k.strip_prefix(&prefix)?;
-            (!beam.is_empty() && !beam.contains(" | ")).then(|| (beam.to_string(), *c))
+            (!beam.is_empty() && !beam.contains(" | "))
+                .then(|| (beam.to_string(), with_fitted_range(f, k, *c)))
         })
         .collect()
 }
@@ -211,7 +237,7 @@ pub fn pick_calibration(
 ) -> Option<(GlandularityCalibration, String)> {
     let exact = input.key(precision_label);
     if let Some(c) = f.calibrations.get(&exact) {
-        return Some((*c, exact));
+        return Some((with_fitted_range(f, &exact, *c), exact));
     }
     if input.uncorrected_clinical {
         tracing::warn!(
@@ -301,6 +327,7 @@ mod tests {
             offset: 0.0,
             slope: 1.0,
             per_mm: 0.0,
+            thickness_range_mm: None,
         };
         let mut only_plain = CalibrationFile {
             format: CALIBRATION_FORMAT.into(),
@@ -316,6 +343,7 @@ mod tests {
             offset: 0.1,
             slope: 1.2,
             per_mm: 0.0,
+            thickness_range_mm: None,
         };
         only_plain.calibrations.insert(raw.key("int8"), own);
         assert_eq!(
@@ -334,6 +362,7 @@ mod tests {
             offset: o,
             slope: 1.0,
             per_mm: 0.0,
+            thickness_range_mm: None,
         };
         let f = CalibrationFile {
             format: CALIBRATION_FORMAT.into(),
@@ -381,6 +410,23 @@ mod tests {
             "int8 | scatter removed + linearised on the known path | beam W/Al"
         );
         assert!(pick_beam_calibrations(&f, "int8", known).is_empty());
+        // A thickness term written without its range takes its fit's
+        // cases' thicknesses.
+        let mut g = f.clone();
+        let key = "int8 | scatter removed + linearised".to_string();
+        g.calibrations.insert(
+            key.clone(),
+            GlandularityCalibration {
+                per_mm: 0.0003,
+                ..cal(0.2)
+            },
+        );
+        g.fits.insert(
+            key,
+            serde_json::json!({"cases": [{"thickness_mm": 33.5}, {"thickness_mm": 71.0}, {"thickness_mm": 50.0}]}),
+        );
+        let (c, _) = pick_calibration(&g, "int8", corrected).unwrap();
+        assert_eq!(c.thickness_range_mm, Some([33.5, 71.0]));
         assert_eq!(
             pick_calibration(&f, "int8", known),
             Some((cal(0.1), "int8".to_string()))

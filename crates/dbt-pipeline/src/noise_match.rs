@@ -109,8 +109,20 @@ impl NoiseMatch {
 
     /// The matching to the noise level `model` was trained at (its
     /// manifest's `provenance.options.level`, e.g. `N8`); a manifest that
-    /// names none, or a noise-free one, is refused naming it.
+    /// names none, or a noise-free one, or a model trained on clinical
+    /// acquisitions (whose noise is not a photon count's), is refused
+    /// naming it.
     pub fn for_model(model: &dbt_dbtor::ModelManifest) -> Result<Self, NoiseMatchError> {
+        // A network trained on clinical counts learned their noise, not a
+        // photon count's: there is no N8 count to match it to.
+        if let Some(physics) = model.provenance["dataset_provenance"]["physics"].as_str() {
+            if physics != "mono" {
+                return Err(NoiseMatchError::Input(format!(
+                    "model {} was trained on {physics} acquisitions (its manifest's dataset provenance): its training noise is not a photon count's",
+                    model.name
+                )));
+            }
+        }
         let level = model.provenance["options"]["level"]
             .as_str()
             .ok_or_else(|| {
@@ -191,10 +203,26 @@ impl NoiseMatch {
         // E[(c0 - c1)^2] = 2 a mean: a = sq / pairs / 2 / (sum / 2 / pairs).
         let a = sq / sum;
         // Each ray's line integral (NaN where the counts are none a breast
-        // gives: left as read) and its own V and W.
+        // gives, or darker than the thickness allows: a defect, left as read
+        // for the counts check, and kept out of its neighbours' means) and
+        // its own V and W.
+        let dark = crate::plausibility::dark_bounds(h);
         let l: Vec<Vec<f64>> = lin
             .par_iter()
-            .map(|r| r.iter().map(|&q| ln_ratio(b, q)).collect())
+            .enumerate()
+            .map(|(r, row)| {
+                let bound = dark.row(r);
+                row.iter()
+                    .enumerate()
+                    .map(|(i, &q)| {
+                        if bound.get(i).is_some_and(|&d| f64::from(q) < d) {
+                            f64::NAN
+                        } else {
+                            ln_ratio(b, q)
+                        }
+                    })
+                    .collect()
+            })
             .collect();
         let vw: Vec<Vec<(f64, f64)>> = (0..rows)
             .into_par_iter()

@@ -249,13 +249,13 @@ pub fn cone_box_chords(sys: &dbt_geometry::ConeSystem, width_mm: f64, t: f64) ->
 /// allows: one bound per ray of a slice (the slice-wise stream), or per
 /// ray of each detector row (a cone-beam system's frames, whose rows cross
 /// the breast at other angles).
-enum DarkBounds {
+pub(crate) enum DarkBounds {
     Shared(Vec<f64>),
     PerRow(Vec<Vec<f64>>),
 }
 
 impl DarkBounds {
-    fn row(&self, r: usize) -> &[f64] {
+    pub(crate) fn row(&self, r: usize) -> &[f64] {
         match self {
             DarkBounds::Shared(v) => v,
             DarkBounds::PerRow(v) => v.get(r).map_or(&[], Vec::as_slice),
@@ -263,7 +263,7 @@ impl DarkBounds {
     }
 }
 
-fn dark_bounds(h: &AcquisitionHeader) -> DarkBounds {
+pub(crate) fn dark_bounds(h: &AcquisitionHeader) -> DarkBounds {
     let mu = mu_max_per_mm();
     let bound = |l: f64| {
         let lam = h.flux * (-mu * l).exp();

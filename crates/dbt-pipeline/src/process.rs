@@ -911,6 +911,7 @@ mod beam_tests {
             offset: o,
             slope: 1.0,
             per_mm: 0.0,
+            thickness_range_mm: None,
         };
         let plain = PipelineOptions::default();
         assert_eq!(plain.for_beam(AnodeFilter::WAl).unwrap().calibration, None);

@@ -604,7 +604,17 @@ pub struct GlandularityCalibration {
     /// (glandularity fraction; absent, 0, in the files written before it).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub per_mm: f64,
+    /// The compressed thicknesses the thickness term was fit on, mm: it is
+    /// applied within them widened by [`CALIBRATION_THICKNESS_MARGIN_MM`]
+    /// and held at that edge beyond (never extrapolated far). `None`: no
+    /// limit (a calibration without the term).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub thickness_range_mm: Option<[f64; 2]>,
 }
+
+/// How far beyond the thicknesses it was fit on a calibration's thickness
+/// term is extrapolated, mm.
+pub const CALIBRATION_THICKNESS_MARGIN_MM: f64 = 5.0;
 
 fn is_zero(x: &f64) -> bool {
     *x == 0.0
@@ -614,9 +624,14 @@ impl GlandularityCalibration {
     /// The calibrated glandularity of an estimate for a breast compressed
     /// to `thickness_mm`.
     pub fn apply(&self, estimate: f64, thickness_mm: f64) -> f64 {
-        (self.offset
-            + self.slope * estimate
-            + self.per_mm * (thickness_mm - CALIBRATION_THICKNESS_REF_MM))
+        let t = match self.thickness_range_mm {
+            Some([lo, hi]) => thickness_mm.clamp(
+                lo - CALIBRATION_THICKNESS_MARGIN_MM,
+                hi + CALIBRATION_THICKNESS_MARGIN_MM,
+            ),
+            None => thickness_mm,
+        };
+        (self.offset + self.slope * estimate + self.per_mm * (t - CALIBRATION_THICKNESS_REF_MM))
             .clamp(0.0, 1.0)
     }
 
@@ -690,6 +705,7 @@ impl GlandularityCalibration {
             offset: m[0][3] / m[0][0],
             slope: m[1][3] / m[1][1],
             per_mm: m[2][3] / m[2][2],
+            thickness_range_mm: Some([lo, hi]),
         })
     }
 
@@ -729,6 +745,7 @@ impl GlandularityCalibration {
             offset: my - slope * mx,
             slope,
             per_mm: 0.0,
+            thickness_range_mm: None,
         })
     }
 }
@@ -900,6 +917,11 @@ mod tests {
         assert!((c.slope - 1.05).abs() < 1e-12, "{c:?}");
         assert!((c.per_mm + 0.0004).abs() < 1e-12, "{c:?}");
         assert!((c.apply(0.3, 60.0) - (-0.02 + 0.315 - 0.004)).abs() < 1e-12);
+        // Fit on 32-70 mm: applied down to 27 mm and up to 75 mm, held there.
+        assert_eq!(c.thickness_range_mm, Some([32.0, 70.0]));
+        assert!((c.apply(0.3, 27.0) - (-0.02 + 0.315 + 0.0092)).abs() < 1e-12);
+        assert_eq!(c.apply(0.3, 12.0), c.apply(0.3, 27.0));
+        assert_eq!(c.apply(0.3, 150.0), c.apply(0.3, 75.0));
         // Thicknesses too alike, too few cases, a NaN: refused.
         let flat = [50.0, 52.0, 55.0, 51.0, 58.0, 53.0];
         for bad in [

@@ -360,6 +360,27 @@ impl PhysicsArgs {
     }
 }
 
+/// `--noise-match LEVEL` against the level the model was trained at (the
+/// firmware always matches to the manifest's, so a calibration fit at
+/// another would be read under the same key for other counts): refused
+/// where they differ, or where the model cannot be matched at all.
+fn check_noise_level(
+    nm: Option<dbt_pipeline::noise_match::NoiseMatch>,
+    manifest: &dbt_dbtor::ModelManifest,
+) -> Result<()> {
+    if let Some(nm) = nm {
+        let own = dbt_pipeline::noise_match::NoiseMatch::for_model(manifest)?;
+        anyhow::ensure!(
+            own.target_photons == nm.target_photons,
+            "--noise-match asks for {} photons per element, but model {} was trained at {} (its manifest's level): the firmware matches to the model's",
+            nm.target_photons,
+            manifest.name,
+            own.target_photons
+        );
+    }
+    Ok(())
+}
+
 /// The options of `dbt-eval accuracy`.
 #[derive(Args)]
 struct AccuracyArgs {
@@ -1120,6 +1141,7 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
                     .pop()
                     .map(|(_, m)| m)
                     .context("no model loaded")?;
+                check_noise_level(noise_match, m.manifest())?;
                 Some(std::sync::Arc::new(m))
             }
             other => {
@@ -1482,6 +1504,7 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
         .pop()
         .map(|(_, m)| std::sync::Arc::new(m))
         .context("no model loaded")?;
+    check_noise_level(noise_match, m.manifest())?;
     let split = SplitArgs {
         split: "validation".into(),
         train_seed,
