@@ -481,3 +481,33 @@ pub fn counts_bytes(h: &AcquisitionHeader) -> Result<usize, HeaderError> {
     }
     Ok(bytes)
 }
+
+/// A valid header for the crate's tests: `slices` rows on `geometry` (a
+/// cone-beam `system`'s frames where given), a 45 mm breast at N8's flat
+/// field (16,000), 28 kV W/Rh, 60 mAs at 0.11 mGy/mAs.
+#[cfg(test)]
+pub(crate) fn test_header(
+    geometry: dbt_geometry::Geometry,
+    slices: usize,
+    system: Option<dbt_geometry::ConeSystem>,
+) -> AcquisitionHeader {
+    AcquisitionHeader {
+        format: ACQ_FORMAT.into(),
+        geometry,
+        thickness_mm: 45.0,
+        flux: 16_000.0,
+        slices,
+        slice_spacing_mm: 0.2,
+        kvp: 28.0,
+        anode_filter: Default::default(),
+        mas_total: 60.0,
+        tube_output_mgy_per_mas: 0.11,
+        laterality: "L".into(),
+        compression_force_n: None,
+        exposure_ms_per_view: None,
+        system,
+        patient: Default::default(),
+        study: Default::default(),
+        truth: None,
+    }
+}

@@ -85,6 +85,26 @@ impl ScatterRemoval {
         }
     }
 
+    /// [`Self::layout`] of `h`, once `counts` (`what`, for the message) are
+    /// checked to be that stack: `rows` rows of `views * cols` counts.
+    pub(crate) fn checked_layout(
+        h: &AcquisitionHeader,
+        counts: &[Vec<f32>],
+        what: &str,
+    ) -> Result<StackLayout, String> {
+        let l = Self::layout(h);
+        if counts.len() != l.rows || counts.iter().any(|r| r.len() != l.views * l.cols) {
+            return Err(format!(
+                "{} rows of {what} for a stack of {} rows x {} views x {} elements",
+                counts.len(),
+                l.rows,
+                l.views,
+                l.cols
+            ));
+        }
+        Ok(l)
+    }
+
     /// Remove the scatter from an acquisition's counts in place
     /// (`counts[row][view * cols + element]`, flat field `h.flux`; the
     /// header already validated). Returns the mean scatter-to-primary
@@ -95,7 +115,8 @@ impl ScatterRemoval {
         h: &AcquisitionHeader,
         counts: &mut [Vec<f32>],
     ) -> Result<f64, DescatterError> {
-        let l = Self::layout(h);
+        let fail = |w: String| DescatterError::Model(w);
+        let l = Self::checked_layout(h, counts, "counts").map_err(fail)?;
         let table = self.table(h.anode_filter);
         let (lo, hi) = table.range_mm();
         if !(lo..=hi).contains(&h.thickness_mm) {
@@ -103,16 +124,6 @@ impl ScatterRemoval {
                 thickness_mm = h.thickness_mm,
                 "the scatter model is fitted for {lo}-{hi} mm: the nearest thickness's kernels are used"
             );
-        }
-        let fail = |w: String| DescatterError::Model(w);
-        if counts.len() != l.rows || counts.iter().any(|r| r.len() != l.views * l.cols) {
-            return Err(fail(format!(
-                "{} rows of counts for a stack of {} rows x {} views x {} elements",
-                counts.len(),
-                l.rows,
-                l.views,
-                l.cols
-            )));
         }
         let fine = l.grid();
         let (fr, fc) = l.block();

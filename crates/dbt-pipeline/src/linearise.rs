@@ -311,16 +311,8 @@ impl BeamHardening {
             thickness_mm: h.thickness_mm,
             reason,
         };
-        let (rows, views, cols) = match &h.system {
-            Some(sys) => (sys.detector.rows, sys.n_views(), sys.detector.columns),
-            None => (h.slices, h.geometry.n_views(), h.geometry.n_det()),
-        };
-        if counts.len() != rows || counts.iter().any(|r| r.len() != views * cols) {
-            return Err(fail(format!(
-                "{} rows of counts for a stack of {rows} rows x {views} views x {cols} elements",
-                counts.len()
-            )));
-        }
+        let stack =
+            crate::descatter::ScatterRemoval::checked_layout(h, counts, "counts").map_err(fail)?;
         // Each ray's sec a: the fan's rays are every slice's; the cone's
         // differ by detector row too.
         let sec = ray_secants(h);
@@ -331,7 +323,7 @@ impl BeamHardening {
             });
         let t = self.known_path_table(h.anode_filter, h.kvp, h.thickness_mm, skin_mm, (lo, hi))?;
         let b = h.flux;
-        let per_row = views * cols;
+        let per_row = stack.views * stack.cols;
         let n = counts.par_iter_mut().enumerate().map(|(r, row)| {
             let sec = if sec.len() == per_row {
                 &sec[..]
@@ -720,49 +712,14 @@ mod tests {
     }
 
     fn header(system: Option<dbt_geometry::ConeSystem>) -> crate::acquisition::AcquisitionHeader {
-        crate::acquisition::AcquisitionHeader {
-            format: crate::acquisition::ACQ_FORMAT.into(),
-            geometry: dbt_geometry::Geometry::builtin("paper").unwrap(),
-            thickness_mm: 45.0,
-            flux: 16_000.0,
-            slices: 1,
-            slice_spacing_mm: 0.2,
-            kvp: 28.0,
-            anode_filter: Default::default(),
-            mas_total: 60.0,
-            tube_output_mgy_per_mas: 0.11,
-            laterality: "L".into(),
-            compression_force_n: None,
-            exposure_ms_per_view: None,
-            system,
-            patient: Default::default(),
-            study: Default::default(),
-            truth: None,
-        }
+        let paper = dbt_geometry::Geometry::builtin("paper").unwrap();
+        crate::acquisition::test_header(paper, 1, system)
     }
 
     /// Counts a breast cannot give pass as read; the others map.
     #[test]
     fn impossible_counts_pass_unchanged() {
-        let h = crate::acquisition::AcquisitionHeader {
-            format: crate::acquisition::ACQ_FORMAT.into(),
-            geometry: dbt_geometry::Geometry::builtin("paper").unwrap(),
-            thickness_mm: 45.0,
-            flux: 16_000.0,
-            slices: 1,
-            slice_spacing_mm: 0.2,
-            kvp: 28.0,
-            anode_filter: Default::default(),
-            mas_total: 60.0,
-            tube_output_mgy_per_mas: 0.11,
-            laterality: "L".into(),
-            compression_force_n: None,
-            exposure_ms_per_view: None,
-            system: None,
-            patient: Default::default(),
-            study: Default::default(),
-            truth: None,
-        };
+        let h = header(None);
         let mut c = vec![vec![
             0.0,
             -1.0,

@@ -159,36 +159,25 @@ impl NoiseMatch {
                 "implemented for the one-reference linearisation only".into()
             ));
         }
-        let (rows, views, cols) = match &h.system {
-            Some(sys) => (sys.detector.rows, sys.n_views(), sys.detector.columns),
-            None => (h.slices, h.geometry.n_views(), h.geometry.n_det()),
-        };
+        let layout = crate::descatter::ScatterRemoval::checked_layout;
+        let stack = layout(h, raw, "detector counts").map_err(bad)?;
+        layout(h, primary, "primary counts").map_err(bad)?;
+        layout(h, lin, "linearised counts").map_err(bad)?;
+        let (rows, views, cols) = (stack.rows, stack.views, stack.cols);
         let per_row = views * cols;
-        for (what, c) in [
-            ("detector", raw),
-            ("primary", primary),
-            ("linearised", &*lin),
-        ] {
-            if c.len() != rows || c.iter().any(|r| r.len() != per_row) {
-                return Err(bad(format!(
-                    "{} rows of {what} counts for a stack of {rows} rows x {views} views x {cols} elements",
-                    c.len()
-                )));
-            }
-        }
         let table = bh
             .table(h.anode_filter, h.kvp, h.thickness_mm)
             .map_err(|e| bad(e.to_string()))?;
         let b = h.flux;
         // The detector's variance per unit of signal, on the open field.
         let (mut sq, mut sum, mut pairs) = (0.0, 0.0, 0usize);
+        let open = |p: f64| p >= AIR_PRIMARY * b && p <= b / AIR_PRIMARY;
         for (rr, rp) in raw.iter().zip(primary) {
             for v in 0..views {
                 let o = v * cols;
                 for k in o..o + cols - 1 {
                     let (c0, c1) = (f64::from(rr[k]), f64::from(rr[k + 1]));
                     let (p0, p1) = (f64::from(rp[k]), f64::from(rp[k + 1]));
-                    let open = |p: f64| p >= AIR_PRIMARY * b && p <= b / AIR_PRIMARY;
                     if open(p0) && open(p1) && c0.is_finite() && c1.is_finite() {
                         sq += (c0 - c1) * (c0 - c1);
                         sum += c0 + c1;
@@ -363,27 +352,12 @@ mod tests {
     /// A slice-wise acquisition header of `slices` rows on the paper
     /// geometry binned x4 (25 views of 320 elements).
     fn header(slices: usize) -> AcquisitionHeader {
+        let paper = dbt_geometry::Geometry::builtin("paper").unwrap();
         AcquisitionHeader {
-            format: crate::acquisition::ACQ_FORMAT.into(),
-            geometry: dbt_geometry::Geometry::builtin("paper")
-                .unwrap()
-                .binned(4)
-                .unwrap(),
             thickness_mm: 50.0,
-            flux: 16_000.0,
-            slices,
             slice_spacing_mm: 0.8,
             kvp: 29.0,
-            anode_filter: Default::default(),
-            mas_total: 60.0,
-            tube_output_mgy_per_mas: 0.11,
-            laterality: "L".into(),
-            compression_force_n: None,
-            exposure_ms_per_view: None,
-            system: None,
-            patient: Default::default(),
-            study: Default::default(),
-            truth: None,
+            ..crate::acquisition::test_header(paper.binned(4).unwrap(), slices, None)
         }
     }
 
