@@ -11,17 +11,22 @@
 //!   order of summation); in its other rows, and in other views' 8-ray blocks of fast
 //!   rays, masked gathers summed as the scalar code does. Blocks with a slow
 //!   ray, and the tail of a view, go through the scalar code.
-//! * Adjoint: the AVX-512 kernel's pixel-driven scheme (`avx512.rs`) on
-//!   8-lane vectors: per task (a band of rows), view by view and row by
-//!   row, a ray pass computes every ray's first pixel and its two weighted
-//!   contributions into the shared scratch (`table::RowRays`); a pixel pass
-//!   then takes each verified 16-pixel block of the inverse map
-//!   (`InvMap::fit_lo .. fit_hi`) as two halves of 8 pixels, gathers each
-//!   pixel's candidate rays from the block's 32-entry window (AVX2 has no
-//!   two-register permute), adds the first contributions of the rays whose
-//!   first pixel it is and carries their second ones one pixel right. The
-//!   candidates, the window and the order of every sum are the AVX-512
-//!   kernel's, so both give the same image.
+//! * Adjoint: per task (a band of rows), view by view and row by row, as the
+//!   AVX-512 kernel (`avx512.rs`): a ray pass computes every ray's first
+//!   pixel and its two weighted contributions into the shared scratch
+//!   (`table::RowRays`; in a view of fast rays only the row's rays, clearing
+//!   just what the last row left outside them). The pixels then take their
+//!   sums by runs instead of the AVX-512 kernel's candidate lookups (AVX2 has
+//!   no two-register permute): in a view whose first pixels are
+//!   non-decreasing along the detector the rays of one first pixel are
+//!   consecutive, so each ray's running sum over its run, the run's last ray
+//!   packed with its vector's other run ends into consecutive lanes (one
+//!   permutation from a table of 256) and stored at its pixel, gives every
+//!   pixel of the verified range (`InvMap::fit_lo .. fit_hi`) its first and
+//!   carried second contributions with one vector load each. The sums are
+//!   the AVX-512 kernel's in the same order (`run_sums`), so both give the
+//!   same image to the bit; pixels outside the range take the scalar
+//!   two-sided candidates, as there.
 
 use crate::table::{
     fast_weights, left_edge_c1, pixel_scalar, segment, slot_c1_scalar, InvMap, RayTable, RowRays,
@@ -294,36 +299,90 @@ pub(crate) unsafe fn adjoint_rows(t: &RayTable, sino: &[f32], i0: usize, out: &m
 /// `n_det` values; `s` is sized for the table (`PAD` entries on both sides of
 /// `n_det`).
 #[target_feature(enable = "avx2")]
+#[inline(never)]
 unsafe fn ray_pass(t: &RayTable, v: usize, i: usize, ys: &[f32], s: &mut RowRays) {
+    let n_det = t.n_det;
+    assert!(ys.len() >= n_det && s.j.len() >= n_det + 2 * PAD);
+    assert!(s.c0.len() >= n_det + 2 * PAD && s.c1.len() >= n_det + 2 * PAD);
+    let base = v * n_det;
+    assert!(base + n_det <= t.x_top.len() && base + n_det <= t.row_hi.len());
+    assert!(base + n_det <= t.sx.len() && base + n_det <= t.len.len());
+    assert!(base + n_det <= t.inv.len() && base + n_det <= t.row_lo.len());
+    let map = &t.inv_map[v * t.nz + i];
+    let (k_lo, k_hi) = (map.ray_lo as usize, map.ray_hi as usize);
+    if t.view_has_slow[v] || k_lo >= k_hi {
+        // SAFETY: AVX2 and the buffers' lengths per the contract (asserted).
+        unsafe { ray_pass_checked(t, v, i, ys, s) };
+        s.live = (0, n_det);
+        return;
+    }
+    // Every ray of the view is fast, and the rays inside the row are `k_lo ..
+    // k_hi`: clear what the last row left outside them, then compute them.
+    let (live_lo, live_hi) = s.live;
+    let left = live_lo..k_lo.clamp(live_lo, live_hi);
+    let right = k_hi.clamp(live_lo, live_hi)..live_hi;
+    for r in [left, right] {
+        let r = PAD + r.start..PAD + r.end;
+        s.j[r.clone()].fill(NO_PIXEL);
+        s.c0[r.clone()].fill(0.0);
+        s.c1[r].fill(0.0);
+    }
+    s.live = (k_lo, k_hi);
+    // SAFETY: AVX2 per the contract; the vectors cover rays `k .. k + 8 <=
+    // k_hi <= n_det` of the view (table loads at `base + k`, `ys` at `k`, the
+    // scratch stores at `PAD + k`), all inside the asserted lengths.
+    unsafe {
+        let fi = _mm256_set1_ps(i as f32);
+        let (jp, c0p, c1p) = (s.j.as_mut_ptr(), s.c0.as_mut_ptr(), s.c1.as_mut_ptr());
+        let mut k = k_lo;
+        while k + L <= k_hi {
+            let r = base + k;
+            let (jf, w0, w1) = weights8(
+                dbt_isa::ymm::loadu_ps(t.x_top.as_ptr().add(r)),
+                dbt_isa::ymm::loadu_ps(t.sx.as_ptr().add(r)),
+                dbt_isa::ymm::loadu_ps(t.len.as_ptr().add(r)),
+                dbt_isa::ymm::loadu_ps(t.inv.as_ptr().add(r)),
+                fi,
+            );
+            let y = dbt_isa::ymm::loadu_ps(ys.as_ptr().add(k));
+            dbt_isa::ymm::storeu_si256(jp.add(PAD + k) as *mut __m256i, _mm256_cvttps_epi32(jf));
+            dbt_isa::ymm::storeu_ps(c0p.add(PAD + k), _mm256_mul_ps(w0, y));
+            dbt_isa::ymm::storeu_ps(c1p.add(PAD + k), _mm256_mul_ps(w1, y));
+            k += L;
+        }
+        for k in k..k_hi {
+            let r = base + k;
+            let (lo, _) = segment(t.x_top[r], t.sx[r], i);
+            let (j, w0, w1) = fast_weights(lo, t.len[r], t.inv[r]);
+            s.j[PAD + k] = j;
+            s.c0[PAD + k] = w0 * ys[k];
+            s.c1[PAD + k] = w1 * ys[k];
+        }
+    }
+}
+
+/// The ray pass in a view with slow rays (or a row no ray touches): every
+/// ray of the view written, those outside the row or slow as `NO_PIXEL` and
+/// zeros.
+///
+/// # Safety
+/// As `ray_pass`, the lengths asserted there.
+#[target_feature(enable = "avx2")]
+unsafe fn ray_pass_checked(t: &RayTable, v: usize, i: usize, ys: &[f32], s: &mut RowRays) {
     // SAFETY: AVX2 per the contract; the 8-ray blocks start at `k` with `k + 8
     // <= n_det`, so the per-ray loads, the `ys` loads and the scratch stores at
     // `PAD + k` stay inside their buffers.
     unsafe {
         let n_det = t.n_det;
-        assert!(ys.len() >= n_det && s.j.len() >= n_det + 2 * PAD);
-        assert!(s.c0.len() >= n_det + 2 * PAD && s.c1.len() >= n_det + 2 * PAD);
         let base = v * n_det;
-        assert!(base + n_det <= t.x_top.len() && base + n_det <= t.row_hi.len());
         let ii = _mm256_set1_epi32(i as i32);
         let fi = _mm256_set1_ps(i as f32);
         let nop = _mm256_set1_epi32(NO_PIXEL);
-        let zero = _mm256_setzero_ps();
-        let map = &t.inv_map[v * t.nz + i];
-        let (k_lo, k_hi) = (map.ray_lo as usize, map.ray_hi as usize);
         let has_slow = t.view_has_slow[v];
         let (jp, c0p, c1p) = (s.j.as_mut_ptr(), s.c0.as_mut_ptr(), s.c1.as_mut_ptr());
         let mut k = 0;
         while k + L <= n_det {
             let r = base + k;
-            if k + L <= k_lo || k >= k_hi {
-                // No ray of this block touches the row: mark it empty (the
-                // scratch is reused across rows).
-                dbt_isa::ymm::storeu_si256(jp.add(PAD + k) as *mut __m256i, nop);
-                dbt_isa::ymm::storeu_ps(c0p.add(PAD + k), zero);
-                dbt_isa::ymm::storeu_ps(c1p.add(PAD + k), zero);
-                k += L;
-                continue;
-            }
             let (jf, w0, w1) = weights8(
                 dbt_isa::ymm::loadu_ps(t.x_top.as_ptr().add(r)),
                 dbt_isa::ymm::loadu_ps(t.sx.as_ptr().add(r)),
@@ -337,38 +396,30 @@ unsafe fn ray_pass(t: &RayTable, v: usize, i: usize, ys: &[f32], s: &mut RowRays
                 _mm256_mul_ps(w0, y),
                 _mm256_mul_ps(w1, y),
             );
-            if !has_slow && k >= k_lo && k + L <= k_hi {
-                // Every ray of the block is inside the row and fast.
-                dbt_isa::ymm::storeu_si256(jp.add(PAD + k) as *mut __m256i, j);
-                dbt_isa::ymm::storeu_ps(c0p.add(PAD + k), c0);
-                dbt_isa::ymm::storeu_ps(c1p.add(PAD + k), c1);
-            } else {
-                // An edge block, or a view with slow rays (scattered by the
-                // caller): row_lo <= i < row_hi and fast.
-                let row_lo = dbt_isa::ymm::loadu_si256(t.row_lo.as_ptr().add(r) as *const __m256i);
-                let row_hi = dbt_isa::ymm::loadu_si256(t.row_hi.as_ptr().add(r) as *const __m256i);
-                let mut valid = _mm256_andnot_si256(
-                    _mm256_cmpgt_epi32(row_lo, ii),
-                    _mm256_cmpgt_epi32(row_hi, ii),
-                );
-                if has_slow {
-                    let mut fast = [0i32; L];
-                    for (l, f) in fast.iter_mut().enumerate() {
-                        *f = if t.fast[r + l] { -1 } else { 0 };
-                    }
-                    valid = _mm256_and_si256(
-                        valid,
-                        dbt_isa::ymm::loadu_si256(fast.as_ptr() as *const __m256i),
-                    );
+            // Rays inside the row (row_lo <= i < row_hi) and fast.
+            let row_lo = dbt_isa::ymm::loadu_si256(t.row_lo.as_ptr().add(r) as *const __m256i);
+            let row_hi = dbt_isa::ymm::loadu_si256(t.row_hi.as_ptr().add(r) as *const __m256i);
+            let mut valid = _mm256_andnot_si256(
+                _mm256_cmpgt_epi32(row_lo, ii),
+                _mm256_cmpgt_epi32(row_hi, ii),
+            );
+            if has_slow {
+                let mut fast = [0i32; L];
+                for (l, f) in fast.iter_mut().enumerate() {
+                    *f = if t.fast[r + l] { -1 } else { 0 };
                 }
-                let vf = _mm256_castsi256_ps(valid);
-                dbt_isa::ymm::storeu_si256(
-                    jp.add(PAD + k) as *mut __m256i,
-                    _mm256_blendv_epi8(nop, j, valid),
+                valid = _mm256_and_si256(
+                    valid,
+                    dbt_isa::ymm::loadu_si256(fast.as_ptr() as *const __m256i),
                 );
-                dbt_isa::ymm::storeu_ps(c0p.add(PAD + k), _mm256_and_ps(c0, vf));
-                dbt_isa::ymm::storeu_ps(c1p.add(PAD + k), _mm256_and_ps(c1, vf));
             }
+            let vf = _mm256_castsi256_ps(valid);
+            dbt_isa::ymm::storeu_si256(
+                jp.add(PAD + k) as *mut __m256i,
+                _mm256_blendv_epi8(nop, j, valid),
+            );
+            dbt_isa::ymm::storeu_ps(c0p.add(PAD + k), _mm256_and_ps(c0, vf));
+            dbt_isa::ymm::storeu_ps(c1p.add(PAD + k), _mm256_and_ps(c1, vf));
             k += L;
         }
         for k in k..n_det {
@@ -388,185 +439,58 @@ unsafe fn ray_pass(t: &RayTable, v: usize, i: usize, ys: &[f32], s: &mut RowRays
     }
 }
 
-/// `InvMap::block` at blocks `0, 16, 32, ...` (8 blocks per vector, the same
-/// IEEE operations, so the same values).
-///
-/// # Safety
-/// AVX2; the scratch vectors' lengths are multiples of 16 (`RowRays::reset`
-/// with `nb` a multiple of 16).
-#[target_feature(enable = "avx2")]
-unsafe fn block_values(map: &InvMap, s: &mut RowRays) {
-    // SAFETY: AVX2 per the contract; `q` steps by 8 below the shortest
-    // vector's length, a multiple of 16, so every store is inside.
-    unsafe {
-        let (rb, sb, r0, eb) = (&mut s.rb, &mut s.sb, &mut s.r0, &mut s.e);
-        let e_off = _mm256_set1_epi32(PAD as i32 - map.off1);
-        let lanes = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
-        let (a, b) = (_mm256_set1_ps(map.a), _mm256_set1_ps(map.b));
-        let (c, d, e) = (
-            _mm256_set1_ps(map.c),
-            _mm256_set1_ps(map.d),
-            _mm256_set1_ps(map.e),
-        );
-        let one = _mm256_set1_ps(1.0);
-        for q in (0..rb.len().min(sb.len()).min(r0.len()).min(eb.len())).step_by(L) {
-            let blocks = _mm256_add_epi32(_mm256_set1_epi32(q as i32), lanes);
-            let x = _mm256_cvtepi32_ps(_mm256_slli_epi32::<4>(blocks));
-            let inv = _mm256_div_ps(one, _mm256_add_ps(_mm256_mul_ps(c, x), d));
-            let val = _mm256_mul_ps(_mm256_add_ps(_mm256_mul_ps(a, x), b), inv);
-            let slope = _mm256_mul_ps(_mm256_mul_ps(e, inv), inv);
-            dbt_isa::ymm::storeu_ps(rb.as_mut_ptr().add(q), val);
-            dbt_isa::ymm::storeu_ps(sb.as_mut_ptr().add(q), slope);
-            let first = _mm256_cvttps_epi32(_mm256_floor_ps(val));
-            dbt_isa::ymm::storeu_si256(r0.as_mut_ptr().add(q) as *mut __m256i, first);
-            dbt_isa::ymm::storeu_si256(
-                eb.as_mut_ptr().add(q) as *mut __m256i,
-                _mm256_add_epi32(first, e_off),
-            );
-        }
-    }
-}
-
-/// Pixel pass (see the module's documentation): the fit range's 16-pixel
-/// blocks in halves of 8 with gathered candidates, other pixels with the
-/// scalar two-sided candidates.
+/// Pixel pass (see the module's documentation): in a row with a verified
+/// fit range, the run sums of `run_sums` added to the fit range's pixels in
+/// vectors of 8, other pixels with the scalar two-sided candidates.
 ///
 /// # Safety
 /// AVX2; `s` was filled by `ray_pass` for this row; `row_out` is one image
 /// row.
 #[target_feature(enable = "avx2")]
 unsafe fn pixel_pass(t: &RayTable, map: &InvMap, s: &mut RowRays, row_out: &mut [f32]) {
-    // SAFETY: AVX2 per the contract; the gathers read the 32-entry window of
-    // each block in the padded scratch (`InvMap::block_fits`: every lane's
-    // candidates `idx .. idx + count1` lie in `0..32` of the window, and the
-    // window inside the scratch), and the stores write the fit range's
-    // 8-pixel halves of `row_out`, the row's last one masked to its end.
+    // SAFETY: AVX2 per the contract; the loads of `a0` (from `p + 1`) and
+    // `a1` (from `p`) and the stores to `row_out` (at `p`) cover 8 pixels
+    // from `p < nx`, the row's last ones masked to its end; `a0` and `a1`
+    // hold `16 nb + 16 >= nx + 16` entries.
     unsafe {
         let (nx, n_det) = (t.nx, t.n_det);
         assert_eq!(row_out.len(), nx);
         let (fit_lo, fit_hi) = (map.fit_lo as usize, map.fit_hi as usize);
-        if fit_lo < fit_hi {
-            block_values(map, s);
-        }
-        let s = &*s;
         for j in 0..(fit_lo * 16).min(nx) {
             row_out[j] += pixel_scalar(map, s, n_det, j);
         }
         if fit_lo < fit_hi {
-            assert!(fit_hi <= s.rb.len() && fit_hi <= s.e.len());
+            run_sums(t, map, s);
             let jb = fit_lo * 16;
-            let carry = if jb == 0 {
+            let je = (fit_hi * 16).min(nx);
+            assert!(je + L < s.a0.len() && je + L <= s.a1.len());
+            // The second contributions carried into the fit range's first
+            // pixel, as the AVX-512 kernel takes them.
+            s.a1[jb] = if jb == 0 {
                 left_edge_c1(map, &s.j, &s.c1)
             } else {
                 slot_c1_scalar(map, s, n_det, jb - 1)
             };
-            // Lane 7 of `prev` is the second contributions of the pixel
-            // before the current half.
-            let mut prev = _mm256_set1_ps(carry);
-            let (jp, c0p, c1p) = (s.j.as_ptr(), s.c0.as_ptr(), s.c1.as_ptr());
             let lanes = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
-            let rot = _mm256_setr_epi32(7, 0, 1, 2, 3, 4, 5, 6);
-            // The lanes' pixel offsets in the 16-pixel block, per half.
-            let lane_f = [
-                _mm256_setr_ps(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0),
-                _mm256_setr_ps(8.0, 9.0, 10.0, 11.0, 12.0, 13.0, 14.0, 15.0),
-            ];
-            let one = _mm256_set1_epi32(1);
-            for b in fit_lo..fit_hi {
-                // Checked at construction (`InvMap::block_fits`).
-                let rb = _mm256_set1_ps(s.rb[b]);
-                let sb = _mm256_set1_ps(s.sb[b]);
-                let r0 = _mm256_set1_epi32(s.r0[b]);
-                let e = s.e[b] as usize;
-                for h in 0..2 {
-                    let p0 = b * 16 + h * L;
-                    if p0 >= nx {
-                        break;
-                    }
-                    let rf = _mm256_cvttps_epi32(_mm256_floor_ps(_mm256_add_ps(
-                        rb,
-                        _mm256_mul_ps(lane_f[h], sb),
-                    )));
-                    let mut id = _mm256_sub_epi32(rf, r0);
-                    let jv = _mm256_add_epi32(_mm256_set1_epi32(p0 as i32), lanes);
-                    let (mut a0, mut a1) = (_mm256_setzero_ps(), _mm256_setzero_ps());
-                    // The half's candidates, window positions `first ..=
-                    // last + count1 - 1`: in two registers of 8 where they
-                    // span at most 16 entries (the usual case; the lookup is
-                    // then two permutes and a blend), else gathered.
-                    let first = _mm256_cvtsi256_si32(id) as i64;
-                    let last = _mm256_extract_epi32::<7>(id) as i64;
-                    let lo = e as i64 + first;
-                    let narrow = first >= 0
-                        && last - first + map.count1 as i64 - 1 <= 15
-                        && lo + 16 <= s.j.len().min(s.c0.len()).min(s.c1.len()) as i64;
-                    if narrow {
-                        let lo = lo as usize;
-                        let (jl, jh) = (
-                            dbt_isa::ymm::loadu_si256(jp.add(lo) as *const __m256i),
-                            dbt_isa::ymm::loadu_si256(jp.add(lo + L) as *const __m256i),
-                        );
-                        let (c0l, c0h) = (
-                            dbt_isa::ymm::loadu_ps(c0p.add(lo)),
-                            dbt_isa::ymm::loadu_ps(c0p.add(lo + L)),
-                        );
-                        let (c1l, c1h) = (
-                            dbt_isa::ymm::loadu_ps(c1p.add(lo)),
-                            dbt_isa::ymm::loadu_ps(c1p.add(lo + L)),
-                        );
-                        let mut loc = _mm256_sub_epi32(id, _mm256_set1_epi32(first as i32));
-                        let seven = _mm256_set1_epi32(7);
-                        for _ in 0..map.count1 {
-                            let hi = _mm256_cmpgt_epi32(loc, seven);
-                            let hf = _mm256_castsi256_ps(hi);
-                            let jr = _mm256_blendv_epi8(
-                                _mm256_permutevar8x32_epi32(jl, loc),
-                                _mm256_permutevar8x32_epi32(jh, loc),
-                                hi,
-                            );
-                            let m = _mm256_castsi256_ps(_mm256_cmpeq_epi32(jr, jv));
-                            let c0 = _mm256_blendv_ps(
-                                _mm256_permutevar8x32_ps(c0l, loc),
-                                _mm256_permutevar8x32_ps(c0h, loc),
-                                hf,
-                            );
-                            let c1 = _mm256_blendv_ps(
-                                _mm256_permutevar8x32_ps(c1l, loc),
-                                _mm256_permutevar8x32_ps(c1h, loc),
-                                hf,
-                            );
-                            a0 = _mm256_add_ps(a0, _mm256_and_ps(c0, m));
-                            a1 = _mm256_add_ps(a1, _mm256_and_ps(c1, m));
-                            loc = _mm256_add_epi32(loc, one);
-                        }
-                    } else {
-                        for _ in 0..map.count1 {
-                            let jr = _mm256_i32gather_epi32::<4>(jp.add(e), id);
-                            let m = _mm256_castsi256_ps(_mm256_cmpeq_epi32(jr, jv));
-                            let c0 = _mm256_i32gather_ps::<4>(c0p.add(e), id);
-                            let c1 = _mm256_i32gather_ps::<4>(c1p.add(e), id);
-                            a0 = _mm256_add_ps(a0, _mm256_and_ps(c0, m));
-                            a1 = _mm256_add_ps(a1, _mm256_and_ps(c1, m));
-                            id = _mm256_add_epi32(id, one);
-                        }
-                    }
-                    // Lane l gets a1 of pixel p0 + l - 1 (lane 7 of `prev`).
-                    let carried = _mm256_blend_ps::<1>(
-                        _mm256_permutevar8x32_ps(a1, rot),
-                        _mm256_permutevar8x32_ps(prev, rot),
-                    );
-                    prev = a1;
-                    let o = row_out.as_mut_ptr().add(p0);
-                    let sum = _mm256_add_ps(a0, carried);
-                    if p0 + L <= nx {
-                        dbt_isa::ymm::storeu_ps(o, _mm256_add_ps(dbt_isa::ymm::loadu_ps(o), sum));
-                    } else {
-                        // The row's last, partial half: lanes past the row
-                        // are neither read nor written.
-                        let m = _mm256_cmpgt_epi32(_mm256_set1_epi32((nx - p0) as i32), lanes);
-                        _mm256_maskstore_ps(o, m, _mm256_add_ps(_mm256_maskload_ps(o, m), sum));
-                    }
+            let (a0p, a1p) = (s.a0.as_ptr(), s.a1.as_ptr());
+            let mut p = jb;
+            while p < je {
+                let o = row_out.as_mut_ptr().add(p);
+                // The pixel's own rays' first contributions, then the second
+                // ones of the pixel before (the AVX-512 kernel's order).
+                let sum = _mm256_add_ps(
+                    dbt_isa::ymm::loadu_ps(a0p.add(p + 1)),
+                    dbt_isa::ymm::loadu_ps(a1p.add(p)),
+                );
+                if p + L <= je {
+                    dbt_isa::ymm::storeu_ps(o, _mm256_add_ps(dbt_isa::ymm::loadu_ps(o), sum));
+                } else {
+                    // The range's last, partial vector: pixels past it are
+                    // neither read nor written.
+                    let m = _mm256_cmpgt_epi32(_mm256_set1_epi32((je - p) as i32), lanes);
+                    _mm256_maskstore_ps(o, m, _mm256_add_ps(_mm256_maskload_ps(o, m), sum));
                 }
+                p += L;
             }
         }
         for (j, o) in row_out.iter_mut().enumerate().skip(fit_hi.max(fit_lo) * 16) {
@@ -576,8 +500,340 @@ unsafe fn pixel_pass(t: &RayTable, map: &InvMap, s: &mut RowRays, row_out: &mut 
     }
 }
 
+/// For mask `m` of 8 lanes, the positions of its set bits in ascending order
+/// (then zeros): the permutation that packs a vector's run ends together.
+const PACK: [[u8; 8]; 256] = {
+    let mut t = [[0u8; 8]; 256];
+    let mut m = 0;
+    while m < 256 {
+        let (mut l, mut n) = (0, 0);
+        while l < 8 {
+            if m & (1 << l) != 0 {
+                t[m][n] = l as u8;
+                n += 1;
+            }
+            l += 1;
+        }
+        m += 1;
+    }
+    t
+};
+
+/// The run sums of one row (`RowRays::a0`, `a1`): in a view whose first
+/// pixels are non-decreasing along the detector (every view with a fit
+/// range), the rays whose first pixel is `j` are consecutive, at most
+/// `count1` of them (the verified candidate count). Each ray's running sum
+/// over its run so far, `s_k = (s_{k-1} if j_{k-1} = j_k else 0) + c_k`, is
+/// the pixel pass's sum in the same order (the AVX-512 kernel adds a pixel's
+/// candidates in ray order, its masked ones as `+0`, which changes no sum
+/// but the sign of a zero, and a zero's sign cannot reach the image: it
+/// starts at `+0`); a run's last ray holds the pixel's sum. The last rays of
+/// the runs in each 8-ray vector are packed into consecutive lanes and stored
+/// at their first pixel's entry, zeros in the lanes after them (at pixels
+/// whose runs come later in ray order, or that have no ray).
+///
+/// # Safety
+/// AVX2; `s` was filled by `ray_pass` for this row and the row's view has a
+/// fit range (`map.fit_lo < map.fit_hi`: non-decreasing first pixels).
+#[target_feature(enable = "avx2")]
+unsafe fn run_sums(t: &RayTable, map: &InvMap, s: &mut RowRays) {
+    // SAFETY: AVX2 per the contract. The ray vectors start at scratch index
+    // `e = PAD + k` with `ray_lo <= k < ray_hi <= n_det`, and read `e - 1 ..
+    // e + 9 <= n_det + PAD + 9 <= n_det + 2 PAD` (the scratch's length,
+    // asserted).
+    unsafe {
+        let (nx, n) = (t.nx, t.n_det + 2 * PAD);
+        assert!(s.j.len() >= n && s.c0.len() >= n && s.c1.len() >= n);
+        assert!(s.t0.len() >= n && s.t1.len() >= n);
+        assert!(s.a0.len() >= nx + 16 && s.a1.len() >= nx + 16);
+        let (k_lo, k_hi) = (map.ray_lo as usize, map.ray_hi as usize);
+        // Runs longer than two: the running sums up to the run's
+        // `count1 - 1`-th ray, one more each pass; a pass goes down the
+        // detector so that it reads the previous pass's sums below it.
+        let long = map.count1 > 2;
+        if long {
+            s.t0[PAD + k_lo - 1..PAD + k_hi].copy_from_slice(&s.c0[PAD + k_lo - 1..PAD + k_hi]);
+            s.t1[PAD + k_lo - 1..PAD + k_hi].copy_from_slice(&s.c1[PAD + k_lo - 1..PAD + k_hi]);
+            let (jp, c0p, c1p) = (s.j.as_ptr(), s.c0.as_ptr(), s.c1.as_ptr());
+            let (t0p, t1p) = (s.t0.as_mut_ptr(), s.t1.as_mut_ptr());
+            for _ in 2..map.count1 {
+                let mut k = k_lo + (k_hi - k_lo).div_ceil(L) * L;
+                while k > k_lo {
+                    k -= L;
+                    let e = PAD + k;
+                    let same = _mm256_castsi256_ps(_mm256_cmpeq_epi32(
+                        dbt_isa::ymm::loadu_si256(jp.add(e - 1) as *const __m256i),
+                        dbt_isa::ymm::loadu_si256(jp.add(e) as *const __m256i),
+                    ));
+                    let v0 = _mm256_add_ps(
+                        _mm256_and_ps(dbt_isa::ymm::loadu_ps(t0p.add(e - 1)), same),
+                        dbt_isa::ymm::loadu_ps(c0p.add(e)),
+                    );
+                    let v1 = _mm256_add_ps(
+                        _mm256_and_ps(dbt_isa::ymm::loadu_ps(t1p.add(e - 1)), same),
+                        dbt_isa::ymm::loadu_ps(c1p.add(e)),
+                    );
+                    dbt_isa::ymm::storeu_ps(t0p.add(e), v0);
+                    dbt_isa::ymm::storeu_ps(t1p.add(e), v1);
+                }
+            }
+        }
+        let rays = Rays {
+            j: s.j.as_ptr(),
+            c0: s.c0.as_ptr(),
+            c1: s.c1.as_ptr(),
+            p0: if long { s.t0.as_ptr() } else { s.c0.as_ptr() },
+            p1: if long { s.t1.as_ptr() } else { s.c1.as_ptr() },
+        };
+        let (e_lo, e_hi) = (PAD + k_lo, PAD + k_hi);
+        let (a0, a1) = (&mut s.a0[..nx + 16], &mut s.a1[..nx + 16]);
+        if map.packed {
+            // Entries `at0 .. at` are written; the pixel pass reads the fit
+            // range's, `fit_lo * 16 ..= min(fit_hi * 16, nx)`.
+            let at0 = (*rays.j.add(e_lo) + 1) as usize;
+            let at = if long {
+                packed_runs::<true>(&rays, e_lo, e_hi, at0, a0, a1)
+            } else {
+                packed_runs::<false>(&rays, e_lo, e_hi, at0, a0, a1)
+            };
+            let (jb, je) = (map.fit_lo as usize * 16, (map.fit_hi as usize * 16).min(nx));
+            let clamp = |a: usize| a.clamp(jb, je + 1);
+            for a in [a0, a1] {
+                a[jb..clamp(at0)].fill(0.0);
+                a[clamp(at)..je + 1].fill(0.0);
+            }
+        } else {
+            a0.fill(0.0);
+            a1.fill(0.0);
+            if long {
+                general_runs::<true>(&rays, e_lo, e_hi, a0, a1)
+            } else {
+                general_runs::<false>(&rays, e_lo, e_hi, a0, a1)
+            }
+        }
+    }
+}
+
+/// A row's ray scratch: first pixels, contributions, and the running sums a
+/// run's next ray adds to (`c0`, `c1` themselves where runs are at most two
+/// rays long).
+struct Rays {
+    j: *const i32,
+    c0: *const f32,
+    c1: *const f32,
+    p0: *const f32,
+    p1: *const f32,
+}
+
+/// For the 8 rays from scratch index `e`: the run ends' lane mask, the
+/// running sums of first and second contributions, the first pixels and
+/// their predecessors'. `LONG`: the running sums before each ray are in
+/// `p0`, `p1` (else they are the predecessor's contributions).
+///
+/// # Safety
+/// AVX2; `e - 1 .. e + 9` inside the scratch.
+#[inline(always)]
+unsafe fn sums<const LONG: bool>(r: &Rays, e: usize) -> (u32, __m256, __m256, __m256i, __m256i) {
+    // SAFETY: per the contract.
+    unsafe {
+        let jm = dbt_isa::ymm::loadu_si256(r.j.add(e - 1) as *const __m256i);
+        let j0 = dbt_isa::ymm::loadu_si256(r.j.add(e) as *const __m256i);
+        let next = dbt_isa::ymm::loadu_si256(r.j.add(e + 1) as *const __m256i);
+        // Rays inside the row whose successor has another first pixel.
+        let not_end = _mm256_or_si256(
+            _mm256_cmpeq_epi32(j0, next),
+            _mm256_cmpeq_epi32(j0, _mm256_set1_epi32(NO_PIXEL)),
+        );
+        let m = !(_mm256_movemask_ps(_mm256_castsi256_ps(not_end)) as u32) & 0xff;
+        let same = _mm256_castsi256_ps(_mm256_cmpeq_epi32(jm, j0));
+        let (p0, p1) = if LONG { (r.p0, r.p1) } else { (r.c0, r.c1) };
+        let s0 = _mm256_add_ps(
+            _mm256_and_ps(dbt_isa::ymm::loadu_ps(p0.add(e - 1)), same),
+            dbt_isa::ymm::loadu_ps(r.c0.add(e)),
+        );
+        let s1 = _mm256_add_ps(
+            _mm256_and_ps(dbt_isa::ymm::loadu_ps(p1.add(e - 1)), same),
+            dbt_isa::ymm::loadu_ps(r.c1.add(e)),
+        );
+        (m, s0, s1, j0, jm)
+    }
+}
+
+/// The lanes of `m` packed into the first ones; the lanes after them are
+/// any of the vector's (`pack`: zeros).
+///
+/// # Safety
+/// AVX2.
+#[inline(always)]
+unsafe fn pack_any(m: u32, s0: __m256, s1: __m256) -> (__m256, __m256) {
+    // SAFETY: AVX2; `PACK[m & 0xff]` is 8 bytes.
+    unsafe {
+        let idx = _mm256_cvtepu8_epi32(_mm_loadl_epi64(
+            PACK[m as usize & 0xff].as_ptr() as *const __m128i
+        ));
+        (
+            _mm256_permutevar8x32_ps(s0, idx),
+            _mm256_permutevar8x32_ps(s1, idx),
+        )
+    }
+}
+
+/// The lanes of `m` packed into the first ones, zeros after them.
+///
+/// # Safety
+/// AVX2.
+#[inline(always)]
+unsafe fn pack(m: u32, s0: __m256, s1: __m256) -> (__m256, __m256) {
+    // SAFETY: AVX2.
+    unsafe {
+        let (v0, v1) = pack_any(m, s0, s1);
+        let keep = _mm256_castsi256_ps(_mm256_cmpgt_epi32(
+            _mm256_set1_epi32(m.count_ones() as i32),
+            _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
+        ));
+        (_mm256_and_ps(v0, keep), _mm256_and_ps(v1, keep))
+    }
+}
+
+/// `run_sums` in a `packed` row (`InvMap::packed`): the run ends are the
+/// pixels from the first ray's on, one after the other but where a ray's
+/// first pixel is two past its predecessor's, so each vector's are stored
+/// where the last one's stop, in two parts around one such pixel without
+/// rays (left at zero), lane by lane around more. Returns the entry after
+/// the last run end's (`at0`: the first ray's); the entries from there to
+/// the end of the last store hold any values.
+///
+/// # Safety
+/// AVX2; the ray vectors from `e_lo` before `e_hi` inside the scratch as in
+/// `run_sums`; the row `packed`.
+#[target_feature(enable = "avx2")]
+#[inline(never)]
+unsafe fn packed_runs<const LONG: bool>(
+    r: &Rays,
+    e_lo: usize,
+    e_hi: usize,
+    at0: usize,
+    a0: &mut [f32],
+    a1: &mut [f32],
+) -> usize {
+    // SAFETY: AVX2 and the scratch per the contract; every store is at
+    // `at .. at + 16` with `at` a run end's first pixel plus one, at most
+    // `nx` (`packed`), checked against the entries' length before it.
+    unsafe {
+        let len = a0.len().min(a1.len());
+        let (a0p, a1p) = (a0.as_mut_ptr(), a1.as_mut_ptr());
+        let two = _mm256_set1_epi32(2);
+        let mut at = at0;
+        let mut e = e_lo;
+        while e < e_hi {
+            let (m, s0, s1, j0, jm) = sums::<LONG>(r, e);
+            // Rays two pixels past their predecessor (never one outside the
+            // row: `NO_PIXEL` is far from every pixel).
+            let gap = _mm256_cmpeq_epi32(_mm256_sub_epi32(j0, jm), two);
+            let g = _mm256_movemask_ps(_mm256_castsi256_ps(gap)) as u32;
+            assert!(at + 2 * L <= len);
+            if g == 0 {
+                // The lanes after the run ends land where later vectors'
+                // run ends, or the zeros after the loop, go.
+                let (v0, v1) = pack_any(m, s0, s1);
+                dbt_isa::ymm::storeu_ps(a0p.add(at), v0);
+                dbt_isa::ymm::storeu_ps(a1p.add(at), v1);
+                at += m.count_ones() as usize;
+            } else if g & (g - 1) == 0 {
+                let (lo, hi) = (m & (g - 1), m & !(g - 1));
+                let (v0, v1) = pack(lo, s0, s1);
+                dbt_isa::ymm::storeu_ps(a0p.add(at), v0);
+                dbt_isa::ymm::storeu_ps(a1p.add(at), v1);
+                at += lo.count_ones() as usize + 1;
+                let (v0, v1) = pack_any(hi, s0, s1);
+                dbt_isa::ymm::storeu_ps(a0p.add(at), v0);
+                dbt_isa::ymm::storeu_ps(a1p.add(at), v1);
+                at += hi.count_ones() as usize;
+            } else {
+                // The vector's run ends span at most 16 pixels (8 rays, each
+                // at most two pixels on): zeros first, then lane by lane.
+                let zero = _mm256_setzero_ps();
+                for a in [a0p, a1p] {
+                    dbt_isa::ymm::storeu_ps(a.add(at), zero);
+                    dbt_isa::ymm::storeu_ps(a.add(at + L), zero);
+                }
+                let (mut v0, mut v1) = ([0f32; L], [0f32; L]);
+                dbt_isa::ymm::storeu_ps(v0.as_mut_ptr(), s0);
+                dbt_isa::ymm::storeu_ps(v1.as_mut_ptr(), s1);
+                for l in 0..L {
+                    if m & (1 << l) != 0 {
+                        at = (*r.j.add(e + l) + 1) as usize;
+                        assert!(at < len);
+                        *a0p.add(at) = v0[l];
+                        *a1p.add(at) = v1[l];
+                        at += 1;
+                    }
+                }
+            }
+            e += L;
+        }
+        at
+    }
+}
+
+/// `run_sums` in other rows: each vector's run ends stored with one packed
+/// store where their pixels are consecutive and inside `-1 .. nx`, else lane
+/// by lane (pixels `-1 .. nx` only). `a0`, `a1` are zero before.
+///
+/// # Safety
+/// As `packed_runs`, but for any row with a fit range.
+#[target_feature(enable = "avx2")]
+unsafe fn general_runs<const LONG: bool>(
+    r: &Rays,
+    e_lo: usize,
+    e_hi: usize,
+    a0: &mut [f32],
+    a1: &mut [f32],
+) {
+    // SAFETY: AVX2 and the scratch per the contract; the packed stores are
+    // at `j_f + 1 .. j_f + 9` with `-1 <= j_f <= j_l < nx`, inside the `nx +
+    // 16` entries (asserted by the caller's slicing), the lane stores at
+    // `j + 1` with `-1 <= j < nx`.
+    unsafe {
+        let nx = a0.len().min(a1.len()) - 16;
+        let (a0p, a1p) = (a0.as_mut_ptr(), a1.as_mut_ptr());
+        let mut e = e_lo;
+        while e < e_hi {
+            let (m, s0, s1, _, _) = sums::<LONG>(r, e);
+            if m != 0 {
+                let count = m.count_ones() as i32;
+                let jf = *r.j.add(e + m.trailing_zeros() as usize);
+                let jl = *r.j.add(e + 31 - m.leading_zeros() as usize);
+                if jl - jf + 1 == count && jf >= -1 && jl < nx as i32 {
+                    let (v0, v1) = pack(m, s0, s1);
+                    let at = (jf + 1) as usize;
+                    dbt_isa::ymm::storeu_ps(a0p.add(at), v0);
+                    dbt_isa::ymm::storeu_ps(a1p.add(at), v1);
+                } else {
+                    let (mut v0, mut v1) = ([0f32; L], [0f32; L]);
+                    dbt_isa::ymm::storeu_ps(v0.as_mut_ptr(), s0);
+                    dbt_isa::ymm::storeu_ps(v1.as_mut_ptr(), s1);
+                    for l in 0..L {
+                        if m & (1 << l) != 0 {
+                            let j = *r.j.add(e + l);
+                            if (-1..nx as i32).contains(&j) {
+                                *a0p.add((j + 1) as usize) = v0[l];
+                                *a1p.add((j + 1) as usize) = v1[l];
+                            }
+                        }
+                    }
+                }
+            }
+            e += L;
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
+    use crate::table::{adjoint_test_geometries, RayTable, NO_PIXEL};
+    use rand::{Rng, SeedableRng};
+
     /// As the AVX-512 kernel's test of the same name: cutting the fit ranges
     /// by hand exercises the scalar pixels before and after them and the
     /// carry into the first SIMD block from a scalar pixel.
@@ -590,5 +846,77 @@ mod tests {
         crate::table::check_cut_fit_ranges(|t, y, out| unsafe {
             super::adjoint_rows(t, y, 0, out)
         });
+    }
+
+    /// The test geometries take every way through the run sums: rows
+    /// `packed` and not, rows with runs longer than two rays (packed; the
+    /// general pass takes them in the next test, which forces it on every
+    /// row); in packed rows, vectors of 8 rays without a pixel skipped, with
+    /// one and with several; and views with slow rays. Counted from the
+    /// table's first pixels (`fast_contributions`), as the kernel sees them.
+    #[test]
+    fn the_test_geometries_take_every_path_of_the_run_sums() {
+        // [packed, packed long, general, no gap, one, several, slow views]
+        let mut seen = [0usize; 7];
+        for (_, g) in adjoint_test_geometries() {
+            let t = RayTable::new(&g);
+            seen[6] += t.view_has_slow.iter().filter(|&&s| s).count();
+            for (vi, m) in t.inv_map.iter().enumerate() {
+                if m.fit_lo >= m.fit_hi {
+                    continue;
+                }
+                if !m.packed {
+                    seen[2] += 1;
+                    continue;
+                }
+                seen[usize::from(m.count1 > 2)] += 1;
+                let (v, i) = (vi / t.nz, vi % t.nz);
+                let mut j = vec![NO_PIXEL; t.n_det + 1];
+                t.fast_contributions(v, i, |k, jk, _, _| j[k] = jk);
+                for k in (m.ray_lo as usize..m.ray_hi as usize).step_by(super::L) {
+                    let gaps = (k.max(1)..(k + super::L).min(t.n_det))
+                        .filter(|&l| j[l].wrapping_sub(j[l - 1]) == 2)
+                        .count();
+                    seen[3 + gaps.min(2)] += 1;
+                }
+            }
+        }
+        assert!(seen.iter().all(|&n| n > 0), "paths not taken: {seen:?}");
+    }
+
+    /// A row's run sums are the same to the bit whether stored packed or
+    /// pixel by pixel (`general_runs`, forced on every row here), on every
+    /// test geometry, with signed values and zeros of both signs.
+    #[test]
+    fn packed_and_general_run_sums_give_the_same_image() {
+        if !dbt_isa::kernel_test_runs("projector avx2 run sums", &["avx2"]) {
+            return;
+        }
+        for (name, g) in adjoint_test_geometries() {
+            let t = RayTable::new(&g);
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+            let y: Vec<f32> = (0..g.n_rays())
+                .map(|k| match k % 13 {
+                    0 => 0.0,
+                    7 => -0.0,
+                    _ => rng.random::<f32>() - 0.5,
+                })
+                .collect();
+            let mut general = t.clone();
+            for m in &mut general.inv_map {
+                m.packed = false;
+            }
+            let (mut a, mut b) = (vec![0.0; g.n_pixels()], vec![0.0; g.n_pixels()]);
+            // SAFETY: AVX2 detected above.
+            unsafe {
+                super::adjoint_rows(&t, &y, 0, &mut a);
+                super::adjoint_rows(&general, &y, 0, &mut b);
+            }
+            let first = a
+                .iter()
+                .zip(&b)
+                .position(|(p, q)| p.to_bits() != q.to_bits());
+            assert_eq!(first, None, "{name}: packed and general run sums differ");
+        }
     }
 }

@@ -56,6 +56,11 @@ pub(crate) struct InvMap {
     /// in one 32-entry window of the padded ray scratch.
     pub fit_lo: u32,
     pub fit_hi: u32,
+    /// The row's rays inside the image are consecutive and fast, their first
+    /// pixels lie in `-1 .. nx`, and each is its predecessor's or one or two
+    /// pixels on: the AVX2 pixel pass then stores the runs' sums where the
+    /// last vector's stopped, one pixel on after a pixel without rays.
+    pub packed: bool,
 }
 
 impl InvMap {
@@ -127,6 +132,20 @@ pub(crate) struct RowRays {
     /// Scratch index of each block's first candidate, `PAD + r0 - off1`
     /// (separate from `r0` so that `r0` is broadcast straight from memory).
     pub e: Vec<i32>,
+    /// The AVX2 pixel pass's run sums by pixel (`avx2.rs`): entry `j + 1`
+    /// holds the first (`a0`) and second (`a1`) contributions of the rays
+    /// whose first pixel is `j`, summed in ray order; zero elsewhere.
+    pub a0: Vec<f32>,
+    pub a1: Vec<f32>,
+    /// Partial run sums of the AVX2 pixel pass, for rows whose runs of
+    /// rays with one first pixel may be longer than two.
+    pub t0: Vec<f32>,
+    pub t1: Vec<f32>,
+    /// Rays `live.0 .. live.1` of `j`, `c0`, `c1` may hold a ray's values;
+    /// every other entry is `NO_PIXEL` and zeros (kept by the AVX2 ray pass,
+    /// which clears only what the last row left; the AVX-512 one rewrites
+    /// every entry).
+    pub live: (usize, usize),
 }
 
 impl RowRays {
@@ -139,6 +158,11 @@ impl RowRays {
             sb: Vec::new(),
             r0: Vec::new(),
             e: Vec::new(),
+            a0: Vec::new(),
+            a1: Vec::new(),
+            t0: Vec::new(),
+            t1: Vec::new(),
+            live: (0, 0),
         }
     }
 
@@ -153,6 +177,12 @@ impl RowRays {
         self.sb.resize(nb, 0.0);
         self.r0.resize(nb, 0);
         self.e.resize(nb, 0);
+        // Pixels `-1 ..= 16 nb` (`16 nb >= nx`) and one 8-lane store past them.
+        self.a0.resize(16 * nb + 16, 0.0);
+        self.a1.resize(16 * nb + 16, 0.0);
+        self.t0.resize(n, 0.0);
+        self.t1.resize(n, 0.0);
+        self.live = (0, 0);
     }
 }
 
@@ -449,7 +479,12 @@ impl RayTable {
 
     /// Which fast rays contribute to which pixel in row `i` of view `v`:
     /// `(ray index within view, j, w0, w1)` for every valid fast ray.
-    fn fast_contributions(&self, v: usize, i: usize, mut f: impl FnMut(usize, i32, f32, f32)) {
+    pub(crate) fn fast_contributions(
+        &self,
+        v: usize,
+        i: usize,
+        mut f: impl FnMut(usize, i32, f32, f32),
+    ) {
         for k in 0..self.n_det {
             let r = v * self.n_det + k;
             if !self.fast[r] || !self.touches_row(r, i) {
@@ -501,6 +536,7 @@ impl RayTable {
                     count1: 0,
                     fit_lo: 0,
                     fit_hi: 0,
+                    packed: false,
                 };
                 let touches = |k: usize| self.touches_row(v * n_det + k, i);
                 if let (Some(first), Some(last)) =
@@ -513,6 +549,8 @@ impl RayTable {
                 // all contributing rays, and those whose first pixel it is.
                 let mut need = (vec![i64::MAX; nx], vec![i64::MIN; nx]);
                 let mut need1 = (vec![i64::MAX; nx], vec![i64::MIN; nx]);
+                // (previous ray and its first pixel, `packed` so far)
+                let mut packed = (None::<(usize, i32)>, self.view_simd[v]);
                 let add = |need: &mut (Vec<i64>, Vec<i64>), j: i64, k: usize| {
                     if (0..nx as i64).contains(&j) {
                         let u = j as usize;
@@ -521,14 +559,19 @@ impl RayTable {
                     }
                 };
                 self.fast_contributions(v, i, |k, j, w0, w1| {
-                    let j = j as i64;
+                    let jl = j as i64;
                     if w0 != 0.0 {
-                        add(&mut need, j, k);
+                        add(&mut need, jl, k);
                     }
                     if w1 != 0.0 {
-                        add(&mut need, j + 1, k);
+                        add(&mut need, jl + 1, k);
                     }
-                    add(&mut need1, j, k);
+                    add(&mut need1, jl, k);
+                    packed.1 &= (-1..nx as i32).contains(&j)
+                        && packed
+                            .0
+                            .is_none_or(|(kp, jp)| k == kp + 1 && (jp..=jp + 2).contains(&j));
+                    packed.0 = Some((k, j));
                 });
                 let Some((off, count)) = candidate_window(&m, &need) else {
                     return m; // no contributions in this row: count 0
@@ -542,6 +585,9 @@ impl RayTable {
                     let fits = |b: usize| self.view_simd[v] && m.block_fits(b, n_det);
                     (m.fit_lo, m.fit_hi) = first_run(nx.div_ceil(16), fits);
                 }
+                // Every ray inside the row is fast in a SIMD view, so the
+                // ones visited are those between `ray_lo` and `ray_hi`.
+                m.packed = packed.1 && packed.0.is_some();
                 m
             })
             .collect();
@@ -673,15 +719,14 @@ pub(crate) fn adjoint_band(
     });
 }
 
-/// The SIMD adjoints' test of their fit ranges (`avx512.rs`, `avx2.rs`):
-/// `adjoint` (whole image, from row 0) against the scalar reference on the
-/// binned paper geometry and an odd one, with each (view, row)'s verified
-/// range `fit_lo .. fit_hi` cut by hand (a sub-range of a verified range is
-/// itself valid), so that the scalar pixels before and after the range and
-/// the carry into its first block from a scalar pixel run.
+/// The geometries the SIMD adjoints' unit tests run on: the binned paper
+/// geometry; an odd one (rays sparser than pixels, fit ranges ending inside
+/// rows); the odd one with rays far sparser than pixels (first pixels more
+/// than two apart: the AVX2 pass's rows that are not `packed`), with rays
+/// denser than pixels (runs of up to three rays: `count1 > 2`), and with views
+/// out to 60 degrees (slow rays).
 #[cfg(test)]
-pub(crate) fn check_cut_fit_ranges(adjoint: impl Fn(&RayTable, &[f32], &mut [f32])) {
-    use rand::{Rng, SeedableRng};
+pub(crate) fn adjoint_test_geometries() -> Vec<(&'static str, Geometry)> {
     let odd = Geometry::from_toml_str(
         "source_to_center_mm = 400.0\nsource_to_detector_mm = 470.0\n\
          [views]\ncount = 9\nfirst_deg = -21.0\nlast_deg = 17.0\n\
@@ -689,7 +734,34 @@ pub(crate) fn check_cut_fit_ranges(adjoint: impl Fn(&RayTable, &[f32], &mut [f32
          [image]\ncolumns = 203\nrows = 77\npixel_mm = 0.37\n",
     )
     .unwrap();
-    for g in [Geometry::paper().binned(4).unwrap(), odd] {
+    let mut sparse = odd.clone();
+    sparse.detector.elements = 101;
+    sparse.detector.pitch_mm = 2.0;
+    let mut dense = odd.clone();
+    dense.detector.elements = 721;
+    dense.detector.pitch_mm = 0.28;
+    let mut wide = odd.clone();
+    wide.views.first_deg = -60.0;
+    wide.views.last_deg = 60.0;
+    vec![
+        ("binned x4", Geometry::paper().binned(4).unwrap()),
+        ("odd", odd),
+        ("sparse rays", sparse),
+        ("dense rays", dense),
+        ("wide", wide),
+    ]
+}
+
+/// The SIMD adjoints' test of their fit ranges (`avx512.rs`, `avx2.rs`):
+/// `adjoint` (whole image, from row 0) against the scalar reference on the
+/// test geometries (`adjoint_test_geometries`), with each (view, row)'s verified
+/// range `fit_lo .. fit_hi` cut by hand (a sub-range of a verified range is
+/// itself valid), so that the scalar pixels before and after the range and
+/// the carry into its first block from a scalar pixel run.
+#[cfg(test)]
+pub(crate) fn check_cut_fit_ranges(adjoint: impl Fn(&RayTable, &[f32], &mut [f32])) {
+    use rand::{Rng, SeedableRng};
+    for (_, g) in adjoint_test_geometries() {
         let base = RayTable::new(&g);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
         let y: Vec<f32> = (0..g.n_rays()).map(|_| rng.random::<f32>()).collect();
