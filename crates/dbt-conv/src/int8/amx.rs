@@ -21,7 +21,12 @@
 //! default dispatch, and an [`super::Int8Block`] on it first checks a
 //! convolution against the portable kernel ([`self_check`]) and refuses AMX
 //! (naming the difference) if they differ. Its tests run where the CPU has
-//! AMX-INT8 (`DBTOR_REQUIRE_ISA=amx_int8` makes them compulsory).
+//! AMX-INT8 (`DBTOR_REQUIRE_ISA=amx_int8` makes them compulsory). On every
+//! CPU, the kernel's own code (addresses, tile configuration, operand
+//! layouts, epilogue) runs on an emulation of the six AMX instructions it
+//! uses, as Intel's reference defines them, with every byte accessed checked
+//! against its buffers (`tests::Emulated`), and gives the portable kernel's
+//! sums: what is left unproven is the hardware, not the kernel's use of it.
 
 use super::*;
 
@@ -135,15 +140,61 @@ pub(super) fn row(
     }
     // 16 pixels x ocp sums, group by group in the epilogue's layout
     crate::with_scratch(&SUMS, MT * ocp, |sums| {
-        row_in(p, inp, r, rs, cs, w, dst, sums)
+        // SAFETY: AMX-TILE/INT8 available and granted (the caller's
+        // contract), AVX-512 VNNI with them (`available`).
+        unsafe {
+            row_in(
+                &mut Hardware,
+                Kernel::Avx512,
+                p,
+                inp,
+                r,
+                rs,
+                cs,
+                w,
+                dst,
+                sums,
+            )
+        }
     })
 }
 
-/// [`row`] with its scratch of `16 * ocp` sums (callers: [`row`], which
-/// checks the bounds the tile loads rely on).
+/// The tile operations of [`row_in`]: sums in `tmm0..tmm3`, the pixels `A`
+/// in `tmm4`, the weights `B` in `tmm5`. [`Hardware`] runs the AMX
+/// instructions; the tests' emulation (`tests::Emulated`) follows their
+/// definitions in Intel's Architecture Instruction Set Extensions
+/// Programming Reference (chapter 3, "Intel AMX Instruction Set
+/// Reference") and checks every byte accessed against the buffers.
+trait TileOps {
+    /// `ldtilecfg`.
+    unsafe fn configure(&mut self, cfg: &TileConfig);
+    /// `tilezero tmm{q}`, `q < 4`.
+    unsafe fn zero(&mut self, q: usize);
+    /// `tileloadd tmm4 / tmm5, [base + stride * row]`.
+    unsafe fn load(&mut self, tmm: usize, base: *const u8, stride: usize);
+    /// `tdpbusd tmm{q}, tmm4, tmm5`: sums `q` += pixels (u8) x weights (s8).
+    unsafe fn dot(&mut self, q: usize);
+    /// `tilestored [c + stride * row], tmm{q}`.
+    unsafe fn store(&mut self, q: usize, c: *mut i32, stride: usize);
+    /// `tilerelease`.
+    unsafe fn release(&mut self);
+}
+
+/// The AMX instructions themselves.
+struct Hardware;
+
+/// [`row`] with its scratch of `16 * ocp` sums, its tile operations and the
+/// kernel of the row's last `w % 16` pixels (callers: [`row`], which checks
+/// the bounds the tile loads rely on; the tests' emulation).
+///
+/// # Safety
+/// `tiles`' operations and `rest` may run on this CPU (for [`Hardware`]:
+/// AMX-TILE/INT8 available and granted).
 #[cfg(target_arch = "x86_64")]
 #[allow(clippy::too_many_arguments)]
-fn row_in(
+unsafe fn row_in<T: TileOps>(
+    tiles: &mut T,
+    rest: Kernel,
     p: &PackedI8,
     inp: &[u8],
     r: usize,
@@ -157,31 +208,29 @@ fn row_in(
     assert!(sums.len() >= MT * ocp);
     let cfg = TileConfig::new(cin4);
     let (g4, nq) = (cin4 / 4, ocp / L);
-    // SAFETY: AMX-TILE/INT8 available and granted (the caller's contract);
-    // the configuration is a valid palette-1 one (tiles of at most 16 rows
-    // and 64 bytes); every tile load reads 16 pixels x cin4 bytes, `cs` bytes
-    // apart, of padded rows r..r + 3 and columns x..x + 18 <= w + 2 (inside
-    // `inp`, asserted), or cin4 / 4 rows of 64 bytes of one tap's weights for
-    // 16 channels from 16 q (inside `p.w`); every store writes 16 rows of 64
-    // bytes inside `sums`.
+    // SAFETY: the tile operations may run (the contract); the configuration
+    // is a valid palette-1 one (tiles of at most 16 rows and 64 bytes);
+    // every tile load reads 16 pixels x cin4 bytes, `cs` bytes apart, of
+    // padded rows r..r + 3 and columns x..x + 18 <= w + 2 (inside `inp`,
+    // asserted by `row`), or cin4 / 4 rows of 64 bytes of one tap's weights
+    // for 16 channels from 16 q (inside `p.w`); every store writes 16 rows
+    // of 64 bytes inside `sums`.
     unsafe {
-        std::arch::asm!("ldtilecfg [{}]", in(reg) &cfg as *const TileConfig, options(nostack, readonly));
+        tiles.configure(&cfg);
         let mut x = 0;
         while x + MT <= w {
             for q in 0..nq {
-                tilezero(q);
+                tiles.zero(q);
             }
             for t in 0..9 {
                 let a = inp
                     .as_ptr()
                     .add(r * rs + x * cs + (t / 3) * rs + (t % 3) * cs);
-                std::arch::asm!("tileloadd tmm4, [{a} + {s} * 1]", a = in(reg) a, s = in(reg) cs,
-                                options(nostack, readonly));
+                tiles.load(4, a, cs);
                 for q in 0..nq {
                     let b = p.w.as_ptr().add((t * g4 * ocp + q * L) * 4);
-                    std::arch::asm!("tileloadd tmm5, [{b} + {s} * 1]", b = in(reg) b, s = in(reg) ocp * 4,
-                                    options(nostack, readonly));
-                    dot(q);
+                    tiles.load(5, b as *const u8, ocp * 4);
+                    tiles.dot(q);
                 }
             }
             let mut g0 = 0;
@@ -189,7 +238,7 @@ fn row_in(
                 let gw = group_width(ocp, g0);
                 for q in g0 / L..(g0 + gw) / L {
                     let c = sums.as_mut_ptr().add(MT * g0 + (q * L - g0));
-                    store(q, c, gw * 4);
+                    tiles.store(q, c, gw * 4);
                 }
                 g0 += gw;
             }
@@ -201,8 +250,8 @@ fn row_in(
             }
             x += MT;
         }
-        std::arch::asm!("tilerelease", options(nostack));
-        // The row's last pixels: the AVX-512 VNNI tile.
+        tiles.release();
+        // The row's last pixels: the AVX-512 VNNI tile (`rest`).
         let mut tile = [0i32; NP_NARROW * GROUP];
         let mut g0 = 0;
         while g0 < ocp {
@@ -215,7 +264,7 @@ fn row_in(
                     NP_NARROW
                 });
                 run_tile(
-                    Kernel::Avx512,
+                    rest,
                     gw,
                     np,
                     inp,
@@ -235,63 +284,78 @@ fn row_in(
     }
 }
 
-/// `tilezero tmm{q}`.
-///
-/// # Safety
-/// AMX-TILE configured, `q < 4`.
 #[cfg(target_arch = "x86_64")]
-unsafe fn tilezero(q: usize) {
-    // SAFETY: per the contract.
-    unsafe {
-        match q {
-            0 => std::arch::asm!("tilezero tmm0", options(nostack, nomem)),
-            1 => std::arch::asm!("tilezero tmm1", options(nostack, nomem)),
-            2 => std::arch::asm!("tilezero tmm2", options(nostack, nomem)),
-            _ => std::arch::asm!("tilezero tmm3", options(nostack, nomem)),
+impl TileOps for Hardware {
+    unsafe fn configure(&mut self, cfg: &TileConfig) {
+        // SAFETY: AMX-TILE (the contract of `row_in`); a 64-byte palette-1
+        // configuration.
+        unsafe {
+            std::arch::asm!("ldtilecfg [{}]", in(reg) cfg as *const TileConfig, options(nostack, readonly))
         }
     }
-}
 
-/// `tdpbusd tmm{q}, tmm4, tmm5`: sums `q` += pixels (u8) x weights (s8).
-///
-/// # Safety
-/// AMX-INT8 configured, `q < 4`.
-#[cfg(target_arch = "x86_64")]
-unsafe fn dot(q: usize) {
-    // SAFETY: per the contract.
-    unsafe {
-        match q {
-            0 => std::arch::asm!("tdpbusd tmm0, tmm4, tmm5", options(nostack, nomem)),
-            1 => std::arch::asm!("tdpbusd tmm1, tmm4, tmm5", options(nostack, nomem)),
-            2 => std::arch::asm!("tdpbusd tmm2, tmm4, tmm5", options(nostack, nomem)),
-            _ => std::arch::asm!("tdpbusd tmm3, tmm4, tmm5", options(nostack, nomem)),
+    unsafe fn zero(&mut self, q: usize) {
+        // SAFETY: AMX-TILE configured, `q < 4`.
+        unsafe {
+            match q {
+                0 => std::arch::asm!("tilezero tmm0", options(nostack, nomem)),
+                1 => std::arch::asm!("tilezero tmm1", options(nostack, nomem)),
+                2 => std::arch::asm!("tilezero tmm2", options(nostack, nomem)),
+                _ => std::arch::asm!("tilezero tmm3", options(nostack, nomem)),
+            }
         }
     }
-}
 
-/// `tilestored [c + stride * row], tmm{q}`.
-///
-/// # Safety
-/// AMX-TILE configured, `q < 4`, `c` valid for 16 rows of 64 bytes
-/// `stride` bytes apart.
-#[cfg(target_arch = "x86_64")]
-unsafe fn store(q: usize, c: *mut i32, stride: usize) {
-    // SAFETY: per the contract.
-    unsafe {
-        match q {
-            0 => {
-                std::arch::asm!("tilestored [{c} + {s} * 1], tmm0", c = in(reg) c, s = in(reg) stride, options(nostack))
-            }
-            1 => {
-                std::arch::asm!("tilestored [{c} + {s} * 1], tmm1", c = in(reg) c, s = in(reg) stride, options(nostack))
-            }
-            2 => {
-                std::arch::asm!("tilestored [{c} + {s} * 1], tmm2", c = in(reg) c, s = in(reg) stride, options(nostack))
-            }
-            _ => {
-                std::arch::asm!("tilestored [{c} + {s} * 1], tmm3", c = in(reg) c, s = in(reg) stride, options(nostack))
+    unsafe fn load(&mut self, tmm: usize, base: *const u8, stride: usize) {
+        // SAFETY: AMX-TILE configured; the rows inside their buffer (the
+        // caller's).
+        unsafe {
+            if tmm == 4 {
+                std::arch::asm!("tileloadd tmm4, [{a} + {s} * 1]", a = in(reg) base, s = in(reg) stride,
+                                options(nostack, readonly));
+            } else {
+                std::arch::asm!("tileloadd tmm5, [{a} + {s} * 1]", a = in(reg) base, s = in(reg) stride,
+                                options(nostack, readonly));
             }
         }
+    }
+
+    unsafe fn dot(&mut self, q: usize) {
+        // SAFETY: AMX-INT8 configured, `q < 4`.
+        unsafe {
+            match q {
+                0 => std::arch::asm!("tdpbusd tmm0, tmm4, tmm5", options(nostack, nomem)),
+                1 => std::arch::asm!("tdpbusd tmm1, tmm4, tmm5", options(nostack, nomem)),
+                2 => std::arch::asm!("tdpbusd tmm2, tmm4, tmm5", options(nostack, nomem)),
+                _ => std::arch::asm!("tdpbusd tmm3, tmm4, tmm5", options(nostack, nomem)),
+            }
+        }
+    }
+
+    unsafe fn store(&mut self, q: usize, c: *mut i32, stride: usize) {
+        // SAFETY: AMX-TILE configured, `q < 4`, `c` valid for 16 rows of 64
+        // bytes `stride` bytes apart (the caller's).
+        unsafe {
+            match q {
+                0 => {
+                    std::arch::asm!("tilestored [{c} + {s} * 1], tmm0", c = in(reg) c, s = in(reg) stride, options(nostack))
+                }
+                1 => {
+                    std::arch::asm!("tilestored [{c} + {s} * 1], tmm1", c = in(reg) c, s = in(reg) stride, options(nostack))
+                }
+                2 => {
+                    std::arch::asm!("tilestored [{c} + {s} * 1], tmm2", c = in(reg) c, s = in(reg) stride, options(nostack))
+                }
+                _ => {
+                    std::arch::asm!("tilestored [{c} + {s} * 1], tmm3", c = in(reg) c, s = in(reg) stride, options(nostack))
+                }
+            }
+        }
+    }
+
+    unsafe fn release(&mut self) {
+        // SAFETY: AMX-TILE.
+        unsafe { std::arch::asm!("tilerelease", options(nostack)) }
     }
 }
 
@@ -383,6 +447,217 @@ fn sums(kernel: Kernel, p: &PackedI8, inp: &[u8], rs: usize, cs: usize, w: usize
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The AMX instructions `row_in` uses, as Intel's reference defines
+    /// them (Architecture Instruction Set Extensions Programming Reference,
+    /// chapter 3: `LDTILECFG`, `TILEZERO`, `TILELOADD`, `TDPBUSD`,
+    /// `TILESTORED`, `TILERELEASE`), on tiles of 16 rows of 64 bytes. Each
+    /// instruction's operand shapes are checked as the CPU checks them
+    /// (`#UD` there, a panic here), and every byte a load or store touches
+    /// must lie inside one of the buffers given (read-only or writable).
+    struct Emulated {
+        /// (rows, bytes per row) of tiles 0-7, from the configuration.
+        shape: [(usize, usize); 8],
+        configured: bool,
+        tiles: [[u8; 16 * 64]; 8],
+        /// Byte ranges `(start, end, writable)` the kernel may touch.
+        buffers: Vec<(usize, usize, bool)>,
+        /// `tdpbusd` executed.
+        dots: usize,
+    }
+
+    impl Emulated {
+        fn new(buffers: Vec<(usize, usize, bool)>) -> Self {
+            Emulated {
+                shape: [(0, 0); 8],
+                configured: false,
+                tiles: [[0; 16 * 64]; 8],
+                buffers,
+                dots: 0,
+            }
+        }
+
+        fn check(&self, at: usize, n: usize, write: bool) {
+            assert!(
+                self.buffers
+                    .iter()
+                    .any(|&(s, e, wr)| at >= s && at + n <= e && (wr || !write)),
+                "the kernel {} {n} bytes at {at:#x}, outside its buffers",
+                if write { "stores" } else { "loads" }
+            );
+        }
+
+        fn dword(&self, t: usize, row: usize, k: usize) -> [u8; 4] {
+            let o = row * 64 + 4 * k;
+            self.tiles[t][o..o + 4].try_into().unwrap()
+        }
+    }
+
+    impl TileOps for Emulated {
+        unsafe fn configure(&mut self, cfg: &TileConfig) {
+            assert_eq!(cfg.palette, 1, "palette");
+            assert_eq!(cfg.start_row, 0, "start_row");
+            for t in 0..8 {
+                let (rows, colsb) = (cfg.rows[t] as usize, cfg.colsb[t] as usize);
+                assert!(rows <= 16 && colsb <= 64, "tile {t}: {rows} x {colsb}");
+                assert_eq!(rows == 0, colsb == 0, "tile {t}: {rows} x {colsb}");
+                self.shape[t] = (rows, colsb);
+            }
+            // LDTILECFG zeroes every tile.
+            self.tiles = [[0; 16 * 64]; 8];
+            self.configured = true;
+        }
+
+        unsafe fn zero(&mut self, q: usize) {
+            assert!(self.configured && q < 4);
+            self.tiles[q] = [0; 16 * 64];
+        }
+
+        unsafe fn load(&mut self, tmm: usize, base: *const u8, stride: usize) {
+            assert!(self.configured && (tmm == 4 || tmm == 5));
+            let (rows, colsb) = self.shape[tmm];
+            assert!(rows > 0, "tile {tmm} not configured");
+            self.tiles[tmm] = [0; 16 * 64];
+            for r in 0..rows {
+                let at = base as usize + r * stride;
+                self.check(at, colsb, false);
+                // SAFETY: inside one of the buffers (checked).
+                let row = unsafe { std::slice::from_raw_parts(at as *const u8, colsb) };
+                self.tiles[tmm][r * 64..r * 64 + colsb].copy_from_slice(row);
+            }
+        }
+
+        unsafe fn dot(&mut self, q: usize) {
+            assert!(self.configured && q < 4);
+            let ((cr, cc), (ar, ac), (br, bc)) = (self.shape[q], self.shape[4], self.shape[5]);
+            // TDPBUSD's #UD conditions on the shapes.
+            assert!(cc % 4 == 0 && ac % 4 == 0, "column bytes {cc}, {ac}");
+            assert_eq!(cr, ar, "rows of C and A");
+            assert_eq!(ac / 4, br, "A's dwords per row and B's rows");
+            assert_eq!(cc, bc, "bytes per row of C and B");
+            for m in 0..cr {
+                for n in 0..cc / 4 {
+                    let mut acc = i32::from_le_bytes(self.dword(q, m, n));
+                    for k in 0..ac / 4 {
+                        let (a, b) = (self.dword(4, m, k), self.dword(5, k, n));
+                        for i in 0..4 {
+                            acc = acc.wrapping_add(i32::from(a[i]) * i32::from(b[i] as i8));
+                        }
+                    }
+                    self.tiles[q][m * 64 + 4 * n..m * 64 + 4 * n + 4]
+                        .copy_from_slice(&acc.to_le_bytes());
+                }
+            }
+            self.dots += 1;
+        }
+
+        unsafe fn store(&mut self, q: usize, c: *mut i32, stride: usize) {
+            assert!(self.configured && q < 4);
+            let (rows, colsb) = self.shape[q];
+            for r in 0..rows {
+                let at = c as usize + r * stride;
+                self.check(at, colsb, true);
+                // SAFETY: inside a writable buffer (checked).
+                let row = unsafe { std::slice::from_raw_parts_mut(at as *mut u8, colsb) };
+                row.copy_from_slice(&self.tiles[q][r * 64..r * 64 + colsb]);
+            }
+        }
+
+        unsafe fn release(&mut self) {
+            assert!(self.configured, "tilerelease without a configuration");
+            self.configured = false;
+        }
+    }
+
+    fn span<T>(v: &[T]) -> (usize, usize) {
+        let s = v.as_ptr() as usize;
+        (s, s + std::mem::size_of_val(v))
+    }
+
+    /// On any CPU: the AMX kernel's addressing, tile configuration, operand
+    /// layouts and epilogue, run on an emulation of the AMX instructions
+    /// (`Emulated`, every access inside the buffers), give the portable
+    /// kernel's sums on every eligible shape tried: input channels not a
+    /// multiple of 4 (5, 30) and up to 64, 16 to 64 outputs (one to four C
+    /// tiles, epilogue groups of 32 and 16), a channel stride wider than the
+    /// channels, widths below, at and past the 16-pixel tile (the rest on the
+    /// portable tile, which gives the AVX-512 VNNI tile's bits). This checks
+    /// the kernel's use of the instructions, not the instructions on a CPU
+    /// (`amx_int8_matches_portable`, where AMX is present).
+    #[test]
+    fn the_amx_kernel_on_emulated_tiles_matches_portable() {
+        let mut state = 0x2545_F491_4F6C_DD1Du64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        let mut dots = 0;
+        for (cin, out_ch) in [(5, 16), (8, 32), (30, 48), (48, 48), (64, 64), (3, 64)] {
+            let weight = (0..out_ch * cin * 9).map(|_| next() as i8).collect();
+            let l = Int8Conv {
+                in_ch: cin,
+                out_ch,
+                weight,
+                weight_scale: vec![1.0; out_ch],
+                bias: vec![0.0; out_ch],
+                prelu: None,
+                q_out: None,
+                q_act: None,
+            };
+            let p = pack(
+                &l,
+                QuantParams {
+                    scale: 1.0,
+                    zero_point: 0,
+                },
+                false,
+            );
+            assert!(eligible(&p), "{cin} -> {out_ch}");
+            for w in [5, 16, 37, 48] {
+                let cs = p.cin4 + 4;
+                let rs = (w + 2) * cs;
+                let inp: Vec<u8> = (0..3 * rs).map(|_| next() as u8).collect();
+                let want = sums(Kernel::Portable, &p, &inp, rs, cs, w);
+                let mut got = vec![0i32; w * p.ocp];
+                let mut scratch = vec![0i32; MT * p.ocp];
+                let (a, b, c) = (span(&inp), span(&p.w), span(&scratch));
+                let mut tiles =
+                    Emulated::new(vec![(a.0, a.1, false), (b.0, b.1, false), (c.0, c.1, true)]);
+                let ocp = p.ocp;
+                let mut put = |_: usize, x: usize, g0: usize, tile: &[i32]| {
+                    let gw = group_width(ocp, g0);
+                    for (px, t) in tile.chunks_exact(gw).enumerate() {
+                        let o = (x + px) * ocp + g0;
+                        got[o..o + gw].copy_from_slice(t);
+                    }
+                };
+                // SAFETY: the emulation runs anywhere; the rest on the
+                // portable tile.
+                unsafe {
+                    row_in(
+                        &mut tiles,
+                        Kernel::Portable,
+                        &p,
+                        &inp,
+                        0,
+                        rs,
+                        cs,
+                        w,
+                        &mut put,
+                        &mut scratch,
+                    );
+                }
+                assert!(!tiles.configured, "tiles not released");
+                assert_eq!(tiles.dots, (w / MT) * 9 * (p.ocp / L), "tdpbusd count");
+                dots += tiles.dots;
+                let first = want.iter().zip(&got).position(|(a, b)| a != b);
+                assert_eq!(first, None, "{cin} -> {out_ch} channels, width {w}");
+            }
+        }
+        assert!(dots > 0);
+    }
 
     /// Where the CPU has AMX-INT8: the OS grants the tiles, the self-check
     /// passes, and blocks on AMX give the portable kernel's bits (every
