@@ -36,6 +36,40 @@ use std::arch::x86_64::*;
 
 const L: usize = 8;
 
+/// The adjoint's branches, counted in test builds only (the test
+/// `packed_and_general_run_sums_agree_and_every_path_is_taken` asserts each
+/// was taken): ray pass of a packed row, the checked ray pass in a view with
+/// slow rays; run sums of a packed row (short runs, longer), of another row
+/// (short, longer); in packed rows, vectors with no pixel skipped, one, more;
+/// in other rows, vectors stored packed, lane by lane.
+#[derive(Clone, Copy)]
+#[cfg_attr(not(test), allow(dead_code))]
+enum Path {
+    RayPassPacked,
+    RayPassSlowView,
+    PackedShort,
+    PackedLong,
+    GeneralShort,
+    GeneralLong,
+    NoGap,
+    OneGap,
+    Gaps,
+    GeneralPacked,
+    GeneralLanes,
+}
+
+#[cfg(test)]
+static PATHS: [std::sync::atomic::AtomicUsize; 11] =
+    [const { std::sync::atomic::AtomicUsize::new(0) }; 11];
+
+#[inline(always)]
+fn took(path: Path) {
+    #[cfg(test)]
+    PATHS[path as usize].fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    #[cfg(not(test))]
+    let _ = path;
+}
+
 /// # Safety
 /// Requires AVX2. `r0 .. r0 + out.len()` must be rays of one view.
 #[target_feature(enable = "avx2")]
@@ -310,14 +344,19 @@ unsafe fn ray_pass(t: &RayTable, v: usize, i: usize, ys: &[f32], s: &mut RowRays
     assert!(base + n_det <= t.inv.len() && base + n_det <= t.row_lo.len());
     let map = &t.inv_map[v * t.nz + i];
     let (k_lo, k_hi) = (map.ray_lo as usize, map.ray_hi as usize);
-    if t.view_has_slow[v] || k_lo >= k_hi {
+    assert!(k_lo <= k_hi && k_hi <= n_det);
+    if !map.packed {
+        if t.view_has_slow[v] {
+            took(Path::RayPassSlowView);
+        }
         // SAFETY: AVX2 and the buffers' lengths per the contract (asserted).
         unsafe { ray_pass_checked(t, v, i, ys, s) };
         s.live = (0, n_det);
         return;
     }
-    // Every ray of the view is fast, and the rays inside the row are `k_lo ..
-    // k_hi`: clear what the last row left outside them, then compute them.
+    // A `packed` row: every ray of the view is fast, and the rays inside the
+    // row are exactly `k_lo .. k_hi` (verified at construction): clear what
+    // the last row left outside them, then compute them.
     let (live_lo, live_hi) = s.live;
     let left = live_lo..k_lo.clamp(live_lo, live_hi);
     let right = k_hi.clamp(live_lo, live_hi)..live_hi;
@@ -328,6 +367,7 @@ unsafe fn ray_pass(t: &RayTable, v: usize, i: usize, ys: &[f32], s: &mut RowRays
         s.c1[r].fill(0.0);
     }
     s.live = (k_lo, k_hi);
+    took(Path::RayPassPacked);
     // SAFETY: AVX2 per the contract; the vectors cover rays `k .. k + 8 <=
     // k_hi <= n_det` of the view (table loads at `base + k`, `ys` at `k`, the
     // scratch stores at `PAD + k`), all inside the asserted lengths.
@@ -361,9 +401,9 @@ unsafe fn ray_pass(t: &RayTable, v: usize, i: usize, ys: &[f32], s: &mut RowRays
     }
 }
 
-/// The ray pass in a view with slow rays (or a row no ray touches): every
-/// ray of the view written, those outside the row or slow as `NO_PIXEL` and
-/// zeros.
+/// The ray pass in rows not `packed` (views with slow rays, rows no ray
+/// touches, ...): every ray of the view written, those outside the row or
+/// slow as `NO_PIXEL` and zeros.
 ///
 /// # Safety
 /// As `ray_pass`, the lengths asserted there.
@@ -523,11 +563,11 @@ const PACK: [[u8; 8]; 256] = {
 /// pixels are non-decreasing along the detector (every view with a fit
 /// range), the rays whose first pixel is `j` are consecutive, at most
 /// `count1` of them (the verified candidate count). Each ray's running sum
-/// over its run so far, `s_k = (s_{k-1} if j_{k-1} = j_k else 0) + c_k`, is
-/// the pixel pass's sum in the same order (the AVX-512 kernel adds a pixel's
-/// candidates in ray order, its masked ones as `+0`, which changes no sum
-/// but the sign of a zero, and a zero's sign cannot reach the image: it
-/// starts at `+0`); a run's last ray holds the pixel's sum. The last rays of
+/// over its run so far, `s_k = (s_{k-1} if j_{k-1} = j_k else +0) + c_k`, is
+/// the AVX-512 pixel pass's sum, the same additions in the same order (it
+/// adds a pixel's matching candidates in ray order to `+0`, leaving the
+/// others out); a run's last ray holds the pixel's sum, and a pixel no ray
+/// starts in keeps `+0`, as there. The last rays of
 /// the runs in each 8-ray vector are packed into consecutive lanes and stored
 /// at their first pixel's entry, zeros in the lanes after them (at pixels
 /// whose runs come later in ray order, or that have no ray).
@@ -547,13 +587,23 @@ unsafe fn run_sums(t: &RayTable, map: &InvMap, s: &mut RowRays) {
         assert!(s.t0.len() >= n && s.t1.len() >= n);
         assert!(s.a0.len() >= nx + 16 && s.a1.len() >= nx + 16);
         let (k_lo, k_hi) = (map.ray_lo as usize, map.ray_hi as usize);
+        assert!(k_hi <= t.n_det);
+        if k_lo >= k_hi {
+            // No ray in the row (a verified range implies some).
+            s.a0.fill(0.0);
+            s.a1.fill(0.0);
+            return;
+        }
         // Runs longer than two: the running sums up to the run's
         // `count1 - 1`-th ray, one more each pass; a pass goes down the
         // detector so that it reads the previous pass's sums below it.
         let long = map.count1 > 2;
         if long {
-            s.t0[PAD + k_lo - 1..PAD + k_hi].copy_from_slice(&s.c0[PAD + k_lo - 1..PAD + k_hi]);
-            s.t1[PAD + k_lo - 1..PAD + k_hi].copy_from_slice(&s.c1[PAD + k_lo - 1..PAD + k_hi]);
+            // Up to the last vector's end (its lanes past `k_hi` are no
+            // run ends; copied so that they hold those rays' zeros).
+            let span = PAD + k_lo - 1..PAD + k_lo + (k_hi - k_lo).div_ceil(L) * L + 1;
+            s.t0[span.clone()].copy_from_slice(&s.c0[span.clone()]);
+            s.t1[span.clone()].copy_from_slice(&s.c1[span]);
             let (jp, c0p, c1p) = (s.j.as_ptr(), s.c0.as_ptr(), s.c1.as_ptr());
             let (t0p, t1p) = (s.t0.as_mut_ptr(), s.t1.as_mut_ptr());
             for _ in 2..map.count1 {
@@ -587,6 +637,12 @@ unsafe fn run_sums(t: &RayTable, map: &InvMap, s: &mut RowRays) {
         };
         let (e_lo, e_hi) = (PAD + k_lo, PAD + k_hi);
         let (a0, a1) = (&mut s.a0[..nx + 16], &mut s.a1[..nx + 16]);
+        took(match (map.packed, long) {
+            (true, false) => Path::PackedShort,
+            (true, true) => Path::PackedLong,
+            (false, false) => Path::GeneralShort,
+            (false, true) => Path::GeneralLong,
+        });
         if map.packed {
             // Entries `at0 .. at` are written; the pixel pass reads the fit
             // range's, `fit_lo * 16 ..= min(fit_hi * 16, nx)`.
@@ -733,6 +789,7 @@ unsafe fn packed_runs<const LONG: bool>(
             let g = _mm256_movemask_ps(_mm256_castsi256_ps(gap)) as u32;
             assert!(at + 2 * L <= len);
             if g == 0 {
+                took(Path::NoGap);
                 // The lanes after the run ends land where later vectors'
                 // run ends, or the zeros after the loop, go.
                 let (v0, v1) = pack_any(m, s0, s1);
@@ -740,6 +797,7 @@ unsafe fn packed_runs<const LONG: bool>(
                 dbt_isa::ymm::storeu_ps(a1p.add(at), v1);
                 at += m.count_ones() as usize;
             } else if g & (g - 1) == 0 {
+                took(Path::OneGap);
                 let (lo, hi) = (m & (g - 1), m & !(g - 1));
                 let (v0, v1) = pack(lo, s0, s1);
                 dbt_isa::ymm::storeu_ps(a0p.add(at), v0);
@@ -752,6 +810,7 @@ unsafe fn packed_runs<const LONG: bool>(
             } else {
                 // The vector's run ends span at most 16 pixels (8 rays, each
                 // at most two pixels on): zeros first, then lane by lane.
+                took(Path::Gaps);
                 let zero = _mm256_setzero_ps();
                 for a in [a0p, a1p] {
                     dbt_isa::ymm::storeu_ps(a.add(at), zero);
@@ -805,11 +864,13 @@ unsafe fn general_runs<const LONG: bool>(
                 let jf = *r.j.add(e + m.trailing_zeros() as usize);
                 let jl = *r.j.add(e + 31 - m.leading_zeros() as usize);
                 if jl - jf + 1 == count && jf >= -1 && jl < nx as i32 {
+                    took(Path::GeneralPacked);
                     let (v0, v1) = pack(m, s0, s1);
                     let at = (jf + 1) as usize;
                     dbt_isa::ymm::storeu_ps(a0p.add(at), v0);
                     dbt_isa::ymm::storeu_ps(a1p.add(at), v1);
                 } else {
+                    took(Path::GeneralLanes);
                     let (mut v0, mut v1) = ([0f32; L], [0f32; L]);
                     dbt_isa::ymm::storeu_ps(v0.as_mut_ptr(), s0);
                     dbt_isa::ymm::storeu_ps(v1.as_mut_ptr(), s1);
@@ -831,7 +892,7 @@ unsafe fn general_runs<const LONG: bool>(
 
 #[cfg(test)]
 mod tests {
-    use crate::table::{adjoint_test_geometries, RayTable, NO_PIXEL};
+    use crate::table::{adjoint_test_geometries, RayTable};
     use rand::{Rng, SeedableRng};
 
     /// As the AVX-512 kernel's test of the same name: cutting the fit ranges
@@ -848,47 +909,13 @@ mod tests {
         });
     }
 
-    /// The test geometries take every way through the run sums: rows
-    /// `packed` and not, rows with runs longer than two rays (packed; the
-    /// general pass takes them in the next test, which forces it on every
-    /// row); in packed rows, vectors of 8 rays without a pixel skipped, with
-    /// one and with several; and views with slow rays. Counted from the
-    /// table's first pixels (`fast_contributions`), as the kernel sees them.
-    #[test]
-    fn the_test_geometries_take_every_path_of_the_run_sums() {
-        // [packed, packed long, general, no gap, one, several, slow views]
-        let mut seen = [0usize; 7];
-        for (_, g) in adjoint_test_geometries() {
-            let t = RayTable::new(&g);
-            seen[6] += t.view_has_slow.iter().filter(|&&s| s).count();
-            for (vi, m) in t.inv_map.iter().enumerate() {
-                if m.fit_lo >= m.fit_hi {
-                    continue;
-                }
-                if !m.packed {
-                    seen[2] += 1;
-                    continue;
-                }
-                seen[usize::from(m.count1 > 2)] += 1;
-                let (v, i) = (vi / t.nz, vi % t.nz);
-                let mut j = vec![NO_PIXEL; t.n_det + 1];
-                t.fast_contributions(v, i, |k, jk, _, _| j[k] = jk);
-                for k in (m.ray_lo as usize..m.ray_hi as usize).step_by(super::L) {
-                    let gaps = (k.max(1)..(k + super::L).min(t.n_det))
-                        .filter(|&l| j[l].wrapping_sub(j[l - 1]) == 2)
-                        .count();
-                    seen[3 + gaps.min(2)] += 1;
-                }
-            }
-        }
-        assert!(seen.iter().all(|&n| n > 0), "paths not taken: {seen:?}");
-    }
-
     /// A row's run sums are the same to the bit whether stored packed or
-    /// pixel by pixel (`general_runs`, forced on every row here), on every
-    /// test geometry, with signed values and zeros of both signs.
+    /// pixel by pixel (`general_runs`, forced on every row in a second run),
+    /// on every test geometry, with signed values and zeros of both signs;
+    /// and the two runs took every branch of the adjoint (`Path`, counted in
+    /// test builds).
     #[test]
-    fn packed_and_general_run_sums_give_the_same_image() {
+    fn packed_and_general_run_sums_agree_and_every_path_is_taken() {
         if !dbt_isa::kernel_test_runs("projector avx2 run sums", &["avx2"]) {
             return;
         }
@@ -918,5 +945,13 @@ mod tests {
                 .position(|(p, q)| p.to_bits() != q.to_bits());
             assert_eq!(first, None, "{name}: packed and general run sums differ");
         }
+        let taken: Vec<usize> = super::PATHS
+            .iter()
+            .map(|n| n.load(std::sync::atomic::Ordering::Relaxed))
+            .collect();
+        assert!(
+            taken.iter().all(|&n| n > 0),
+            "branches not taken (`Path` order): {taken:?}"
+        );
     }
 }

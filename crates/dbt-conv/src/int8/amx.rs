@@ -96,6 +96,17 @@ struct TileConfig {
     rows: [u8; 16],
 }
 
+// The 64-byte layout `ldtilecfg` reads (Intel's reference: palette at byte
+// 0, start_row at 1, bytes 2-15 reserved, colsb of tiles 0-15 as u16 from
+// byte 16, rows of tiles 0-15 as u8 from byte 48).
+const _: () = {
+    assert!(std::mem::size_of::<TileConfig>() == 64);
+    assert!(std::mem::offset_of!(TileConfig, palette) == 0);
+    assert!(std::mem::offset_of!(TileConfig, start_row) == 1);
+    assert!(std::mem::offset_of!(TileConfig, colsb) == 16);
+    assert!(std::mem::offset_of!(TileConfig, rows) == 48);
+};
+
 impl TileConfig {
     fn new(cin4: usize) -> Self {
         let mut c = Self {
@@ -301,7 +312,8 @@ impl TileOps for Hardware {
                 0 => std::arch::asm!("tilezero tmm0", options(nostack, nomem)),
                 1 => std::arch::asm!("tilezero tmm1", options(nostack, nomem)),
                 2 => std::arch::asm!("tilezero tmm2", options(nostack, nomem)),
-                _ => std::arch::asm!("tilezero tmm3", options(nostack, nomem)),
+                3 => std::arch::asm!("tilezero tmm3", options(nostack, nomem)),
+                _ => unreachable!("tile {q}: the sums are tmm0-tmm3"),
             }
         }
     }
@@ -310,12 +322,16 @@ impl TileOps for Hardware {
         // SAFETY: AMX-TILE configured; the rows inside their buffer (the
         // caller's).
         unsafe {
-            if tmm == 4 {
-                std::arch::asm!("tileloadd tmm4, [{a} + {s} * 1]", a = in(reg) base, s = in(reg) stride,
-                                options(nostack, readonly));
-            } else {
-                std::arch::asm!("tileloadd tmm5, [{a} + {s} * 1]", a = in(reg) base, s = in(reg) stride,
-                                options(nostack, readonly));
+            match tmm {
+                4 => {
+                    std::arch::asm!("tileloadd tmm4, [{a} + {s} * 1]", a = in(reg) base, s = in(reg) stride,
+                                     options(nostack, readonly))
+                }
+                5 => {
+                    std::arch::asm!("tileloadd tmm5, [{a} + {s} * 1]", a = in(reg) base, s = in(reg) stride,
+                                     options(nostack, readonly))
+                }
+                _ => unreachable!("tile {tmm}: the operands are tmm4 and tmm5"),
             }
         }
     }
@@ -327,7 +343,8 @@ impl TileOps for Hardware {
                 0 => std::arch::asm!("tdpbusd tmm0, tmm4, tmm5", options(nostack, nomem)),
                 1 => std::arch::asm!("tdpbusd tmm1, tmm4, tmm5", options(nostack, nomem)),
                 2 => std::arch::asm!("tdpbusd tmm2, tmm4, tmm5", options(nostack, nomem)),
-                _ => std::arch::asm!("tdpbusd tmm3, tmm4, tmm5", options(nostack, nomem)),
+                3 => std::arch::asm!("tdpbusd tmm3, tmm4, tmm5", options(nostack, nomem)),
+                _ => unreachable!("tile {q}: the sums are tmm0-tmm3"),
             }
         }
     }
@@ -346,9 +363,10 @@ impl TileOps for Hardware {
                 2 => {
                     std::arch::asm!("tilestored [{c} + {s} * 1], tmm2", c = in(reg) c, s = in(reg) stride, options(nostack))
                 }
-                _ => {
+                3 => {
                     std::arch::asm!("tilestored [{c} + {s} * 1], tmm3", c = in(reg) c, s = in(reg) stride, options(nostack))
                 }
+                _ => unreachable!("tile {q}: the sums are tmm0-tmm3"),
             }
         }
     }
@@ -495,10 +513,20 @@ mod tests {
 
     impl TileOps for Emulated {
         unsafe fn configure(&mut self, cfg: &TileConfig) {
-            assert_eq!(cfg.palette, 1, "palette");
-            assert_eq!(cfg.start_row, 0, "start_row");
-            for t in 0..8 {
-                let (rows, colsb) = (cfg.rows[t] as usize, cfg.colsb[t] as usize);
+            // The 64 bytes as the CPU reads them, not the struct's fields.
+            // SAFETY: `TileConfig` is 64 plain bytes (asserted at compile time).
+            let b: [u8; 64] = unsafe { std::mem::transmute_copy(cfg) };
+            assert_eq!(b[0], 1, "palette");
+            assert_eq!(b[1], 0, "start_row");
+            assert!(b[2..16].iter().all(|&x| x == 0), "reserved bytes");
+            for t in 0..16 {
+                let colsb = u16::from_le_bytes([b[16 + 2 * t], b[17 + 2 * t]]) as usize;
+                let rows = b[48 + t] as usize;
+                if t >= 8 {
+                    // Palette 1 has 8 tiles; the CPU faults on others.
+                    assert_eq!((rows, colsb), (0, 0), "tile {t}");
+                    continue;
+                }
                 assert!(rows <= 16 && colsb <= 64, "tile {t}: {rows} x {colsb}");
                 assert_eq!(rows == 0, colsb == 0, "tile {t}: {rows} x {colsb}");
                 self.shape[t] = (rows, colsb);
@@ -577,9 +605,9 @@ mod tests {
     /// On any CPU: the AMX kernel's addressing, tile configuration, operand
     /// layouts and epilogue, run on an emulation of the AMX instructions
     /// (`Emulated`, every access inside the buffers), give the portable
-    /// kernel's sums on every eligible shape tried: input channels not a
-    /// multiple of 4 (5, 30) and up to 64, 16 to 64 outputs (one to four C
-    /// tiles, epilogue groups of 32 and 16), a channel stride wider than the
+    /// kernel's sums on every eligible shape tried: 3 to 64 input channels,
+    /// some not a multiple of 4 (3, 5, 30), 16 to 64 outputs (one to four C
+    /// tiles, epilogue groups of 64 and 16), a channel stride wider than the
     /// channels, widths below, at and past the 16-pixel tile (the rest on the
     /// portable tile, which gives the AVX-512 VNNI tile's bits). This checks
     /// the kernel's use of the instructions, not the instructions on a CPU
