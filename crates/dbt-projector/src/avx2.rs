@@ -376,29 +376,54 @@ unsafe fn ray_pass(t: &RayTable, v: usize, i: usize, ys: &[f32], s: &mut RowRays
         let (jp, c0p, c1p) = (s.j.as_mut_ptr(), s.c0.as_mut_ptr(), s.c1.as_mut_ptr());
         let mut k = k_lo;
         while k + L <= k_hi {
-            let r = base + k;
-            let (jf, w0, w1) = weights8(
-                dbt_isa::ymm::loadu_ps(t.x_top.as_ptr().add(r)),
-                dbt_isa::ymm::loadu_ps(t.sx.as_ptr().add(r)),
-                dbt_isa::ymm::loadu_ps(t.len.as_ptr().add(r)),
-                dbt_isa::ymm::loadu_ps(t.inv.as_ptr().add(r)),
-                fi,
-            );
-            let y = dbt_isa::ymm::loadu_ps(ys.as_ptr().add(k));
-            dbt_isa::ymm::storeu_si256(jp.add(PAD + k) as *mut __m256i, _mm256_cvttps_epi32(jf));
-            dbt_isa::ymm::storeu_ps(c0p.add(PAD + k), _mm256_mul_ps(w0, y));
-            dbt_isa::ymm::storeu_ps(c1p.add(PAD + k), _mm256_mul_ps(w1, y));
+            let (j, c0, c1) = contributions8(t, base + k, ys.as_ptr().add(k), fi);
+            dbt_isa::ymm::storeu_si256(jp.add(PAD + k) as *mut __m256i, j);
+            dbt_isa::ymm::storeu_ps(c0p.add(PAD + k), c0);
+            dbt_isa::ymm::storeu_ps(c1p.add(PAD + k), c1);
             k += L;
         }
         for k in k..k_hi {
-            let r = base + k;
-            let (lo, _) = segment(t.x_top[r], t.sx[r], i);
-            let (j, w0, w1) = fast_weights(lo, t.len[r], t.inv[r]);
-            s.j[PAD + k] = j;
-            s.c0[PAD + k] = w0 * ys[k];
-            s.c1[PAD + k] = w1 * ys[k];
+            (s.j[PAD + k], s.c0[PAD + k], s.c1[PAD + k]) = contributions(t, base + k, i, ys[k]);
         }
     }
+}
+
+/// Rays `r .. r + 8` at row `fi`: first pixels and the two contributions of
+/// the values at `y` (`weights8`, the scalar reference's operations).
+///
+/// # Safety
+/// AVX2; rays `r .. r + 8` in the table, 8 values at `y`.
+#[inline(always)]
+unsafe fn contributions8(
+    t: &RayTable,
+    r: usize,
+    y: *const f32,
+    fi: __m256,
+) -> (__m256i, __m256, __m256) {
+    // SAFETY: per the contract.
+    unsafe {
+        let (jf, w0, w1) = weights8(
+            dbt_isa::ymm::loadu_ps(t.x_top.as_ptr().add(r)),
+            dbt_isa::ymm::loadu_ps(t.sx.as_ptr().add(r)),
+            dbt_isa::ymm::loadu_ps(t.len.as_ptr().add(r)),
+            dbt_isa::ymm::loadu_ps(t.inv.as_ptr().add(r)),
+            fi,
+        );
+        let y = dbt_isa::ymm::loadu_ps(y);
+        (
+            _mm256_cvttps_epi32(jf),
+            _mm256_mul_ps(w0, y),
+            _mm256_mul_ps(w1, y),
+        )
+    }
+}
+
+/// One fast ray `r` at row `i`: `contributions8` in scalar code.
+#[inline(always)]
+fn contributions(t: &RayTable, r: usize, i: usize, y: f32) -> (i32, f32, f32) {
+    let (lo, _) = segment(t.x_top[r], t.sx[r], i);
+    let (j, w0, w1) = fast_weights(lo, t.len[r], t.inv[r]);
+    (j, w0 * y, w1 * y)
 }
 
 /// The ray pass in rows not `packed` (views with slow rays, rows no ray
@@ -423,19 +448,7 @@ unsafe fn ray_pass_checked(t: &RayTable, v: usize, i: usize, ys: &[f32], s: &mut
         let mut k = 0;
         while k + L <= n_det {
             let r = base + k;
-            let (jf, w0, w1) = weights8(
-                dbt_isa::ymm::loadu_ps(t.x_top.as_ptr().add(r)),
-                dbt_isa::ymm::loadu_ps(t.sx.as_ptr().add(r)),
-                dbt_isa::ymm::loadu_ps(t.len.as_ptr().add(r)),
-                dbt_isa::ymm::loadu_ps(t.inv.as_ptr().add(r)),
-                fi,
-            );
-            let y = dbt_isa::ymm::loadu_ps(ys.as_ptr().add(k));
-            let (j, c0, c1) = (
-                _mm256_cvttps_epi32(jf),
-                _mm256_mul_ps(w0, y),
-                _mm256_mul_ps(w1, y),
-            );
+            let (j, c0, c1) = contributions8(t, r, ys.as_ptr().add(k), fi);
             // Rays inside the row (row_lo <= i < row_hi) and fast.
             let row_lo = dbt_isa::ymm::loadu_si256(t.row_lo.as_ptr().add(r) as *const __m256i);
             let row_hi = dbt_isa::ymm::loadu_si256(t.row_hi.as_ptr().add(r) as *const __m256i);
@@ -465,11 +478,7 @@ unsafe fn ray_pass_checked(t: &RayTable, v: usize, i: usize, ys: &[f32], s: &mut
         for k in k..n_det {
             let r = base + k;
             if t.touches_row(r, i) && t.fast[r] {
-                let (lo, _) = segment(t.x_top[r], t.sx[r], i);
-                let (j, w0, w1) = fast_weights(lo, t.len[r], t.inv[r]);
-                s.j[PAD + k] = j;
-                s.c0[PAD + k] = w0 * ys[k];
-                s.c1[PAD + k] = w1 * ys[k];
+                (s.j[PAD + k], s.c0[PAD + k], s.c1[PAD + k]) = contributions(t, r, i, ys[k]);
             } else {
                 s.j[PAD + k] = NO_PIXEL;
                 s.c0[PAD + k] = 0.0;

@@ -387,25 +387,8 @@ pub(super) fn self_check() -> Result<(), String> {
     CHECK
         .get_or_init(|| {
             let (cin, out_ch, w, cs) = (48, 48, 37, 52);
-            let mut state = 0x9E37_79B9_7F4A_7C15u64;
-            let mut next = move || {
-                state ^= state << 13;
-                state ^= state >> 7;
-                state ^= state << 17;
-                state
-            };
-            let weight = (0..out_ch * cin * 9).map(|_| next() as i8).collect();
-            let l = Int8Conv {
-                in_ch: cin,
-                out_ch,
-                weight,
-                weight_scale: vec![1.0; out_ch],
-                bias: vec![0.0; out_ch],
-                prelu: None,
-                q_out: None,
-                q_act: None,
-            };
-            let p = pack(&l, QuantParams { scale: 1.0, zero_point: 0 }, false);
+            let mut next = xorshift(0x9E37_79B9_7F4A_7C15);
+            let p = random_conv(cin, out_ch, &mut next);
             let rs = (w + 2) * cs;
             let inp: Vec<u8> = (0..3 * rs).map(|_| next() as u8).collect();
             let (want, got) = (sums(Kernel::Portable, &p, &inp, rs, cs, w), sums(Kernel::Amx, &p, &inp, rs, cs, w));
@@ -424,6 +407,40 @@ pub(super) fn self_check() -> Result<(), String> {
             }
         })
         .clone()
+}
+
+/// A xorshift64 generator (the self-check's and the tests' random bytes).
+fn xorshift(mut state: u64) -> impl FnMut() -> u64 {
+    move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state
+    }
+}
+
+/// A convolution of random weights, unit scales and no epilogue, packed for
+/// the direct kernels (the self-check's and the tests' layer).
+fn random_conv(cin: usize, out_ch: usize, next: &mut impl FnMut() -> u64) -> PackedI8 {
+    let weight = (0..out_ch * cin * 9).map(|_| next() as i8).collect();
+    let l = Int8Conv {
+        in_ch: cin,
+        out_ch,
+        weight,
+        weight_scale: vec![1.0; out_ch],
+        bias: vec![0.0; out_ch],
+        prelu: None,
+        q_out: None,
+        q_act: None,
+    };
+    pack(
+        &l,
+        QuantParams {
+            scale: 1.0,
+            zero_point: 0,
+        },
+        false,
+    )
 }
 
 /// One row's integer sums, `[x][ocp]`, by `kernel` (portable: its tiles;
@@ -614,34 +631,10 @@ mod tests {
     /// (`amx_int8_matches_portable`, where AMX is present).
     #[test]
     fn the_amx_kernel_on_emulated_tiles_matches_portable() {
-        let mut state = 0x2545_F491_4F6C_DD1Du64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state
-        };
+        let mut next = xorshift(0x2545_F491_4F6C_DD1D);
         let mut dots = 0;
         for (cin, out_ch) in [(5, 16), (8, 32), (30, 48), (48, 48), (64, 64), (3, 64)] {
-            let weight = (0..out_ch * cin * 9).map(|_| next() as i8).collect();
-            let l = Int8Conv {
-                in_ch: cin,
-                out_ch,
-                weight,
-                weight_scale: vec![1.0; out_ch],
-                bias: vec![0.0; out_ch],
-                prelu: None,
-                q_out: None,
-                q_act: None,
-            };
-            let p = pack(
-                &l,
-                QuantParams {
-                    scale: 1.0,
-                    zero_point: 0,
-                },
-                false,
-            );
+            let p = random_conv(cin, out_ch, &mut next);
             assert!(eligible(&p), "{cin} -> {out_ch}");
             for w in [5, 16, 37, 48] {
                 let cs = p.cin4 + 4;
