@@ -96,6 +96,24 @@ fn load_model(
     )?)
 }
 
+/// The configured noise matching (`recon.noise_match`) to `model`'s
+/// training level: `None` when off; a model that names no photon level is
+/// refused naming the key.
+fn noise_match(
+    cfg: &Config,
+    model: &dbt_dbtor::ModelManifest,
+) -> Result<Option<dbt_pipeline::noise_match::NoiseMatch>, DaemonError> {
+    if cfg.recon.noise_match != crate::config::NoiseMatchMode::TrainingLevel {
+        return Ok(None);
+    }
+    dbt_pipeline::noise_match::NoiseMatch::for_model(model)
+        .map(Some)
+        .map_err(|e| DaemonError::Resource {
+            what: "recon.noise_match = \"training-level\"".into(),
+            reason: e.to_string(),
+        })
+}
+
 /// Check everything the daemon will need without starting it (`dbtor-daemon
 /// --check-config`): the model folder against its sign-off and the
 /// configured digest, the model and its calibration load, the spool, output
@@ -121,12 +139,7 @@ pub fn preflight(cfg: &Config, config_path: &Path) -> Result<Vec<String>, Daemon
     }
     if cfg.recon.reconstructor == Reconstructor::Dbtor {
         let signed = load_model(cfg, &PipelineOptions::default().classify)?;
-        if cfg.recon.noise_match == crate::config::NoiseMatchMode::TrainingLevel {
-            let m = dbt_pipeline::noise_match::NoiseMatch::for_model(signed.model.manifest())
-                .map_err(|e| DaemonError::Resource {
-                    what: "recon.noise_match = \"training-level\"".into(),
-                    reason: e.to_string(),
-                })?;
+        if let Some(m) = noise_match(cfg, signed.model.manifest())? {
             done.push(format!(
                 "noise matching: to the model's training level, {} photons per element",
                 m.target_photons
@@ -322,15 +335,7 @@ impl Daemon {
         };
         if cfg.recon.reconstructor == Reconstructor::Dbtor {
             let signed = load_model(&cfg, &opts.classify)?;
-            if cfg.recon.noise_match == crate::config::NoiseMatchMode::TrainingLevel {
-                opts.noise_match = Some(
-                    dbt_pipeline::noise_match::NoiseMatch::for_model(signed.model.manifest())
-                        .map_err(|e| DaemonError::Resource {
-                            what: "recon.noise_match = \"training-level\"".into(),
-                            reason: e.to_string(),
-                        })?,
-                );
-            }
+            opts.noise_match = noise_match(&cfg, signed.model.manifest())?;
             opts.calibration = signed.calibration;
             opts.beam_calibrations = dbt_pipeline::beam_calibrations(&signed.beam_calibrations);
             opts.dbtor = Some(Arc::new(signed.model));

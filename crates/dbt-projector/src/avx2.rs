@@ -641,8 +641,8 @@ unsafe fn run_sums(t: &RayTable, map: &InvMap, s: &mut RowRays) {
             j: s.j.as_ptr(),
             c0: s.c0.as_ptr(),
             c1: s.c1.as_ptr(),
-            p0: if long { s.t0.as_ptr() } else { s.c0.as_ptr() },
-            p1: if long { s.t1.as_ptr() } else { s.c1.as_ptr() },
+            t0: s.t0.as_ptr(),
+            t1: s.t1.as_ptr(),
         };
         let (e_lo, e_hi) = (PAD + k_lo, PAD + k_hi);
         let (a0, a1) = (&mut s.a0[..nx + 16], &mut s.a1[..nx + 16]);
@@ -679,21 +679,20 @@ unsafe fn run_sums(t: &RayTable, map: &InvMap, s: &mut RowRays) {
     }
 }
 
-/// A row's ray scratch: first pixels, contributions, and the running sums a
-/// run's next ray adds to (`c0`, `c1` themselves where runs are at most two
-/// rays long).
+/// A row's ray scratch: first pixels, contributions, and the partial run
+/// sums of the passes for runs longer than two rays (`RowRays::t0`, `t1`).
 struct Rays {
     j: *const i32,
     c0: *const f32,
     c1: *const f32,
-    p0: *const f32,
-    p1: *const f32,
+    t0: *const f32,
+    t1: *const f32,
 }
 
 /// For the 8 rays from scratch index `e`: the run ends' lane mask, the
 /// running sums of first and second contributions, the first pixels and
 /// their predecessors'. `LONG`: the running sums before each ray are in
-/// `p0`, `p1` (else they are the predecessor's contributions).
+/// `t0`, `t1` (else they are the predecessor's contributions).
 ///
 /// # Safety
 /// AVX2; `e - 1 .. e + 9` inside the scratch.
@@ -711,7 +710,7 @@ unsafe fn sums<const LONG: bool>(r: &Rays, e: usize) -> (u32, __m256, __m256, __
         );
         let m = !(_mm256_movemask_ps(_mm256_castsi256_ps(not_end)) as u32) & 0xff;
         let same = _mm256_castsi256_ps(_mm256_cmpeq_epi32(jm, j0));
-        let (p0, p1) = if LONG { (r.p0, r.p1) } else { (r.c0, r.c1) };
+        let (p0, p1) = if LONG { (r.t0, r.t1) } else { (r.c0, r.c1) };
         let s0 = _mm256_add_ps(
             _mm256_and_ps(dbt_isa::ymm::loadu_ps(p0.add(e - 1)), same),
             dbt_isa::ymm::loadu_ps(r.c0.add(e)),
