@@ -36,6 +36,19 @@ may be resumed with another device or process count.
 The U-Net (unet.py) learns from the FBP of the sinograms (the dataset's
 `fbp-<level>`, made by `host-sim fbp`) instead of the sinograms; its input is
 scaled like the target (g_mean = 0, g_std = x_scale), and --blocks is unused.
+
+--data takes one dataset or several of the same geometry (e.g. the mono and
+the clinical-corrected acquisitions of a population): batches are drawn
+uniformly from the union of their slices, so each is sampled in proportion
+to its size; the normalisation and validation are over the union.
+
+--state FILE keeps the run's whole state compactly where other machines find
+it (dbtor/state.py; issue #49): written beside checkpoint.pt at every save and
+every --save-every-minutes, restored from when it exists (the local exact
+checkpoint.pt instead when it is the same save), with each dataset's SHA-256
+checked against the state's (a different dataset is refused, naming its
+files). --ledger FILE appends one line for this segment of the run
+(ledger.py). `python -m dbtor.continue_run` drives both.
 """
 import argparse
 import csv
@@ -50,7 +63,8 @@ import numpy as np
 import torch
 
 from .data import Split, statistics
-from . import folder, qat
+from . import folder, ledger, qat
+from . import state as compact
 from .model import PrimalDual
 from .operator import Operator
 from .unet import UNet
@@ -105,6 +119,61 @@ def distributed():
     return int(os.environ.get("RANK", "0")), world, int(os.environ.get("LOCAL_RANK", "0"))
 
 
+class Union:
+    """Several splits of the same shapes as one: index i runs over the first
+    split's slices, then the second's, ..."""
+
+    def __init__(self, splits):
+        self.parts = splits
+        self.starts = np.cumsum([0] + [p.n for p in splits])
+        self.n = int(self.starts[-1])
+        self.images, self.sinos = splits[0].images, splits[0].sinos
+        self.manifest = splits[0].manifest
+
+    def batch(self, idx):
+        if len(self.parts) == 1:
+            return self.parts[0].batch(idx)
+        idx = np.sort(np.asarray(idx))
+        out = []
+        for k, p in enumerate(self.parts):
+            sel = idx[(idx >= self.starts[k]) & (idx < self.starts[k + 1])] - self.starts[k]
+            if len(sel):
+                out.append(p.batch(sel))
+        return tuple(np.concatenate([o[j] for o in out]) for j in range(3))
+
+
+def same_operator(d1, d2):
+    """Whether two datasets hold the same projector (operator.json and the
+    CSR files byte for byte)."""
+    o1, o2 = (os.path.join(d, "operator") for d in (d1, d2))
+    for f in sorted(os.listdir(o1)):
+        p2 = os.path.join(o2, f)
+        if not os.path.exists(p2) or os.path.getsize(p2) != os.path.getsize(os.path.join(o1, f)):
+            return False
+        with open(os.path.join(o1, f), "rb") as x, open(p2, "rb") as y:
+            while True:
+                bx, by = x.read(1 << 22), y.read(1 << 22)
+                if bx != by:
+                    return False
+                if not bx:
+                    break
+    return True
+
+
+def truncate_curve(text, iteration):
+    """curve.csv's header and the rows up to `iteration` (a run resumed from
+    a save drops the rows logged after it)."""
+    lines = text.splitlines(keepends=True)
+    keep = lines[:1]
+    for ln in lines[1:]:
+        try:
+            if int(ln.split(",", 1)[0]) <= iteration:
+                keep.append(ln)
+        except ValueError:
+            pass
+    return "".join(keep)
+
+
 def validate(net, split, stats, n=32, batch=8, device=None):
     """Mean squared error (image units of x_scale) and PSNR (dB, data range of each
     truth) on the first `n` slices of an even spread over the validation split."""
@@ -126,7 +195,8 @@ def validate(net, split, stats, n=32, batch=8, device=None):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--data", required=True, help="host-sim dataset folder")
+    ap.add_argument("--data", required=True, nargs="+",
+                    help="host-sim dataset folder(s) of one geometry; several are sampled in proportion to their size")
     ap.add_argument("--out", required=True, help="run folder (checkpoint, curve)")
     ap.add_argument("--model", choices=["dbtor", "lpd", "unet"], default="dbtor")
     ap.add_argument("--level", default="N8", help="noise level trained on")
@@ -158,6 +228,18 @@ def main(argv=None):
                     help="the int8 graph simulated (export.py --int8-form)")
     ap.add_argument("--qat-calibration", type=int, default=16,
                     help="training slices the int8 ranges are measured on (export.py --calibration)")
+    ap.add_argument("--state", default=None,
+                    help="the run's compact state file (dbtor/state.py): restored from where it exists, "
+                         "written at every save")
+    ap.add_argument("--run-name", default=None, help="the run's name (recorded in the state and ledger)")
+    ap.add_argument("--recipe", default=None,
+                    help="JSON file of the datasets' recipes (continue_run.py), recorded in the state")
+    ap.add_argument("--save-every-minutes", type=float, default=None,
+                    help="also save (checkpoint and state) whenever this long has passed since the last save")
+    ap.add_argument("--deadline", type=float, default=None,
+                    help="stop (with a checkpoint and validation) in time to be done by this Unix time")
+    ap.add_argument("--ledger", default=None, help="append this segment's line to this ledger (ledger.py)")
+    ap.add_argument("--ledger-note", default="", help="a note for the ledger line (e.g. 'nice 19, beside builds')")
     a = ap.parse_args(argv)
     if a.qat and a.model == "unet":
         sys.exit("--qat: DBToR or LPD only")
@@ -175,18 +257,37 @@ def main(argv=None):
     if a.threads:
         torch.set_num_threads(a.threads)
     os.makedirs(a.out, exist_ok=True)
-    op = Operator(os.path.join(a.data, "operator")).to(device)
+    op = Operator(os.path.join(a.data[0], "operator")).to(device)
     unet = a.model == "unet"
     source = "fbp" if unet else "sino"
-    train = Split(a.data, "train", a.level, input=source)
-    val = Split(a.data, "validation", a.level, input=source)
     in_shape = op.image_shape if unet else op.sino_shape
-    if tuple(train.images.shape[1:]) != op.image_shape or tuple(train.sinos.shape[1:]) != in_shape:
-        sys.exit(f"{a.data}: array shapes {train.images.shape[1:]}/{train.sinos.shape[1:]} do not match the operator")
+    trains, vals = [], []
+    for d in a.data:
+        tr = Split(d, "train", a.level, input=source)
+        if tuple(tr.images.shape[1:]) != op.image_shape or tuple(tr.sinos.shape[1:]) != in_shape:
+            sys.exit(f"{d}: array shapes {tr.images.shape[1:]}/{tr.sinos.shape[1:]} do not match the operator")
+        if d != a.data[0] and not same_operator(a.data[0], d):
+            sys.exit(f"{d}: its operator (geometry) is not {a.data[0]}'s; datasets trained together share one")
+        trains.append(tr)
+        vals.append(Split(d, "validation", a.level, input=source))
+    train, val = Union(trains), Union(vals)
 
     ckpt_path = os.path.join(a.out, "checkpoint.pt")
     run_path = os.path.join(a.out, "run.json")
+    curve_path = os.path.join(a.out, "curve.csv")
     opts = {k: getattr(a, k) for k in FIXED}
+    recipe = None
+    if a.recipe:
+        with open(a.recipe) as f:
+            recipe = json.load(f)
+    # a run's recipe.json (continue_run.py) or a list, one entry per --data
+    recipe_ds = recipe.get("datasets") if isinstance(recipe, dict) else recipe
+    fingerprints = None
+    if a.state and lead:
+        # every file of every dataset, to be recorded or checked (a few seconds per GB)
+        t = time.time()
+        fingerprints = [compact.fingerprint(d) for d in a.data]
+        print(f"dataset SHA-256 of {sum(map(len, fingerprints))} files in {time.time() - t:.1f} s", flush=True)
     torch.manual_seed(a.seed)
     net = UNet() if unet else PrimalDual(op, blocks=a.blocks, use_mask=(a.model == "dbtor"))
     net.to(device)
@@ -198,16 +299,61 @@ def main(argv=None):
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(adam, T_max=a.iters)
     rng = np.random.default_rng(a.seed)
     it, elapsed = 0, 0.0
-    if os.path.exists(ckpt_path):
+    ck, state_header = None, None
+    if a.state and os.path.exists(a.state):
+        state_header = compact.read_header(a.state)
+        if a.run_name and state_header.get("run") != a.run_name:
+            sys.exit(f"{a.state}: the state of run {state_header.get('run')!r}, not {a.run_name!r}")
+        if lead:
+            have = fingerprints
+            want = state_header["datasets"]
+            if len(want) != len(have):
+                sys.exit(f"{a.state}: trained on {len(want)} dataset(s), given {len(have)} (--data)")
+            for d, w, h in zip(a.data, want, have):
+                try:
+                    compact.compare_fingerprints(w["files"], h, d)
+                except compact.StateError as e:
+                    sys.exit(f"{e}; its recipe: {w.get('recipe')}")
+        local = (torch.load(ckpt_path, weights_only=False, map_location=device)
+                 if os.path.exists(ckpt_path) else None)
+        if local is not None and local.get("save_id") == state_header.get("save_id"):
+            ck = local
+            if lead:
+                print(f"the local checkpoint is the state's save ({state_header['save_id']}): resuming exactly", flush=True)
+                if os.path.exists(curve_path):
+                    with open(curve_path) as f:
+                        text = f.read()
+                    with open(curve_path, "w") as f:
+                        f.write(truncate_curve(text, ck["iteration"]))
+        else:
+            try:
+                ck, _ = compact.unpack(a.state, device=device)
+            except compact.StateError as e:
+                sys.exit(str(e))
+            if lead:
+                print(f"restored the compact state {a.state} (iteration {ck['iteration']})", flush=True)
+                with open(run_path, "w") as f:
+                    json.dump(state_header["run_json"], f, indent=2)
+                repo_curve = os.path.join(os.path.dirname(os.path.abspath(a.state)), "curve.csv")
+                if os.path.exists(repo_curve):
+                    with open(repo_curve) as f:
+                        text = f.read()
+                    with open(curve_path, "w") as f:
+                        f.write(truncate_curve(text, ck["iteration"]))
+    elif os.path.exists(ckpt_path):
         ck = torch.load(ckpt_path, weights_only=False, map_location=device)
+    if ck is not None:
         # Runs made before --precision and --qat existed were float32 without QAT.
         if {"precision": "fp32", "qat": False, **ck["options"]} != opts:
-            sys.exit(f"{ckpt_path}: made with {ck['options']}, asked for {opts}; use another --out")
+            src = a.state if state_header is not None else ckpt_path
+            sys.exit(f"{src}: made with {ck['options']}, asked for {opts}; use another --out")
         net.load_state_dict(ck["model"])
         adam.load_state_dict(ck["adam"])
         sched.load_state_dict(ck["schedule"])
         rng.bit_generator.state = ck["numpy_rng"]
         torch.set_rng_state(ck["torch_rng"].cpu())
+        if device.type == "cuda" and len(ck.get("cuda_rng", [])) == torch.cuda.device_count():
+            torch.cuda.set_rng_state_all([s.cpu() for s in ck["cuda_rng"]])
         it, elapsed, stats = ck["iteration"], ck["elapsed_s"], ck["stats"]
         if lead:
             print(f"resumed at iteration {it} ({elapsed / 60:.1f} min trained)", flush=True)
@@ -239,16 +385,23 @@ def main(argv=None):
                     "options": ick["options"]}
             print(f"initialised from {src} (iteration {ick['iteration']})", flush=True)
         stats = statistics(train)
+        if lead and a.state:
+            with open(curve_path, "w") as f:
+                pass  # a fresh run's curve
         if unet:
             # The FBP input in the target's unit (x_scale), not standardised.
             stats.update(g_mean=0.0, g_std=stats["x_scale"])
         if lead:
             with open(run_path, "w") as f:
-                json.dump({"options": opts, "data": os.path.abspath(a.data),
+                json.dump({"options": opts,
+                           "data": (os.path.abspath(a.data[0]) if len(a.data) == 1
+                                    else [os.path.abspath(d) for d in a.data]),
                            "dataset_provenance": train.manifest["provenance"],
+                           **({"datasets_provenance": [t.manifest["provenance"] for t in trains]}
+                              if len(a.data) > 1 else {}),
                            "geometry": train.manifest["geometry"], "stats": stats,
                            "operator_norm": op.norm, "init": init,
-                           "qat_form": a.qat_form if a.qat else None,
+                           "qat_form": a.qat_form if a.qat else None, "recipe": recipe,
                            "command": " ".join(["python -m dbtor.train"] + (argv or sys.argv[1:]))}, f, indent=2)
 
     # Every process starts from rank 0's weights (a fresh run's random
@@ -259,15 +412,40 @@ def main(argv=None):
             net, device_ids=[device.index] if device.type == "cuda" else None)
     share = a.batch // world
 
+    if lead and a.state:
+        with open(run_path) as f:
+            run_json = json.load(f)
+        datasets = state_header["datasets"] if state_header is not None else [
+            {"recipe": recipe_ds[i] if recipe_ds and i < len(recipe_ds) else None,
+             "digest": compact.fingerprint_digest(fp), "files": fp}
+            for i, fp in enumerate(fingerprints)]
+    saves = {"last": time.time(), "n": 0, "it": None}
+
     def save():
-        if not lead:
+        saves["last"] = time.time()
+        if not lead or saves["it"] == it:
             return
+        saves["it"] = it
+        ck = {"options": opts, "model": net.state_dict(), "adam": adam.state_dict(),
+              "schedule": sched.state_dict(), "numpy_rng": rng.bit_generator.state,
+              "torch_rng": torch.get_rng_state(), "iteration": it, "elapsed_s": elapsed,
+              "stats": stats, "blocks": a.blocks, "model_kind": a.model,
+              "save_id": f"{a.run_name or 'run'}@{it}/{os.urandom(6).hex()}"}
+        if device.type == "cuda":
+            ck["cuda_rng"] = torch.cuda.get_rng_state_all()
         tmp = ckpt_path + ".tmp"
-        torch.save({"options": opts, "model": net.state_dict(), "adam": adam.state_dict(),
-                    "schedule": sched.state_dict(), "numpy_rng": rng.bit_generator.state,
-                    "torch_rng": torch.get_rng_state(), "iteration": it, "elapsed_s": elapsed,
-                    "stats": stats, "blocks": a.blocks, "model_kind": a.model}, tmp)
+        torch.save(ck, tmp)
         os.replace(tmp, ckpt_path)
+        if a.state:
+            curve.flush()
+            n = compact.save(a.state, ck, {"run": a.run_name, "save_id": ck["save_id"],
+                                           "samples_seen": it * a.batch, "datasets": datasets,
+                                           "run_json": run_json})
+            with open(curve_path) as f:
+                compact.write_atomic(os.path.join(os.path.dirname(os.path.abspath(a.state)), "curve.csv"),
+                                     f.read().encode())
+            saves["n"] += 1
+            print(f"saved the state at iteration {it}: {a.state} ({n:,} bytes)", flush=True)
 
     stop = {"now": False}
     signal.signal(signal.SIGTERM, lambda *_: stop.update(now=True))
@@ -282,9 +460,19 @@ def main(argv=None):
     if a.qat:
         calibrate_int8()
     t0, run_loss, run_n = time.time(), 0.0, 0
-    start_elapsed = elapsed
+    start_elapsed, start_it = elapsed, it
+    last_val = {"it": None, "mse": None, "psnr": None, "s": 60.0}
+    step_s = 0.0
+
+    def validation():
+        t = time.time()
+        mse, psnr = validate(net, val, stats, device=device)
+        last_val.update(it=it, mse=mse, psnr=psnr, s=time.time() - t)
+        return mse, psnr
+
     end = a.iters if a.stop_at is None else min(a.iters, a.stop_at)
     while it < end:
+        ts = time.time()
         # Every rank draws the same global batch and takes its share: the
         # run does not depend on the number of processes.
         idx = rng.choice(train.n, size=a.batch, replace=False)[rank * share:(rank + 1) * share]
@@ -307,7 +495,7 @@ def main(argv=None):
             if a.qat:
                 calibrate_int8()
             if lead:
-                val_mse, val_psnr = validate(net, val, stats, device=device)
+                val_mse, val_psnr = validation()
             if world > 1:
                 torch.distributed.barrier()
         if lead and (it % a.log_every == 0 or val_mse != ""):
@@ -317,9 +505,14 @@ def main(argv=None):
             print(f"it {it} loss {run_loss / run_n:.5f} val_mse {val_mse} val_psnr {val_psnr} "
                   f"({elapsed / it if it else 0:.2f} s/it)", flush=True)
             run_loss, run_n = 0.0, 0
-        if it % a.val_every == 0:
+        if it % a.val_every == 0 or (a.save_every_minutes is not None
+                                     and time.time() - saves["last"] > 60 * a.save_every_minutes):
             save()
+        step_s = time.time() - ts if step_s == 0.0 else 0.9 * step_s + 0.1 * (time.time() - ts)
         halt = stop["now"] or (a.max_minutes is not None and time.time() - t0 > 60 * a.max_minutes)
+        # --deadline: one more step, a validation and a save must still fit
+        if a.deadline is not None and time.time() + step_s + 1.5 * last_val["s"] + 20 > a.deadline:
+            halt = True
         if world > 1:
             # every rank stops at the same iteration: rank 0's signal and clock decide
             flag = torch.tensor([float(halt)], device=device)
@@ -327,10 +520,25 @@ def main(argv=None):
             halt = bool(flag.item())
         if halt:
             break
+    if lead and (a.ledger or a.state) and it > start_it and last_val["it"] != it:
+        # the segment ends with its validation figures (for the ledger and the curve)
+        val_mse, val_psnr = validation()
+        cw.writerow([it, f"{elapsed:.1f}", f"{sched.get_last_lr()[0]:.3e}",
+                     f"{run_loss / run_n:.6f}" if run_n else "", val_mse, val_psnr])
+        curve.flush()
+        print(f"it {it} val_mse {val_mse} val_psnr {val_psnr} (end of segment)", flush=True)
     save()
+    train_s = time.time() - t0
     if lead:
         print(f"stopped at iteration {it} of {a.iters}; checkpoint {ckpt_path} "
               f"({world} process{'es' if world > 1 else ''} on {device.type})", flush=True)
+        if a.ledger and it > start_it:
+            row = ledger.append(a.ledger, run=a.run_name or os.path.basename(os.path.abspath(a.out)),
+                                model=a.model, blocks=a.blocks, device=device, world=world,
+                                precision=a.precision + (" + compile" if a.compile else ""),
+                                batch=a.batch, it_start=start_it, it_end=it, wall_s=train_s,
+                                val_mse=last_val["mse"], val_psnr=last_val["psnr"], note=a.ledger_note)
+            print(f"ledger {a.ledger}: {row}", flush=True)
     if world > 1:
         torch.distributed.destroy_process_group()
 
