@@ -13,7 +13,11 @@
 # autocast path is exported and checked too, int8 in onnxruntime's plain graph),
 # a 2-iteration fine-tuning (--init) on the taller geometry (int8 with the
 # float residual, the third graph form), and a 2-iteration
-# U-Net on FBP run once by the evaluation. Needs training/requirements.txt installed and
+# U-Net on FBP run once by the evaluation; and a run kept in the repository
+# continued by one command (continue_run.py: the datasets regenerated into a
+# cache, the compact state saved, restored on "another machine", a segment
+# stopped by SIGTERM, the ledger's lines, a changed dataset refused).
+# Needs training/requirements.txt installed and
 # the release binaries (host-sim, dbtor-diag).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -105,6 +109,46 @@ if $PY -m dbtor.train --data "$tmp/ds" --out "$tmp/from-tampered" --init "$tmp/t
     echo "smoke test: --init from a tampered model folder was accepted"; exit 1
 fi
 grep -q "fp32/dual00.onnx does not match its SHA-256" "$tmp/tampered.log" || { echo "smoke test: the tampered-folder refusal does not name the file"; cat "$tmp/tampered.log"; exit 1; }
+# A run kept in the repository and continued by one command (issue #49,
+# continue_run.py, state.py, ledger.py), rehearsed in a temporary runs folder,
+# cache and ledger: the recipe (two datasets of one geometry sampled
+# together; --init from the model folder above), a first
+# segment of 2 iterations (datasets generated, compact state saved, ledger
+# line), the local run folder deleted (another machine), a second segment
+# restored from the compact state and stopped by SIGTERM, a third to the end;
+# the state's round trip (weights exact); a changed dataset file refused by name.
+cont=($PY -m dbtor.continue_run --runs "$tmp/runs" --cache "$tmp/cache" --ledger "$tmp/ledger.md" --threads 2
+      --host-sim ../target/release/host-sim --quiet)
+$PY -m dbtor.continue_run new smoke --runs "$tmp/runs" --current --init "$tmp/model" \
+    --dataset "--slices 1500 --test-phantoms 0 --levels N8 --binning 4" \
+    --dataset "--slices 1500 --test-phantoms 0 --levels N8 --binning 4 --seed 7" \
+    --train "--model dbtor --level N8 --iters 8 --batch 2 --blocks 2 --val-every 4 --log-every 1"
+"${cont[@]}" --extra "--stop-at 2" 2>/dev/null | tee "$tmp/cont1.log"
+grep -q "initialised from model folder" "$tmp/cont1.log" || { echo "smoke test: the first segment did not start from --init"; exit 1; }
+grep -q "saved the state at iteration 2" "$tmp/cont1.log" || { echo "smoke test: no compact state saved"; exit 1; }
+rm -rf "$tmp/cache/runs/smoke"
+"${cont[@]}" 2>/dev/null > "$tmp/cont2.log" &
+pid=$!
+for _ in $(seq 600); do grep -q "^it 3 " "$tmp/cont2.log" && break; sleep 0.1; done
+kill -TERM $pid
+wait $pid || { echo "smoke test: the SIGTERM-stopped segment failed"; cat "$tmp/cont2.log"; exit 1; }
+cat "$tmp/cont2.log"
+grep -q "restored the compact state" "$tmp/cont2.log" || { echo "smoke test: the second segment did not restore the compact state"; exit 1; }
+stopped=$(sed -n 's/^stopped at iteration \([0-9]*\) of 8.*/\1/p' "$tmp/cont2.log")
+[ -n "$stopped" ] && [ "$stopped" -lt 8 ] || { echo "smoke test: SIGTERM did not stop the segment early"; exit 1; }
+"${cont[@]}" 2>/dev/null | tee "$tmp/cont3.log"
+grep -q "stopped at iteration 8 of 8" "$tmp/cont3.log" || { echo "smoke test: the third segment did not finish"; exit 1; }
+[ "$(grep -c '^| smoke |' "$tmp/ledger.md")" = 3 ] || { echo "smoke test: the ledger does not have 3 lines"; cat "$tmp/ledger.md"; exit 1; }
+tail -n 1 "$tmp/ledger.md" | grep -q "| $stopped -> 8 |" || { echo "smoke test: the ledger's last segment is wrong"; exit 1; }
+$PY -m dbtor.state show "$tmp/runs/smoke/state.dbts" > "$tmp/state.json"
+grep -q '"iteration": 8' "$tmp/state.json" || { echo "smoke test: the state is not at 8"; exit 1; }
+$PY -m dbtor.state roundtrip "$tmp/cache/runs/smoke/checkpoint.pt"
+ds=$(ls -d "$tmp"/cache/datasets/smoke-1-*)
+printf 'x' | dd of="$ds/validation/masks.u8" bs=1 seek=0 conv=notrunc 2>/dev/null
+if "${cont[@]}" 2> "$tmp/cont4.log" > /dev/null; then
+    echo "smoke test: a changed dataset was accepted"; exit 1
+fi
+grep -q "differs: validation/masks.u8" "$tmp/cont4.log" || { echo "smoke test: the dataset refusal does not name the file"; cat "$tmp/cont4.log"; exit 1; }
 # Quantisation-aware fine-tuning (2 iterations) and an export of its int8
 # blocks beside the first run's fp32 ones.
 $PY -m dbtor.train --data "$tmp/ds" --out "$tmp/qat-run" --init "$tmp/run" --qat --qat-calibration 2 \

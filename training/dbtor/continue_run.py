@@ -1,0 +1,265 @@
+"""Continue the current training run from its state in the repository (issue
+#49 point 2): one command for whoever has free cores or a GPU.
+
+    ./scripts/train-continue.sh [--minutes M | --until HH:MM] [--threads T] [--device auto]
+    python -m dbtor.continue_run  (the same, from training/)
+    python -m dbtor.continue_run new NAME --dataset 'ARGS' [--dataset 'ARGS'] --train 'ARGS'
+        [--init-git COMMIT:PATH | --init PATH] [--current]
+
+A run lives in `training/runs/NAME/`: `recipe.json` (written once by `new`:
+the datasets' exact `host-sim dataset` arguments and the commit whose
+generator made them, the trainer's options, where its weights started),
+`state.dbts` (the whole state, dbtor/state.py, replaced at every save) and
+`curve.csv`. `training/runs/CURRENT` names the run this command continues.
+
+What it does:
+1. each dataset of the recipe is looked up in the cache (`--cache`, default
+   $DBTOR_CACHE or ~/.cache/dbtor); a missing one is generated there (building
+   host-sim with cargo if needed, or `--host-sim BINARY`) into a temporary
+   folder renamed when complete, with RAYON_NUM_THREADS = --threads;
+2. the trainer (train.py) restores the state (or, for the first segment, starts
+   from the recipe's --init: a model folder, read from git history with
+   --init-git), refuses a dataset whose files' SHA-256 differ from the state's
+   (naming them), trains until the time limit or SIGTERM/SIGINT, saving the state every
+   --save-every-minutes (default 10) and at the end, and appends its line to
+   the ledger (training/LEDGER.md unless --ledger).
+
+The local run folder (`CACHE/runs/NAME`: checkpoint.pt, run.json, curve.csv)
+is a complete run folder for export.py.
+"""
+import argparse
+import datetime
+import hashlib
+import json
+import os
+import shlex
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+TRAINING = os.path.dirname(HERE)
+REPO = os.path.dirname(TRAINING)
+RUNS = os.path.join(TRAINING, "runs")
+LEDGER = os.path.join(TRAINING, "LEDGER.md")
+
+
+def git(*args, check=True):
+    r = subprocess.run(["git", "-C", REPO, *args], capture_output=True, text=True)
+    if check and r.returncode:
+        sys.exit(f"git {' '.join(args)}: {r.stderr.strip()}")
+    return r.stdout.strip()
+
+
+def cache_dir(a):
+    return os.path.abspath(a.cache or os.environ.get("DBTOR_CACHE") or os.path.expanduser("~/.cache/dbtor"))
+
+
+def dataset_key(name, k, entry):
+    h = hashlib.sha256(json.dumps([entry["args"], entry["generator_commit"]]).encode()).hexdigest()[:12]
+    return f"{name}-{k}-{h}"
+
+
+def host_sim_binary(a):
+    if a.host_sim:
+        return os.path.abspath(a.host_sim)
+    if shutil.which("cargo"):
+        print("building host-sim (cargo build --release -p host-sim)", flush=True)
+        subprocess.run(["cargo", "build", "--release", "--locked", "-q", "-p", "host-sim"], cwd=REPO, check=True)
+    binary = os.path.join(REPO, "target", "release", "host-sim")
+    if not os.path.exists(binary):
+        sys.exit("no host-sim: install Rust (cargo) or pass --host-sim BINARY")
+    return binary
+
+
+def make_dataset(a, entry, out, threads, child):
+    """Generate one dataset of the recipe into `out` (through out.partial)."""
+    commit = entry["generator_commit"]
+    if shutil.which("git") and os.path.exists(os.path.join(REPO, ".git")):
+        r = subprocess.run(["git", "-C", REPO, "diff", "--quiet", commit, "--", "host-sim", "crates", "Cargo.lock"],
+                           capture_output=True)
+        if r.returncode == 1:
+            print(f"note: the generator (host-sim, crates) differs from the recipe's commit {commit[:10]}; "
+                  "the trainer checks the dataset's SHA-256 against the state's", flush=True)
+    binary = host_sim_binary(a)
+    part = out + ".partial"
+    shutil.rmtree(part, ignore_errors=True)
+    os.makedirs(os.path.dirname(out), exist_ok=True)
+    cmd = [binary, "dataset", "--out", part, *shlex.split(entry["args"])]
+    print(f"generating {out}: {shlex.join(cmd)}", flush=True)
+    t = time.time()
+    env = dict(os.environ, RAYON_NUM_THREADS=str(threads))
+    p = subprocess.Popen(cmd, env=env, cwd=REPO, stderr=subprocess.DEVNULL if a.quiet else None)
+    child["p"] = p
+    rc = p.wait()
+    child["p"] = None
+    if rc:
+        shutil.rmtree(part, ignore_errors=True)
+        sys.exit(f"host-sim dataset failed (exit {rc})")
+    os.replace(part, out)
+    print(f"dataset made in {time.time() - t:.0f} s", flush=True)
+
+
+def parse_until(s):
+    """HH:MM (UTC, today or tomorrow) or an ISO date-time; a Unix time."""
+    now = datetime.datetime.now(datetime.timezone.utc)
+    try:
+        hh, mm = (int(x) for x in s.split(":"))
+        t = now.replace(hour=hh, minute=mm, second=0, microsecond=0)
+        if t <= now:
+            t += datetime.timedelta(days=1)
+        return t.timestamp()
+    except ValueError:
+        t = datetime.datetime.fromisoformat(s)
+        if t.tzinfo is None:
+            t = t.replace(tzinfo=datetime.timezone.utc)
+        return t.timestamp()
+
+
+def cmd_new(argv):
+    ap = argparse.ArgumentParser(prog="python -m dbtor.continue_run new")
+    ap.add_argument("name")
+    ap.add_argument("--dataset", action="append", required=True,
+                    help="the arguments of `host-sim dataset` without --out (quoted); repeat for several")
+    ap.add_argument("--train", required=True,
+                    help="train.py's options (quoted), without --data/--out/--device/--threads/--max-minutes")
+    ap.add_argument("--init-git", default=None, help="COMMIT:PATH of a model folder in git history")
+    ap.add_argument("--init", default=None, help="a model folder or run (the first segment's --init)")
+    ap.add_argument("--why", default="", help="a sentence recorded in the recipe")
+    ap.add_argument("--runs", default=RUNS)
+    ap.add_argument("--current", action="store_true", help="make it training/runs/CURRENT")
+    a = ap.parse_args(argv)
+    d = os.path.join(a.runs, a.name)
+    if os.path.exists(os.path.join(d, "recipe.json")):
+        sys.exit(f"{d}: the run exists")
+    commit = git("rev-parse", "HEAD")
+    dirty = bool(git("status", "--porcelain", "--", "host-sim", "crates", "Cargo.lock"))
+    train = shlex.split(a.train)
+    for bad in ("--data", "--out", "--device", "--threads", "--max-minutes", "--state", "--init"):
+        if bad in train:
+            sys.exit(f"--train: {bad} is set by continue_run, not by the recipe")
+    init = None
+    if a.init_git:
+        c, _, p = a.init_git.partition(":")
+        init = {"git": git("rev-parse", c), "path": p}
+    elif a.init:
+        init = {"path": os.path.abspath(a.init)}
+    recipe = {
+        "format": "dbtor-run/1",
+        "name": a.name,
+        "created": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        "why": a.why,
+        "datasets": [{"command": "host-sim dataset --out DIR " + shlex.join(shlex.split(ds)),
+                      "args": shlex.join(shlex.split(ds)),
+                      "generator_commit": commit, "generator_dirty": dirty} for ds in a.dataset],
+        "train": shlex.join(train),
+        "init": init,
+    }
+    if dirty:
+        print("warning: host-sim or crates have uncommitted changes; the recipe's generator commit "
+              "may not regenerate these datasets (the state's SHA-256 will tell)", file=sys.stderr)
+    os.makedirs(d, exist_ok=True)
+    with open(os.path.join(d, "recipe.json"), "w") as f:
+        json.dump(recipe, f, indent=1)
+        f.write("\n")
+    if a.current:
+        with open(os.path.join(a.runs, "CURRENT"), "w") as f:
+            f.write(a.name + "\n")
+    print(f"{d}/recipe.json written")
+
+
+def main(argv=None):
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["new"]:
+        return cmd_new(argv[1:])
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--run", default=None, help="the run's name (default: training/runs/CURRENT)")
+    lim = ap.add_mutually_exclusive_group()
+    lim.add_argument("--minutes", type=float, default=None, help="stop (saved) after this long, all included")
+    lim.add_argument("--until", default=None, help="stop (saved) by this time: HH:MM UTC or ISO date-time")
+    ap.add_argument("--threads", type=int, default=None, help="torch and host-sim threads (default: all)")
+    ap.add_argument("--device", default="auto", help="cpu, cuda or auto")
+    ap.add_argument("--cache", default=None, help="datasets and the local run folder (default $DBTOR_CACHE "
+                                                  "or ~/.cache/dbtor)")
+    ap.add_argument("--host-sim", default=None, help="a host-sim binary (otherwise built with cargo)")
+    ap.add_argument("--ledger", default=LEDGER)
+    ap.add_argument("--note", default="", help="recorded in the ledger line")
+    ap.add_argument("--save-every-minutes", type=float, default=10.0)
+    ap.add_argument("--no-compile", action="store_true", help="drop the recipe's --compile (speed only)")
+    ap.add_argument("--runs", default=RUNS, help="the runs folder (default training/runs)")
+    ap.add_argument("--extra", default="", help="more train.py options (quoted), e.g. '--stop-at 10'")
+    ap.add_argument("--quiet", action="store_true", help="hide host-sim's progress")
+    a = ap.parse_args(argv)
+    start = time.time()
+    deadline = None
+    if a.minutes is not None:
+        deadline = start + 60 * a.minutes
+    elif a.until:
+        deadline = parse_until(a.until)
+    name = a.run
+    if name is None:
+        with open(os.path.join(a.runs, "CURRENT")) as f:
+            name = f.read().strip()
+    rdir = os.path.join(a.runs, name)
+    with open(os.path.join(rdir, "recipe.json")) as f:
+        recipe = json.load(f)
+    state = os.path.join(rdir, "state.dbts")
+    cache = cache_dir(a)
+    threads = a.threads or os.cpu_count()
+
+    child = {"p": None}
+
+    def on_signal(sig, _):
+        if child["p"] is not None:
+            child["p"].terminate()
+        sys.exit(f"stopped by signal {sig} before training (nothing to save)")
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)}
+    data = []
+    for k, entry in enumerate(recipe["datasets"]):
+        d = os.path.join(cache, "datasets", dataset_key(name, k, entry))
+        if not os.path.exists(os.path.join(d, "manifest.json")):
+            make_dataset(a, entry, d, threads, child)
+        data.append(d)
+    init = []
+    if not os.path.exists(state) and recipe.get("init"):
+        src = recipe["init"]
+        if "git" in src:
+            dest = os.path.join(cache, "init", src["git"][:12])
+            path = os.path.join(dest, src["path"])
+            if not os.path.exists(path):
+                os.makedirs(dest, exist_ok=True)
+                arch = subprocess.run(["git", "-C", REPO, "archive", src["git"], src["path"]], capture_output=True,
+                                      check=True).stdout
+                subprocess.run(["tar", "-x", "-C", dest], input=arch, check=True)
+            init = ["--init", path]
+        else:
+            init = ["--init", src["path"]]
+    for s, h in old.items():
+        signal.signal(s, h)
+
+    train = shlex.split(recipe["train"])
+    if a.no_compile and "--compile" in train:
+        train.remove("--compile")
+    out = os.path.join(cache, "runs", name)
+    recipe_file = os.path.join(rdir, "recipe.json")
+    args = ["--data", *data, "--out", out, *train, *init, "--state", state, "--run-name", name,
+            "--recipe", recipe_file, "--device", a.device, "--threads", str(threads),
+            "--save-every-minutes", str(a.save_every_minutes), "--ledger", a.ledger,
+            "--ledger-note", a.note, *shlex.split(a.extra)]
+    if deadline is not None:
+        if deadline - time.time() < 60:
+            sys.exit("less than a minute left before the time limit: nothing to do")
+        args += ["--deadline", str(deadline)]
+    print("python -m dbtor.train " + shlex.join(args), flush=True)
+    # torch is imported only now, so that these reach its thread pools and compiler
+    os.environ.setdefault("OMP_NUM_THREADS", str(threads))
+    os.environ.setdefault("TORCHINDUCTOR_COMPILE_THREADS", str(threads))
+    from . import train as trainer
+    trainer.main(args)
+
+
+if __name__ == "__main__":
+    main()
