@@ -9,7 +9,7 @@ the GPU), device and processes, torch threads, precision, samples seen at
 the start and the end (iterations x batch), iterations, wall time of the
 segment's training (validations and saves included), samples/s over it,
 validation MSE and PSNR (the trainer's 32 validation slices) at the end, the
-repository commit the trainer ran from, a note.
+repository commit the trainer started from, a note.
 """
 import datetime
 import os
@@ -66,6 +66,10 @@ def commit():
         return "-"
 
 
+# the commit the trainer started from (read when train.py imports this module)
+STARTED_AT = commit()
+
+
 def append(path, *, run, model, blocks, device, world, precision, batch, it_start, it_end, wall_s,
            val_mse, val_psnr, note=""):
     """Append one row (the file and its header made if missing); returns the row."""
@@ -85,7 +89,7 @@ def append(path, *, run, model, blocks, device, world, precision, batch, it_star
         f"{samples / wall_s:.3f}" if wall_s > 0 else "-",
         f"{val_mse:.6f}" if val_mse is not None else "-",
         f"{val_psnr:.3f}" if val_psnr is not None else "-",
-        commit(),
+        STARTED_AT,
         note.replace("|", "/") or "-",
     ]
     row = "| " + " | ".join(c.replace("|", "/") for c in cells) + " |\n"

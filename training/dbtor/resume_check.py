@@ -3,8 +3,9 @@ save of a run, continue N iterations three ways on the same batches and
 compare the training losses and the final validation:
 
 - exact: the local checkpoint.pt (float32 weights and Adam's moments as trained);
-- compact: the repository's state.dbts of the same save (state.py: exact
-  weights, 8-bit moments);
+- compact: the state file of the same save (state.py: exact weights,
+  bfloat16 moments), restored by the trainer;
+- compact log8: the same with the 8-bit log code for the moments;
 - bf16 weights: the exact checkpoint with its weights rounded to bfloat16
   (what keeping only bf16 weights in the state would cost).
 
@@ -31,6 +32,9 @@ from . import state as compact
 from . import train as trainer
 
 
+VARIANTS = ("exact", "compact", "compact log8", "bf16 weights")
+
+
 def losses(run_dir):
     with open(os.path.join(run_dir, "curve.csv")) as f:
         rows = list(csv.DictReader(f))
@@ -55,31 +59,40 @@ def main(argv=None):
     cache = cr.cache_dir(a)
     data = [os.path.join(cache, "datasets", cr.dataset_key(name, k, e)) for k, e in enumerate(recipe["datasets"])]
     local = os.path.join(cache, "runs", name)
-    state = os.path.join(rdir, "state.dbts")
+    tmp = tempfile.mkdtemp(prefix="resume-check-")
+    # copies first: a trainer still running may save again meanwhile
+    saved = os.path.join(tmp, "saved")
+    os.makedirs(os.path.join(saved, "state"))
+    for f in ("checkpoint.pt", "run.json"):
+        shutil.copy(os.path.join(local, f), saved)
+    state = os.path.join(saved, "state", "state.dbts")
+    shutil.copy(os.path.join(rdir, "state.dbts"), state)
     header = compact.read_header(state)
-    ck = torch.load(os.path.join(local, "checkpoint.pt"), weights_only=False)
+    ck = torch.load(os.path.join(saved, "checkpoint.pt"), weights_only=False)
     if ck.get("save_id") != header.get("save_id"):
+        shutil.rmtree(tmp, ignore_errors=True)
         sys.exit(f"{local}/checkpoint.pt is save {ck.get('save_id')}, the state {header.get('save_id')}: "
                  "not the same save")
     it0 = ck["iteration"]
     train = [x for x in shlex.split(recipe["train"]) if x != "--compile"]
     base = ["--data", *data, *train, "--stop-at", str(it0 + a.iters), "--log-every", "1",
             "--threads", str(a.threads), "--device", "cpu"]
-    tmp = tempfile.mkdtemp(prefix="resume-check-")
     results = {}
     try:
-        for variant in ("exact", "compact", "bf16 weights"):
+        for variant in VARIANTS:
             out = os.path.join(tmp, variant.replace(" ", "-"))
             os.makedirs(out)
-            shutil.copy(os.path.join(local, "run.json"), out)
+            shutil.copy(os.path.join(saved, "run.json"), out)
             extra = []
             if variant == "exact":
-                shutil.copy(os.path.join(local, "checkpoint.pt"), out)
-            elif variant == "compact":
-                sdir = os.path.join(tmp, "state")
-                os.makedirs(sdir)
-                shutil.copy(state, sdir)
-                extra = ["--state", os.path.join(sdir, "state.dbts"), "--run-name", name]
+                shutil.copy(os.path.join(saved, "checkpoint.pt"), out)
+            elif variant.startswith("compact"):
+                # the state file of this save, written with the moments' code named
+                sfile = os.path.join(out + "-state", "state.dbts")
+                hx = {k: header[k] for k in ("run", "save_id", "samples_seen", "datasets", "run_json")}
+                compact.save(sfile, ck, hx, moments="log8" if "log8" in variant else "bf16")
+                print(f"{variant}: {os.path.getsize(sfile):,} bytes", flush=True)
+                extra = ["--state", sfile, "--run-name", name]
             else:
                 c = dict(ck)
                 c["model"] = {k: v.to(torch.bfloat16).float() for k, v in ck["model"].items()}
@@ -92,11 +105,10 @@ def main(argv=None):
     ex = results["exact"]
     print(f"\n{name}, from iteration {it0} ({header['save_id']}), {a.iters} iterations, "
           f"{a.threads} thread(s), no compile\n")
-    print("| iteration | exact loss | compact loss | bf16-weights loss |\n|---|---|---|---|")
+    print("| iteration | " + " | ".join(f"{v} loss" for v in VARIANTS) + " |\n|---" * (len(VARIANTS) + 1) + "|")
     for i, r in enumerate(ex):
-        print(f"| {r['iteration']} | {r['train_loss']} | {results['compact'][i]['train_loss']} | "
-              f"{results['bf16 weights'][i]['train_loss']} |")
-    for v in ("compact", "bf16 weights"):
+        print(f"| {r['iteration']} | " + " | ".join(results[v][i]["train_loss"] for v in VARIANTS) + " |")
+    for v in VARIANTS[1:]:
         d = [abs(float(x["train_loss"]) - float(e["train_loss"])) / float(e["train_loss"])
              for x, e in zip(results[v], ex)]
         last, lex = results[v][-1], ex[-1]

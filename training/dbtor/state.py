@@ -12,21 +12,28 @@ the numpy generator's state (the data position: batches are drawn from it),
 torch's CPU generator state (and CUDA's where there is one), the cosine
 schedule, Adam's hyper-parameters and step counts, the normalisation, the
 dataset recipes with each dataset file's SHA-256, run.json, and the index of
-the payload's arrays with the payload's SHA-256. The payload holds:
+the payload's arrays with the payload's SHA-256. Every array is stored as
+byte planes (the most significant byte of every value, then the next, ...:
+zlib then finds the repeating sign and exponent bytes). The payload holds:
 
 - the model's parameters and buffers as float32, exactly (the master weights:
-  ~0.89 M parameters of DBToR are 3.5 MB; at that size exactness is kept
-  rather than bf16, see training/README.md for the measured cost of bf16);
-- Adam's two moments, 8-bit (float32 for tensors of at most 4,096 values:
-  biases, PReLU slopes, the output convolutions), blockwise in the log
-  domain: each block of 64
-  values stores log2 of its smallest and largest nonzero magnitude (float32),
-  and each value one byte, 0 for an exact zero, otherwise its log2-magnitude
-  rounded to one of 255 levels between the two (exp_avg_sq) or a sign bit and
-  127 levels (exp_avg). The error is relative, the same for large and small
-  values (a linear 8-bit code would round the small second moments to zero
-  and make their updates explode): at most 2^(step/2) - 1 where step =
-  (hi - lo) / 254 (or / 126) octaves, typically well under 1 %.
+  DBToR's 886,500 parameters are 3.5 MB; at that size exactness is kept
+  rather than bf16, see training/README.md for the measured cost of bf16
+  weights);
+- Adam's two moments in bfloat16 (rounded to nearest even; relative error
+  at most 2^-9).
+- `pack(moments="log8")` (and `roundtrip --moments log8`) writes the
+  alternative, which unpack also reads: blockwise (64 values) in the log
+  domain, log2 of the block's smallest and largest magnitude as float32 and
+  each value one byte (0 for zero, else its log2-magnitude rounded to one
+  of 255 levels between the two, or a sign bit and 127 levels for the first
+  moment; values too small to move Adam's step by 1e-3 of lr stored as 0;
+  tensors of at most 4,096 values, whose few values span the widest
+  ranges, in float32).
+  Its codes hardly compress, while bfloat16's sign-and-exponent bytes do:
+  for DBToR it is no smaller than bfloat16 and four times less precise
+  (training/README.md). The first segment of dbtor-x4w wrote its states
+  this way.
 
 Written atomically (a temporary file in the same folder, fsync, os.replace):
 a run killed while saving leaves the previous state whole.
@@ -48,8 +55,9 @@ import torch
 MAGIC = b"DBTORSTATE1\n"
 FORMAT = "dbtor-state/1"
 BLOCK = 64
-# Moments of tensors this small (biases, PReLU slopes, the 5-channel output
-# convolutions) are kept exactly: their few values span the widest ranges.
+# With the log8 code, moments of tensors this small (biases, PReLU slopes, the
+# 5-channel output convolutions) are kept exactly: their few values span the
+# widest ranges.
 EXACT_MOMENTS = 4096
 
 
@@ -128,9 +136,32 @@ def _unb64(s):
     return torch.from_numpy(np.frombuffer(base64.b64decode(s), dtype=np.uint8).copy())
 
 
-def pack(ck, header_extra):
+def planes(a):
+    """The bytes of an array, most significant byte of every value first,
+    then the next, ... (sign and exponent bytes repeat; zlib finds them)."""
+    b = np.ascontiguousarray(a).view(np.uint8).reshape(-1, a.dtype.itemsize)
+    return np.ascontiguousarray(b[:, ::-1].T)
+
+
+def unplanes(b, dtype, shape):
+    size = np.dtype(dtype).itemsize
+    x = np.frombuffer(b, np.uint8).reshape(size, -1)[::-1].T
+    return np.ascontiguousarray(x).view(dtype).reshape(shape)
+
+
+def to_bf16_bits(a):
+    """float32 -> bfloat16 bits (uint16), rounded to nearest even (torch's)."""
+    return torch.from_numpy(np.ascontiguousarray(a, np.float32)).to(torch.bfloat16).view(torch.int16).numpy().view(np.uint16)
+
+
+def from_bf16_bits(u):
+    return (u.astype(np.uint32) << 16).view(np.float32)
+
+
+def pack(ck, header_extra, moments="bf16"):
     """The compact file's bytes from a trainer checkpoint dict (train.py's
-    save()) and extra header fields (run name, recipes, run.json, ...)."""
+    save()) and extra header fields (run name, recipes, run.json, ...).
+    moments: "bf16" (the format's default) or "log8" (the 8-bit log code)."""
     arrays, index, off = [], [], 0
 
     def add(name, kind, data, **meta):
@@ -144,7 +175,7 @@ def pack(ck, header_extra):
         a = t.detach().cpu().float().numpy()
         if t.dtype != torch.float32:
             raise StateError(f"model tensor {k} is {t.dtype}, not float32")
-        add(f"model/{k}", "f32", np.ascontiguousarray(a), shape=list(a.shape))
+        add(f"model/{k}", "f32p", planes(a), shape=list(a.shape))
     adam = ck["adam"]
     steps = {}
     eps = adam["param_groups"][0]["eps"]
@@ -153,8 +184,11 @@ def pack(ck, header_extra):
         v = st["exp_avg_sq"].detach().cpu().float().numpy()
         for mom, signed in (("exp_avg", True), ("exp_avg_sq", False)):
             a = st[mom].detach().cpu().float().numpy()
+            if moments == "bf16":
+                add(f"adam/{pid}/{mom}", "bf16p", planes(to_bf16_bits(a)), shape=list(a.shape))
+                continue
             if a.size <= EXACT_MOMENTS:
-                add(f"adam/{pid}/{mom}", "f32", np.ascontiguousarray(a), shape=list(a.shape))
+                add(f"adam/{pid}/{mom}", "f32p", planes(a), shape=list(a.shape))
                 continue
             code, lo, hi = encode_log8(a, signed, floor=moment_floor(mom, v, eps))
             add(f"adam/{pid}/{mom}", "log8s" if signed else "log8", code, shape=list(a.shape), blocks=int(lo.size))
@@ -176,8 +210,9 @@ def pack(ck, header_extra):
         "cuda_rng": [_b64(s) for s in ck.get("cuda_rng", [])],
         "schedule": ck["schedule"],
         "adam": {"param_groups": groups, "steps": steps},
-        "moment_code": f"log2 8-bit, blocks of {BLOCK}; float32 for tensors of at most {EXACT_MOMENTS} values "
-                       "(dbtor/state.py)",
+        "moment_code": ("bfloat16 (round to nearest even; dbtor/state.py)" if moments == "bf16" else
+                        f"log2 8-bit, blocks of {BLOCK}; float32 for tensors of at most {EXACT_MOMENTS} values "
+                        "(dbtor/state.py)"),
         "arrays": index,
         "payload_bytes": len(payload),
         "payload_sha256": hashlib.sha256(payload).hexdigest(),
@@ -212,7 +247,18 @@ def unpack(path, device="cpu"):
     arr = {}
     for e in header["arrays"]:
         b = raw[e["offset"]:e["offset"] + e["bytes"]]
-        arr[e["name"]] = (e, np.frombuffer(b, dtype=np.uint8 if e["kind"].startswith("log8") else np.float32))
+        kind = e["kind"]
+        if kind == "f32p":
+            v = unplanes(b, np.float32, e["shape"])
+        elif kind == "bf16p":
+            v = from_bf16_bits(unplanes(b, np.uint16, e["shape"]))
+        elif kind.startswith("log8"):
+            v = np.frombuffer(b, dtype=np.uint8)
+        elif kind == "f32":
+            v = np.frombuffer(b, dtype=np.float32)
+        else:
+            raise StateError(f"{path}: array {e['name']} of unknown kind {kind!r}")
+        arr[e["name"]] = (e, v)
     model = {}
     for name, (e, a) in arr.items():
         if name.startswith("model/"):
@@ -222,7 +268,7 @@ def unpack(path, device="cpu"):
         st = {"step": torch.tensor(step)}
         for mom, signed in (("exp_avg", True), ("exp_avg_sq", False)):
             e, code = arr[f"adam/{pid}/{mom}"]
-            if e["kind"] == "f32":
+            if e["kind"] in ("f32", "f32p", "bf16p"):
                 st[mom] = torch.from_numpy(code.reshape(e["shape"]).copy()).to(device)
                 continue
             lo = arr[f"adam/{pid}/{mom}/lo"][1]
@@ -251,8 +297,8 @@ def write_atomic(path, data):
     os.replace(tmp, path)
 
 
-def save(path, ck, header_extra):
-    data = pack(ck, header_extra)
+def save(path, ck, header_extra, moments="bf16"):
+    data = pack(ck, header_extra, moments=moments)
     write_atomic(path, data)
     return len(data)
 
@@ -308,17 +354,17 @@ def compare_fingerprints(want, have, where):
 
 # ---------------------------------------------------------------- command line
 
-def _roundtrip(path):
+def _roundtrip(path, moments):
     ck = torch.load(path, weights_only=False, map_location="cpu")
-    blob = pack(ck, {"run": "roundtrip"})
+    blob = pack(ck, {"run": "roundtrip"}, moments=moments)
     tmp = io.BytesIO(blob)
     tmp_path = path + ".roundtrip.tmp"
     write_atomic(tmp_path, tmp.getvalue())
     back, _ = unpack(tmp_path)
     os.remove(tmp_path)
     n_params = sum(t.numel() for t in ck["model"].values())
-    print(f"{len(ck['model'])} model tensors, {n_params:,} values; state file {len(blob):,} bytes "
-          f"({len(blob) / 2**20:.2f} MiB)")
+    print(f"{len(ck['model'])} model tensors, {n_params:,} values; moments {moments}: state file "
+          f"{len(blob):,} bytes ({len(blob) / 2**20:.2f} MiB; the torch checkpoint {os.path.getsize(path):,})")
     for k in ck["model"]:
         assert torch.equal(back["model"][k], ck["model"][k].cpu()), k
     for mom in ("exp_avg", "exp_avg_sq"):
@@ -361,6 +407,7 @@ def main(argv=None):
     u.add_argument("--out", required=True)
     r = sub.add_parser("roundtrip")
     r.add_argument("checkpoint")
+    r.add_argument("--moments", choices=["bf16", "log8"], default="bf16")
     a = ap.parse_args(argv)
     try:
         if a.cmd == "show":
@@ -383,7 +430,7 @@ def main(argv=None):
                     g.write(f.read())
             print(f"{a.out}: checkpoint.pt (iteration {ck['iteration']}), run.json, curve.csv")
         else:
-            _roundtrip(a.checkpoint)
+            _roundtrip(a.checkpoint, a.moments)
     except StateError as e:
         sys.exit(str(e))
 
