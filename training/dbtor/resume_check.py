@@ -105,7 +105,7 @@ def main(argv=None):
     ex = results["exact"]
     print(f"\n{name}, from iteration {it0} ({header['save_id']}), {a.iters} iterations, "
           f"{a.threads} thread(s), no compile\n")
-    print("| iteration | " + " | ".join(f"{v} loss" for v in VARIANTS) + " |\n|---" * (len(VARIANTS) + 1) + "|")
+    print("| iteration | " + " | ".join(f"{v} loss" for v in VARIANTS) + " |\n" + "|---" * (len(VARIANTS) + 1) + "|")
     for i, r in enumerate(ex):
         print(f"| {r['iteration']} | " + " | ".join(results[v][i]["train_loss"] for v in VARIANTS) + " |")
     for v in VARIANTS[1:]:
