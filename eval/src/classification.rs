@@ -31,6 +31,18 @@ pub fn truth_on_grid(
     geom: &Geometry,
     dims: [usize; 3],
 ) -> anyhow::Result<Vec<u8>> {
+    Ok(truth_and_mu_on_grid(vol, geom, dims)?.0)
+}
+
+/// [`truth_on_grid`] and the truth's attenuation on the same grid (1/mm):
+/// the partial volumes' mean attenuation where the phantom has them, else
+/// its labels' (`dbt_phantom::Slice::mu`), exactly what the acquisition
+/// projects.
+pub fn truth_and_mu_on_grid(
+    vol: &LabelVolume,
+    geom: &Geometry,
+    dims: [usize; 3],
+) -> anyhow::Result<(Vec<u8>, Vec<f32>)> {
     let [cols, nv, nd] = dims;
     anyhow::ensure!(
         cols == geom.image.columns && nv <= geom.image.rows && nd == vol.n_coronal(),
@@ -41,15 +53,18 @@ pub fn truth_on_grid(
     );
     let rows = geom.image.rows;
     let mut out = vec![0u8; cols * nv * nd];
+    let mut mu = vec![0f32; cols * nv * nd];
     for d in 0..nd {
         let s = coronal_slice(vol, d, geom)?;
+        let m = s.mu();
         for v in 0..nv {
             let r = rows - 1 - v;
             let dst = (d * nv + v) * cols;
             out[dst..dst + cols].copy_from_slice(&s.labels[r * cols..(r + 1) * cols]);
+            mu[dst..dst + cols].copy_from_slice(&m[r * cols..(r + 1) * cols]);
         }
     }
-    Ok(out)
+    Ok((out, mu))
 }
 
 /// Voxel counts `[true class][estimated class]` over [`CLASSES`] (labels
@@ -104,7 +119,7 @@ pub struct VariantSummary {
 /// and the automatic exposure of `beam` for `thickness_mm`, to relative
 /// uncertainty `target`.
 #[allow(clippy::too_many_arguments)]
-fn mgd_per_kerma(
+pub fn mgd_per_kerma(
     beam: dbt_dose::xray::AnodeFilter,
     labels: &[u8],
     dims: [usize; 3],

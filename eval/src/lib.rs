@@ -10,6 +10,7 @@
 
 pub mod accuracy;
 pub mod classification;
+pub mod ladder;
 pub mod picture;
 pub mod unet;
 

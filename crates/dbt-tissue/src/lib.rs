@@ -581,6 +581,59 @@ pub fn density(mu: &[f32], labels: &[u8], voxel_mm: f64) -> Density {
     }
 }
 
+/// Glandularity by mass from each column's attenuation along the beam
+/// (issue #48): a tomosynthesis reconstruction is exact across the x-rays
+/// and blurred along them (the limited angle leaves the frequencies along
+/// the beam unmeasured), so tissue it misplaces in height stays in its
+/// column (lateral, depth), whose sum the central view measures. For every
+/// column holding non-skin breast voxels (labels adipose, fibroglandular,
+/// ligament) the whole column's attenuation (every row of the volume,
+/// whatever its label: what leaked into the air above or below the breast
+/// counts), less the skin voxels' nominal attenuation, is spread over those
+/// voxels: their mean attenuation gives the column's fibroglandular
+/// fraction `f = (m - mu_a) / (mu_g - mu_a)`, clamped to 0..1 per column
+/// (not per voxel: a voxel that reads above the fibroglandular value keeps
+/// its excess for its column's fatter voxels). The breast's height in each
+/// column is the labels'. `dims = [lateral, vertical, depth]`.
+pub fn column_glandularity(mu: &[f32], labels: &[u8], dims: [usize; 3]) -> Option<f64> {
+    let [nx, ny, nz] = dims;
+    if mu.len() != nx * ny * nz || labels.len() != mu.len() {
+        return None;
+    }
+    let (ma, mg, ms) = (
+        Tissue::Adipose.mu_per_mm() as f64,
+        Tissue::Fibroglandular.mu_per_mm() as f64,
+        Tissue::Skin.mu_per_mm() as f64,
+    );
+    let (ra, rg) = (
+        Tissue::Adipose.density_g_cm3(),
+        Tissue::Fibroglandular.density_g_cm3(),
+    );
+    let skin = Tissue::Skin.label();
+    let (mut mass_g, mut mass_a) = (0.0, 0.0);
+    for z in 0..nz {
+        for x in 0..nx {
+            let (mut sum, mut n) = (0.0f64, 0usize);
+            for y in 0..ny {
+                let i = (z * ny + y) * nx + x;
+                let l = labels[i];
+                if l == skin {
+                    sum -= ms;
+                } else if matches!(l, 1 | 3 | 4) {
+                    n += 1;
+                }
+                sum += mu[i] as f64;
+            }
+            if n > 0 {
+                let f = ((sum / n as f64 - ma) / (mg - ma)).clamp(0.0, 1.0);
+                mass_g += n as f64 * f * rg;
+                mass_a += n as f64 * (1.0 - f) * ra;
+            }
+        }
+    }
+    (mass_g + mass_a > 0.0).then(|| mass_g / (mass_g + mass_a))
+}
+
 /// The compressed thickness a calibration's thickness term is centred on,
 /// mm.
 pub const CALIBRATION_THICKNESS_REF_MM: f64 = 50.0;
@@ -753,6 +806,38 @@ impl GlandularityCalibration {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The column estimate reads a column's composition wherever in its
+    /// height the attenuation sits, in the air above it or below the skin;
+    /// and it reads a uniform mixture exactly.
+    #[test]
+    fn the_column_estimate_ignores_where_in_height_the_attenuation_sits() {
+        // One column of 6 rows: skin, 4 breast voxels (2 fat, 2 gland), air.
+        let labels = [2u8, 1, 1, 3, 3, 0];
+        let exact = [S, A, A, G, G, 0.0];
+        let g = column_glandularity(&exact, &labels, [1, 6, 1]).unwrap();
+        let want = glandularity(2, 2).unwrap();
+        assert!((g - want).abs() < 1e-6, "{g} against {want}");
+        // The same attenuation, the gland smeared upward into the air and
+        // the skin: the voxel estimate falls, the column's does not.
+        let smeared = [S + 0.01, A, A, G - 0.01, G - 0.02, 0.02];
+        let moved = column_glandularity(&smeared, &labels, [1, 6, 1]).unwrap();
+        assert!((moved - want).abs() < 1e-6, "{moved} against {want}");
+        let voxelwise = density(&smeared, &labels, 1.0).glandularity_partial_volume;
+        assert!(voxelwise < want - 0.05);
+        // A uniform 30 % mixture in two columns reads 30 % by volume.
+        let m = A + 0.3 * (G - A);
+        let g = column_glandularity(&[m; 4], &[1; 4], [2, 2, 1]).unwrap();
+        let (ra, rg) = (
+            Tissue::Adipose.density_g_cm3(),
+            Tissue::Fibroglandular.density_g_cm3(),
+        );
+        let by_mass = 0.3 * rg / (0.3 * rg + 0.7 * ra);
+        assert!((g - by_mass).abs() < 1e-6);
+        // No breast: no estimate; a size mismatch: none either.
+        assert_eq!(column_glandularity(&[0.0; 2], &[0; 2], [1, 2, 1]), None);
+        assert_eq!(column_glandularity(&[0.0; 3], &[0; 2], [1, 2, 1]), None);
+    }
 
     const A: f32 = 0.0512;
     const G: f32 = 0.0798;

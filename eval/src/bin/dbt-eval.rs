@@ -111,6 +111,12 @@ enum Cmd {
     /// glandularity errors and confusion matrices (no dose). Tune here on the
     /// validation split; report with `accuracy` on the test split.
     Classification(ClassificationArgs),
+    /// The error ladder (issue #48): one phantom's pipeline with one stage
+    /// at a time replaced by the truth (attenuation, outline and skin,
+    /// noise, reconstructor), glandularity, MGD, voxel confusion and the
+    /// error by distance from the skin and by depth at each rung; the
+    /// split's summary per rung. Decide on the validation split.
+    Ladder(LadderArgs),
     /// Fit the glandularity calibration of a model at one precision on the
     /// validation split (never the test split): the firmware's partial-volume
     /// estimate against the phantoms' truth, `G = offset + slope * estimate`,
@@ -478,6 +484,42 @@ struct ClassificationArgs {
     dose_uncertainty: Option<f64>,
     /// JSON output.
     #[arg(long, default_value = "eval/results/classification.json")]
+    json: PathBuf,
+    #[command(flatten)]
+    runtime: Runtime,
+}
+
+/// The options of `dbt-eval ladder`.
+#[derive(Args)]
+struct LadderArgs {
+    /// Phantoms: the first N of the split.
+    #[arg(long, default_value_t = 10)]
+    phantoms: usize,
+    #[command(flatten)]
+    split: SplitArgs,
+    /// This external phantom (sidecar) instead.
+    #[arg(long)]
+    phantom: Option<PathBuf>,
+    /// The DBToR model (its calibration is the firmware's).
+    #[arg(long)]
+    model: PathBuf,
+    /// Model precision (fp32, int8).
+    #[arg(long, default_value = "int8")]
+    precision: String,
+    /// Noise level of the noisy rung.
+    #[arg(long, default_value = "N8")]
+    noise: String,
+    /// MLTR iterations of the MLTR rung (0 leaves it out).
+    #[arg(long, default_value_t = 100)]
+    mltr_iterations: usize,
+    /// Relative Monte Carlo uncertainty of each rung's MGD (0: no dose).
+    #[arg(long, default_value_t = 0.02)]
+    dose_uncertainty: f64,
+    /// Band tables (skin distance, depth) printed per phantom.
+    #[arg(long)]
+    bands: bool,
+    /// JSON output.
+    #[arg(long, default_value = "eval/results/ladder.json")]
     json: PathBuf,
     #[command(flatten)]
     runtime: Runtime,
@@ -885,6 +927,7 @@ fn main() -> Result<()> {
         Cmd::Accuracy(args) => run_accuracy(args),
         Cmd::Paired(args) => run_paired(args),
         Cmd::Classification(args) => run_classification(args),
+        Cmd::Ladder(args) => run_ladder(args),
         Cmd::Calibrate(args) => run_calibrate(args),
         Cmd::Anatomy(args) => run_anatomy(args),
         Cmd::Picture(args) => run_picture(args),
@@ -1466,6 +1509,131 @@ fn run_classification(args: ClassificationArgs) -> Result<()> {
             "geometry": g.describe(),
             "classes": CLASSES,
             "variants": out,
+        }),
+    )?;
+    println!("\nJSON: {}", json.display());
+    Ok(())
+}
+
+/// `dbt-eval ladder`.
+fn run_ladder(args: LadderArgs) -> Result<()> {
+    let LadderArgs {
+        phantoms,
+        split,
+        phantom,
+        model,
+        precision,
+        noise,
+        mltr_iterations,
+        dose_uncertainty,
+        bands,
+        json,
+        runtime,
+    } = args;
+    use dbt_eval::ladder::{band_table, run_ladder, summarise, summary_table, LadderSetup};
+    let m = load_models(Some(&model), &precision, &runtime)?
+        .pop()
+        .map(|(_, m)| std::sync::Arc::new(m))
+        .context("no model loaded")?;
+    let classify = dbt_tissue::ClassifyOptions::default();
+    let (calibration, _) =
+        dbt_model::load_calibrations(&m, &classify, dbt_model::InputCorrections::default())?;
+    let population = split.population;
+    let split = split.resolve(Some(&m))?;
+    let g = m.geometry().clone();
+    let setup = LadderSetup {
+        opts: dbt_pipeline::PipelineOptions {
+            dbtor: Some(m),
+            calibration,
+            classify,
+            ..Default::default()
+        },
+        noise: NoiseLevel::parse(&noise)?,
+        mltr_iterations: (mltr_iterations > 0).then_some(mltr_iterations),
+        dose_uncertainty: (dose_uncertainty > 0.0).then_some(dose_uncertainty),
+        seed: 1,
+    };
+    let reconstructor = dbt_pipeline::reconstructor_name(&setup.opts);
+    let t0 = Instant::now();
+    let inputs = phantom_inputs(phantom.as_deref(), &g, split, population, phantoms);
+    let bar = Progress::new(inputs.len() as u64, "ladder", "phantoms", false);
+    let mut cases = Vec::new();
+    for (k, item) in inputs.into_iter().enumerate() {
+        let (name, vol) = item?;
+        bar.message(name.clone());
+        let setup = LadderSetup {
+            seed: 1000 + k as u64,
+            ..setup.clone()
+        };
+        let c = run_ladder(&name, &vol, &g, &setup)?;
+        let mut line = format!(
+            "{name}: T {:.1} mm, G true {:.3}, fill {:.3}; reported - truth (pp):",
+            c.thickness_mm, c.g_true, c.fill
+        );
+        for r in &c.rungs {
+            line += &format!(" {} {:+.1}", r.name, 100.0 * (r.g_reported - c.g_true));
+        }
+        bar.inc(1);
+        bar.line(line);
+        if bands {
+            let rows: Vec<(&str, &[dbt_eval::ladder::BandStats])> = c
+                .rungs
+                .iter()
+                .skip(1)
+                .map(|r| (r.name.as_str(), r.by_skin_distance.as_slice()))
+                .collect();
+            bar.line(band_table(
+                &format!("{name}: distance from the skin"),
+                &rows,
+            ));
+            let rows: Vec<(&str, &[dbt_eval::ladder::BandStats])> = c
+                .rungs
+                .iter()
+                .skip(1)
+                .map(|r| (r.name.as_str(), r.by_height.as_slice()))
+                .collect();
+            bar.line(band_table(
+                &format!("{name}: height above the support"),
+                &rows,
+            ));
+            let rows: Vec<(&str, &[dbt_eval::ladder::BandStats])> = c
+                .rungs
+                .iter()
+                .skip(1)
+                .map(|r| (r.name.as_str(), r.by_chest_wall.as_slice()))
+                .collect();
+            bar.line(band_table(
+                &format!("{name}: distance from the chest wall"),
+                &rows,
+            ));
+        }
+        cases.push(c);
+    }
+    bar.finish();
+    let source = match &phantom {
+        Some(p) => p.display().to_string(),
+        None => format!(
+            "{} {population} phantoms of the {} split",
+            cases.len(),
+            split.describe()
+        ),
+    };
+    let summary = summarise(&cases);
+    println!(
+        "Ladder on {source}, {reconstructor}, noisy rung {} ({:.0} s); errors against the truth, bias +- sd\n",
+        setup.noise.name(),
+        t0.elapsed().as_secs_f64()
+    );
+    print!("{}", summary_table(&summary));
+    write_json(
+        &json,
+        &serde_json::json!({
+            "phantoms": source,
+            "reconstructor": reconstructor,
+            "geometry": g.describe(),
+            "noise": setup.noise.name(),
+            "summary": summary,
+            "cases": cases,
         }),
     )?;
     println!("\nJSON: {}", json.display());
