@@ -341,6 +341,10 @@ pub fn export_observed(
             PopulationKind::Anatomical => {
                 serde_json::to_value(dbt_phantom::AnatomicalPopulation::for_geometry(geom))
             }
+            PopulationKind::AnatomicalSpread => Ok(serde_json::json!({
+                "anatomical": dbt_phantom::AnatomicalPopulation::for_geometry(geom),
+                "rule": "AnatomicalPopulation::draw_spread: the anatomical draw, the gland spread through the height",
+            })),
             PopulationKind::Mixed => Ok(serde_json::json!({
                 "procedural": Population::for_geometry(geom),
                 "anatomical": dbt_phantom::AnatomicalPopulation::for_geometry(geom),

@@ -167,6 +167,24 @@ pub struct AnatomicalSpec {
     pub vessels: u32,
     /// Random seed.
     pub seed: u64,
+    /// Where the gland lies in height, overriding the drawn envelope's
+    /// vertical centre and width (issue #48: breasts whose gland spreads
+    /// through the whole height, as VICTRE's do); `None`: drawn as the
+    /// screening population's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gland_height: Option<GlandHeight>,
+}
+
+/// The glandular envelope's vertical placement, as fractions of the local
+/// height between the breast's bottom and top surfaces.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GlandHeight {
+    /// Centre, from the bottom surface (0) to the top (1).
+    pub centre: f64,
+    /// Width of the Gaussian envelope (a width of 2 or more spreads the
+    /// gland nearly evenly through the height).
+    pub width: f64,
 }
 
 impl AnatomicalSpec {
@@ -195,6 +213,7 @@ impl AnatomicalSpec {
             lobes: 8,
             vessels: 3,
             seed,
+            gland_height: None,
         }
     }
 
@@ -243,6 +262,10 @@ impl AnatomicalSpec {
             0.0,
             self.thickness_mm / 3.0,
         )?;
+        if let Some(h) = self.gland_height {
+            check("gland_height.centre", h.centre, 0.0, 1.0)?;
+            check("gland_height.width", h.width, 0.1, 10.0)?;
+        }
         check("lobes", self.lobes as f64, 0.0, 40.0)?;
         check("vessels", self.vessels as f64, 0.0, 20.0)?;
         if self.thickness_mm < 8.0 * self.voxel_mm {
@@ -788,6 +811,15 @@ pub fn generate_anatomical(spec: &AnatomicalSpec) -> Result<LabelVolume, Phantom
         0.45 + 0.2 * rng.random::<f64>(),
         0.35 + 0.2 * rng.random::<f64>(),
     ];
+    // A spec that places the gland in height itself (the same draws
+    // above, so the rest of the phantom is unchanged).
+    let (centre, widths) = match spec.gland_height {
+        Some(h) => (
+            [centre[0], centre[1], h.centre],
+            [widths[0], widths[1], h.width],
+        ),
+        None => (centre, widths),
+    };
 
     // The glandular score on the lattice of voxel corners (the fine samples
     // interpolate it trilinearly: the texture is on a 0.8 mm grid already),
@@ -1403,7 +1435,40 @@ impl AnatomicalPopulation {
             lobes: rng.random_range(6..=10),
             vessels: rng.random_range(2..=4),
             seed: rng.random(),
+            gland_height: None,
         }
+    }
+}
+
+impl AnatomicalPopulation {
+    /// Phantom `index` of [`AnatomicalPopulation::draw`] with its gland
+    /// spread through the height: the envelope's vertical centre uniform in
+    /// 0.4-0.6 of the local height and its width in 1.5-3 (nearly even from
+    /// the bottom surface to the top), the subcutaneous fat layer 1.5-4 mm
+    /// (at most a quarter of the thickness). Everything else is the
+    /// screening draw's, so each phantom has a twin in the anatomical
+    /// population that differs only in where its gland lies in height.
+    ///
+    /// Why (issue #48): the ladder (`dbt-eval ladder`) showed the shipped
+    /// network reading VICTRE pc1's gland near the breast support as fat;
+    /// our populations concentrate the gland in a Gaussian about the
+    /// middle of the height (Fedon et al. 2021's compressed breast CT puts
+    /// its centre 15 % below the midline), so a network trained on them has
+    /// never seen gland close to the paddles. This population tests that
+    /// explanation on breasts we made, with their twins as controls. The
+    /// ranges are our choice, not fitted to any phantom's figures.
+    pub fn draw_spread(&self, seed: u64, index: u64) -> AnatomicalSpec {
+        let mut spec = self.draw(seed, index);
+        // Its own stream, so the screening draw's values stay the twin's.
+        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5_9EAD_0048);
+        rng.set_stream(index);
+        let mut u = |lo: f64, hi: f64| lo + (hi - lo) * rng.random::<f64>();
+        spec.gland_height = Some(GlandHeight {
+            centre: u(0.4, 0.6),
+            width: u(1.5, 3.0),
+        });
+        spec.subcutaneous_mm = u(1.5, 4.0).min(spec.thickness_mm / 4.0);
+        spec
     }
 }
 
@@ -1434,6 +1499,83 @@ fn half_superellipse_area(p: f64) -> f64 {
 mod tests {
     use super::*;
     use crate::coronal_slice;
+
+    /// The spread population's phantom is its anatomical twin but for where
+    /// the gland lies in height: the same draw otherwise, and more of its
+    /// gland in the bottom and top quarters of the height.
+    #[test]
+    fn the_spread_twin_differs_only_in_the_glands_height() {
+        let pop = AnatomicalPopulation {
+            max_thickness_mm: 60.0,
+            max_width_mm: 200.0,
+            voxel_mm: 1.6,
+        };
+        let (mut near_surfaces, mut twins_near) = (0.0, 0.0);
+        for index in 0..3 {
+            let twin = pop.draw(11, index);
+            let spread = pop.draw_spread(11, index);
+            assert!(twin.gland_height.is_none());
+            let h = spread.gland_height.expect("spread");
+            assert!((0.4..=0.6).contains(&h.centre) && (1.5..=3.0).contains(&h.width));
+            assert!(
+                spread.subcutaneous_mm <= 4.0
+                    && spread.subcutaneous_mm <= spread.thickness_mm / 4.0
+            );
+            assert_eq!(
+                AnatomicalSpec {
+                    gland_height: None,
+                    subcutaneous_mm: twin.subcutaneous_mm,
+                    ..spread.clone()
+                },
+                twin
+            );
+            // The glandular share of the bottom and top quarters of the
+            // tissue's height, fine samples counted.
+            let share = |spec: &AnatomicalSpec| {
+                let spec = AnatomicalSpec {
+                    sub: 2,
+                    glandularity: 0.4,
+                    ..spec.clone()
+                };
+                let v = generate_anatomical(&spec).unwrap();
+                let b = v.tissue_bounds().unwrap();
+                let [nx, nz, _] = v.dims();
+                let q = (b[1][1] - b[1][0]) / 4;
+                let pv = v.partial_volumes().unwrap();
+                let (mut outer, mut all) = (0u64, 0u64);
+                for (i, c) in pv.counts().iter().enumerate() {
+                    let z = (i / nx) % nz;
+                    let g = (c[3] + c[4]) as u64;
+                    all += g;
+                    if z < b[1][0] + q || z >= b[1][1] - q {
+                        outer += g;
+                    }
+                }
+                outer as f64 / all.max(1) as f64
+            };
+            near_surfaces += share(&spread);
+            twins_near += share(&twin);
+        }
+        assert!(
+            near_surfaces > twins_near + 0.1,
+            "gland in the outer quarters: spread {near_surfaces:.3}, twins {twins_near:.3} (sums of 3)"
+        );
+        // The population by name draws the same.
+        let g = dbt_geometry::Geometry::builtin("paper-tall")
+            .unwrap()
+            .binned(8)
+            .unwrap();
+        let a = crate::PopulationKind::AnatomicalSpread.draw(&g, 5, 2);
+        let b = AnatomicalPopulation::for_geometry(&g).draw_spread(5, 2);
+        assert_eq!(a, crate::AnySpec::Anatomical(b));
+        // A spec whose gland height is out of range is refused by name.
+        let mut bad = pop.draw_spread(11, 0);
+        bad.gland_height = Some(GlandHeight {
+            centre: 1.5,
+            width: 2.0,
+        });
+        assert!(format!("{}", bad.validate().unwrap_err()).contains("gland_height.centre"));
+    }
 
     /// A small breast on 0.8 mm voxels drawn at 0.4 mm (two samples per
     /// axis), fast enough for many cases.

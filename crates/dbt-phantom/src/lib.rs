@@ -25,7 +25,7 @@ use dbt_materials::{count_labels, glandularity, Tissue, UnknownLabel, MU_BY_LABE
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
-pub use anatomical::{generate_anatomical, AnatomicalPopulation, AnatomicalSpec};
+pub use anatomical::{generate_anatomical, AnatomicalPopulation, AnatomicalSpec, GlandHeight};
 pub use external::{ExternalSidecar, VolumeAxis};
 pub use generate::{generate, PhantomSpec, Population};
 
@@ -43,17 +43,24 @@ pub enum PopulationKind {
     /// `index % 3 == 2`, else anatomical (the same phantom as the anatomical
     /// population's `index`).
     Mixed,
+    /// The anatomical breasts with their gland spread through the whole
+    /// height and a thin subcutaneous fat layer
+    /// ([`AnatomicalPopulation::draw_spread`], issue #48): phantom `index`
+    /// is the anatomical population's `index` but for where its gland lies
+    /// in height.
+    AnatomicalSpread,
 }
 
 impl PopulationKind {
     /// Every population, in the order of [`PopulationKind::NAMES`].
-    pub const ALL: [PopulationKind; 3] = [
+    pub const ALL: [PopulationKind; 4] = [
         PopulationKind::Procedural,
         PopulationKind::Anatomical,
         PopulationKind::Mixed,
+        PopulationKind::AnatomicalSpread,
     ];
     /// Names as on command lines and in manifests.
-    pub const NAMES: [&'static str; 3] = ["procedural", "anatomical", "mixed"];
+    pub const NAMES: [&'static str; 4] = ["procedural", "anatomical", "mixed", "anatomical-spread"];
 
     /// The name as on command lines and in manifests.
     pub fn name(self) -> &'static str {
@@ -61,6 +68,7 @@ impl PopulationKind {
             PopulationKind::Procedural => "procedural",
             PopulationKind::Anatomical => "anatomical",
             PopulationKind::Mixed => "mixed",
+            PopulationKind::AnatomicalSpread => "anatomical-spread",
         }
     }
 
@@ -91,6 +99,9 @@ impl PopulationKind {
                 PopulationKind::Procedural.draw(geom, seed, index)
             }
             PopulationKind::Mixed => PopulationKind::Anatomical.draw(geom, seed, index),
+            PopulationKind::AnatomicalSpread => AnySpec::Anatomical(
+                AnatomicalPopulation::for_geometry(geom).draw_spread(seed, index),
+            ),
         }
     }
 }
