@@ -14,9 +14,13 @@ generator made them, the trainer's options, where its weights started),
 
 What it does:
 1. each dataset of the recipe is looked up in the cache (`--cache`, default
-   $DBTOR_CACHE or ~/.cache/dbtor); a missing one is generated there (building
-   host-sim with cargo if needed, or `--host-sim BINARY`) into a temporary
-   folder renamed when complete, with RAYON_NUM_THREADS = --threads;
+   $DBTOR_CACHE or ~/.cache/dbtor); a missing one is generated there into a
+   temporary folder renamed when complete, with RAYON_NUM_THREADS = --threads,
+   by `--host-sim BINARY` or a host-sim that cargo builds from the recipe's
+   generator commit: in this checkout where its host-sim, crates and Cargo.*
+   are that commit's, else from that commit's tree (git archive) under
+   CACHE/generator/ (a changed generator would make other phantoms, which
+   the state's SHA-256 would refuse);
 2. the trainer (train.py) restores the state (or, for the first segment, starts
    from the recipe's --init: a model folder, read from git history with
    --init-git), refuses a dataset whose files' SHA-256 differ from the state's
@@ -62,28 +66,44 @@ def dataset_key(name, k, entry):
     return f"{name}-{k}-{h}"
 
 
-def host_sim_binary(a):
+GENERATOR = ("host-sim", "crates", "Cargo.lock", "Cargo.toml")
+BUILT = {}
+
+
+def host_sim_binary(a, commit, threads):
+    """--host-sim, or host-sim built from the recipe's commit: from this
+    checkout where its generator (host-sim, crates, Cargo.*) is that
+    commit's, else from that commit's tree (git archive) in the cache."""
     if a.host_sim:
         return os.path.abspath(a.host_sim)
-    if shutil.which("cargo"):
-        print("building host-sim (cargo build --release -p host-sim)", flush=True)
-        subprocess.run(["cargo", "build", "--release", "--locked", "-q", "-p", "host-sim"], cwd=REPO, check=True)
-    binary = os.path.join(REPO, "target", "release", "host-sim")
-    if not os.path.exists(binary):
+    if not shutil.which("cargo"):
         sys.exit("no host-sim: install Rust (cargo) or pass --host-sim BINARY")
+    src = REPO
+    if shutil.which("git") and os.path.exists(os.path.join(REPO, ".git")):
+        r = subprocess.run(["git", "-C", REPO, "diff", "--quiet", commit, "--", *GENERATOR], capture_output=True)
+        if r.returncode == 1:
+            src = os.path.join(cache_dir(a), "generator", commit[:12])
+            print(f"this checkout's generator differs from the recipe's commit {commit[:10]}: building "
+                  f"host-sim from that commit's tree in {src}", flush=True)
+            if not os.path.exists(os.path.join(src, "Cargo.toml")):
+                os.makedirs(src, exist_ok=True)
+                arch = subprocess.run(["git", "-C", REPO, "archive", commit], capture_output=True, check=True).stdout
+                subprocess.run(["tar", "-x", "-C", src], input=arch, check=True)
+    target = (os.environ.get("CARGO_TARGET_DIR") or os.path.join(REPO, "target")) if src == REPO \
+        else os.path.join(src, "target")
+    binary = os.path.join(target, "release", "host-sim")
+    if BUILT.get(src) == binary:
+        return binary
+    print(f"building host-sim (cargo build --release -p host-sim in {src})", flush=True)
+    subprocess.run(["cargo", "build", "--release", "--locked", "-q", "-p", "host-sim", "-j", str(threads)],
+                   cwd=src, check=True, env=dict(os.environ, CARGO_TARGET_DIR=target))
+    BUILT[src] = binary
     return binary
 
 
 def make_dataset(a, entry, out, threads, child):
     """Generate one dataset of the recipe into `out` (through out.partial)."""
-    commit = entry["generator_commit"]
-    if shutil.which("git") and os.path.exists(os.path.join(REPO, ".git")):
-        r = subprocess.run(["git", "-C", REPO, "diff", "--quiet", commit, "--", "host-sim", "crates", "Cargo.lock"],
-                           capture_output=True)
-        if r.returncode == 1:
-            print(f"note: the generator (host-sim, crates) differs from the recipe's commit {commit[:10]}; "
-                  "the trainer checks the dataset's SHA-256 against the state's", flush=True)
-    binary = host_sim_binary(a)
+    binary = host_sim_binary(a, entry["generator_commit"], threads)
     part = out + ".partial"
     shutil.rmtree(part, ignore_errors=True)
     os.makedirs(os.path.dirname(out), exist_ok=True)
