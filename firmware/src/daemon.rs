@@ -17,6 +17,7 @@
 //! (between delivery and the move to `done/`) rewrites the same two reports:
 //! every acquisition is reported exactly once.
 
+use crate::assembly::load_model;
 use crate::config::{Config, FrameTransport, ModbusTransport, Reconstructor};
 use crate::link::{data_fault, receive, receive_from, to_acquisition, LinkError, LinkOptions};
 use crate::modbus::{read_registers, ModbusLink};
@@ -75,45 +76,6 @@ fn now_unix() -> u64 {
         .unwrap_or(0)
 }
 
-/// The configured DBToR model, loaded the firmware's way: the sign-off and
-/// the configured digest first, then the ONNX checksums, and the
-/// calibration for the configured precision (`Config::load` checked the
-/// manifest's geometry and validated precision and engine).
-fn load_model(
-    cfg: &Config,
-    classify: &dbt_tissue::ClassifyOptions,
-) -> Result<dbt_model::SignedModel, DaemonError> {
-    let dir = cfg.recon.model.clone().unwrap_or_default();
-    let (precision, engine) = (cfg.recon.precision, cfg.recon.engine);
-    Ok(dbt_model::load_signed(
-        &dir,
-        precision,
-        &cfg.recon.fp32_blocks,
-        engine,
-        classify,
-        cfg.input_corrections(),
-        cfg.recon.model_digest.as_deref(),
-    )?)
-}
-
-/// The configured noise matching (`recon.noise_match`) to `model`'s
-/// training level: `None` when off; a model that names no photon level is
-/// refused naming the key.
-fn noise_match(
-    cfg: &Config,
-    model: &dbt_dbtor::ModelManifest,
-) -> Result<Option<dbt_pipeline::noise_match::NoiseMatch>, DaemonError> {
-    if cfg.recon.noise_match != crate::config::NoiseMatchMode::TrainingLevel {
-        return Ok(None);
-    }
-    dbt_pipeline::noise_match::NoiseMatch::for_model(model)
-        .map(Some)
-        .map_err(|e| DaemonError::Resource {
-            what: "recon.noise_match = \"training-level\"".into(),
-            reason: e.to_string(),
-        })
-}
-
 /// Check everything the daemon will need without starting it (`dbtor-daemon
 /// --check-config`): the model folder against its sign-off and the
 /// configured digest, the model and its calibration load, the spool, output
@@ -139,7 +101,7 @@ pub fn preflight(cfg: &Config, config_path: &Path) -> Result<Vec<String>, Daemon
     }
     if cfg.recon.reconstructor == Reconstructor::Dbtor {
         let signed = load_model(cfg, &PipelineOptions::default().classify)?;
-        if let Some(m) = noise_match(cfg, signed.model.manifest())? {
+        if let Some(m) = crate::assembly::noise_match(cfg, signed.model.manifest())? {
             done.push(format!(
                 "noise matching: to the model's training level, {} photons per element",
                 m.target_photons
@@ -325,21 +287,7 @@ impl Daemon {
         stop: Arc<AtomicBool>,
     ) -> Result<Self, DaemonError> {
         let site = cfg.site(&config_path)?;
-        let mut opts = PipelineOptions {
-            mltr_iterations: cfg.recon.mltr_iterations,
-            dose_uncertainty: cfg.recon.dose_uncertainty,
-            linearise: cfg.linearise(),
-            descatter: cfg.descatter(&config_path)?,
-            slice_step: cfg.recon.slice_step,
-            ..PipelineOptions::default()
-        };
-        if cfg.recon.reconstructor == Reconstructor::Dbtor {
-            let signed = load_model(&cfg, &opts.classify)?;
-            opts.noise_match = noise_match(&cfg, signed.model.manifest())?;
-            opts.calibration = signed.calibration;
-            opts.beam_calibrations = dbt_pipeline::beam_calibrations(&signed.beam_calibrations);
-            opts.dbtor = Some(Arc::new(signed.model));
-        }
+        let opts = crate::assembly::pipeline_options(&cfg, &config_path)?;
         let reconstructor = dbt_pipeline::reconstructor_name(&opts);
         for sub in ["tmp", "incoming", "done", "faulted"] {
             let d = cfg.paths.spool.join(sub);

@@ -4,6 +4,7 @@
 //! the projector self-test). The processing itself is `dbt_pipeline` (pure);
 //! the model folder's sign-off and calibration are `dbt_model`.
 
+pub mod assembly;
 pub mod cli;
 pub mod config;
 pub mod daemon;

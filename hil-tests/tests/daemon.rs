@@ -335,11 +335,20 @@ fn sigkill_mid_processing_then_restart_reports_exactly_once() {
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["status"]["processed"], 1, "{v}");
     // The service engineer's offline replay of the spooled acquisition
-    // reproduces the reported glandularity (same reconstructor and options).
+    // with the site's configuration reproduces the report.
+    replay_reproduces_the_report(&cfg, &dir.path().join("spool/done").join(&id));
+}
+
+/// `dbtor-diag replay --config CFG ENTRY` (issue #50): the daemon's own
+/// processing assembled from the site's configuration
+/// (`dbtor_firmware::assembly`) replays a `done/` entry to the reported
+/// glandularity and MGD (the same seed: to the bit; the MGD allowed three
+/// of its Monte Carlo standard errors should the sums' order ever differ).
+fn replay_reproduces_the_report(cfg: &Path, entry: &Path) {
     let out = Command::new(workspace_bin("dbtor-diag"))
-        .arg("replay")
-        .arg(dir.path().join("spool/done").join(&id))
-        .args(["--iterations", "20", "--dose-uncertainty", "0.2", "--json"])
+        .args(["replay", "--json", "--config"])
+        .arg(cfg)
+        .arg(entry)
         .output()
         .unwrap();
     assert!(
@@ -348,11 +357,29 @@ fn sigkill_mid_processing_then_restart_reports_exactly_once() {
         String::from_utf8_lossy(&out.stderr)
     );
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    assert_eq!(
-        v["glandularity_labels"], v["stored_result"]["glandularity_labels"],
+    let stored = &v["stored_result"];
+    let f = |x: &serde_json::Value| x.as_f64().unwrap_or(f64::NAN);
+    for key in [
+        "glandularity_reported",
+        "glandularity_labels",
+        "glandularity_partial_volume",
+    ] {
+        assert!((f(&v[key]) - f(&stored[key])).abs() < 1e-9, "{key}: {v}");
+    }
+    let (mgd, u) = (f(&v["mgd_mgy"]), f(&v["mgd_relative_uncertainty"]));
+    assert!(
+        (mgd / f(&stored["mgd_mgy"]) - 1.0).abs() <= 3.0 * u,
+        "MGD: {v}"
+    );
+    assert_eq!(v["reconstructor"], stored["reconstructor"], "{v}");
+    // Without the configuration the replay says it is not the report's.
+    assert!(
+        v["processing"]
+            .as_str()
+            .unwrap()
+            .starts_with("the daemon's"),
         "{v}"
     );
-    assert_eq!(v["mgd_mgy"], v["stored_result"]["mgd_mgy"], "{v}");
 }
 
 #[test]
@@ -684,6 +711,8 @@ fn clean_acquisition_over_serial_lines() {
         gantry["link"]["crc_errors"].as_u64().unwrap() >= 1,
         "{gantry}"
     );
+    // A cone-beam entry replays to its report.
+    replay_reproduces_the_report(&cfg, &dir.path().join("spool/done").join(&done[0]));
 }
 
 /// The clinical physics end to end (issue #27): the gantry's cone-beam
@@ -723,6 +752,10 @@ fn clinical_physics_is_reported_after_both_corrections() {
             let rss = s["peak_rss_mib"].as_f64().unwrap();
             assert!(rss > 10.0, "{s}");
             eprintln!("daemon peak resident memory {rss:.0} MiB");
+            // A clinical entry (both corrections, noise matching) replays
+            // to its report.
+            let done = entries(&run.join("spool/done"));
+            replay_reproduces_the_report(&cfg, &run.join("spool/done").join(&done[0]));
         } else {
             assert_eq!(st.code(), Some(1), "--once after a fault exits 1: {s}");
             let m = s["faults"][0]["message"].as_str().unwrap();

@@ -152,13 +152,23 @@ struct ConfigArgs {
 /// The options of `dbtor-diag replay`.
 #[derive(Args)]
 struct ReplayArgs {
+    /// The spool entry (`done/ID`, `faulted/ID`, `incoming/ID`) or any
+    /// recorded acquisition folder.
     entry: PathBuf,
+    /// The site's configuration (`dbtor.toml`): replay with exactly the
+    /// daemon's processing (its signed model, calibrations, corrections,
+    /// noise matching, slice step and Monte Carlo), so that the figures are
+    /// the reported ones. Without it, an ad hoc processing from the options
+    /// below (`--model`, or MLTR), which the reports were not made with.
+    #[arg(long, conflicts_with_all = ["model", "iterations", "dose_uncertainty"])]
+    config: Option<PathBuf>,
     #[command(flatten)]
     model: dbt_cli::ModelArgs,
-    /// MLTR iterations.
+    /// MLTR iterations (ad hoc processing only).
     #[arg(long)]
     iterations: Option<usize>,
-    /// Relative statistical uncertainty the Monte Carlo dose runs to.
+    /// Relative statistical uncertainty the Monte Carlo dose runs to (ad hoc
+    /// processing only).
     #[arg(long)]
     dose_uncertainty: Option<f64>,
     #[arg(long)]
@@ -399,6 +409,7 @@ fn run_status(args: StatusArgs) -> Result<bool> {
 fn run_replay(args: ReplayArgs) -> Result<bool> {
     let ReplayArgs {
         entry,
+        config,
         model:
             dbt_cli::ModelArgs {
                 model,
@@ -411,21 +422,36 @@ fn run_replay(args: ReplayArgs) -> Result<bool> {
     } = args;
     let entry = entry.as_path();
     let acq = dbt_store::acquisition::read_acquisition(entry)?;
-    let mut opts = dbt_pipeline::PipelineOptions::default();
-    if let Some(n) = iterations {
-        opts.mltr_iterations = n;
-    }
-    if let Some(u) = dose_uncertainty {
-        opts.dose_uncertainty = u;
-    }
-    if let Some(dir) = model {
-        opts.dbtor = Some(std::sync::Arc::new(dbt_dbtor::Dbtor::load_with(
-            &dir, precision, engine,
-        )?));
-    }
+    let (opts, processing) = match &config {
+        Some(path) => {
+            let cfg = dbtor_firmware::config::Config::load(path)?;
+            (
+                dbtor_firmware::assembly::pipeline_options(&cfg, path)?,
+                format!("the daemon's, from {}", path.display()),
+            )
+        }
+        None => {
+            let mut opts = dbt_pipeline::PipelineOptions::default();
+            if let Some(n) = iterations {
+                opts.mltr_iterations = n;
+            }
+            if let Some(u) = dose_uncertainty {
+                opts.dose_uncertainty = u;
+            }
+            if let Some(dir) = model {
+                opts.dbtor = Some(std::sync::Arc::new(dbt_dbtor::Dbtor::load_with(
+                    &dir, precision, engine,
+                )?));
+            }
+            (
+                opts,
+                "ad hoc (no --config: not the processing the reports were made with)".to_string(),
+            )
+        }
+    };
     let t = std::time::Instant::now();
     eprintln!(
-        "replaying {} ({} slices) ...",
+        "replaying {} ({} slices), processing {processing} ...",
         entry.display(),
         acq.header.slices
     );
@@ -435,11 +461,14 @@ fn run_replay(args: ReplayArgs) -> Result<bool> {
         .and_then(|b| serde_json::from_slice(&b).ok());
     let out = serde_json::json!({
         "entry": entry.display().to_string(),
+        "processing": processing,
         "reconstructor": r.reconstructor,
         "seconds": t.elapsed().as_secs_f64(),
+        "glandularity_reported": r.glandularity,
         "glandularity_labels": r.density.glandularity_labels,
         "glandularity_partial_volume": r.density.glandularity_partial_volume,
         "mgd_mgy": r.mgd_mgy,
+        "mgd_relative_uncertainty": r.dose_patient.mgd_rel_uncertainty,
         "model_mgd_mgy": r.model_mgd_mgy,
         "stored_result": stored,
     });
@@ -447,7 +476,7 @@ fn run_replay(args: ReplayArgs) -> Result<bool> {
         println!("{out}");
     } else {
         println!(
-            "replay of {} ({}, {:.1} s)",
+            "replay of {} ({}, {:.1} s), processing {processing}",
             entry.display(),
             r.reconstructor,
             t.elapsed().as_secs_f64()
@@ -460,30 +489,27 @@ fn run_replay(args: ReplayArgs) -> Result<bool> {
                 .unwrap_or("-".into())
         };
         println!("{:<28} {:>10} {:>10}", "", "replay", "stored");
-        println!(
-            "{:<28} {:>10.3} {:>10}",
-            "glandularity (labels)",
-            r.density.glandularity_labels,
-            st("glandularity_labels")
-        );
-        println!(
-            "{:<28} {:>10.3} {:>10}",
-            "glandularity (partial vol.)",
-            r.density.glandularity_partial_volume,
-            st("glandularity_partial_volume")
-        );
-        println!(
-            "{:<28} {:>10.3} {:>10}",
-            "MGD, mGy",
-            r.mgd_mgy,
-            st("mgd_mgy")
-        );
-        println!(
-            "{:<28} {:>10.3} {:>10}",
-            "model-breast MGD, mGy",
-            r.model_mgd_mgy,
-            st("model_mgd_mgy")
-        );
+        for (name, value, key) in [
+            (
+                "glandularity (reported)",
+                r.glandularity,
+                "glandularity_reported",
+            ),
+            (
+                "glandularity (labels)",
+                r.density.glandularity_labels,
+                "glandularity_labels",
+            ),
+            (
+                "glandularity (partial vol.)",
+                r.density.glandularity_partial_volume,
+                "glandularity_partial_volume",
+            ),
+            ("MGD, mGy", r.mgd_mgy, "mgd_mgy"),
+            ("model-breast MGD, mGy", r.model_mgd_mgy, "model_mgd_mgy"),
+        ] {
+            println!("{name:<28} {value:>10.3} {:>10}", st(key));
+        }
     }
     Ok(true)
 }

@@ -1,0 +1,75 @@
+//! The pipeline assembled from a site's configuration, in one place: the
+//! daemon processes every acquisition with these options, and `dbtor-diag
+//! replay --config` replays a spool entry with the same ones, so that a
+//! service engineer's replay computes what the daemon reported (the daemon
+//! writes the settled header back into the entry for the same reason).
+
+use crate::config::{Config, Reconstructor};
+use crate::daemon::DaemonError;
+use dbt_pipeline::PipelineOptions;
+use std::path::Path;
+use std::sync::Arc;
+
+/// The processing options of the site configured by `cfg` (read from
+/// `config_path`, against which its relative paths resolve): the
+/// reconstructor, the signed model with its calibrations and noise
+/// matching, the counts' corrections, the slice step, the Monte Carlo's
+/// uncertainty. Everything the daemon's reports depend on beyond the
+/// acquisition itself.
+pub fn pipeline_options(cfg: &Config, config_path: &Path) -> Result<PipelineOptions, DaemonError> {
+    let mut opts = PipelineOptions {
+        mltr_iterations: cfg.recon.mltr_iterations,
+        dose_uncertainty: cfg.recon.dose_uncertainty,
+        linearise: cfg.linearise(),
+        descatter: cfg.descatter(config_path)?,
+        slice_step: cfg.recon.slice_step,
+        ..PipelineOptions::default()
+    };
+    if cfg.recon.reconstructor == Reconstructor::Dbtor {
+        let signed = load_model(cfg, &opts.classify)?;
+        opts.noise_match = noise_match(cfg, signed.model.manifest())?;
+        opts.calibration = signed.calibration;
+        opts.beam_calibrations = dbt_pipeline::beam_calibrations(&signed.beam_calibrations);
+        opts.dbtor = Some(Arc::new(signed.model));
+    }
+    Ok(opts)
+}
+
+/// The configured DBToR model, loaded the firmware's way: the sign-off and
+/// the configured digest first, then the ONNX checksums, and the
+/// calibration for the configured precision (`Config::load` checked the
+/// manifest's geometry and validated precision and engine).
+pub(crate) fn load_model(
+    cfg: &Config,
+    classify: &dbt_tissue::ClassifyOptions,
+) -> Result<dbt_model::SignedModel, DaemonError> {
+    let dir = cfg.recon.model.clone().unwrap_or_default();
+    let (precision, engine) = (cfg.recon.precision, cfg.recon.engine);
+    Ok(dbt_model::load_signed(
+        &dir,
+        precision,
+        &cfg.recon.fp32_blocks,
+        engine,
+        classify,
+        cfg.input_corrections(),
+        cfg.recon.model_digest.as_deref(),
+    )?)
+}
+
+/// The configured noise matching (`recon.noise_match`) to `model`'s
+/// training level: `None` when off; a model that names no photon level is
+/// refused naming the key.
+pub fn noise_match(
+    cfg: &Config,
+    model: &dbt_dbtor::ModelManifest,
+) -> Result<Option<dbt_pipeline::noise_match::NoiseMatch>, DaemonError> {
+    if cfg.recon.noise_match != crate::config::NoiseMatchMode::TrainingLevel {
+        return Ok(None);
+    }
+    dbt_pipeline::noise_match::NoiseMatch::for_model(model)
+        .map(Some)
+        .map_err(|e| DaemonError::Resource {
+            what: "recon.noise_match = \"training-level\"".into(),
+            reason: e.to_string(),
+        })
+}
