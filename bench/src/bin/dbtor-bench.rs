@@ -244,14 +244,28 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
     // (the levels below the best forced with the same limit DBTOR_KERNEL
     // sets), each precision once per kernel it actually runs (fp32 has no
     // AVX-VNNI kernel: that level runs its AVX2 one).
-    let best = Kernel::best_fp32().max(Kernel::best_int8());
+    // `DBTOR_KERNEL` limits every row as it limits the firmware (issue
+    // #52: it did not reach the benchmark, so a row run under
+    // `DBTOR_KERNEL=avx2` could be AVX-512's); `amx` asks for the AMX row.
+    let env_limit = dbt_dbtor::kernel_limit()?;
+    let best = Kernel::best_fp32().max(Kernel::best_int8()).min(env_limit);
+    if std::env::var_os(dbt_dbtor::KERNEL_ENV).is_some() {
+        println!(
+            "{}={}: every fast row runs at most the {} kernels",
+            dbt_dbtor::KERNEL_ENV,
+            env_limit.name(),
+            best.name()
+        );
+    }
     let forced: Vec<Kernel> = Kernel::ALL
         .into_iter()
         .rev()
         .filter(|k| {
             // AMX only where it runs and asked for (never the default dispatch)
             let runs = *k <= best || (*k == Kernel::Amx && Kernel::amx_available());
-            let asked = a.all_kernels || a.kernels.contains(k);
+            let asked = a.all_kernels
+                || a.kernels.contains(k)
+                || (*k == Kernel::Amx && env_limit == Kernel::Amx);
             runs && (*k == best || asked)
         })
         .collect();
