@@ -76,6 +76,12 @@ struct AcquireArgs {
     /// Phantom of the fixed test set (never trained on).
     #[arg(long, default_value_t = 0)]
     index: u64,
+    /// An external phantom instead (a sidecar TOML: `phantoms/victre-pc1.toml`,
+    /// or one `host-sim phantom` wrote), resampled to the geometry's pixel:
+    /// it goes through the product's own path (stream, daemon,
+    /// dbtor-process) like any acquisition. Evaluation only.
+    #[arg(long, conflicts_with_all = ["index", "population"])]
+    phantom: Option<PathBuf>,
     #[command(flatten)]
     geometry: GeometryArgs,
     /// Noise level (`noise-free`, `N4`, `N8`, `N12`).
@@ -298,6 +304,7 @@ fn run_acquire(args: AcquireArgs) -> Result<()> {
     let AcquireArgs {
         out,
         index,
+        phantom,
         geometry,
         noise,
         population,
@@ -309,13 +316,49 @@ fn run_acquire(args: AcquireArgs) -> Result<()> {
     let anode_filter = dbt_dose::xray::AnodeFilter::parse(&anode_filter)
         .with_context(|| format!("--anode-filter {anode_filter}"))?;
     let g = geometry.load()?;
-    let vol = population
-        .draw(&g, Population::TEST_SEED, index)
-        .generate()?;
+    let (vol, seed, patient, what) = match &phantom {
+        None => (
+            population
+                .draw(&g, Population::TEST_SEED, index)
+                .generate()?,
+            host_sim::mix_seed(Population::TEST_SEED, &[index, 1]),
+            format!("TEST{index:03}"),
+            format!("test phantom {index}"),
+        ),
+        Some(p) => {
+            let vol = dbt_store::load_external_phantom(p)
+                .with_context(|| format!("--phantom {}", p.display()))?
+                .resampled(g.image.pixel_mm)
+                .with_context(|| format!("--phantom {}: resampling", p.display()))?;
+            // The patient id and the noise seed from the sidecar's name:
+            // the same file gives the same acquisition.
+            let stem: String = p
+                .file_stem()
+                .map(|s| s.to_string_lossy().to_string())
+                .unwrap_or_default()
+                .chars()
+                .map(|c| {
+                    if c.is_ascii_alphanumeric() {
+                        c.to_ascii_uppercase()
+                    } else {
+                        '_'
+                    }
+                })
+                .take(12)
+                .collect();
+            let key = stem
+                .bytes()
+                .fold(0u64, |h, b| h.rotate_left(5) ^ u64::from(b));
+            (
+                vol,
+                host_sim::mix_seed(Population::TEST_SEED, &[key, 2]),
+                format!("EXT{stem}"),
+                format!("external phantom {}", p.display()),
+            )
+        }
+    };
     let noise = NoiseLevel::parse(&noise)?;
     let kvp = f64::from(anode_filter.aec_kv(vol.thickness_mm()));
-    let seed = host_sim::mix_seed(Population::TEST_SEED, &[index, 1]);
-    let patient = format!("TEST{index:03}");
     let root = "1.2.826.0.1.3680043.10.543.2";
     let sys = match &system {
         None => None,
@@ -360,7 +403,7 @@ fn run_acquire(args: AcquireArgs) -> Result<()> {
     )?;
     dbt_store::acquisition::write_acquisition(&out, &acq)?;
     println!(
-        "{}: test phantom {index}, {} {}, thickness {:.1} mm, glandularity {:.3}, {}, {} physics",
+        "{}: {what}, {} {}, thickness {:.1} mm, glandularity {:.3}, {}, {} physics",
         out.display(),
         acq.header.slices,
         match &acq.header.system {
