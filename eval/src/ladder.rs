@@ -96,6 +96,10 @@ pub struct Rung {
     pub by_height: Vec<BandStats>,
     /// By distance from the chest wall.
     pub by_chest_wall: Vec<BandStats>,
+    /// How far the rung's attenuation fits the acquisition it came from
+    /// ([`data_residual`]; `None` for the rungs made of the truth's
+    /// attenuation against the noisy acquisition, which have none).
+    pub data_residual: Option<f64>,
 }
 
 /// One phantom's ladder.
@@ -229,6 +233,50 @@ fn pv_sums(mu: &[f32], labels: &[u8], idx: impl Iterator<Item = usize>) -> (f64,
     (g, a, n)
 }
 
+/// The relative data residual of a volume against the acquisition it was
+/// reconstructed from: `||P f - g|| / ||g||` over every view and element of
+/// every slice, `P` the acquisition's projector, `f` each slice's image
+/// (the volume's rows within the thickness, air above), `g` the log of the
+/// counts. A reconstruction that fits its data reads the noise's share; a
+/// network far from what it was trained on may not fit (a data-consistency
+/// check needs no truth).
+pub fn data_residual(
+    acq: &dbt_pipeline::acquisition::Acquisition,
+    mu: &[f32],
+    dims: [usize; 3],
+) -> anyhow::Result<f64> {
+    let h = &acq.header;
+    let g = &h.geometry;
+    let [cols, nv, nd] = dims;
+    anyhow::ensure!(
+        cols == g.image.columns && nv <= g.image.rows && nd == acq.counts.len(),
+        "volume {dims:?} against the acquisition's {} x {} image and {} slices",
+        g.image.columns,
+        g.image.rows,
+        acq.counts.len()
+    );
+    let proj = dbt_projector::Projector::new(g);
+    let rows = g.image.rows;
+    let (mut num, mut den) = (0.0f64, 0.0f64);
+    let mut img = vec![0f32; rows * cols];
+    let mut sino = vec![0f32; g.n_rays()];
+    for d in 0..nd {
+        img.fill(0.0);
+        for v in 0..nv {
+            let r = rows - 1 - v;
+            let src = (d * nv + v) * cols;
+            img[r * cols..(r + 1) * cols].copy_from_slice(&mu[src..src + cols]);
+        }
+        proj.forward(&img, &mut sino)?;
+        let meas = dbt_acquisition::log_transform(&acq.counts[d], h.flux);
+        for (p, m) in sino.iter().zip(&meas) {
+            num += (*p as f64 - *m as f64).powi(2);
+            den += (*m as f64).powi(2);
+        }
+    }
+    Ok((num / den.max(1e-300)).sqrt())
+}
+
 /// Glandularity by mass of the non-skin breast voxels' mean attenuation
 /// (fractions not clamped per voxel; the mean's clamped to 0..1).
 pub fn unclamped_glandularity(mu: &[f32], labels: &[u8]) -> f64 {
@@ -337,6 +385,7 @@ impl Truth<'_> {
         calibration: Option<GlandularityCalibration>,
         dose: Option<f64>,
         seed: u64,
+        data_residual: Option<f64>,
     ) -> anyhow::Result<Rung> {
         let d = density(mu, labels, self.voxel_mm);
         let mgd_error_percent = match (self.dose, dose) {
@@ -403,6 +452,7 @@ impl Truth<'_> {
                 (mu, labels),
                 vox,
             ),
+            data_residual,
         })
     }
 }
@@ -498,15 +548,36 @@ pub fn run_ladder(
     let u = setup.dose_uncertainty;
     let seed = setup.seed;
     let mut rungs = Vec::new();
-    rungs.push(truth.rung("truth", &t_mu, &t_labels, cal, u, seed)?);
+    // The truth's own attenuation against the noise-free acquisition: the
+    // residual of a perfect reconstruction (the projector's and the
+    // partial volumes' consistency).
+    let r_truth = Some(data_residual(&clean, &t_mu, dims)?);
+    rungs.push(truth.rung("truth", &t_mu, &t_labels, cal, u, seed, r_truth)?);
     let tc = classify(&t_mu, dims, vox, &opts.classify)?;
-    rungs.push(truth.rung("truth-mu", &t_mu, &tc.labels, cal, u, seed)?);
+    rungs.push(truth.rung("truth-mu", &t_mu, &tc.labels, cal, u, seed, r_truth)?);
     let rc = classify(&recon.mu, dims, vox, &opts.classify)?;
+    let r_clean = Some(data_residual(&clean, &recon.mu, dims)?);
     let within = classify_within(&recon.mu, &t_labels, &opts.classify);
-    rungs.push(truth.rung("recon-mu+truth-outline", &recon.mu, &within, cal, u, seed)?);
+    rungs.push(truth.rung(
+        "recon-mu+truth-outline",
+        &recon.mu,
+        &within,
+        cal,
+        u,
+        seed,
+        r_clean,
+    )?);
     let within = classify_within(&t_mu, &rc.labels, &opts.classify);
-    rungs.push(truth.rung("truth-mu+recon-outline", &t_mu, &within, cal, u, seed)?);
-    rungs.push(truth.rung("recon", &recon.mu, &rc.labels, cal, u, seed)?);
+    rungs.push(truth.rung(
+        "truth-mu+recon-outline",
+        &t_mu,
+        &within,
+        cal,
+        u,
+        seed,
+        r_truth,
+    )?);
+    rungs.push(truth.rung("recon", &recon.mu, &rc.labels, cal, u, seed, r_clean)?);
     let rn = reconstruct_volume(&noisy, opts, &mut |_| {})?;
     anyhow::ensure!(
         rn.dims == dims,
@@ -515,7 +586,8 @@ pub fn run_ladder(
     );
     let c = classify(&rn.mu, dims, vox, &opts.classify)?;
     let tag = format!("recon@{}", setup.noise.name());
-    rungs.push(truth.rung(&tag, &rn.mu, &c.labels, cal, u, seed)?);
+    let r_noisy = Some(data_residual(&noisy, &rn.mu, dims)?);
+    rungs.push(truth.rung(&tag, &rn.mu, &c.labels, cal, u, seed, r_noisy)?);
     if let Some(it) = setup.mltr_iterations {
         let mo = PipelineOptions {
             dbtor: None,
@@ -526,7 +598,8 @@ pub fn run_ladder(
         let m = reconstruct_volume(&clean, &mo, &mut |_| {})?;
         anyhow::ensure!(m.dims == dims, "MLTR volume {:?} against {dims:?}", m.dims);
         let c = classify(&m.mu, dims, vox, &opts.classify)?;
-        rungs.push(truth.rung(&format!("mltr-{it}"), &m.mu, &c.labels, None, u, seed)?);
+        let r = Some(data_residual(&clean, &m.mu, dims)?);
+        rungs.push(truth.rung(&format!("mltr-{it}"), &m.mu, &c.labels, None, u, seed, r)?);
     }
     Ok(LadderCase {
         phantom: name.to_string(),
@@ -554,6 +627,8 @@ pub struct RungSummary {
     pub column_pp: Agreement,
     /// Patient MGD error, %.
     pub mgd_percent: Option<Agreement>,
+    /// The data residual's mean and sd over the cases.
+    pub data_residual: Option<[f64; 2]>,
     /// The confusion summed over the cases, voxel counts.
     pub confusion: [[u64; 4]; 4],
     /// The same, each true class's row as fractions.
@@ -593,6 +668,14 @@ pub fn summarise(cases: &[LadderCase]) -> Vec<RungSummary> {
                 unclamped_pp: pp(|r| r.g_unclamped),
                 column_pp: pp(|r| r.g_column),
                 mgd_percent: mgd.filter(|m| !m.is_empty()).map(|m| agreement(&m)),
+                data_residual: cases
+                    .iter()
+                    .map(|c| c.rungs[k].data_residual)
+                    .collect::<Option<Vec<f64>>>()
+                    .map(|v| {
+                        let (m, sd) = dbt_metrics::mean_sd(&v);
+                        [m, sd]
+                    }),
                 confusion: total,
                 confusion_fractions: total.map(|row| {
                     let n: u64 = row.iter().sum();
@@ -607,7 +690,7 @@ pub fn summarise(cases: &[LadderCase]) -> Vec<RungSummary> {
 /// MGD %) and the confusion's telling shares.
 pub fn summary_table(rows: &[RungSummary]) -> String {
     let mut s = String::from(
-        "| rung | G reported (pp) | G partial volume (pp) | G labels (pp) | G unclamped (pp) | G columns (pp) | MGD (%) | fibrogl. read adipose | adipose read fibrogl. | breast read air | air read breast |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
+        "| rung | G reported (pp) | G partial volume (pp) | G labels (pp) | G unclamped (pp) | G columns (pp) | MGD (%) | data residual | fibrogl. read adipose | adipose read fibrogl. | breast read air | air read breast |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     let f = |a: &Agreement| format!("{:+.2} +- {:.2}", a.bias, a.sd);
     for r in rows {
@@ -617,7 +700,7 @@ pub fn summary_table(rows: &[RungSummary]) -> String {
         let (air, adi, skin, fg) = (0, 1, 2, 3);
         let breast: u64 = n[adi].iter().chain(&n[skin]).chain(&n[fg]).sum();
         s.push_str(&format!(
-            "| {} | {} | {} | {} | {} | {} | {} | {:.1} % | {:.1} % | {:.1} % | {:.1} % |\n",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {:.1} % | {:.1} % | {:.1} % | {:.1} % |\n",
             r.name,
             f(&r.reported_pp),
             f(&r.partial_volume_pp),
@@ -625,6 +708,8 @@ pub fn summary_table(rows: &[RungSummary]) -> String {
             f(&r.unclamped_pp),
             f(&r.column_pp),
             r.mgd_percent.as_ref().map_or("-".into(), f),
+            r.data_residual
+                .map_or("-".into(), |[m, sd]| format!("{:.4} +- {:.4}", m, sd)),
             100.0 * c[fg][adi],
             100.0 * c[adi][fg],
             100.0 * (n[adi][air] + n[skin][air] + n[fg][air]) as f64 / breast.max(1) as f64,
@@ -767,6 +852,12 @@ mod tests {
             assert!((v - sv).abs() < 1e-9 && v > 0.0);
         }
         assert!(c.fill > 0.5 && c.fill <= 1.0);
+        // The truth's attenuation fits its noise-free acquisition (the
+        // same projector; f32 counts); a reconstruction less well.
+        let r_truth = t.data_residual.unwrap();
+        assert!(r_truth < 1e-4, "truth residual {r_truth}");
+        let r_recon = c.rungs[4].data_residual.unwrap();
+        assert!(r_recon.is_finite() && r_recon > r_truth, "{r_recon}");
         for r in &c.rungs {
             assert!(r.g_partial_volume.is_finite() && r.g_reported.is_finite());
         }
