@@ -377,6 +377,7 @@ struct Truth<'a> {
 }
 
 impl Truth<'_> {
+    #[allow(clippy::too_many_arguments)]
     fn rung(
         &self,
         name: &str,
