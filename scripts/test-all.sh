@@ -1,15 +1,29 @@
 #!/usr/bin/env bash
 # The one command that runs every test: formatting, lints, and the whole
-# workspace's test suite. `.ci/run` calls exactly this.
+# workspace's test suite. `.ci/run` calls exactly this. Each stage's wall
+# time is printed at the end (issue #52: where CI's time goes).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-cargo fmt --all --check
-cargo clippy --workspace --all-targets --locked -- -D warnings
-cargo test --workspace --locked
+times=()
+stage() {
+    local name=$1
+    shift
+    local t0=$SECONDS
+    "$@"
+    times+=("$(printf '%-28s %5d s' "$name" $((SECONDS - t0)))")
+}
+report() {
+    echo "test-all: time by stage (wall clock, $(nproc) CPUs)" >&2
+    for t in "${times[@]}"; do echo "  $t" >&2; done
+}
+trap report EXIT
+stage "cargo fmt --check" cargo fmt --all --check
+stage "cargo clippy" cargo clippy --workspace --all-targets --locked -- -D warnings
+stage "cargo test" cargo test --workspace --locked
 # The trainer: a few iterations on a small dataset, resumed, exported, and the
 # export checked by the firmware's runtime (needs training/requirements.txt).
 if ! python3 -c 'import torch, onnx, onnxruntime' 2>/dev/null; then
     echo "training smoke test: PyTorch/onnx/onnxruntime missing; pip install -r training/requirements.txt (.ci/run does)" >&2
     exit 1
 fi
-./training/smoke-test.sh
+stage "training smoke test" ./training/smoke-test.sh
