@@ -149,6 +149,23 @@ if "${cont[@]}" 2> "$tmp/cont4.log" > /dev/null; then
     echo "smoke test: a changed dataset was accepted"; exit 1
 fi
 grep -q "differs: validation/masks.u8" "$tmp/cont4.log" || { echo "smoke test: the dataset refusal does not name the file"; cat "$tmp/cont4.log"; exit 1; }
+# The GPU slot's script (scripts/gpu-slot.sh, issue #49 point 3) on the CPU
+# path: everything but the GPU (its self-check's bf16 iteration, the state's
+# round trip, the datasets regenerated, training to the budget, the files
+# that come back), on a run of its own with a first segment's state.
+$PY -m dbtor.continue_run new smoke-slot --runs "$tmp/runs" --init "$tmp/model" \
+    --dataset "--slices 1500 --test-phantoms 0 --levels N8 --binning 4" \
+    --train "--model dbtor --level N8 --iters 4 --batch 2 --blocks 2 --val-every 2 --log-every 1"
+"${cont[@]}" --run smoke-slot --extra "--stop-at 2" > /dev/null 2>&1
+(cd .. && OUT="$tmp/slot" DEVICE=cpu BUDGET_S=120 RUNS="$tmp/runs" RUN=smoke-slot CACHE="$tmp/cache" \
+    HOST_SIM=target/release/host-sim LEDGER="$tmp/ledger.md" PYTHON="$PY" ./scripts/gpu-slot.sh)
+for f in state.dbts curve.csv LEDGER.md slot.log; do
+    [ -s "$tmp/slot/$f" ] || { echo "smoke test: the GPU slot did not bring back $f"; exit 1; }
+done
+grep -q "self-check passed" "$tmp/slot/slot.log" || { echo "smoke test: the GPU slot's self-check"; cat "$tmp/slot/slot.log"; exit 1; }
+grep -q '^| smoke-slot |' "$tmp/slot/LEDGER.md" || { echo "smoke test: no ledger row from the GPU slot"; exit 1; }
+$PY -m dbtor.state show "$tmp/slot/state.dbts" | grep -q '"iteration": 4' \
+    || { echo "smoke test: the GPU slot's state is not at iteration 4"; exit 1; }
 # Quantisation-aware fine-tuning (2 iterations) and an export of its int8
 # blocks beside the first run's fp32 ones.
 $PY -m dbtor.train --data "$tmp/ds" --out "$tmp/qat-run" --init "$tmp/run" --qat --qat-calibration 2 \
