@@ -209,18 +209,22 @@ pub fn classify_within(mu: &[f32], outline: &[u8], opts: &ClassifyOptions) -> Ve
         .collect()
 }
 
+/// The partial-volume estimate's constants, as `dbt_tissue::density` takes
+/// them: adipose and fibroglandular attenuation (1/mm) and density (g/cm^3).
+fn tissue_constants() -> [f64; 4] {
+    [
+        Tissue::Adipose.mu_per_mm() as f64,
+        Tissue::Fibroglandular.mu_per_mm() as f64,
+        Tissue::Adipose.density_g_cm3(),
+        Tissue::Fibroglandular.density_g_cm3(),
+    ]
+}
+
 /// Partial-volume sums `(glandular mass, adipose mass, voxels)` of the
 /// non-skin breast voxels among `idx` (the firmware's estimate:
 /// `dbt_tissue::density`).
 fn pv_sums(mu: &[f32], labels: &[u8], idx: impl Iterator<Item = usize>) -> (f64, f64, usize) {
-    let (ma, mg) = (
-        Tissue::Adipose.mu_per_mm() as f64,
-        Tissue::Fibroglandular.mu_per_mm() as f64,
-    );
-    let (ra, rg) = (
-        Tissue::Adipose.density_g_cm3(),
-        Tissue::Fibroglandular.density_g_cm3(),
-    );
+    let [ma, mg, ra, rg] = tissue_constants();
     let (mut g, mut a, mut n) = (0.0, 0.0, 0);
     for i in idx {
         if matches!(labels[i], 1 | 3 | 4) {
@@ -287,14 +291,7 @@ pub fn unclamped_glandularity(mu: &[f32], labels: &[u8]) -> f64 {
             n += 1;
         }
     }
-    let (ma, mg) = (
-        Tissue::Adipose.mu_per_mm() as f64,
-        Tissue::Fibroglandular.mu_per_mm() as f64,
-    );
-    let (ra, rg) = (
-        Tissue::Adipose.density_g_cm3(),
-        Tissue::Fibroglandular.density_g_cm3(),
-    );
+    let [ma, mg, ra, rg] = tissue_constants();
     let f = ((sum / n.max(1) as f64 - ma) / (mg - ma)).clamp(0.0, 1.0);
     f * rg / (f * rg + (1.0 - f) * ra)
 }

@@ -1576,36 +1576,21 @@ fn run_ladder(args: LadderArgs) -> Result<()> {
         bar.inc(1);
         bar.line(line);
         if bands {
-            let rows: Vec<(&str, &[dbt_eval::ladder::BandStats])> = c
-                .rungs
-                .iter()
-                .skip(1)
-                .map(|r| (r.name.as_str(), r.by_skin_distance.as_slice()))
-                .collect();
-            bar.line(band_table(
-                &format!("{name}: distance from the skin"),
-                &rows,
-            ));
-            let rows: Vec<(&str, &[dbt_eval::ladder::BandStats])> = c
-                .rungs
-                .iter()
-                .skip(1)
-                .map(|r| (r.name.as_str(), r.by_height.as_slice()))
-                .collect();
-            bar.line(band_table(
-                &format!("{name}: height above the support"),
-                &rows,
-            ));
-            let rows: Vec<(&str, &[dbt_eval::ladder::BandStats])> = c
-                .rungs
-                .iter()
-                .skip(1)
-                .map(|r| (r.name.as_str(), r.by_chest_wall.as_slice()))
-                .collect();
-            bar.line(band_table(
-                &format!("{name}: distance from the chest wall"),
-                &rows,
-            ));
+            type Pick = fn(&dbt_eval::ladder::Rung) -> &[dbt_eval::ladder::BandStats];
+            let tables: [(&str, Pick); 3] = [
+                ("distance from the skin", |r| &r.by_skin_distance),
+                ("height above the support", |r| &r.by_height),
+                ("distance from the chest wall", |r| &r.by_chest_wall),
+            ];
+            for (what, pick) in tables {
+                let rows: Vec<_> = c
+                    .rungs
+                    .iter()
+                    .skip(1)
+                    .map(|r| (r.name.as_str(), pick(r)))
+                    .collect();
+                bar.line(band_table(&format!("{name}: {what}"), &rows));
+            }
         }
         cases.push(c);
     }
