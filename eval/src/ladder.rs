@@ -34,7 +34,8 @@ use dbt_materials::Tissue;
 use dbt_phantom::LabelVolume;
 use dbt_pipeline::{reconstruct_volume, PipelineOptions};
 use dbt_tissue::{
-    classify, column_glandularity, density, fcm2, ClassifyOptions, GlandularityCalibration,
+    classify, column_glandularity, density, fcm2, split_point, ClassifyOptions,
+    GlandularityCalibration, PartialVolumeMass,
 };
 use host_sim::{simulate_acquisition_with, Technique};
 use serde::Serialize;
@@ -190,11 +191,7 @@ pub fn classify_within(mu: &[f32], outline: &[u8], opts: &ClassifyOptions) -> Ve
         .map(|(&m, _)| m as f64)
         .collect();
     let (centres, _) = fcm2(&vals, opts);
-    let mid = if centres[1] - centres[0] < 1e-6 {
-        0.5 * (Tissue::Adipose.mu_per_mm() as f64 + Tissue::Fibroglandular.mu_per_mm() as f64)
-    } else {
-        0.5 * (centres[0] + centres[1])
-    };
+    let mid = split_point(centres);
     mu.iter()
         .zip(outline)
         .map(|(&m, &l)| {
@@ -209,32 +206,16 @@ pub fn classify_within(mu: &[f32], outline: &[u8], opts: &ClassifyOptions) -> Ve
         .collect()
 }
 
-/// The partial-volume estimate's constants, as `dbt_tissue::density` takes
-/// them: adipose and fibroglandular attenuation (1/mm) and density (g/cm^3).
-fn tissue_constants() -> [f64; 4] {
-    [
-        Tissue::Adipose.mu_per_mm() as f64,
-        Tissue::Fibroglandular.mu_per_mm() as f64,
-        Tissue::Adipose.density_g_cm3(),
-        Tissue::Fibroglandular.density_g_cm3(),
-    ]
-}
-
-/// Partial-volume sums `(glandular mass, adipose mass, voxels)` of the
-/// non-skin breast voxels among `idx` (the firmware's estimate:
-/// `dbt_tissue::density`).
-fn pv_sums(mu: &[f32], labels: &[u8], idx: impl Iterator<Item = usize>) -> (f64, f64, usize) {
-    let [ma, mg, ra, rg] = tissue_constants();
-    let (mut g, mut a, mut n) = (0.0, 0.0, 0);
+/// The partial-volume sums of the non-skin breast voxels among `idx` (the
+/// firmware's estimate: `dbt_tissue::density`).
+fn pv_sums(mu: &[f32], labels: &[u8], idx: impl Iterator<Item = usize>) -> PartialVolumeMass {
+    let mut pv = PartialVolumeMass::default();
     for i in idx {
-        if matches!(labels[i], 1 | 3 | 4) {
-            let f = ((mu[i] as f64 - ma) / (mg - ma)).clamp(0.0, 1.0);
-            g += f * rg;
-            a += (1.0 - f) * ra;
-            n += 1;
+        if PartialVolumeMass::counts(labels[i]) {
+            pv.add(mu[i] as f64, 1);
         }
     }
-    (g, a, n)
+    pv
 }
 
 /// The relative data residual of a volume against the acquisition it was
@@ -286,14 +267,14 @@ pub fn data_residual(
 pub fn unclamped_glandularity(mu: &[f32], labels: &[u8]) -> f64 {
     let (mut sum, mut n) = (0.0f64, 0usize);
     for (&m, &l) in mu.iter().zip(labels) {
-        if matches!(l, 1 | 3 | 4) {
+        if PartialVolumeMass::counts(l) {
             sum += m as f64;
             n += 1;
         }
     }
-    let [ma, mg, ra, rg] = tissue_constants();
-    let f = ((sum / n.max(1) as f64 - ma) / (mg - ma)).clamp(0.0, 1.0);
-    f * rg / (f * rg + (1.0 - f) * ra)
+    let mut pv = PartialVolumeMass::default();
+    pv.add(sum / n.max(1) as f64, 1);
+    pv.glandularity().unwrap_or(0.0)
 }
 
 /// The bands' statistics: `band_of(i)` gives voxel `i`'s band (or `None`).
@@ -313,7 +294,6 @@ fn bands(
         }
     }
     let cm3 = voxel_mm.powi(3) / 1000.0;
-    let g = |(m, a, _): (f64, f64, usize)| (m + a > 0.0).then(|| m / (m + a));
     names
         .iter()
         .zip(&members)
@@ -322,10 +302,10 @@ fn bands(
             let e = pv_sums(est.0, est.1, idx.iter().copied());
             BandStats {
                 band: name.clone(),
-                truth_cm3: t.2 as f64 * cm3,
-                truth_g: g(t),
-                est_cm3: e.2 as f64 * cm3,
-                est_g: g(e),
+                truth_cm3: t.voxels as f64 * cm3,
+                truth_g: t.glandularity(),
+                est_cm3: e.voxels as f64 * cm3,
+                est_g: e.glandularity(),
             }
         })
         .collect()

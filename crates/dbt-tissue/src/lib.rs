@@ -291,14 +291,7 @@ pub fn classify(
         }
     });
     let (centres, iterations) = fcm2_of(&vals, opts);
-    // Two classes need two populations: when the centres meet (a skin-free
-    // breast of one value), the voxels go to the nearer of the two tissues'
-    // nominal attenuations instead.
-    let mid = if centres[1] - centres[0] < 1e-6 {
-        0.5 * (Tissue::Adipose.mu_per_mm() as f64 + Tissue::Fibroglandular.mu_per_mm() as f64)
-    } else {
-        0.5 * (centres[0] + centres[1])
-    };
+    let mid = split_point(centres);
     let labels = (0..mu.len())
         .into_par_iter()
         .map(|i| {
@@ -321,6 +314,19 @@ pub fn classify(
         seed_mean,
         iterations,
     })
+}
+
+/// The attenuation that splits adipose from fibroglandular voxels for the
+/// fuzzy c-means `centres` (low, high): with two classes and one feature
+/// the larger membership switches at their midpoint. Two classes need two
+/// populations: when the centres meet (a skin-free breast of one value), the
+/// midpoint of the two tissues' nominal attenuations instead.
+pub fn split_point(centres: [f64; 2]) -> f64 {
+    if centres[1] - centres[0] < 1e-6 {
+        0.5 * (Tissue::Adipose.mu_per_mm() as f64 + Tissue::Fibroglandular.mu_per_mm() as f64)
+    } else {
+        0.5 * (centres[0] + centres[1])
+    }
 }
 
 /// `total_cmp` of f32 and f64, as one function pointer type.
@@ -550,34 +556,70 @@ pub fn density(mu: &[f32], labels: &[u8], voxel_mm: f64) -> Density {
         c[(l as usize).min(4)] += 1;
     }
     let ng = c[3] + c[4];
-    let (ma, mg) = (
-        Tissue::Adipose.mu_per_mm() as f64,
-        Tissue::Fibroglandular.mu_per_mm() as f64,
-    );
-    let (ra, rg) = (
-        Tissue::Adipose.density_g_cm3(),
-        Tissue::Fibroglandular.density_g_cm3(),
-    );
-    let (mut mass_g, mut mass_a, mut vol_g) = (0.0, 0.0, 0.0);
+    let mut pv = PartialVolumeMass::default();
     for (&v, &l) in mu.iter().zip(labels) {
-        if l == 1 || l == 3 || l == 4 {
-            let f = ((v as f64 - ma) / (mg - ma)).clamp(0.0, 1.0);
-            mass_g += f * rg;
-            mass_a += (1.0 - f) * ra;
-            vol_g += f;
+        if PartialVolumeMass::counts(l) {
+            pv.add(v as f64, 1);
         }
     }
     let vox_cm3 = voxel_mm.powi(3) / 1000.0;
     Density {
         glandularity_labels: glandularity(ng, c[1]).unwrap_or(0.0),
-        glandularity_partial_volume: if mass_g + mass_a > 0.0 {
-            mass_g / (mass_g + mass_a)
-        } else {
-            0.0
-        },
+        glandularity_partial_volume: pv.glandularity().unwrap_or(0.0),
         fibroglandular_cm3: ng as f64 * vox_cm3,
-        fibroglandular_partial_volume_cm3: vol_g * vox_cm3,
+        fibroglandular_partial_volume_cm3: pv.glandular_voxels * vox_cm3,
         breast_cm3: (c[1] + c[2] + c[3] + c[4]) as f64 * vox_cm3,
+    }
+}
+
+/// The partial-volume estimate's sums: each non-skin breast voxel's
+/// fibroglandular fraction `clamp((mu - mu_a) / (mu_g - mu_a), 0, 1)` from
+/// its attenuation (the materials' 20 keV values), summed by mass and by
+/// volume. [`density`], [`column_glandularity`] and the evaluation's
+/// estimates by region add to one.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct PartialVolumeMass {
+    /// Fibroglandular mass, voxel volumes x g/cm^3.
+    pub glandular: f64,
+    /// Adipose mass, voxel volumes x g/cm^3.
+    pub adipose: f64,
+    /// Fibroglandular volume, voxels (the fractions' sum).
+    pub glandular_voxels: f64,
+    /// Voxels added.
+    pub voxels: usize,
+}
+
+impl PartialVolumeMass {
+    /// Whether a voxel of label `label` is in the estimate: adipose,
+    /// fibroglandular and ligament (skin and air are not).
+    pub fn counts(label: u8) -> bool {
+        matches!(label, 1 | 3 | 4)
+    }
+
+    /// The fibroglandular fraction of attenuation `mu` (1/mm), clamped to
+    /// 0..1.
+    pub fn fraction(mu: f64) -> f64 {
+        let (ma, mg) = (
+            Tissue::Adipose.mu_per_mm() as f64,
+            Tissue::Fibroglandular.mu_per_mm() as f64,
+        );
+        ((mu - ma) / (mg - ma)).clamp(0.0, 1.0)
+    }
+
+    /// Add `n` voxels whose (mean) attenuation is `mu`.
+    pub fn add(&mut self, mu: f64, n: usize) {
+        let f = Self::fraction(mu);
+        let w = n as f64;
+        self.glandular += w * f * Tissue::Fibroglandular.density_g_cm3();
+        self.adipose += w * (1.0 - f) * Tissue::Adipose.density_g_cm3();
+        self.glandular_voxels += w * f;
+        self.voxels += n;
+    }
+
+    /// Glandularity by mass, or `None` without mass.
+    pub fn glandularity(&self) -> Option<f64> {
+        (self.glandular + self.adipose > 0.0)
+            .then(|| self.glandular / (self.glandular + self.adipose))
     }
 }
 
@@ -600,17 +642,9 @@ pub fn column_glandularity(mu: &[f32], labels: &[u8], dims: [usize; 3]) -> Optio
     if mu.len() != nx * ny * nz || labels.len() != mu.len() {
         return None;
     }
-    let (ma, mg, ms) = (
-        Tissue::Adipose.mu_per_mm() as f64,
-        Tissue::Fibroglandular.mu_per_mm() as f64,
-        Tissue::Skin.mu_per_mm() as f64,
-    );
-    let (ra, rg) = (
-        Tissue::Adipose.density_g_cm3(),
-        Tissue::Fibroglandular.density_g_cm3(),
-    );
+    let ms = Tissue::Skin.mu_per_mm() as f64;
     let skin = Tissue::Skin.label();
-    let (mut mass_g, mut mass_a) = (0.0, 0.0);
+    let mut pv = PartialVolumeMass::default();
     for z in 0..nz {
         for x in 0..nx {
             let (mut sum, mut n) = (0.0f64, 0usize);
@@ -619,19 +653,17 @@ pub fn column_glandularity(mu: &[f32], labels: &[u8], dims: [usize; 3]) -> Optio
                 let l = labels[i];
                 if l == skin {
                     sum -= ms;
-                } else if matches!(l, 1 | 3 | 4) {
+                } else if PartialVolumeMass::counts(l) {
                     n += 1;
                 }
                 sum += mu[i] as f64;
             }
             if n > 0 {
-                let f = ((sum / n as f64 - ma) / (mg - ma)).clamp(0.0, 1.0);
-                mass_g += n as f64 * f * rg;
-                mass_a += n as f64 * (1.0 - f) * ra;
+                pv.add(sum / n as f64, n);
             }
         }
     }
-    (mass_g + mass_a > 0.0).then(|| mass_g / (mass_g + mass_a))
+    pv.glandularity()
 }
 
 /// The compressed thickness a calibration's thickness term is centred on,
