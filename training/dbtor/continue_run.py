@@ -190,6 +190,18 @@ def cmd_new(argv):
     print(f"{d}/recipe.json written")
 
 
+def load_run(runs, name=None):
+    """The run `name` (default: RUNS/CURRENT's) of the runs folder `runs`:
+    its name, folder and recipe."""
+    if name is None:
+        with open(os.path.join(runs, "CURRENT")) as f:
+            name = f.read().strip()
+    rdir = os.path.join(runs, name)
+    with open(os.path.join(rdir, "recipe.json")) as f:
+        recipe = json.load(f)
+    return name, rdir, recipe
+
+
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["new"]:
@@ -218,13 +230,7 @@ def main(argv=None):
         deadline = start + 60 * a.minutes
     elif a.until:
         deadline = parse_until(a.until)
-    name = a.run
-    if name is None:
-        with open(os.path.join(a.runs, "CURRENT")) as f:
-            name = f.read().strip()
-    rdir = os.path.join(a.runs, name)
-    with open(os.path.join(rdir, "recipe.json")) as f:
-        recipe = json.load(f)
+    name, rdir, recipe = load_run(a.runs, a.run)
     state = os.path.join(rdir, "state.dbts")
     cache = cache_dir(a)
     threads = a.threads or os.cpu_count()

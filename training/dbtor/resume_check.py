@@ -18,7 +18,6 @@ is changed: the variants run in a temporary folder.
 """
 import argparse
 import csv
-import json
 import os
 import shlex
 import shutil
@@ -49,13 +48,7 @@ def main(argv=None):
     ap.add_argument("--iters", type=int, default=10)
     ap.add_argument("--threads", type=int, default=1)
     a = ap.parse_args(argv)
-    name = a.run
-    if name is None:
-        with open(os.path.join(a.runs, "CURRENT")) as f:
-            name = f.read().strip()
-    rdir = os.path.join(a.runs, name)
-    with open(os.path.join(rdir, "recipe.json")) as f:
-        recipe = json.load(f)
+    name, rdir, recipe = cr.load_run(a.runs, a.run)
     cache = cr.cache_dir(a)
     data = [os.path.join(cache, "datasets", cr.dataset_key(name, k, e)) for k, e in enumerate(recipe["datasets"])]
     local = os.path.join(cache, "runs", name)
