@@ -29,6 +29,16 @@ pub struct Case {
     /// The glandularity the firmware reports (partial volume, calibrated
     /// where the model has a calibration).
     pub g_reported: f64,
+    /// The physics-based density's glandularity by mass (no learning;
+    /// `dbt_physics_density`), NaN where the firmware could not make one.
+    pub g_physics: f64,
+    /// Its contact region's alone, NaN likewise.
+    pub g_physics_contact: f64,
+    /// The rim's share of its breast volume, NaN likewise.
+    pub physics_rim_share: f64,
+    /// The physics density's whole estimate (thickness plane, rim sectors,
+    /// every view), or why none.
+    pub physics_density: Result<dbt_physics_density::PhysicsDensity, String>,
     /// True MGD (phantom labels through the engine), mGy.
     pub mgd_true: f64,
     /// MGD of the classified reconstruction, mGy.
@@ -317,6 +327,19 @@ pub fn run_cases_on(
             g_labels: res.density.glandularity_labels,
             g_partial_volume: res.density.glandularity_partial_volume,
             g_reported: res.glandularity,
+            g_physics: res
+                .physics_density
+                .as_ref()
+                .map_or(f64::NAN, |p| p.central.glandularity),
+            g_physics_contact: res
+                .physics_density
+                .as_ref()
+                .map_or(f64::NAN, |p| p.central.contact_glandularity),
+            physics_rim_share: res
+                .physics_density
+                .as_ref()
+                .map_or(f64::NAN, |p| p.central.rim_share),
+            physics_density: res.physics_density.clone(),
             mgd_true: per_kerma * res.kerma_mgy,
             mgd_est: res.mgd_mgy,
             mgd_model: res.model_mgd_mgy,
@@ -456,6 +479,8 @@ pub struct AccuracySummary {
     pub glandularity_labels_pp: Agreement,
     /// Glandularity error (partial volume), percentage points.
     pub glandularity_partial_volume_pp: Agreement,
+    /// Physics-based density's glandularity error, percentage points.
+    pub glandularity_physics_pp: Agreement,
     /// Patient-specific MGD error, percent.
     pub mgd_percent: Agreement,
     /// Model-breast MGD error, percent.
@@ -482,7 +507,7 @@ pub struct Quantity {
 }
 
 /// The compared quantities, in the order of [`AccuracySummary::in_order`].
-pub const QUANTITIES: [Quantity; 5] = [
+pub const QUANTITIES: [Quantity; 6] = [
     Quantity {
         name: "glandularity, reported (pp)",
         short: "glandularity-reported",
@@ -520,6 +545,18 @@ pub const QUANTITIES: [Quantity; 5] = [
         },
     },
     Quantity {
+        name: "glandularity, physics density (pp)",
+        short: "glandularity-physics",
+        mean_axis: "mean of true and physics glandularity (%)",
+        difference_axis: "physics - truth (percentage points)",
+        pick: |c| {
+            (
+                100.0 * (c.g_physics - c.g_true),
+                50.0 * (c.g_physics + c.g_true),
+            )
+        },
+    },
+    Quantity {
         name: "MGD, patient-specific (%)",
         short: "mgd",
         mean_axis: "mean of true and estimated MGD (mGy)",
@@ -547,11 +584,12 @@ pub const QUANTITIES: [Quantity; 5] = [
 
 impl AccuracySummary {
     /// The agreements in the order of [`QUANTITIES`].
-    pub fn in_order(&self) -> [Agreement; 5] {
+    pub fn in_order(&self) -> [Agreement; 6] {
         [
             self.glandularity_reported_pp,
             self.glandularity_labels_pp,
             self.glandularity_partial_volume_pp,
+            self.glandularity_physics_pp,
             self.mgd_percent,
             self.model_mgd_percent,
         ]
@@ -560,12 +598,13 @@ impl AccuracySummary {
 
 /// Summarise cases.
 pub fn summarise(cases: &[Case]) -> AccuracySummary {
-    let [reported, g, gpv, mgd, model] =
+    let [reported, g, gpv, physics, mgd, model] =
         QUANTITIES.map(|q| agreement(&cases.iter().map(|c| (q.pick)(c).0).collect::<Vec<_>>()));
     AccuracySummary {
         glandularity_reported_pp: reported,
         glandularity_labels_pp: g,
         glandularity_partial_volume_pp: gpv,
+        glandularity_physics_pp: physics,
         mgd_percent: mgd,
         model_mgd_percent: model,
     }

@@ -206,6 +206,9 @@ pub struct ProcessResult {
     pub classification: Classification,
     /// Density estimates.
     pub density: Density,
+    /// The physics-based density of the same counts (issue #48 point 2:
+    /// `dbt_physics_density`, no learning), or why none could be made.
+    pub physics_density: Result<dbt_physics_density::PhysicsDensity, String>,
     /// The reported glandularity: the partial-volume estimate, calibrated
     /// when [`PipelineOptions::calibration`] is set.
     pub glandularity: f64,
@@ -619,6 +622,43 @@ pub fn reconstruct_volume(
     })
 }
 
+/// The physics-based density ([`dbt_physics_density::estimate`]) of a
+/// slice-wise acquisition whose counts are the primary's on the 20 keV scale
+/// (after [`correct_counts`] and the cone-beam rebinning), its defective
+/// elements corrected first; the error as text where none can be made (the
+/// reconstruction's own checks name the acquisition's faults).
+pub fn physics_density(
+    acq: &Acquisition,
+    opts: &PipelineOptions,
+) -> Result<dbt_physics_density::PhysicsDensity, String> {
+    let h = &acq.header;
+    let defects =
+        check_counts_with(h, &acq.counts, opts.scatter_in_input).map_err(|e| e.to_string())?;
+    let fixed;
+    let counts = if defects.is_empty() {
+        &acq.counts
+    } else {
+        let mut c = acq.counts.clone();
+        defects.correct(&mut c).map_err(|e| e.to_string())?;
+        fixed = c;
+        &fixed
+    };
+    let input = dbt_physics_density::Input {
+        geometry: &h.geometry,
+        slice_spacing_mm: h.slice_spacing_mm,
+        thickness_mm: h.thickness_mm,
+        flux: h.flux,
+        counts,
+    };
+    let o = dbt_physics_density::Options {
+        skin_mm: crate::linearise::NOMINAL_SKIN_MM,
+        noise_z: crate::plausibility::NOISE_Z,
+        ..Default::default()
+    };
+    let _s = tracing::debug_span!("physics_density").entered();
+    dbt_physics_density::estimate(&input, &o).map_err(|e| e.to_string())
+}
+
 /// [`process`], calling `progress` after each slice and at each later stage
 /// (for the service CLI's progress display).
 pub fn process_with_progress(
@@ -669,6 +709,7 @@ pub fn process_with_progress(
     let g = &h.geometry;
     let _span =
         tracing::info_span!("acquisition", patient = %h.patient.id, slices = h.slices).entered();
+    let physics_density = physics_density(acq, opts);
     stage_seconds.corrections = lap();
     stage_seconds.slices = reconstructed_slices(acq.counts.len(), opts.slice_step).len();
     let Volume {
@@ -770,6 +811,7 @@ pub fn process_with_progress(
             }),
         calibrated: opts.calibration.is_some(),
         density: dens,
+        physics_density,
         mgd_mgy: dose_patient.mgd_per_kerma * kerma_mgy,
         model_mgd_mgy: dose_model.mgd_per_kerma * kerma_mgy,
         kerma_mgy,
