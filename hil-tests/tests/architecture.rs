@@ -32,6 +32,7 @@ const PURE: &[&str] = &[
     "dbt-dose",
     "dbt-scatter",
     "dbt-tissue",
+    "dbt-physics-density",
     "dbt-gantry",
     "dbt-dicom",
     "dbt-pipeline",

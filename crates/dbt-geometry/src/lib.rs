@@ -368,14 +368,21 @@ impl Geometry {
         (r * t.sin(), r * t.cos())
     }
 
+    /// The point `(x, z)` in mm at lateral detector coordinate `u_mm` (0 on
+    /// the central ray) at view `v`: element centres, their edges, any
+    /// position along the detector.
+    pub fn detector_point_mm(&self, v: usize, u_mm: f64) -> (f64, f64) {
+        let (s, c) = self.angle_rad(v).sin_cos();
+        let off = self.source_to_center_mm - self.source_to_detector_mm;
+        (off * s + u_mm * c, off * c - u_mm * s)
+    }
+
     /// Source and detector-element centre `(x, z)` in mm defining ray `(v, k)`.
     pub fn ray_endpoints_mm(&self, v: usize, k: usize) -> ((f64, f64), (f64, f64)) {
-        let t = self.angle_rad(v);
-        let (s, c) = t.sin_cos();
-        let src = self.source_mm(v);
-        let off = self.source_to_center_mm - self.source_to_detector_mm;
-        let u = self.element_u_mm(k);
-        (src, (off * s + u * c, off * c - u * s))
+        (
+            self.source_mm(v),
+            self.detector_point_mm(v, self.element_u_mm(k)),
+        )
     }
 
     /// Project an image-plane point onto the detector at view `v`.

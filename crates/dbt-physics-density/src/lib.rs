@@ -433,12 +433,6 @@ struct RayGeom {
     w: f64,
 }
 
-fn detector_point(g: &Geometry, v: usize, u: f64) -> (f64, f64) {
-    let (s, c) = g.angle_rad(v).sin_cos();
-    let off = g.source_to_center_mm - g.source_to_detector_mm;
-    (off * s + u * c, off * c - u * s)
-}
-
 fn rays(g: &Geometry, v: usize, t: f64) -> Vec<RayGeom> {
     let src = g.source_mm(v);
     let z0 = g.support_z_mm();
@@ -448,12 +442,12 @@ fn rays(g: &Geometry, v: usize, t: f64) -> Vec<RayGeom> {
     (0..g.n_det())
         .map(|k| {
             let u = g.element_u_mm(k);
-            let d = detector_point(g, v, u);
+            let d = g.detector_point_mm(v, u);
             let (dx, dz) = (d.0 - src.0, d.1 - src.1);
             let sec = (dx * dx + dz * dz).sqrt() / dz.abs();
             let (l, r) = (
-                detector_point(g, v, u - p / 2.0),
-                detector_point(g, v, u + p / 2.0),
+                g.detector_point_mm(v, u - p / 2.0),
+                g.detector_point_mm(v, u + p / 2.0),
             );
             let area =
                 t * ((x_at(r, z0) - x_at(l, z0)).abs() + (x_at(r, z1) - x_at(l, z1)).abs()) / 2.0;
