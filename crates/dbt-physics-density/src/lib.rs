@@ -72,6 +72,7 @@
 
 use dbt_geometry::Geometry;
 use dbt_materials::Tissue;
+use rayon::prelude::*;
 use serde::Serialize;
 use thiserror::Error;
 
@@ -276,19 +277,14 @@ pub fn estimate(inp: &Input, opts: &Options) -> Result<PhysicsDensity, PhysicsDe
     let central = (0..g.n_views())
         .min_by(|&a, &b| g.angle_deg(a).abs().total_cmp(&g.angle_deg(b).abs()))
         .unwrap_or(0);
-    let mut views = Vec::with_capacity(g.n_views());
-    let mut centre = None;
-    for v in 0..g.n_views() {
-        let e = estimate_view(inp, opts, v)?;
-        views.push((e.angle_deg, e.glandularity));
-        if v == central {
-            centre = Some(e);
-        }
-    }
-    let central = match centre {
-        Some(c) => c,
-        None => estimate_view(inp, opts, central)?,
-    };
+    // The views are independent: one per worker (each view's arithmetic is
+    // its own, so the figures do not depend on the pool).
+    let mut all = (0..g.n_views())
+        .into_par_iter()
+        .map(|v| view_estimate(inp, opts, v))
+        .collect::<Result<Vec<_>, _>>()?;
+    let views: Vec<(f64, f64)> = all.iter().map(|e| (e.angle_deg, e.glandularity)).collect();
+    let central = all.swap_remove(central);
     let lo = views.iter().map(|v| v.1).fold(f64::INFINITY, f64::min);
     let hi = views.iter().map(|v| v.1).fold(f64::NEG_INFINITY, f64::max);
     let spread_pp = 100.0 * (hi - lo);
@@ -393,20 +389,15 @@ fn check(inp: &Input, opts: &Options) -> Result<(), PhysicsDensityError> {
     pos("rim_max_mm", opts.rim_max_mm)?;
     pos("smooth_mm", opts.smooth_mm)?;
     pos("noise_z", opts.noise_z)?;
-    if !(opts.rim_quantile > 0.0 && opts.rim_quantile < 1.0) {
-        return Err(invalid(
-            "rim_quantile",
-            opts.rim_quantile,
-            "must lie in (0, 1)",
-        ));
-    }
-    if !(opts.fat_quantile > 0.0 && opts.fat_quantile < 1.0) {
-        return Err(invalid(
-            "fat_quantile",
-            opts.fat_quantile,
-            "must lie in (0, 1)",
-        ));
-    }
+    let fraction = |field, v: f64| {
+        if v > 0.0 && v < 1.0 {
+            Ok(())
+        } else {
+            Err(invalid(field, v, "must lie in (0, 1)"))
+        }
+    };
+    fraction("rim_quantile", opts.rim_quantile)?;
+    fraction("fat_quantile", opts.fat_quantile)?;
     if opts.sectors == 0 {
         return Err(invalid("sectors", 0.0, "at least one sector"));
     }
@@ -602,10 +593,19 @@ pub fn estimate_view(
     v: usize,
 ) -> Result<ViewDensity, PhysicsDensityError> {
     check(inp, opts)?;
-    let g = inp.geometry;
-    if v >= g.n_views() {
+    if v >= inp.geometry.n_views() {
         return Err(invalid("view", v as f64, "beyond the geometry's views"));
     }
+    view_estimate(inp, opts, v)
+}
+
+/// [`estimate_view`] of an input [`check`] passed and a view that exists.
+fn view_estimate(
+    inp: &Input,
+    opts: &Options,
+    v: usize,
+) -> Result<ViewDensity, PhysicsDensityError> {
+    let g = inp.geometry;
     let (mu_f, mu_d, mu_s) = mus();
     let dmu = mu_d - mu_f;
     let (ns, nd) = (inp.counts.len(), g.n_det());
@@ -721,11 +721,18 @@ pub fn estimate_view(
                 None
             }
         };
-        let diff = |lo: Option<(f64, f64)>, hi: Option<(f64, f64)>| match (lo, hi) {
-            (Some((a, pa)), Some((b, pb))) if (pb - pa).abs() > 0.0 => (b - a) / (pb - pa),
-            _ => 0.0,
-        };
+        // The slope between the neighbours on either side, or between a
+        // neighbour and this ray where the other is not breast (0 where
+        // neither is).
         let here = (dist[i], 0.0);
+        let slope = |lo: Option<(f64, f64)>, hi: Option<(f64, f64)>| {
+            let ((a, pa), (b, pb)) = (lo.unwrap_or(here), hi.unwrap_or(here));
+            if (pb - pa).abs() > 0.0 {
+                (b - a) / (pb - pa)
+            } else {
+                0.0
+            }
+        };
         let kx = |k2: usize| geo[k2].x_mid - geo[k].x_mid;
         let left = if k > 0 {
             at(s, k - 1).map(|d| (d, kx(k - 1)))
@@ -737,12 +744,7 @@ pub fn estimate_view(
         } else {
             None
         };
-        let gx = match (left, right) {
-            (Some(l), Some(r)) => diff(Some(l), Some(r)),
-            (Some(l), None) => diff(Some(l), Some(here)),
-            (None, Some(r)) => diff(Some(here), Some(r)),
-            (None, None) => 0.0,
-        };
+        let gx = slope(left, right);
         let ky = |s2: usize| pos[s2] - pos[s];
         let back = if s > 0 {
             at(s - 1, k).map(|d| (d, ky(s - 1)))
@@ -754,12 +756,7 @@ pub fn estimate_view(
         } else {
             Some((0.0, ky(s) + dy))
         };
-        let gy = match (back, fwd) {
-            (Some(b), Some(f)) => diff(Some(b), Some(f)),
-            (Some(b), None) => diff(Some(b), Some(here)),
-            (None, Some(f)) => diff(Some(here), Some(f)),
-            (None, None) => 0.0,
-        };
+        let gy = slope(back, fwd);
         (gx, gy)
     };
     let sector: Vec<usize> = (0..ns * nd)
