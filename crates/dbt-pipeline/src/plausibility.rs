@@ -285,6 +285,10 @@ pub(crate) fn dark_bounds(h: &AcquisitionHeader) -> DarkBounds {
     }
 }
 
+/// Counts with their defects corrected (borrowed where there were none),
+/// and the check that says what was corrected: [`Defects::applied`].
+pub type Corrected<'a> = (std::borrow::Cow<'a, [Vec<f32>]>, CountsCheck);
+
 /// The defective counts that [`check_counts`] found, to be corrected.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Defects {
@@ -300,6 +304,17 @@ impl Defects {
     /// Whether no count is defective.
     pub fn is_empty(&self) -> bool {
         self.masks.is_empty()
+    }
+
+    /// `counts` with these defects corrected ([`Defects::correct`] on a
+    /// copy), or `counts` themselves where there are none; and the check.
+    pub fn applied<'a>(&self, counts: &'a [Vec<f32>]) -> Result<Corrected<'a>, Implausible> {
+        if self.is_empty() {
+            return Ok((std::borrow::Cow::Borrowed(counts), self.check.clone()));
+        }
+        let mut c = counts.to_vec();
+        let chk = self.correct(&mut c)?;
+        Ok((std::borrow::Cow::Owned(c), chk))
     }
 
     /// Replace every defective count by linear interpolation between the

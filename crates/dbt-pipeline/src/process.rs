@@ -248,7 +248,8 @@ pub struct StageSeconds {
     /// Every slice reconstructed and stacked (a cone-beam stack resampled
     /// in depth).
     pub reconstruction: f64,
-    /// Tissue classification, the volume's plausibility and the density.
+    /// Tissue classification, the volume's plausibility, the density and
+    /// the physics density ([`physics_density`]).
     pub classification: f64,
     /// The patient-specific Monte Carlo dose.
     pub dose_patient: f64,
@@ -536,20 +537,15 @@ pub fn reconstruct_volume(
         }
     }
     // The counts last: every cheaper refusal above comes first.
-    let defects = check_counts_with(h, &acq.counts, opts.scatter_in_input)?;
-    let corrected;
-    let (counts, counts_check) = if defects.is_empty() {
-        (&acq.counts, defects.check)
-    } else {
-        let mut c = acq.counts.clone();
-        let chk = defects.correct(&mut c)?;
+    let (counts, counts_check) =
+        check_counts_with(h, &acq.counts, opts.scatter_in_input)?.applied(&acq.counts)?;
+    if let std::borrow::Cow::Owned(_) = counts {
         tracing::warn!(
-            corrected = chk.corrected,
+            corrected = counts_check.corrected,
             "defective detector counts corrected"
         );
-        corrected = c;
-        (&corrected, chk)
-    };
+    }
+    let counts = counts.as_ref();
     let proj = Projector::new(g);
     let mask = dbt_phantom::thickness_mask(g, h.thickness_mm);
     let nd = counts.len();
@@ -632,23 +628,15 @@ pub fn physics_density(
     opts: &PipelineOptions,
 ) -> Result<dbt_physics_density::PhysicsDensity, String> {
     let h = &acq.header;
-    let defects =
-        check_counts_with(h, &acq.counts, opts.scatter_in_input).map_err(|e| e.to_string())?;
-    let fixed;
-    let counts = if defects.is_empty() {
-        &acq.counts
-    } else {
-        let mut c = acq.counts.clone();
-        defects.correct(&mut c).map_err(|e| e.to_string())?;
-        fixed = c;
-        &fixed
-    };
+    let (counts, _) = check_counts_with(h, &acq.counts, opts.scatter_in_input)
+        .and_then(|d| d.applied(&acq.counts))
+        .map_err(|e| e.to_string())?;
     let input = dbt_physics_density::Input {
         geometry: &h.geometry,
         slice_spacing_mm: h.slice_spacing_mm,
         thickness_mm: h.thickness_mm,
         flux: h.flux,
-        counts,
+        counts: &counts,
     };
     let o = dbt_physics_density::Options {
         skin_mm: crate::linearise::NOMINAL_SKIN_MM,
@@ -687,20 +675,22 @@ pub fn process_with_progress(
     let mut raw_check = None;
     let cone = acq.header.system.clone();
     let acq = if acq.header.system.is_some() {
-        let defects = check_counts_with(&acq.header, &acq.counts, opts.scatter_in_input)?;
-        rebinned = if defects.is_empty() {
-            raw_check = Some(defects.check);
-            crate::rebin::fan_acquisition(acq)?
-        } else {
-            let mut fixed = acq.clone();
-            let chk = defects.correct(&mut fixed.counts)?;
-            tracing::warn!(
-                corrected = chk.corrected,
-                "defective detector counts corrected in the cone-beam frames"
-            );
-            raw_check = Some(chk);
-            crate::rebin::fan_acquisition(&fixed)?
+        let (counts, chk) = check_counts_with(&acq.header, &acq.counts, opts.scatter_in_input)?
+            .applied(&acq.counts)?;
+        rebinned = match counts {
+            std::borrow::Cow::Borrowed(_) => crate::rebin::fan_acquisition(acq)?,
+            std::borrow::Cow::Owned(counts) => {
+                tracing::warn!(
+                    corrected = chk.corrected,
+                    "defective detector counts corrected in the cone-beam frames"
+                );
+                crate::rebin::fan_acquisition(&Acquisition {
+                    header: acq.header.clone(),
+                    counts,
+                })?
+            }
         };
+        raw_check = Some(chk);
         &rebinned
     } else {
         acq
@@ -709,7 +699,6 @@ pub fn process_with_progress(
     let g = &h.geometry;
     let _span =
         tracing::info_span!("acquisition", patient = %h.patient.id, slices = h.slices).entered();
-    let physics_density = physics_density(acq, opts);
     stage_seconds.corrections = lap();
     stage_seconds.slices = reconstructed_slices(acq.counts.len(), opts.slice_step).len();
     let Volume {
@@ -751,6 +740,10 @@ pub fn process_with_progress(
         g.image.pixel_mm,
     )?;
     let dens = density(&mu, &classification.labels, g.image.pixel_mm);
+    // The second density, of the same corrected counts: after every
+    // refusal of the reconstruction and the volume, so that an acquisition
+    // refused costs none of it.
+    let physics_density = physics_density(acq, opts);
     stage_seconds.classification = lap();
     progress(Stage::Dose);
     // The exposure's spectrum from the kV received (the one place the
