@@ -32,10 +32,6 @@ pub struct Case {
     /// The physics-based density's glandularity by mass (no learning;
     /// `dbt_physics_density`), NaN where the firmware could not make one.
     pub g_physics: f64,
-    /// Its contact region's alone, NaN likewise.
-    pub g_physics_contact: f64,
-    /// The rim's share of its breast volume, NaN likewise.
-    pub physics_rim_share: f64,
     /// The physics density's whole estimate (thickness plane, rim sectors,
     /// every view), or why none.
     pub physics_density: Result<dbt_physics_density::PhysicsDensity, String>,
@@ -331,14 +327,6 @@ pub fn run_cases_on(
                 .physics_density
                 .as_ref()
                 .map_or(f64::NAN, |p| p.central.glandularity),
-            g_physics_contact: res
-                .physics_density
-                .as_ref()
-                .map_or(f64::NAN, |p| p.central.contact_glandularity),
-            physics_rim_share: res
-                .physics_density
-                .as_ref()
-                .map_or(f64::NAN, |p| p.central.rim_share),
             physics_density: res.physics_density.clone(),
             mgd_true: per_kerma * res.kerma_mgy,
             mgd_est: res.mgd_mgy,
