@@ -81,6 +81,12 @@ print(f"processed {d['acquisition']} in {d['seconds']:.1f} s ({r['reconstructor'
 print(f"glandularity: reported {r['glandularity']:.3f} ({'calibrated ' if r['calibrated'] else ''}partial volume), "
       f"labels {r['density']['glandularity_labels']:.3f}, partial volume "
       f"{r['density']['glandularity_partial_volume']:.3f}; phantom truth {t.get('glandularity', float('nan')):.3f}")
+c = r["density_check"]
+pct = lambda g: "none" if g is None else f"{g:.3f}"
+print(f"physics density (no learning, same projections): {pct(c['physics'])}; contact region: network "
+      f"{pct(c['contact_network'])}, physics {pct(c['contact_physics'])}; "
+      + ("density CONFIRMED by the physics" if c["confirmed"]
+         else "density NOT CONFIRMED, no composition category reported: " + "; ".join(c["reasons"])))
 st = r.get("stage_seconds") or {}
 if st:
     n = st["slices"]
@@ -88,7 +94,9 @@ if st:
           f"({n} slices, {1e3 * st['reconstruction'] / max(n, 1):.0f} ms each), classification "
           f"{st['classification']:.1f} s, dose {st['dose_patient']:.1f} s (patient) + {st['dose_model']:.1f} s (model breast)")
 print(f"MGD {r['mgd_mgy']:.3f} mGy (+- {100 * r['dose_patient']['mgd_rel_uncertainty']:.2f} %), "
-      f"model breast {r['model_mgd_mgy']:.3f} mGy, incident air kerma {r['kerma_mgy']:.2f} mGy")
+      f"model breast {r['model_mgd_mgy']:.3f} mGy"
+      + (f" ({r['model_mgd_at_physics_mgy']:.3f} mGy at the physics density)" if r.get("model_mgd_at_physics_mgy") else "")
+      + f", incident air kerma {r['kerma_mgy']:.2f} mGy")
 PY
 status=0
 for f in "$OUT"/reports/*.dcm; do

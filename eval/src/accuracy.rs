@@ -35,6 +35,9 @@ pub struct Case {
     /// The physics density's whole estimate (thickness plane, rim sectors,
     /// every view), or why none.
     pub physics_density: Result<dbt_physics_density::PhysicsDensity, String>,
+    /// The reported glandularity cross-checked against the physics density
+    /// (`dbt_pipeline::density_check`).
+    pub density_check: dbt_pipeline::density_check::DensityCheck,
     /// True MGD (phantom labels through the engine), mGy.
     pub mgd_true: f64,
     /// MGD of the classified reconstruction, mGy.
@@ -328,6 +331,7 @@ pub fn run_cases_on(
                 .as_ref()
                 .map_or(f64::NAN, |p| p.central.glandularity),
             physics_density: res.physics_density.clone(),
+            density_check: res.density_check.clone(),
             mgd_true: per_kerma * res.kerma_mgy,
             mgd_est: res.mgd_mgy,
             mgd_model: res.model_mgd_mgy,

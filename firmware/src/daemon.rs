@@ -981,15 +981,37 @@ impl Daemon {
                 glandularity_reported: res.glandularity,
                 calibrated: res.calibrated,
                 volumetric_fraction: Some(vf),
-                composition: Some(dbt_dicom::composition_category(vf).0.to_string()),
+                // No category where the physics did not confirm the
+                // density (the SR gives none either).
+                composition: res
+                    .density_check
+                    .confirmed
+                    .then(|| dbt_dicom::composition_category(vf).0.to_string()),
                 mgd_mgy: res.mgd_mgy,
                 model_mgd_mgy: res.model_mgd_mgy,
                 seconds: t0.elapsed().as_secs_f64(),
                 finished_unix: now_unix(),
                 reports: vec![format!("{id}-dose-sr.dcm"), format!("{id}-density-sr.dcm")],
                 pacs_waiting: waiting,
-                // Defective counts corrected before the reconstruction.
-                flags: res.flags.clone(),
+                // Defective counts corrected before the reconstruction;
+                // a density the physics did not confirm.
+                flags: res
+                    .flags
+                    .iter()
+                    .cloned()
+                    .chain((!res.density_check.confirmed).then(|| {
+                        format!(
+                            "{}: {}",
+                            dbt_status::DENSITY_CHECK_WARNING,
+                            res.density_check.reasons.join("; ")
+                        )
+                    }))
+                    .collect(),
+                density_check: Some(dbt_status::DensityCheckRecord {
+                    physics_glandularity: res.density_check.physics,
+                    confirmed: res.density_check.confirmed,
+                    reasons: res.density_check.reasons.clone(),
+                }),
             })
         })();
         match delivered {

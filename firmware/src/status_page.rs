@@ -362,6 +362,11 @@ mod tests {
             reports: vec![format!("{id}-dose-sr.dcm")],
             pacs_waiting: vec![],
             flags: vec![],
+            density_check: Some(dbt_status::DensityCheckRecord {
+                physics_glandularity: Some(0.2),
+                confirmed: true,
+                reasons: vec![],
+            }),
         }
     }
 
@@ -376,7 +381,16 @@ mod tests {
         {
             let e = spool.join("done").join(id);
             std::fs::create_dir_all(&e).unwrap();
-            let r = record(id, t, 200 + i as u64);
+            let mut r = record(id, t, 200 + i as u64);
+            if i == 1 {
+                // The physics did not confirm the second one's density.
+                r.composition = None;
+                r.density_check = Some(dbt_status::DensityCheckRecord {
+                    physics_glandularity: Some(0.45),
+                    confirmed: false,
+                    reasons: vec!["disagree by -24.0 pp (limit 14)".into()],
+                });
+            }
             std::fs::write(e.join("result.json"), serde_json::to_vec(&r).unwrap()).unwrap();
             st.push_reported(r);
         }
@@ -426,6 +440,18 @@ mod tests {
             serde_json::from_slice(&respond(&mut r, "GET", "/status.json?x=1").body).unwrap();
         assert_eq!(j["history"][1]["acquisition"], "2000");
         assert_eq!(j["healthy"], true);
+        // The density the physics did not confirm: counted as a warning,
+        // shown without a category, with the reason.
+        assert_eq!(j["status"]["warning_counts"]["density_check"], 1, "{j}");
+        let page = String::from_utf8(respond(&mut r, "GET", "/").body).unwrap();
+        assert!(
+            page.contains(r#"data-kind="density_check""#)
+                && page.contains(
+                    "density_check: not confirmed by the physics, physics density 45.0 %"
+                )
+                && page.contains("NOT confirmed by the physics density: disagree by -24.0 pp"),
+            "{page}"
+        );
         let pic = respond(&mut r, "GET", "/acquisitions/2000/picture.svg");
         assert_eq!((pic.code, pic.body.as_slice()), (200, b"<svg/>".as_slice()));
         assert_eq!(pic.content_type, "image/svg+xml");

@@ -91,6 +91,11 @@ fn a_corrupted_dicom_length_is_refused_not_allocated() {
             breast_cm3: 500.0,
             reconstructor: "MLTR 100 iterations".into(),
             model_version: "none".into(),
+            check: dbt_dicom::DensityCheckReport {
+                physics_glandularity: Some(0.25),
+                confirmed: true,
+                reasons: vec![],
+            },
             content_date: "20261124".into(),
             content_time: "120000".into(),
         },

@@ -222,6 +222,132 @@ fn acquisition_to_reports() {
         .contains("slice spacing"));
 }
 
+/// The cross-check against the physics density (issue #48 point 3): an
+/// honest reconstruction of a procedural breast is confirmed and its report
+/// gives a composition category; the same reconstruction forced wrong (an
+/// offset of a third of the fat-to-gland contrast added to every voxel,
+/// the density and the contact figure recomputed by the functions the
+/// pipeline uses) is not confirmed, and its density SR gives both figures,
+/// the reason and no category, while its dose SR gives the model breast at
+/// the physics density; both pass the validators.
+#[test]
+fn a_network_answer_forced_wrong_is_flagged_and_gets_no_category() {
+    use dbt_pipeline::density_check::{contact_glandularity, cross_check, LIMITS};
+    let g = Geometry::paper().binned(4).unwrap();
+    let spec = PhantomSpec {
+        thickness_mm: 40.0,
+        chest_to_nipple_mm: 70.0,
+        width_mm: 110.0,
+        glandularity: 0.25,
+        ..PhantomSpec::typical(g.image.pixel_mm, 21)
+    };
+    let acq = acquired(&g, &spec, NoiseLevel::NoiseFree, 4, 28.0, "T2");
+    let opts = PipelineOptions {
+        dbtor: None,
+        mltr_iterations: 30,
+        dose_uncertainty: 0.05,
+        seed: 1,
+        ..PipelineOptions::default()
+    };
+    let res = process(&acq, &opts).unwrap();
+    let chk = &res.density_check;
+    assert!(chk.confirmed, "{}: {:?}", chk.summary(), chk.reasons);
+    assert!(res.model_mgd_at_physics_mgy.is_none());
+    let physics = res.physics_density.as_ref().expect("a physics density");
+    // The contact figure the pipeline compared is the reconstruction's own.
+    let h = &acq.header;
+    let contact = |mu: &[f32]| {
+        contact_glandularity(
+            mu,
+            &res.classification.labels,
+            res.dims,
+            &h.geometry,
+            h.slice_spacing_mm,
+            &physics.central.contact,
+        )
+    };
+    assert_eq!(contact(&res.mu), chk.contact_network);
+    let eq = Equipment {
+        manufacturer: "T".into(),
+        model: "T".into(),
+        serial: "1".into(),
+        software_version: "0".into(),
+        device_uid: "1.2.3.9".into(),
+    };
+    let values = |r: &dbt_dicom::Report| read_values(&r.to_bytes().unwrap()).unwrap().1;
+    let get =
+        |v: &[(String, String)], k: &str| v.iter().find(|(n, _)| n == k).map(|(_, s)| s.clone());
+    let mut uids = UidSource::new("1.2.3", 9).unwrap();
+    let (_, dens) = reports(&acq, &res, &eq, &mut uids, "20261122", "120000").unwrap();
+    let v = values(&dens);
+    assert!(get(&v, "Breast composition").is_some(), "{v:?}");
+    assert_eq!(
+        get(&v, "Density cross-check").as_deref(),
+        Some("Confirmed by the physics-based density")
+    );
+    // Forced wrong.
+    let offset = 0.33
+        * (dbt_materials::Tissue::Fibroglandular.mu_per_mm()
+            - dbt_materials::Tissue::Adipose.mu_per_mm());
+    let wrong_mu: Vec<f32> = res.mu.iter().map(|m| m + offset).collect();
+    let wrong_density = dbt_tissue::density(&wrong_mu, &res.classification.labels, res.voxel_mm);
+    let wrong_check = cross_check(
+        wrong_density.glandularity_partial_volume,
+        contact(&wrong_mu),
+        None,
+        h.thickness_mm,
+        &res.physics_density,
+        LIMITS,
+    );
+    assert!(
+        !wrong_check.confirmed,
+        "an offset of {offset} /mm confirmed: {}",
+        wrong_check.summary()
+    );
+    let mut wrong = res.clone();
+    wrong.glandularity = wrong_density.glandularity_partial_volume;
+    wrong.density = wrong_density;
+    wrong.density_check = wrong_check;
+    wrong.model_mgd_at_physics_mgy = Some(0.9 * res.model_mgd_mgy);
+    let (dose, dens) = reports(&acq, &wrong, &eq, &mut uids, "20261122", "120000").unwrap();
+    let v = values(&dens);
+    assert_eq!(get(&v, "Breast composition"), None, "{v:?}");
+    assert_eq!(
+        get(&v, "Density cross-check").as_deref(),
+        Some("Not confirmed by the physics-based density")
+    );
+    let why = get(&v, "Why the density is not confirmed").unwrap();
+    assert!(
+        why.contains("could not be confirmed") && why.contains("pp"),
+        "{why}"
+    );
+    let phys = get(&v, "Percent Fibroglandular Tissue, physics-based").unwrap();
+    let phys: f64 = phys.split(' ').next().unwrap().parse().unwrap();
+    assert!((phys - 100.0 * physics.central.glandularity).abs() < 1e-6);
+    let dv = values(&dose);
+    let at_phys = get(&dv, "Model-breast AGD at the physics-based density").unwrap();
+    let at_phys: f64 = at_phys.split(' ').next().unwrap().parse().unwrap();
+    assert!((at_phys - 0.9 * res.model_mgd_mgy).abs() < 1e-6 * at_phys.max(1e-9));
+    let dir = tempfile::tempdir().unwrap();
+    for (name, r) in [("dose.dcm", &dose), ("density.dcm", &dens)] {
+        let p = dir.path().join(name);
+        std::fs::write(&p, r.to_bytes().unwrap()).unwrap();
+        let out = std::process::Command::new("dciodvfy")
+            .arg(&p)
+            .output()
+            .expect("dciodvfy not found: apt-get install dicom3tools");
+        let text = String::from_utf8_lossy(&out.stderr).to_string()
+            + &String::from_utf8_lossy(&out.stdout);
+        let errors: Vec<&str> = text.lines().filter(|l| l.starts_with("Error")).collect();
+        assert!(errors.is_empty(), "{name}: {errors:?}");
+        let st = std::process::Command::new("dsrdump")
+            .arg(&p)
+            .output()
+            .expect("dsrdump not found: apt-get install dcmtk");
+        assert!(st.status.success(), "{name}: dsrdump failed");
+    }
+}
+
 /// A copy of the shipped model folder (manifest and the files it lists).
 fn copy_model(to: &std::path::Path) -> std::path::PathBuf {
     let from = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/dbtor-x4");

@@ -63,6 +63,7 @@ fn dose(agd: f64) -> DoseInput {
         accumulated_agd_mgy: agd,
         relative_uncertainty: 0.008,
         model_agd_mgy: agd * 1.3,
+        model_agd_at_physics_mgy: None,
         content_date: "20261122".into(),
         content_time: "102000".into(),
         intent: ProcedureIntent::Diagnostic,
@@ -80,6 +81,11 @@ fn density() -> DensityInput {
         breast_cm3: 700.0,
         reconstructor: "DBToR fp32".into(),
         model_version: "test".into(),
+        check: dbt_dicom::DensityCheckReport {
+            physics_glandularity: Some(0.25),
+            confirmed: true,
+            reasons: vec![],
+        },
         content_date: "20261122".into(),
         content_time: "102000".into(),
     }

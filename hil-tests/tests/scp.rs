@@ -129,6 +129,11 @@ fn echo_store_and_refusal_with_dcmtk_and_host_sim() {
             breast_cm3: 600.0,
             reconstructor: "x".into(),
             model_version: "x".into(),
+            check: dbt_dicom::DensityCheckReport {
+                physics_glandularity: Some(0.25),
+                confirmed: true,
+                reasons: vec![],
+            },
             content_date: "20261124".into(),
             content_time: "101500".into(),
         },

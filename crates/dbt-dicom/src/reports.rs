@@ -221,6 +221,11 @@ pub struct DoseInput {
     pub relative_uncertainty: f64,
     /// The model-breast (homogeneous) estimate, mGy.
     pub model_agd_mgy: f64,
+    /// Where the density was not confirmed by the physics density: the
+    /// model-breast estimate at the physics density's glandularity, mGy
+    /// (issue #48 point 3; `None` when confirmed or without a physics
+    /// density).
+    pub model_agd_at_physics_mgy: Option<f64>,
     /// Content date and time `YYYYMMDD`, `HHMMSS`.
     pub content_date: String,
     /// See `content_date`.
@@ -252,10 +257,25 @@ pub struct DensityInput {
     pub reconstructor: String,
     /// Model version (manifest checksum or tag).
     pub model_version: String,
+    /// The cross-check against the physics density of the same counts.
+    pub check: DensityCheckReport,
     /// Content date and time.
     pub content_date: String,
     /// See `content_date`.
     pub content_time: String,
+}
+
+/// What the density report says of the cross-check against the physics
+/// density (issue #48 point 3).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DensityCheckReport {
+    /// The physics-based glandularity by mass, 0..1, when one was made.
+    pub physics_glandularity: Option<f64>,
+    /// Whether the physics confirms the reported density: only then does
+    /// the report assert a composition category.
+    pub confirmed: bool,
+    /// Why it does not (empty when confirmed).
+    pub reasons: Vec<String>,
 }
 
 /// A built report: the dataset and its identity.
@@ -583,6 +603,9 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
         1000.0,
     )?;
     check("model_agd_mgy", input.model_agd_mgy, 0.0, 1000.0)?;
+    if let Some(m) = input.model_agd_at_physics_mgy {
+        check("model_agd_at_physics_mgy", m, 0.0, 1000.0)?;
+    }
     check(
         "source_distances_mm[0]",
         input.source_distances_mm[0],
@@ -633,12 +656,21 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
             )],
         ),
     ));
+    let at_physics = input.model_agd_at_physics_mgy.map_or(String::new(), |m| {
+        format!(
+            " The breast density was not confirmed by the physics-based density of the same \
+             projections (see the density report): the model-breast estimate at the \
+             physics-based glandularity is {} mGy.",
+            crate::format_ds(m)
+        )
+    });
     let method = format!(
         "Average glandular dose computed patient-specifically by Monte Carlo photon transport \
          (photoelectric, Rayleigh, Compton; validated against AAPM TG-195 case 3) on the \
          tissue-classified DBToR reconstruction of this breast; relative statistical \
          uncertainty {:.2} % (1 s.d., batch method). Model-breast (homogeneous, same \
-         thickness and glandularity) estimate with the same engine: {} mGy. Computed by: {}.",
+         thickness and glandularity) estimate with the same engine: {} mGy.{at_physics} \
+         Computed by: {}.",
         100.0 * input.relative_uncertainty,
         crate::format_ds(input.model_agd_mgy),
         input.algorithm_version
@@ -689,6 +721,32 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
             ],
         ),
     ));
+    // Beside the patient's dose where the physics did not confirm the
+    // density: the model breast at the physics density's glandularity
+    // (issue #48 point 3), after the model breast at the reported one.
+    if let Some(m) = input.model_agd_at_physics_mgy {
+        if let Some((_, Item::Container(_, items))) = children.last_mut() {
+            let at = items
+                .iter()
+                .position(|(_, it)| matches!(it, Item::Num(c, ..) if c.value == "AGDMODEL"))
+                .map_or(items.len(), |i| i + 1);
+            items.insert(
+                at,
+                (
+                    Rel::Contains,
+                    Item::Num(
+                        private(
+                            "AGDMODELPHYS",
+                            "Model-breast AGD at the physics-based density",
+                        ),
+                        m,
+                        mgy(),
+                        vec![],
+                    ),
+                ),
+            );
+        }
+    }
     for (i, ev) in input.events.iter().enumerate() {
         check("events.agd_mgy", ev.agd_mgy, 0.0, 1000.0)?;
         check("events.kvp", ev.kvp, 10.0, 60.0)?;
@@ -1005,6 +1063,15 @@ pub fn density_report(input: &DensityInput, uids: &mut UidSource) -> Result<Repo
         0.0,
         input.breast_cm3,
     )?;
+    if let Some(g) = input.check.physics_glandularity {
+        check("check.physics_glandularity", g, 0.0, 1.0)?;
+    }
+    if !input.check.confirmed && input.check.reasons.is_empty() {
+        return Err(DicomError::Field {
+            field: "check.reasons",
+            reason: "an unconfirmed density needs the reason it is not confirmed".into(),
+        });
+    }
     let vf = input.fibroglandular_cm3 / input.breast_cm3;
     let (_, cat) = composition_category(vf);
     let cm3 = || Code::ucum("cm3", "cubic centimeter");
@@ -1045,14 +1112,61 @@ pub fn density_report(input: &DensityInput, uids: &mut UidSource) -> Result<Repo
             vec![],
         ),
     ));
+    // The cross-check (issue #48 point 3): the physics-based figure in
+    // every report; the composition category only where it confirms the
+    // reported density, else why not, with both figures.
+    let chk = &input.check;
+    if let Some(g) = chk.physics_glandularity {
+        children.push((
+            Rel::Contains,
+            Item::Num(
+                private("PHYSPFT", "Percent Fibroglandular Tissue, physics-based"),
+                100.0 * g,
+                Code::ucum("%", "Percent"),
+                vec![],
+            ),
+        ));
+    }
     children.push((
         Rel::Contains,
         Item::Code(
-            Code::new("129714008", "SCT", "Breast composition"),
-            cat,
+            private("DCHECK", "Density cross-check"),
+            if chk.confirmed {
+                private("CONFIRMED", "Confirmed by the physics-based density")
+            } else {
+                private("UNCONFIRMED", "Not confirmed by the physics-based density")
+            },
             vec![],
         ),
     ));
+    if chk.confirmed {
+        children.push((
+            Rel::Contains,
+            Item::Code(
+                Code::new("129714008", "SCT", "Breast composition"),
+                cat,
+                vec![],
+            ),
+        ));
+    } else {
+        let physics = chk
+            .physics_glandularity
+            .map_or("none could be made".to_string(), |g| {
+                format!("{} %", crate::format_ds(100.0 * g))
+            });
+        children.push((
+            Rel::Contains,
+            Item::Text(
+                private("DCHECKWHY", "Why the density is not confirmed"),
+                format!(
+                    "The breast density could not be confirmed and no composition category is \
+                     given. Reported (DBToR) {} %, physics-based {physics}: {}.",
+                    crate::format_ds(100.0 * input.glandularity),
+                    chk.reasons.join("; ")
+                ),
+            ),
+        ));
+    }
     children.push((
         Rel::Contains,
         Item::Text(dcm("111001", "Algorithm Name"), input.reconstructor.clone()),
@@ -1071,7 +1185,8 @@ pub fn density_report(input: &DensityInput, uids: &mut UidSource) -> Result<Repo
             "Percent Fibroglandular Tissue is the glandularity by mass, G = Ng rho_g / (Ng rho_g + Na rho_a) \
              (Hammerstein densities), Cooper's ligaments counted as fibroglandular, skin excluded, from the \
              tissue-classified DBToR reconstruction; the composition category uses the volumetric fraction \
-             (thresholds 4.5 / 7.5 / 15.5 %)."
+             (thresholds 4.5 / 7.5 / 15.5 %) and is given only where the physics-based density (each ray's \
+             dense-tissue path relative to fat, from the same projections, no learning) confirms the reported one."
                 .into(),
         ),
     ));

@@ -66,6 +66,7 @@ pub fn dose_input() -> DoseInput {
         accumulated_agd_mgy: 1.428,
         relative_uncertainty: 0.0072,
         model_agd_mgy: 1.84,
+        model_agd_at_physics_mgy: None,
         content_date: "20261122".into(),
         content_time: "102000".into(),
         intent: ProcedureIntent::Diagnostic,
@@ -83,9 +84,99 @@ pub fn density_input() -> DensityInput {
         breast_cm3: 610.0,
         reconstructor: "DBToR int8".into(),
         model_version: "dbtor-fp32 sha256:0123abcd".into(),
+        check: dbt_dicom::DensityCheckReport {
+            physics_glandularity: Some(0.25),
+            confirmed: true,
+            reasons: vec![],
+        },
         content_date: "20261122".into(),
         content_time: "102000".into(),
     }
+}
+
+/// A density the physics density did not confirm.
+pub fn unconfirmed_density_input() -> DensityInput {
+    DensityInput {
+        check: dbt_dicom::DensityCheckReport {
+            physics_glandularity: Some(0.41),
+            confirmed: false,
+            reasons: vec![
+                "the reported glandularity and the physics density disagree by -17.5 pp (limit 14)"
+                    .into(),
+            ],
+        },
+        ..density_input()
+    }
+}
+
+/// Its dose report: the model breast at the physics density beside.
+pub fn unconfirmed_dose_input() -> DoseInput {
+    DoseInput {
+        model_agd_at_physics_mgy: Some(1.71),
+        ..dose_input()
+    }
+}
+
+/// The density SR asserts a composition category only where the physics
+/// confirms the density; otherwise it says so, with both figures and the
+/// reason, and the dose SR gives the model breast at the physics density.
+/// An unconfirmed density without a reason is refused.
+#[test]
+fn an_unconfirmed_density_report_has_no_category_and_says_why() {
+    let mut uids = UidSource::new("1.2.826.0.1.3680043.10.543", 43).unwrap();
+    let values = |r: dbt_dicom::Report| read_values(&r.to_bytes().unwrap()).unwrap().1;
+    let get =
+        |v: &[(String, String)], k: &str| v.iter().find(|(n, _)| n == k).map(|(_, s)| s.clone());
+    let ok = values(density_report(&density_input(), &mut uids).unwrap());
+    assert_eq!(
+        get(&ok, "Breast composition").as_deref(),
+        Some("Extremely dense")
+    );
+    assert_eq!(
+        get(&ok, "Percent Fibroglandular Tissue, physics-based").as_deref(),
+        Some("25 Percent")
+    );
+    assert_eq!(
+        get(&ok, "Density cross-check").as_deref(),
+        Some("Confirmed by the physics-based density")
+    );
+    let bad = values(density_report(&unconfirmed_density_input(), &mut uids).unwrap());
+    assert_eq!(get(&bad, "Breast composition"), None);
+    assert_eq!(
+        get(&bad, "Density cross-check").as_deref(),
+        Some("Not confirmed by the physics-based density")
+    );
+    let why = get(&bad, "Why the density is not confirmed").unwrap();
+    assert!(
+        why.contains("Reported (DBToR) 23.45 %, physics-based 41 %") && why.contains("-17.5 pp"),
+        "{why}"
+    );
+    let dose = values(dose_report(&unconfirmed_dose_input(), &mut uids).unwrap());
+    assert_eq!(
+        get(&dose, "Model-breast AGD at the physics-based density").as_deref(),
+        Some("1.71 mGy")
+    );
+    assert_eq!(
+        get(
+            &values(dose_report(&dose_input(), &mut uids).unwrap()),
+            "Model-breast AGD at the physics-based density"
+        ),
+        None
+    );
+    let mut silent = unconfirmed_density_input();
+    silent.check.reasons.clear();
+    let e = density_report(&silent, &mut uids)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("check.reasons"), "{e}");
+    let mut impossible = density_input();
+    impossible.check.physics_glandularity = Some(1.3);
+    let e = density_report(&impossible, &mut uids)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("check.physics_glandularity"), "{e}");
 }
 
 /// Run both validators; returns the problems found (empty: valid).
@@ -124,7 +215,17 @@ fn reports_pass_dciodvfy_and_dsrdump_and_broken_ones_do_not() {
     let mut uids = UidSource::new("1.2.826.0.1.3680043.10.543", 42).unwrap();
     let dose = dose_report(&dose_input(), &mut uids).unwrap();
     let dens = density_report(&density_input(), &mut uids).unwrap();
-    for (name, r) in [("dose.dcm", &dose), ("density.dcm", &dens)] {
+    // The reports of a density the physics did not confirm (issue #48
+    // point 3): no category, the reason, the model breast at the physics
+    // density.
+    let dose_unconfirmed = dose_report(&unconfirmed_dose_input(), &mut uids).unwrap();
+    let dens_unconfirmed = density_report(&unconfirmed_density_input(), &mut uids).unwrap();
+    for (name, r) in [
+        ("dose.dcm", &dose),
+        ("density.dcm", &dens),
+        ("dose-unconfirmed.dcm", &dose_unconfirmed),
+        ("density-unconfirmed.dcm", &dens_unconfirmed),
+    ] {
         if let Ok(d) = std::env::var("DBT_DICOM_KEEP") {
             std::fs::write(Path::new(&d).join(name), r.to_bytes().unwrap()).unwrap();
         }
@@ -328,15 +429,66 @@ fn dose_report_passes_pixelmed_sr_validation() {
         jar.is_file(),
         "PixelMed not found: apt-get install libpixelmed-java (.ci/run installs it)"
     );
+    for input in [dose_input(), unconfirmed_dose_input()] {
+        pixelmed_validates_dose(jar, &input);
+    }
+}
+
+/// PixelMed's validator finds no error in either density SR (confirmed,
+/// and without a category); its warnings are our items outside any
+/// template (the report claims none: its content is ours).
+#[test]
+fn density_reports_pass_pixelmed_sr_validation() {
+    let jar = Path::new("/usr/share/java/pixelmed.jar");
+    assert!(
+        jar.is_file(),
+        "PixelMed not found: apt-get install libpixelmed-java (.ci/run installs it)"
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let mut uids = UidSource::new("1.2.826.0.1.3680043.10.543", 44).unwrap();
+    for (i, input) in [density_input(), unconfirmed_density_input()]
+        .iter()
+        .enumerate()
+    {
+        let p = dir.path().join(format!("density-{i}.dcm"));
+        std::fs::write(
+            &p,
+            density_report(input, &mut uids)
+                .unwrap()
+                .to_bytes()
+                .unwrap(),
+        )
+        .unwrap();
+        let out = Command::new("java")
+            .args([
+                "-Djdk.xml.xpathExprOpLimit=0",
+                "-Djdk.xml.xpathExprGrpLimit=0",
+                "-Djdk.xml.xpathTotalOpLimit=0",
+                "-cp",
+            ])
+            .arg(jar)
+            .arg("com.pixelmed.validate.DicomSRValidator")
+            .arg(&p)
+            .output()
+            .expect("java (default-jre-headless)");
+        let text = String::from_utf8_lossy(&out.stdout).to_string()
+            + &String::from_utf8_lossy(&out.stderr);
+        assert!(
+            text.contains("Found ComprehensiveSR IOD") && text.contains("IOD validation complete"),
+            "validator did not run: {text}"
+        );
+        let errors: Vec<&str> = text.lines().filter(|l| l.starts_with("Error")).collect();
+        assert!(errors.is_empty(), "{}", errors.join("\n"));
+    }
+}
+
+fn pixelmed_validates_dose(jar: &Path, input: &DoseInput) {
     let dir = tempfile::tempdir().unwrap();
     let mut uids = UidSource::new("1.2.826.0.1.3680043.10.543", 42).unwrap();
     let p = dir.path().join("dose.dcm");
     std::fs::write(
         &p,
-        dose_report(&dose_input(), &mut uids)
-            .unwrap()
-            .to_bytes()
-            .unwrap(),
+        dose_report(input, &mut uids).unwrap().to_bytes().unwrap(),
     )
     .unwrap();
     let out = Command::new("java")

@@ -246,6 +246,65 @@ pub struct ViewDensity {
     pub thickness: ThicknessFit,
     /// The rim's sectors.
     pub rim: Vec<RimSector>,
+    /// Which rays the contact region holds (where the path is the thickness
+    /// plane's), for comparing another estimate over the same tissue.
+    #[serde(skip)]
+    pub contact: ContactMap,
+}
+
+/// The contact region of one view, ray by ray.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ContactMap {
+    /// Each element's ray's x at the breast's mid-height, mm (the
+    /// geometry's frame).
+    pub x_mid_mm: Vec<f64>,
+    /// Slice spacing (depth), mm: slice `s` spans `[s dy, (s + 1) dy)`
+    /// from the chest wall.
+    pub slice_mm: f64,
+    /// `[slice * elements + element]`: in the contact region.
+    pub mask: Vec<bool>,
+}
+
+impl ContactMap {
+    /// Whether the ray of the view through `(x_mm, depth_mm)` at the
+    /// breast's mid-height (the nearest element's) is in the contact region;
+    /// false outside the slices and beyond the detector.
+    pub fn contains(&self, x_mm: f64, depth_mm: f64) -> bool {
+        let nd = self.x_mid_mm.len();
+        if nd == 0 || self.slice_mm <= 0.0 || depth_mm.is_nan() || depth_mm < 0.0 {
+            return false;
+        }
+        let s = (depth_mm / self.slice_mm) as usize;
+        if (s + 1) * nd > self.mask.len() {
+            return false;
+        }
+        let (lo, hi) = (self.x_mid_mm[0], self.x_mid_mm[nd - 1]);
+        let (lo, hi) = (lo.min(hi), lo.max(hi));
+        let pitch = (hi - lo) / (nd - 1).max(1) as f64;
+        if x_mm.is_nan() || x_mm < lo - pitch / 2.0 || x_mm > hi + pitch / 2.0 {
+            return false;
+        }
+        // The nearest element (the rays' x is monotonic in the element).
+        let k = match self.x_mid_mm.binary_search_by(|x| {
+            if self.x_mid_mm[0] <= self.x_mid_mm[nd - 1] {
+                x.total_cmp(&x_mm)
+            } else {
+                x_mm.total_cmp(x)
+            }
+        }) {
+            Ok(k) => k,
+            Err(0) => 0,
+            Err(k) if k >= nd => nd - 1,
+            Err(k) => {
+                if (self.x_mid_mm[k] - x_mm).abs() < (self.x_mid_mm[k - 1] - x_mm).abs() {
+                    k
+                } else {
+                    k - 1
+                }
+            }
+        };
+        self.mask[s * nd + k]
+    }
 }
 
 /// The physics density of an acquisition.
@@ -897,6 +956,7 @@ fn view_estimate(
     let (mut fgv, mut bv, mut vi, mut rim_bv) = (0f64, 0f64, 0f64, 0f64);
     let (mut fgv_c, mut vi_c) = (0f64, 0f64);
     let (mut contact, mut over) = (0usize, 0usize);
+    let mut contact_mask = vec![false; ns * nd];
     let (mut t_lo, mut t_hi) = (f64::INFINITY, f64::NEG_INFINITY);
     for i in 0..ns * nd {
         if !inside[i] {
@@ -937,6 +997,7 @@ fn view_estimate(
         };
         if p >= 1.0 {
             contact += 1;
+            contact_mask[i] = true;
             fgv_c += r.w * h * dy;
             vi_c += r.w * li * dy;
             if h_free > li + 1.0 {
@@ -1005,6 +1066,11 @@ fn view_estimate(
             at_bound,
         },
         rim,
+        contact: ContactMap {
+            x_mid_mm: geo.iter().map(|r| r.x_mid).collect(),
+            slice_mm: dy,
+            mask: contact_mask,
+        },
     })
 }
 

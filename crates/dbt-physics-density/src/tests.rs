@@ -441,3 +441,36 @@ fn the_profile_fit_finds_its_own_profile() {
         assert_eq!((fa, fr), (a, r), "rms {rms}");
     }
 }
+
+/// The contact map answers for the nearest ray at mid-height in the slice
+/// holding the depth, and nothing outside its slices and detector.
+#[test]
+fn the_contact_map_finds_the_nearest_ray() {
+    for reversed in [false, true] {
+        let mut x: Vec<f64> = (0..5).map(|k| -10.0 + 5.0 * k as f64).collect();
+        // Two slices of 2 mm: slice 0 holds elements 1 and 2, slice 1 element 4.
+        let mut row0 = vec![false, true, true, false, false];
+        let mut row1 = vec![false, false, false, false, true];
+        if reversed {
+            x.reverse();
+            row0.reverse();
+            row1.reverse();
+        }
+        let m = ContactMap {
+            x_mid_mm: x,
+            slice_mm: 2.0,
+            mask: [row0, row1].concat(),
+        };
+        assert!(m.contains(-5.0, 1.0) && m.contains(-3.0, 0.1) && m.contains(2.4, 1.9));
+        assert!(!m.contains(2.6, 1.9), "nearer element 3");
+        assert!(!m.contains(-7.6, 1.0), "nearer element 0");
+        assert!(m.contains(11.0, 3.0) && !m.contains(10.0, 1.0));
+        assert!(!m.contains(13.0, 3.0), "beyond the detector");
+        assert!(
+            !m.contains(0.0, 4.5) && !m.contains(0.0, -0.5),
+            "beyond the slices"
+        );
+        assert!(!m.contains(f64::NAN, 1.0) && !m.contains(0.0, f64::NAN));
+    }
+    assert!(!ContactMap::default().contains(0.0, 0.0));
+}

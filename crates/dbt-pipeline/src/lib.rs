@@ -7,12 +7,15 @@
 //!   one header validation of every input (frame link, files, DICOM);
 //! * [`plausibility`]: the counts against the flat field and the thickness,
 //!   and the reconstructed breast against its tissues and its box;
+//! * [`density_check`]: the reported density against the physics density
+//!   of the same counts;
 //! * [`process`]: reconstruction, classification, density, dose, reports;
 //! * [`rebin`]: cone-beam projections as slice-wise fan-beam sinograms;
 //! * [`descatter`], [`linearise`], [`noise_match`]: a polychromatic
 //!   detector's counts corrected to what the network was trained on.
 
 pub mod acquisition;
+pub mod density_check;
 pub mod descatter;
 pub mod dicom_input;
 pub mod linearise;

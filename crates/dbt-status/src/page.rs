@@ -171,7 +171,7 @@ pub fn render(s: &Snapshot, now_unix: u64) -> String {
         r#"<h2>Acquisitions (newest first, up to {TABLE_ROWS})</h2><table id="acquisitions"><tr><th>acquisition</th><th>reported (UTC)</th><th>thickness (mm)</th><th>glandularity (%)</th><th>composition</th><th>MGD patient (mGy)</th><th>MGD model breast (mGy)</th><th>reconstructor</th><th>flags</th><th>picture</th></tr>"#
     );
     for r in s.history.iter().rev().take(TABLE_ROWS) {
-        let comp = r.composition.as_deref().unwrap_or("-");
+        let comp = composition_cell(r);
         let _ = write!(
             h,
             r#"<tr data-acquisition="{id}"><td>{id}</td><td>{at}</td><td class="num thickness">{t}</td><td class="num glandularity">{g}</td><td class="composition" data-category="{c}">{c} ({cn})</td><td class="num mgd">{mgd}</td><td class="num model-mgd">{model}</td><td>{rec}{cal}</td><td>{flags}</td><td><a href="{url}">picture</a></td></tr>"#,
@@ -182,8 +182,8 @@ pub fn render(s: &Snapshot, now_unix: u64) -> String {
                 .map(|t| format!("{t:.1}"))
                 .unwrap_or_else(|| "-".into()),
             g = fmt_glandularity(r.glandularity_reported),
-            c = escape(comp),
-            cn = composition_name(comp),
+            c = escape(comp.0),
+            cn = escape(&comp.1),
             mgd = fmt_mgd(r.mgd_mgy),
             model = fmt_mgd(r.model_mgd_mgy),
             rec = escape(&r.reconstructor),
@@ -207,6 +207,32 @@ pub fn render(s: &Snapshot, now_unix: u64) -> String {
         }
         h.push_str("</ul>");
     }
+    // Warnings: delivered reports a reader must not take as they stand.
+    h.push_str(
+        r#"<h2>Warnings</h2><table id="warning-counts"><tr><th>kind</th><th>since start</th></tr>"#,
+    );
+    let _ = write!(
+        h,
+        r#"<tr class="warning" data-kind="{k}"><td>{k} (density not confirmed by the physics: no composition category reported)</td><td class="num">{n}</td></tr>"#,
+        k = crate::state::DENSITY_CHECK_WARNING,
+        n = st
+            .warning_counts
+            .get(crate::state::DENSITY_CHECK_WARNING)
+            .copied()
+            .unwrap_or(0),
+    );
+    for (k, n) in st
+        .warning_counts
+        .iter()
+        .filter(|(k, _)| k.as_str() != crate::state::DENSITY_CHECK_WARNING)
+    {
+        let _ = write!(
+            h,
+            r#"<tr class="warning" data-kind="{k}"><td>{k}</td><td class="num">{n}</td></tr>"#,
+            k = escape(k)
+        );
+    }
+    h.push_str("</table>");
     // Faults.
     h.push_str(
         r#"<h2>Faults</h2><table id="fault-counts"><tr><th>kind</th><th>since start</th></tr>"#,
@@ -233,15 +259,45 @@ pub fn render(s: &Snapshot, now_unix: u64) -> String {
     h
 }
 
+/// A record's composition as the table shows it: `(letter or "-", what it
+/// means)`; a density the physics did not confirm has none, and says so.
+fn composition_cell(r: &AcquisitionRecord) -> (&str, String) {
+    match (&r.composition, &r.density_check) {
+        (Some(c), _) => (c.as_str(), composition_name(c)),
+        (None, Some(chk)) if !chk.confirmed => (
+            "-",
+            format!(
+                "{}: not confirmed by the physics, physics density {} %",
+                crate::state::DENSITY_CHECK_WARNING,
+                chk.physics_glandularity
+                    .map_or("none".into(), |g| format!("{:.1}", 100.0 * g))
+            ),
+        ),
+        (None, _) => ("-", composition_name("-")),
+    }
+}
+
 /// One line about a record: what its two reports say.
 fn summary(r: &AcquisitionRecord) -> String {
-    let comp = r.composition.as_deref().unwrap_or("-");
+    let comp = composition_cell(r);
+    let check = match &r.density_check {
+        Some(c) if c.confirmed => format!(
+            ", confirmed by the physics density ({} %)",
+            c.physics_glandularity
+                .map_or("-".into(), |g| format!("{:.1}", 100.0 * g))
+        ),
+        Some(c) => format!(
+            ", NOT confirmed by the physics density: {}",
+            escape(&c.reasons.join("; "))
+        ),
+        None => String::new(),
+    };
     format!(
-        "glandularity {} % ({}), composition {} ({}), MGD {} mGy patient-specific, {} mGy model breast, {}",
+        "glandularity {} % ({}), composition {} ({}){check}, MGD {} mGy patient-specific, {} mGy model breast, {}",
         fmt_glandularity(r.glandularity_reported),
         if r.calibrated { "calibrated" } else { "uncalibrated" },
-        escape(comp),
-        composition_name(comp),
+        escape(comp.0),
+        escape(&comp.1),
         fmt_mgd(r.mgd_mgy),
         fmt_mgd(r.model_mgd_mgy),
         r.thickness_mm

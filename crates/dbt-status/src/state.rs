@@ -69,7 +69,28 @@ pub struct AcquisitionRecord {
     /// Quality flags the reports carry.
     #[serde(default)]
     pub flags: Vec<String>,
+    /// The reported density against the physics density of the same
+    /// projections (issue #48 point 3); `None` in records written before
+    /// the check existed.
+    #[serde(default)]
+    pub density_check: Option<DensityCheckRecord>,
 }
+
+/// What the density cross-check found for one acquisition.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DensityCheckRecord {
+    /// The physics-based glandularity by mass, 0..1, when one was made.
+    pub physics_glandularity: Option<f64>,
+    /// Whether it confirms the reported density (else the density report
+    /// gives no composition category).
+    pub confirmed: bool,
+    /// Why not.
+    #[serde(default)]
+    pub reasons: Vec<String>,
+}
+
+/// The warning kind of a density the physics did not confirm.
+pub const DENSITY_CHECK_WARNING: &str = "density_check";
 
 /// The status file's content.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -104,6 +125,11 @@ pub struct Status {
     pub faults: Vec<FaultRecord>,
     /// Faults since start, by kind.
     pub fault_counts: BTreeMap<String, u64>,
+    /// Warnings since start, by kind: reports delivered whose figures a
+    /// reader must not take as they stand ([`DENSITY_CHECK_WARNING`]: a
+    /// density the physics did not confirm). Not faults: the device works.
+    #[serde(default)]
+    pub warning_counts: BTreeMap<String, u64>,
     /// The status page's address, when it serves one.
     #[serde(default)]
     pub status_page: Option<String>,
@@ -184,6 +210,7 @@ impl Status {
             recent: vec![],
             faults: vec![],
             fault_counts: BTreeMap::new(),
+            warning_counts: BTreeMap::new(),
             status_page: None,
             dicom_input: None,
         }
@@ -201,6 +228,12 @@ impl Status {
     /// Record a reported acquisition (keeping the last [`Status::MAX_RECENT`]).
     pub fn push_reported(&mut self, r: AcquisitionRecord) {
         self.processed += 1;
+        if r.density_check.as_ref().is_some_and(|c| !c.confirmed) {
+            *self
+                .warning_counts
+                .entry(DENSITY_CHECK_WARNING.into())
+                .or_default() += 1;
+        }
         self.recent.push(r);
         if self.recent.len() > Self::MAX_RECENT {
             self.recent.remove(0);
@@ -339,7 +372,34 @@ pub(crate) mod tests {
             reports: vec![],
             pacs_waiting: vec![],
             flags: vec![],
+            density_check: Some(DensityCheckRecord {
+                physics_glandularity: Some(g),
+                confirmed: true,
+                reasons: vec![],
+            }),
         }
+    }
+
+    /// A density the physics did not confirm is counted as a
+    /// `density_check` warning, not a fault (the device stays healthy).
+    #[test]
+    fn an_unconfirmed_density_is_a_counted_warning() {
+        let mut s = Status::starting("0", 1, 100, "dbtor".into());
+        s.push_reported(record("a", 50.0, 0.2, 1.3, 120));
+        assert!(s.warning_counts.is_empty());
+        let mut r = record("b", 50.0, 0.6, 1.3, 130);
+        r.composition = None;
+        r.density_check = Some(DensityCheckRecord {
+            physics_glandularity: Some(0.4),
+            confirmed: false,
+            reasons: vec!["disagree by +20.0 pp".into()],
+        });
+        s.push_reported(r);
+        assert_eq!(s.warning_counts[DENSITY_CHECK_WARNING], 1);
+        assert!(s.healthy() && s.fault_total() == 0);
+        // Written and read back.
+        let back: Status = serde_json::from_str(&serde_json::to_string(&s).unwrap()).unwrap();
+        assert_eq!(back, s);
     }
 
     #[test]

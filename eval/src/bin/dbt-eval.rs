@@ -1217,6 +1217,7 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
                 noise_match,
                 slice_step,
                 scatter_in_input,
+                density_limits: dbt_pipeline::density_check::LIMITS,
             };
             let label = dbt_pipeline::reconstructor_name(&opts);
             // The calibration this run's beam reads (a beam the model has
@@ -1394,6 +1395,28 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
             dbt_pipeline::plausibility::VOLUME_FILL_MIN, dbt_pipeline::plausibility::VOLUME_FILL_MAX,
             mu[0], mu[1]
         );
+    }
+    // The cross-check against the physics density (issue #48 point 3):
+    // how many reports would assert no category, and the disagreements the
+    // limits are set from (eval/density-check.md).
+    for ((label, _, _), cases) in recs.iter().zip(&cases) {
+        let unconfirmed = cases.iter().filter(|c| !c.density_check.confirmed).count();
+        let most = |f: &dyn Fn(&Case) -> Option<f64>| {
+            cases
+                .iter()
+                .filter_map(f)
+                .fold(0.0f64, |m, d| m.max(d.abs()))
+        };
+        let whole = most(&|c| c.density_check.difference_pp);
+        let contact = most(&|c| c.density_check.contact_difference_pp);
+        let l = dbt_pipeline::density_check::LIMITS;
+        println!(
+            "density check [{label}]: {unconfirmed} of {} not confirmed by the physics; largest |reported - physics| {whole:.1} pp (limit {:.0}), over the contact region {contact:.1} pp (limit {:.0})",
+            cases.len(), l.whole_pp, l.contact_pp
+        );
+        for c in cases.iter().filter(|c| !c.density_check.confirmed) {
+            println!("  {}: {}", c.phantom, c.density_check.reasons.join("; "));
+        }
     }
     println!("\nJSON and Bland-Altman PNGs (x: mean of truth and estimate; y: difference; solid: bias; dashed: 95 % limits): {}", out.display());
     Ok(())

@@ -388,6 +388,31 @@ fn run_status(args: StatusArgs) -> Result<bool> {
             dbt_status::page::fmt_mgd(a.model_mgd_mgy),
             a.seconds
         );
+        match &a.density_check {
+            Some(c) if !c.confirmed => println!(
+                "    {}: density NOT confirmed by the physics (physics {} %): {}",
+                dbt_status::DENSITY_CHECK_WARNING,
+                c.physics_glandularity
+                    .map_or("none".into(), dbt_status::page::fmt_glandularity),
+                c.reasons.join("; ")
+            ),
+            Some(c) => println!(
+                "    density confirmed by the physics ({} %)",
+                c.physics_glandularity
+                    .map_or("-".into(), dbt_status::page::fmt_glandularity)
+            ),
+            None => {}
+        }
+    }
+    if !st.warning_counts.is_empty() {
+        println!(
+            "warnings since start: {}",
+            st.warning_counts
+                .iter()
+                .map(|(k, n)| format!("{k} {n}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
     }
     for u in &snap.unreadable {
         println!("  unreadable {}: {}", u.acquisition, u.reason);

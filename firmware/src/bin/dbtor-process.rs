@@ -168,6 +168,12 @@ fn run(cli: Cli) -> Result<()> {
         software_version: env!("CARGO_PKG_VERSION").into(),
         device_uid: format!("{uid_root}.9.1"),
     };
+    // Both densities and the verdict, for the reader of the terminal (the
+    // JSON below has them too).
+    eprintln!("dbtor-process: density {}", res.density_check.summary());
+    for r in &res.density_check.reasons {
+        eprintln!("dbtor-process:   not confirmed: {r}");
+    }
     let (date, time) = dbt_dicom::dicom_datetime_utc(now / 1_000_000);
     let (dose, dens) = reports(&acq, &res, &equipment, &mut uids, &date, &time)?;
     let outbox = dbt_pacs::Outbox::open(&out, &out.join("outbox"))?;
