@@ -144,6 +144,9 @@ pub struct Options {
     /// A ray is inside the breast when its line integral exceeds this many
     /// standard deviations of its noise (`z / sqrt(c)`).
     pub noise_z: f64,
+    /// Refit the thickness plane where the fitted edge model says the
+    /// breast is in contact, then the edge model again (a second pass).
+    pub contact_refit: bool,
 }
 
 impl Default for Options {
@@ -158,6 +161,7 @@ impl Default for Options {
             rim_quantile: 0.25,
             smooth_mm: 2.0,
             noise_z: 6.0,
+            contact_refit: true,
         }
     }
 }
@@ -837,59 +841,40 @@ fn view_estimate(
         fat_path(smooth[i], skin_path(k), mu_f, mu_s) / geo[k].sec
     };
     // The thickness plane from the deep contact's fattest rays per tile.
-    let deep = t_read / 2.0 + 5.0;
     let x_lo = geo.iter().map(|r| r.x_mid).fold(f64::INFINITY, f64::min);
-    let mut tiles: std::collections::BTreeMap<(usize, usize), Vec<usize>> = Default::default();
-    for i in 0..ns * nd {
-        if inside[i] && dist[i] >= deep {
-            let (s, k) = (i / nd, i % nd);
-            let key = (
-                ((geo[k].x_mid - x_lo) / opts.tile_mm) as usize,
-                (pos[s] / opts.tile_mm) as usize,
-            );
-            tiles.entry(key).or_default().push(i);
+    let fit_plane = |deep: &dyn Fn(usize) -> bool| -> (Option<Plane>, Vec<(f64, f64, f64)>) {
+        let mut tiles: std::collections::BTreeMap<(usize, usize), Vec<usize>> = Default::default();
+        for i in 0..ns * nd {
+            if inside[i] && deep(i) {
+                let (s, k) = (i / nd, i % nd);
+                let key = (
+                    ((geo[k].x_mid - x_lo) / opts.tile_mm) as usize,
+                    (pos[s] / opts.tile_mm) as usize,
+                );
+                tiles.entry(key).or_default().push(i);
+            }
         }
-    }
-    let mut pts: Vec<(f64, f64, f64)> = Vec::new();
-    for idx in tiles.values() {
-        if idx.len() < 20 {
-            continue;
+        let mut pts: Vec<(f64, f64, f64)> = Vec::new();
+        for idx in tiles.values() {
+            if idx.len() < 20 {
+                continue;
+            }
+            let mut tf: Vec<f64> = idx.iter().map(|&i| t_fat(i)).collect();
+            let q = quantile(&mut tf, opts.fat_quantile);
+            let xm = idx.iter().map(|&i| geo[i % nd].x_mid).sum::<f64>() / idx.len() as f64;
+            let ym = idx.iter().map(|&i| pos[i / nd]).sum::<f64>() / idx.len() as f64;
+            pts.push((xm, ym, q));
         }
-        let mut tf: Vec<f64> = idx.iter().map(|&i| t_fat(i)).collect();
-        let q = quantile(&mut tf, opts.fat_quantile);
-        let xm = idx.iter().map(|&i| geo[i % nd].x_mid).sum::<f64>() / idx.len() as f64;
-        let ym = idx.iter().map(|&i| pos[i / nd]).sum::<f64>() / idx.len() as f64;
-        pts.push((xm, ym, q));
-    }
-    let plane = fit_plane_lower(&pts);
-    let bound = |x: f64, y: f64| match plane {
+        (fit_plane_lower(&pts), pts)
+    };
+    let bound_of = |plane: Option<Plane>, x: f64, y: f64| match plane {
         Some(p) => p.at(x, y).clamp(t_read - opts.thinner_max_mm, t_read),
         None => t_read,
-    };
-    let at_bound = match plane {
-        Some(p) => pts
-            .iter()
-            .any(|&(x, y, _)| p.at(x, y) < t_read - opts.thinner_max_mm),
-        None => false,
     };
     // The rim: each sector's envelope of all-fat thickness relative to the plane.
     let bin = pitch_mid.max(dy).max(1.0);
     let fit_max = opts.rim_max_mm.min(t_read);
     let nbins = (fit_max / bin).ceil() as usize;
-    let mut per: Vec<Vec<Vec<(f64, f64)>>> = vec![vec![Vec::new(); nbins]; nsec];
-    let mut rays_in: Vec<usize> = vec![0; nsec];
-    for i in 0..ns * nd {
-        if inside[i] && dist[i] < fit_max {
-            let (s, k) = (i / nd, i % nd);
-            let sec = sector_of(s, k);
-            let b = ((dist[i] / bin) as usize).min(nbins - 1);
-            per[sec][b].push((
-                dist[i],
-                smooth[i] / (bound(geo[k].x_mid, pos[s]) * geo[k].sec),
-            ));
-            rays_in[sec] += 1;
-        }
-    }
     // The envelope is of the signal per mm of local thickness, capped at the
     // contact's all-fat value (denser bins say nothing about the shape).
     let full = fat_signal(f64::INFINITY, 1.0, 2.0, t_read, opts.skin_mm, mu_f, mu_s);
@@ -915,43 +900,85 @@ fn view_estimate(
             })
             .collect()
     };
-    let mut all_bins: Vec<Vec<(f64, f64)>> = vec![Vec::new(); nbins];
-    for s in &per {
-        for (j, b) in s.iter().enumerate() {
-            all_bins[j].extend_from_slice(b);
+    let fit_rim = |plane: Option<Plane>| -> Vec<RimSector> {
+        let mut per: Vec<Vec<Vec<(f64, f64)>>> = vec![vec![Vec::new(); nbins]; nsec];
+        let mut rays_in: Vec<usize> = vec![0; nsec];
+        for i in 0..ns * nd {
+            if inside[i] && dist[i] < fit_max {
+                let (s, k) = (i / nd, i % nd);
+                let sec = sector_of(s, k);
+                let b = ((dist[i] / bin) as usize).min(nbins - 1);
+                per[sec][b].push((
+                    dist[i],
+                    smooth[i] / (bound_of(plane, geo[k].x_mid, pos[s]) * geo[k].sec),
+                ));
+                rays_in[sec] += 1;
+            }
+        }
+        let mut all_bins: Vec<Vec<(f64, f64)>> = vec![Vec::new(); nbins];
+        for s in &per {
+            for (j, b) in s.iter().enumerate() {
+                all_bins[j].extend_from_slice(b);
+            }
+        }
+        let all_env = envelope(&mut all_bins);
+        let all_fit = if all_env.len() >= 3 {
+            fit_profile(&all_env, fit_max, t_read, opts.skin_mm, mu_f, mu_s)
+        } else {
+            (t_read / 2.0, 2.0, f64::NAN)
+        };
+        let mut rim = Vec::with_capacity(nsec);
+        for (j, bins) in per.iter_mut().enumerate() {
+            let env = envelope(bins);
+            let (from, to) = (
+                -90.0 + 180.0 * j as f64 / nsec as f64,
+                -90.0 + 180.0 * (j + 1) as f64 / nsec as f64,
+            );
+            let (fit, fallback) = if env.len() >= 3 {
+                (
+                    fit_profile(&env, fit_max, t_read, opts.skin_mm, mu_f, mu_s),
+                    false,
+                )
+            } else {
+                (all_fit, true)
+            };
+            rim.push(RimSector {
+                from_deg: from,
+                to_deg: to,
+                width_mm: fit.0,
+                exponent: fit.1,
+                rays: rays_in[j],
+                misfit: fit.2,
+                fallback,
+            });
+        }
+        rim
+    };
+    // First pass: the contact taken to begin half the thickness (and 5 mm)
+    // from the skin line, as a round edge would.
+    let (mut plane, mut pts) = fit_plane(&|i| dist[i] >= t_read / 2.0 + 5.0);
+    let mut rim = fit_rim(plane);
+    // Second pass: the plane refitted where the fitted edge says the breast
+    // is in contact (5 mm beyond each sector's rim width): a breast that
+    // tapers over a wider rim than half its thickness would otherwise pull
+    // the plane down with its thinner rim's fattest rays, and read its
+    // contact dense. Kept where at least three tiles remain.
+    if opts.contact_refit {
+        let (p2, pts2) =
+            fit_plane(&|i| dist[i] >= (t_read / 2.0).max(rim[sector[i]].width_mm) + 5.0);
+        if p2.is_some() {
+            plane = p2;
+            pts = pts2;
+            rim = fit_rim(plane);
         }
     }
-    let all_env = envelope(&mut all_bins);
-    let all_fit = if all_env.len() >= 3 {
-        fit_profile(&all_env, fit_max, t_read, opts.skin_mm, mu_f, mu_s)
-    } else {
-        (t_read / 2.0, 2.0, f64::NAN)
+    let bound = |x: f64, y: f64| bound_of(plane, x, y);
+    let at_bound = match plane {
+        Some(p) => pts
+            .iter()
+            .any(|&(x, y, _)| p.at(x, y) < t_read - opts.thinner_max_mm),
+        None => false,
     };
-    let mut rim = Vec::with_capacity(nsec);
-    for (j, bins) in per.iter_mut().enumerate() {
-        let env = envelope(bins);
-        let (from, to) = (
-            -90.0 + 180.0 * j as f64 / nsec as f64,
-            -90.0 + 180.0 * (j + 1) as f64 / nsec as f64,
-        );
-        let (fit, fallback) = if env.len() >= 3 {
-            (
-                fit_profile(&env, fit_max, t_read, opts.skin_mm, mu_f, mu_s),
-                false,
-            )
-        } else {
-            (all_fit, true)
-        };
-        rim.push(RimSector {
-            from_deg: from,
-            to_deg: to,
-            width_mm: fit.0,
-            exponent: fit.1,
-            rays: rays_in[j],
-            misfit: fit.2,
-            fallback,
-        });
-    }
     // The volumes.
     let (mut fgv, mut bv, mut vi, mut rim_bv) = (0f64, 0f64, 0f64, 0f64);
     let (mut fgv_c, mut vi_c) = (0f64, 0f64);
