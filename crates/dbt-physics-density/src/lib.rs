@@ -47,6 +47,13 @@
 //! corrected but shows as contact rays denser than dense tissue
 //! ([`ViewDensity::over_dense_share`], flagged above 5 %).
 //!
+//! The plane is fitted twice ([`Options::contact_refit`]): after the rim's
+//! edge model (below) is fitted, again from the tiles beyond each sector's
+//! fitted rim width (and 5 mm), and the rim then refitted to it. A breast
+//! that tapers over a rim wider than half its thickness otherwise pulls the
+//! plane down with its thinner rim's fattest rays (decided on the
+//! validation splits, eval/physics-density.md).
+//!
 //! # The rim: an edge profile fitted per sector
 //! Nearer the skin line the breast leaves the paddle. Its vertical chord at
 //! distance `d` from the skin line (the projection's silhouette, in mm at the
@@ -844,15 +851,13 @@ fn view_estimate(
     let x_lo = geo.iter().map(|r| r.x_mid).fold(f64::INFINITY, f64::min);
     let fit_plane = |deep: &dyn Fn(usize) -> bool| -> (Option<Plane>, Vec<(f64, f64, f64)>) {
         let mut tiles: std::collections::BTreeMap<(usize, usize), Vec<usize>> = Default::default();
-        for i in 0..ns * nd {
-            if inside[i] && deep(i) {
-                let (s, k) = (i / nd, i % nd);
-                let key = (
-                    ((geo[k].x_mid - x_lo) / opts.tile_mm) as usize,
-                    (pos[s] / opts.tile_mm) as usize,
-                );
-                tiles.entry(key).or_default().push(i);
-            }
+        for (i, _) in inside.iter().enumerate().filter(|&(i, &b)| b && deep(i)) {
+            let (s, k) = (i / nd, i % nd);
+            let key = (
+                ((geo[k].x_mid - x_lo) / opts.tile_mm) as usize,
+                (pos[s] / opts.tile_mm) as usize,
+            );
+            tiles.entry(key).or_default().push(i);
         }
         let mut pts: Vec<(f64, f64, f64)> = Vec::new();
         for idx in tiles.values() {
