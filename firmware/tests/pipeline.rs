@@ -121,13 +121,7 @@ fn acquisition_to_reports() {
         "{d:?}"
     );
     assert!(res.mgd_mgy > 0.0 && res.dose_patient.mgd_rel_uncertainty < 0.05);
-    let eq = Equipment {
-        manufacturer: "T".into(),
-        model: "T".into(),
-        serial: "1".into(),
-        software_version: "0".into(),
-        device_uid: "1.2.3.9".into(),
-    };
+    let eq = equipment();
     let mut uids = UidSource::new("1.2.3", 7).unwrap();
     let (dose, dens) = reports(&acq, &res, &eq, &mut uids, "20261122", "120000").unwrap();
     let (_, v) = read_values(&dose.to_bytes().unwrap()).unwrap();
@@ -195,8 +189,32 @@ fn acquisition_to_reports() {
     assert!((pft_cal - 100.0 * res_cal.glandularity).abs() < 1e-9);
     // The reports the product writes pass the validators (dicom3tools,
     // dcmtk; installed by .ci/run).
+    dicom_tools_accept(&dose, &dens);
+    // A bad acquisition is named.
+    let mut bad = acq.clone();
+    bad.header.slice_spacing_mm = 0.5;
+    assert!(process(&bad, &opts)
+        .unwrap_err()
+        .to_string()
+        .contains("slice spacing"));
+}
+
+/// The reporting device of these tests.
+fn equipment() -> Equipment {
+    Equipment {
+        manufacturer: "T".into(),
+        model: "T".into(),
+        serial: "1".into(),
+        software_version: "0".into(),
+        device_uid: "1.2.3.9".into(),
+    }
+}
+
+/// The reports pass the validators (dicom3tools, dcmtk; installed by
+/// .ci/run).
+fn dicom_tools_accept(dose: &dbt_dicom::Report, dens: &dbt_dicom::Report) {
     let dir = tempfile::tempdir().unwrap();
-    for (name, r) in [("dose.dcm", &dose), ("density.dcm", &dens)] {
+    for (name, r) in [("dose.dcm", dose), ("density.dcm", dens)] {
         let p = dir.path().join(name);
         std::fs::write(&p, r.to_bytes().unwrap()).unwrap();
         let out = std::process::Command::new("dciodvfy")
@@ -213,13 +231,6 @@ fn acquisition_to_reports() {
             .expect("dsrdump not found: apt-get install dcmtk");
         assert!(st.status.success(), "{name}: dsrdump failed");
     }
-    // A bad acquisition is named.
-    let mut bad = acq.clone();
-    bad.header.slice_spacing_mm = 0.5;
-    assert!(process(&bad, &opts)
-        .unwrap_err()
-        .to_string()
-        .contains("slice spacing"));
 }
 
 /// The cross-check against the physics density (issue #48 point 3): an
@@ -267,13 +278,7 @@ fn a_network_answer_forced_wrong_is_flagged_and_gets_no_category() {
         )
     };
     assert_eq!(contact(&res.mu), chk.contact_network);
-    let eq = Equipment {
-        manufacturer: "T".into(),
-        model: "T".into(),
-        serial: "1".into(),
-        software_version: "0".into(),
-        device_uid: "1.2.3.9".into(),
-    };
+    let eq = equipment();
     let values = |r: &dbt_dicom::Report| read_values(&r.to_bytes().unwrap()).unwrap().1;
     let get =
         |v: &[(String, String)], k: &str| v.iter().find(|(n, _)| n == k).map(|(_, s)| s.clone());
@@ -328,24 +333,7 @@ fn a_network_answer_forced_wrong_is_flagged_and_gets_no_category() {
     let at_phys = get(&dv, "Model-breast AGD at the physics-based density").unwrap();
     let at_phys: f64 = at_phys.split(' ').next().unwrap().parse().unwrap();
     assert!((at_phys - 0.9 * res.model_mgd_mgy).abs() < 1e-6 * at_phys.max(1e-9));
-    let dir = tempfile::tempdir().unwrap();
-    for (name, r) in [("dose.dcm", &dose), ("density.dcm", &dens)] {
-        let p = dir.path().join(name);
-        std::fs::write(&p, r.to_bytes().unwrap()).unwrap();
-        let out = std::process::Command::new("dciodvfy")
-            .arg(&p)
-            .output()
-            .expect("dciodvfy not found: apt-get install dicom3tools");
-        let text = String::from_utf8_lossy(&out.stderr).to_string()
-            + &String::from_utf8_lossy(&out.stdout);
-        let errors: Vec<&str> = text.lines().filter(|l| l.starts_with("Error")).collect();
-        assert!(errors.is_empty(), "{name}: {errors:?}");
-        let st = std::process::Command::new("dsrdump")
-            .arg(&p)
-            .output()
-            .expect("dsrdump not found: apt-get install dcmtk");
-        assert!(st.status.success(), "{name}: dsrdump failed");
-    }
+    dicom_tools_accept(&dose, &dens);
 }
 
 /// A copy of the shipped model folder (manifest and the files it lists).

@@ -459,20 +459,7 @@ fn density_reports_pass_pixelmed_sr_validation() {
                 .unwrap(),
         )
         .unwrap();
-        let out = Command::new("java")
-            .args([
-                "-Djdk.xml.xpathExprOpLimit=0",
-                "-Djdk.xml.xpathExprGrpLimit=0",
-                "-Djdk.xml.xpathTotalOpLimit=0",
-                "-cp",
-            ])
-            .arg(jar)
-            .arg("com.pixelmed.validate.DicomSRValidator")
-            .arg(&p)
-            .output()
-            .expect("java (default-jre-headless)");
-        let text = String::from_utf8_lossy(&out.stdout).to_string()
-            + &String::from_utf8_lossy(&out.stderr);
+        let text = pixelmed(jar, &p);
         assert!(
             text.contains("Found ComprehensiveSR IOD") && text.contains("IOD validation complete"),
             "validator did not run: {text}"
@@ -480,6 +467,24 @@ fn density_reports_pass_pixelmed_sr_validation() {
         let errors: Vec<&str> = text.lines().filter(|l| l.starts_with("Error")).collect();
         assert!(errors.is_empty(), "{}", errors.join("\n"));
     }
+}
+
+/// PixelMed's DicomSRValidator's output (stdout and stderr) on `file`.
+fn pixelmed(jar: &Path, file: &Path) -> String {
+    let out = Command::new("java")
+        // PixelMed's compiled templates exceed the JDK's default XPath limits.
+        .args([
+            "-Djdk.xml.xpathExprOpLimit=0",
+            "-Djdk.xml.xpathExprGrpLimit=0",
+            "-Djdk.xml.xpathTotalOpLimit=0",
+            "-cp",
+        ])
+        .arg(jar)
+        .arg("com.pixelmed.validate.DicomSRValidator")
+        .arg(file)
+        .output()
+        .expect("java (default-jre-headless)");
+    String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr)
 }
 
 fn pixelmed_validates_dose(jar: &Path, input: &DoseInput) {
@@ -491,21 +496,7 @@ fn pixelmed_validates_dose(jar: &Path, input: &DoseInput) {
         dose_report(input, &mut uids).unwrap().to_bytes().unwrap(),
     )
     .unwrap();
-    let out = Command::new("java")
-        // PixelMed's compiled templates exceed the JDK's default XPath limits.
-        .args([
-            "-Djdk.xml.xpathExprOpLimit=0",
-            "-Djdk.xml.xpathExprGrpLimit=0",
-            "-Djdk.xml.xpathTotalOpLimit=0",
-            "-cp",
-        ])
-        .arg(jar)
-        .arg("com.pixelmed.validate.DicomSRValidator")
-        .arg(&p)
-        .output()
-        .expect("java (default-jre-headless)");
-    let text =
-        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    let text = pixelmed(jar, &p);
     assert!(
         text.contains("Found Root Template TID_10001"),
         "validator did not run: {text}"

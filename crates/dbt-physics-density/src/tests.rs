@@ -296,15 +296,16 @@ fn a_tilted_paddle_is_recovered() {
     );
 }
 
-#[test]
-fn an_elliptical_rim_is_fitted() {
-    // A half disc 75 mm in radius from the chest wall; its edge leaves the
-    // paddles along an ellipse 20 mm wide (r = 2) all around, under a skin
-    // shell; fat with a dense core in the contact region. Every sector finds
-    // a = 20 mm and r = 2, and the volume and glandularity are right.
-    let g = geom();
-    let (t, rad, a, s) = (40.0, 75.0, 20.0, 1.6);
-    let ph = move |x: f64, y: f64, z: f64| {
+/// A half disc 75 mm in radius from the chest wall, `t` thick, whose edge
+/// leaves the paddles along an ellipse `a` wide (r = 2) all around, under a
+/// 1.6 mm skin shell; fat, dense where `core(x, y, height from mid-plane)`.
+fn half_disc(
+    t: f64,
+    a: f64,
+    core: impl Fn(f64, f64, f64) -> bool + Sync,
+) -> impl Fn(f64, f64, f64) -> u8 + Sync {
+    let (rad, s) = (75.0, 1.6);
+    move |x: f64, y: f64, z: f64| {
         let d = rad - (x * x + y * y).sqrt();
         let (u, w) = (a - d, z - t / 2.0);
         if d < 0.0 || z < 0.0 || z > t {
@@ -322,12 +323,23 @@ fn an_elliptical_rim_is_fitted() {
             0
         } else if !inner {
             2
-        } else if x.abs() < 25.0 && y < 40.0 && w.abs() < 8.0 {
+        } else if core(x, y, w) {
             3
         } else {
             1
         }
-    };
+    }
+}
+
+#[test]
+fn an_elliptical_rim_is_fitted() {
+    // A half disc 75 mm in radius from the chest wall; its edge leaves the
+    // paddles along an ellipse 20 mm wide (r = 2) all around, under a skin
+    // shell; fat with a dense core in the contact region. Every sector finds
+    // a = 20 mm and r = 2, and the volume and glandularity are right.
+    let g = geom();
+    let (t, a) = (40.0, 20.0);
+    let ph = half_disc(t, a, |x, y, w| x.abs() < 25.0 && y < 40.0 && w.abs() < 8.0);
     let m = make(&g, 96, &ph, 1e6, None);
     let r = estimate(&input(&g, &m.counts, t, 1e6), &opts()).expect("estimate");
     let c = &r.central;
@@ -484,31 +496,10 @@ fn the_contact_map_finds_the_nearest_ray() {
 #[test]
 fn a_breast_tapering_over_a_wide_rim_keeps_its_thickness() {
     let g = geom();
-    let (t, rad, a, s) = (40.0, 75.0, 40.0, 1.6);
-    let ph = move |x: f64, y: f64, z: f64| {
-        let d = rad - (x * x + y * y).sqrt();
-        let (u, w) = (a - d, z - t / 2.0);
-        if d < 0.0 || z < 0.0 || z > t {
-            return 0;
-        }
-        let (outer, inner) = if u <= 0.0 {
-            (true, w.abs() <= t / 2.0 - s)
-        } else {
-            (
-                (u / a).powi(2) + (w / (t / 2.0)).powi(2) <= 1.0,
-                (u / (a - s)).powi(2) + (w / (t / 2.0 - s)).powi(2) <= 1.0,
-            )
-        };
-        if !outer {
-            0
-        } else if !inner {
-            2
-        } else if x.abs() < 15.0 && y < 25.0 && w.abs() < 8.0 {
-            3
-        } else {
-            1
-        }
-    };
+    let t = 40.0;
+    let ph = half_disc(t, 40.0, |x, y, w| {
+        x.abs() < 15.0 && y < 25.0 && w.abs() < 8.0
+    });
     let m = make(&g, 96, &ph, 1e6, None);
     let inp = input(&g, &m.counts, t, 1e6);
     let once = estimate(
