@@ -265,6 +265,36 @@ fn a_network_answer_forced_wrong_is_flagged_and_gets_no_category() {
     assert!(chk.confirmed, "{}: {:?}", chk.summary(), chk.reasons);
     assert!(res.model_mgd_at_physics_mgy.is_none());
     let physics = res.physics_density.as_ref().expect("a physics density");
+    // The same acquisition under limits nothing meets: not confirmed, and
+    // the pipeline's model breast at the physics density made (the
+    // model breast's dose per kerma falls as its glandularity rises, the
+    // denser mixture attenuating more: DgN tables, Dance 2000).
+    let strict = process(
+        &acq,
+        &PipelineOptions {
+            density_limits: dbt_pipeline::density_check::CheckLimits {
+                whole_pp: 1e-6,
+                contact_pp: 1e-6,
+            },
+            ..opts.clone()
+        },
+    )
+    .unwrap();
+    assert!(!strict.density_check.confirmed);
+    let at_phys = strict
+        .model_mgd_at_physics_mgy
+        .expect("model breast at the physics density");
+    let g_phys = strict.density_check.physics.unwrap();
+    assert!(at_phys > 0.0);
+    if (g_phys - strict.dose_model.glandularity).abs() > 0.02 {
+        assert_eq!(
+            at_phys > strict.model_mgd_mgy,
+            g_phys < strict.dose_model.glandularity,
+            "at {g_phys:.3}: {at_phys} mGy; at {:.3}: {} mGy",
+            strict.dose_model.glandularity,
+            strict.model_mgd_mgy
+        );
+    }
     // The contact figure the pipeline compared is the reconstruction's own.
     let h = &acq.header;
     let contact = |mu: &[f32]| {

@@ -821,16 +821,21 @@ pub fn process_with_progress(
         opts.seed,
     )?;
     stage_seconds.dose_patient = lap();
-    let dose_model = mgd_to_uncertainty(
-        &breast,
-        Model::Homogeneous,
-        &spectrum,
-        &views,
-        opts.dose_uncertainty,
-        200_000,
-        max,
-        opts.seed + 1,
-    )?;
+    // The model breast (the outline and skin of `b`, the interior mixed to
+    // its labels' glandularity).
+    let model_breast = |b: &Breast, seed: u64| {
+        mgd_to_uncertainty(
+            b,
+            Model::Homogeneous,
+            &spectrum,
+            &views,
+            opts.dose_uncertainty,
+            200_000,
+            max,
+            seed,
+        )
+    };
+    let dose_model = model_breast(&breast, opts.seed + 1)?;
     // Not confirmed: the model breast at the physics density too, so that
     // the dose report shows what the physics' figure would mean for the
     // dose.
@@ -842,16 +847,7 @@ pub fn process_with_progress(
                 labels: &relabelled,
                 ..breast
             };
-            Some(mgd_to_uncertainty(
-                &b,
-                Model::Homogeneous,
-                &spectrum,
-                &views,
-                opts.dose_uncertainty,
-                200_000,
-                max,
-                opts.seed + 2,
-            )?)
+            Some(model_breast(&b, opts.seed + 2)?)
         }
         _ => None,
     };
