@@ -1152,7 +1152,7 @@ pub fn density_report(input: &DensityInput, uids: &mut UidSource) -> Result<Repo
         let physics = chk
             .physics_glandularity
             .map_or("none could be made".to_string(), |g| {
-                format!("{} %", crate::format_ds(100.0 * g))
+                format!("{:.1} %", 100.0 * g)
             });
         children.push((
             Rel::Contains,
@@ -1160,8 +1160,8 @@ pub fn density_report(input: &DensityInput, uids: &mut UidSource) -> Result<Repo
                 private("DCHECKWHY", "Why the density is not confirmed"),
                 format!(
                     "The breast density could not be confirmed and no composition category is \
-                     given. Reported (DBToR) {} %, physics-based {physics}: {}.",
-                    crate::format_ds(100.0 * input.glandularity),
+                     given. Reported (DBToR) {:.1} %, physics-based {physics}: {}.",
+                    100.0 * input.glandularity,
                     chk.reasons.join("; ")
                 ),
             ),
