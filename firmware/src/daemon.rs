@@ -1007,11 +1007,7 @@ impl Daemon {
                         )
                     }))
                     .collect(),
-                density_check: Some(dbt_status::DensityCheckRecord {
-                    physics_glandularity: res.density_check.physics,
-                    confirmed: res.density_check.confirmed,
-                    reasons: res.density_check.reasons.clone(),
-                }),
+                density_check: Some(res.density_check.report()),
             })
         })();
         match delivered {

@@ -362,7 +362,7 @@ mod tests {
             reports: vec![format!("{id}-dose-sr.dcm")],
             pacs_waiting: vec![],
             flags: vec![],
-            density_check: Some(dbt_status::DensityCheckRecord {
+            density_check: Some(dbt_dicom::DensityCheckReport {
                 physics_glandularity: Some(0.2),
                 confirmed: true,
                 reasons: vec![],
@@ -385,7 +385,7 @@ mod tests {
             if i == 1 {
                 // The physics did not confirm the second one's density.
                 r.composition = None;
-                r.density_check = Some(dbt_status::DensityCheckRecord {
+                r.density_check = Some(dbt_dicom::DensityCheckReport {
                     physics_glandularity: Some(0.45),
                     confirmed: false,
                     reasons: vec!["disagree by -24.0 pp (limit 14)".into()],

@@ -69,13 +69,7 @@ fn acquisition_to_reports() {
         ..PhantomSpec::typical(g.image.pixel_mm, 5)
     };
     let acq = acquired(&g, &spec, NoiseLevel::NoiseFree, 3, 27.0, "T1");
-    let opts = PipelineOptions {
-        dbtor: None,
-        mltr_iterations: 30,
-        dose_uncertainty: 0.05,
-        seed: 1,
-        ..PipelineOptions::default()
-    };
+    let opts = mltr30();
     let mut stages = Vec::new();
     let t = std::time::Instant::now();
     let res = process_with_progress(&acq, &opts, &mut |s| stages.push(s)).unwrap();
@@ -199,6 +193,17 @@ fn acquisition_to_reports() {
         .contains("slice spacing"));
 }
 
+/// MLTR with 30 iterations, the dose to 5 %, seed 1.
+fn mltr30() -> PipelineOptions {
+    PipelineOptions {
+        dbtor: None,
+        mltr_iterations: 30,
+        dose_uncertainty: 0.05,
+        seed: 1,
+        ..PipelineOptions::default()
+    }
+}
+
 /// The reporting device of these tests.
 fn equipment() -> Equipment {
     Equipment {
@@ -253,13 +258,7 @@ fn a_network_answer_forced_wrong_is_flagged_and_gets_no_category() {
         ..PhantomSpec::typical(g.image.pixel_mm, 21)
     };
     let acq = acquired(&g, &spec, NoiseLevel::NoiseFree, 4, 28.0, "T2");
-    let opts = PipelineOptions {
-        dbtor: None,
-        mltr_iterations: 30,
-        dose_uncertainty: 0.05,
-        seed: 1,
-        ..PipelineOptions::default()
-    };
+    let opts = mltr30();
     let res = process(&acq, &opts).unwrap();
     let chk = &res.density_check;
     assert!(chk.confirmed, "{}: {:?}", chk.summary(), chk.reasons);

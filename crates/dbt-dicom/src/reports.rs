@@ -266,8 +266,8 @@ pub struct DensityInput {
 }
 
 /// What the density report says of the cross-check against the physics
-/// density (issue #48 point 3).
-#[derive(Debug, Clone, PartialEq)]
+/// density (issue #48 point 3); the status file records the same.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct DensityCheckReport {
     /// The physics-based glandularity by mass, 0..1, when one was made.
     pub physics_glandularity: Option<f64>,
@@ -275,6 +275,7 @@ pub struct DensityCheckReport {
     /// the report assert a composition category.
     pub confirmed: bool,
     /// Why it does not (empty when confirmed).
+    #[serde(default)]
     pub reasons: Vec<String>,
 }
 

@@ -281,23 +281,26 @@ impl ContactMap {
     /// breast's mid-height (the nearest element's) is in the contact region;
     /// false outside the slices and beyond the detector.
     pub fn contains(&self, x_mm: f64, depth_mm: f64) -> bool {
+        self.element_at(x_mm)
+            .is_some_and(|k| self.holds(k, depth_mm))
+    }
+
+    /// The element whose ray passes nearest `x_mm` at the breast's
+    /// mid-height; `None` beyond the detector (half a pitch past its ends).
+    pub fn element_at(&self, x_mm: f64) -> Option<usize> {
         let nd = self.x_mid_mm.len();
-        if nd == 0 || self.slice_mm <= 0.0 || depth_mm.is_nan() || depth_mm < 0.0 {
-            return false;
+        if nd == 0 {
+            return None;
         }
-        let s = (depth_mm / self.slice_mm) as usize;
-        if (s + 1) * nd > self.mask.len() {
-            return false;
-        }
-        let (lo, hi) = (self.x_mid_mm[0], self.x_mid_mm[nd - 1]);
-        let (lo, hi) = (lo.min(hi), lo.max(hi));
+        let (first, last) = (self.x_mid_mm[0], self.x_mid_mm[nd - 1]);
+        let (lo, hi) = (first.min(last), first.max(last));
         let pitch = (hi - lo) / (nd - 1).max(1) as f64;
         if x_mm.is_nan() || x_mm < lo - pitch / 2.0 || x_mm > hi + pitch / 2.0 {
-            return false;
+            return None;
         }
-        // The nearest element (the rays' x is monotonic in the element).
+        // The rays' x is monotonic in the element.
         let k = match self.x_mid_mm.binary_search_by(|x| {
-            if self.x_mid_mm[0] <= self.x_mid_mm[nd - 1] {
+            if first <= last {
                 x.total_cmp(&x_mm)
             } else {
                 x_mm.total_cmp(x)
@@ -314,7 +317,18 @@ impl ContactMap {
                 }
             }
         };
-        self.mask[s * nd + k]
+        Some(k)
+    }
+
+    /// Whether element `k`'s ray in the slice holding `depth_mm` is in the
+    /// contact region; false outside the slices and the elements.
+    pub fn holds(&self, k: usize, depth_mm: f64) -> bool {
+        let nd = self.x_mid_mm.len();
+        if k >= nd || self.slice_mm <= 0.0 || depth_mm.is_nan() || depth_mm < 0.0 {
+            return false;
+        }
+        let s = (depth_mm / self.slice_mm) as usize;
+        self.mask.get(s * nd + k).copied().unwrap_or(false)
     }
 }
 

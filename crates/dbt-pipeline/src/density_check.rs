@@ -90,6 +90,15 @@ pub struct DensityCheck {
 }
 
 impl DensityCheck {
+    /// What the density report and the status file say of it.
+    pub fn report(&self) -> dbt_dicom::DensityCheckReport {
+        dbt_dicom::DensityCheckReport {
+            physics_glandularity: self.physics,
+            confirmed: self.confirmed,
+            reasons: self.reasons.clone(),
+        }
+    }
+
     /// One line for logs, the status page and the service CLI.
     pub fn summary(&self) -> String {
         let pc = |v: Option<f64>| v.map_or("none".to_string(), |g| format!("{:.1} %", 100.0 * g));
@@ -133,12 +142,15 @@ pub fn contact_glandularity(
     if mu.len() != nx * ny * nz || labels.len() != mu.len() {
         return None;
     }
-    let xs: Vec<f64> = (0..nx).map(|c| geometry.pixel_center_mm(0, c).0).collect();
+    // Each column's element, once (it does not change with depth).
+    let elements: Vec<Option<usize>> = (0..nx)
+        .map(|c| map.element_at(geometry.pixel_center_mm(0, c).0))
+        .collect();
     let mut pv = PartialVolumeMass::default();
     for z in 0..nz {
         let y_mm = (z as f64 + 0.5) * depth_step_mm;
-        for (x, &x_mm) in xs.iter().enumerate() {
-            if !map.contains(x_mm, y_mm) {
+        for (x, k) in elements.iter().enumerate() {
+            if !k.is_some_and(|k| map.holds(k, y_mm)) {
                 continue;
             }
             for r in 0..ny {

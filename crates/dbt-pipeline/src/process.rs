@@ -13,8 +13,8 @@ use crate::plausibility::{
 };
 use dbt_acquisition::log_transform;
 use dbt_dicom::{
-    density_report, dose_report, DensityCheckReport, DensityInput, DoseEvent, DoseInput, Equipment,
-    Header, Laterality, ProcedureIntent, Report, UidSource,
+    density_report, dose_report, DensityInput, DoseEvent, DoseInput, Equipment, Header, Laterality,
+    ProcedureIntent, Report, UidSource,
 };
 use dbt_dose::patient::{dbt_views, mgd_to_uncertainty, Breast, MgdResult, Model};
 use dbt_dose::xray::AnodeFilter;
@@ -674,7 +674,10 @@ pub fn process_with_progress(
         s
     };
     let mut stage_seconds = StageSeconds::default();
-    // The calibration of the acquisition's beam (before any work).
+    // The cross-check's limits and the calibration of the acquisition's
+    // beam (before any work): a limit that is not a positive number would
+    // confirm every density or none.
+    opts.density_limits.validate()?;
     let beam_opts = opts.for_beam(acq.header.anode_filter)?;
     let opts = beam_opts.as_ref();
     let corrected = correct_counts(acq, opts)?;
@@ -995,11 +998,7 @@ pub fn reports(
             breast_cm3: res.density.breast_cm3.max(1.0),
             reconstructor: res.reconstructor.clone(),
             model_version: res.algorithm_version.clone(),
-            check: DensityCheckReport {
-                physics_glandularity: res.density_check.physics,
-                confirmed: res.density_check.confirmed,
-                reasons: res.density_check.reasons.clone(),
-            },
+            check: res.density_check.report(),
             content_date: content_date.into(),
             content_time: content_time.into(),
         },

@@ -19,6 +19,6 @@ pub mod plot;
 pub mod state;
 
 pub use state::{
-    public_id, valid_entry_id, AcquisitionRecord, DensityCheckRecord, DicomInputStatus,
-    FaultRecord, Snapshot, Status, WaitingSweep, DENSITY_CHECK_WARNING,
+    public_id, valid_entry_id, AcquisitionRecord, DicomInputStatus, FaultRecord, Snapshot, Status,
+    WaitingSweep, DENSITY_CHECK_WARNING,
 };

@@ -73,20 +73,7 @@ pub struct AcquisitionRecord {
     /// projections (issue #48 point 3); `None` in records written before
     /// the check existed.
     #[serde(default)]
-    pub density_check: Option<DensityCheckRecord>,
-}
-
-/// What the density cross-check found for one acquisition.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct DensityCheckRecord {
-    /// The physics-based glandularity by mass, 0..1, when one was made.
-    pub physics_glandularity: Option<f64>,
-    /// Whether it confirms the reported density (else the density report
-    /// gives no composition category).
-    pub confirmed: bool,
-    /// Why not.
-    #[serde(default)]
-    pub reasons: Vec<String>,
+    pub density_check: Option<dbt_dicom::DensityCheckReport>,
 }
 
 /// The warning kind of a density the physics did not confirm.
@@ -372,7 +359,7 @@ pub(crate) mod tests {
             reports: vec![],
             pacs_waiting: vec![],
             flags: vec![],
-            density_check: Some(DensityCheckRecord {
+            density_check: Some(dbt_dicom::DensityCheckReport {
                 physics_glandularity: Some(g),
                 confirmed: true,
                 reasons: vec![],
@@ -389,7 +376,7 @@ pub(crate) mod tests {
         assert!(s.warning_counts.is_empty());
         let mut r = record("b", 50.0, 0.6, 1.3, 130);
         r.composition = None;
-        r.density_check = Some(DensityCheckRecord {
+        r.density_check = Some(dbt_dicom::DensityCheckReport {
             physics_glandularity: Some(0.4),
             confirmed: false,
             reasons: vec!["disagree by +20.0 pp".into()],
