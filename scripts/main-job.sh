@@ -97,6 +97,12 @@ print(f"MGD {r['mgd_mgy']:.3f} mGy (+- {100 * r['dose_patient']['mgd_rel_uncerta
       f"model breast {r['model_mgd_mgy']:.3f} mGy"
       + (f" ({r['model_mgd_at_physics_mgy']:.3f} mGy at the physics density)" if r.get("model_mgd_at_physics_mgy") else "")
       + f", incident air kerma {r['kerma_mgy']:.2f} mGy")
+def interval(name, iv, scale, unit, digits):
+    lim = iv["limits"]
+    return (f"{name} 95 % interval {scale * lim[0]:.{digits}f}-{scale * lim[1]:.{digits}f} {unit}" if lim
+            else f"{name}: no 95 % interval ({iv['basis']})")
+iv = r["intervals"]
+print(interval("glandularity", iv["glandularity"], 100, "%", 1) + "; " + interval("MGD", iv["mgd"], 1, "mGy", 3))
 PY
 status=0
 for f in "$OUT"/reports/*.dcm; do

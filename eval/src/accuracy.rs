@@ -42,8 +42,15 @@ pub struct Case {
     pub mgd_true: f64,
     /// MGD of the classified reconstruction, mGy.
     pub mgd_est: f64,
+    /// Relative standard error of `mgd_true`'s Monte Carlo.
+    pub mgd_true_rel_uncertainty: f64,
+    /// Relative standard error of `mgd_est`'s Monte Carlo.
+    pub mgd_est_rel_uncertainty: f64,
     /// Model-breast MGD (reconstruction's outline and glandularity), mGy.
     pub mgd_model: f64,
+    /// The reports' 95 % intervals (or why none), as the firmware gives
+    /// them.
+    pub intervals: dbt_pipeline::ReportIntervals,
     /// Processing seconds.
     pub seconds: f64,
     /// What the firmware's plausibility checks measured (a case they
@@ -289,7 +296,7 @@ pub fn run_cases_on(
     for o in opts {
         let t = std::time::Instant::now();
         let res = process(&acq, o)?;
-        let per_kerma = match truth_mgd_per_kerma {
+        let (per_kerma, truth_rel) = match truth_mgd_per_kerma {
             Some(v) => v,
             None => {
                 // The acquisition's thickness is the phantom's: the same
@@ -313,8 +320,8 @@ pub fn run_cases_on(
                     200_000,
                     100_000_000,
                     seed + 7,
-                )?
-                .mgd_per_kerma;
+                )?;
+                let m = (m.mgd_per_kerma, m.mgd_rel_uncertainty);
                 truth_mgd_per_kerma = Some(m);
                 m
             }
@@ -334,7 +341,10 @@ pub fn run_cases_on(
             density_check: res.density_check.clone(),
             mgd_true: per_kerma * res.kerma_mgy,
             mgd_est: res.mgd_mgy,
+            mgd_true_rel_uncertainty: truth_rel,
+            mgd_est_rel_uncertainty: res.dose_patient.mgd_rel_uncertainty,
             mgd_model: res.model_mgd_mgy,
+            intervals: res.intervals.clone(),
             seconds: acquired + t.elapsed().as_secs_f64(),
             plausibility: res.plausibility.clone(),
             by_depth: {

@@ -30,6 +30,7 @@ pub fn pipeline_options(cfg: &Config, config_path: &Path) -> Result<PipelineOpti
         opts.noise_match = noise_match(cfg, signed.model.manifest())?;
         opts.calibration = signed.calibration;
         opts.beam_calibrations = dbt_pipeline::beam_calibrations(&signed.beam_calibrations);
+        opts.intervals = signed.intervals.map(Arc::new);
         opts.dbtor = Some(Arc::new(signed.model));
     }
     Ok(opts)

@@ -1008,6 +1008,8 @@ impl Daemon {
                     }))
                     .collect(),
                 density_check: Some(res.density_check.report()),
+                glandularity_interval: Some(res.intervals.glandularity.clone()),
+                mgd_interval: Some(res.intervals.mgd.clone()),
             })
         })();
         match delivered {

@@ -367,6 +367,14 @@ mod tests {
                 confirmed: true,
                 reasons: vec![],
             }),
+            glandularity_interval: Some(dbt_dicom::FigureInterval {
+                limits: Some([0.17, 0.24]),
+                basis: "95 % prediction interval from 14 validation breasts".into(),
+            }),
+            mgd_interval: Some(dbt_dicom::FigureInterval {
+                limits: None,
+                basis: "the reconstructor has no validation residuals for these inputs".into(),
+            }),
         }
     }
 

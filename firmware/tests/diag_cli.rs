@@ -96,6 +96,10 @@ fn a_corrupted_dicom_length_is_refused_not_allocated() {
                 confirmed: true,
                 reasons: vec![],
             },
+            glandularity_interval: dbt_dicom::FigureInterval {
+                limits: None,
+                basis: "no validation residuals for MLTR".into(),
+            },
             content_date: "20261124".into(),
             content_time: "120000".into(),
         },

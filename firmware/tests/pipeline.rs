@@ -378,6 +378,69 @@ fn copy_model(to: &std::path::Path) -> std::path::PathBuf {
     to.to_path_buf()
 }
 
+/// The shipped model's report intervals (issue #48 point 4): loaded for
+/// the configured precision and inputs, none for a precision without a
+/// table; a folder whose calibration changed after the intervals were fit
+/// is refused (its intervals describe other figures), and one signed off
+/// with intervals that lost them is refused by the sign-off.
+#[test]
+fn the_report_intervals_are_bound_to_the_model_and_its_calibration() {
+    use dbt_dbtor::{Engine, Precision};
+    use dbt_model::{load_signed, InputCorrections, SIGNOFF_FILE};
+    let from = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/dbtor-x4t3qa");
+    let classify = dbt_tissue::ClassifyOptions::default();
+    let load = |dir: &std::path::Path, p| {
+        load_signed(
+            dir,
+            p,
+            &[],
+            Engine::Fast,
+            &classify,
+            InputCorrections::default(),
+            None,
+        )
+    };
+    let int8 = load(&from, Precision::Int8).unwrap();
+    let t = int8
+        .intervals
+        .expect("the shipped model has int8 intervals");
+    assert_eq!(t.bands, dbt_intervals::product_bands());
+    assert!(t.stats.iter().all(|s| s.n >= dbt_intervals::MIN_PER_BAND));
+    assert!(load(&from, Precision::Fp32).unwrap().intervals.is_none());
+    // A copy of the signed folder.
+    let tmp = tempfile::tempdir().unwrap();
+    let so: dbt_model::Signoff =
+        serde_json::from_str(&std::fs::read_to_string(from.join(SIGNOFF_FILE)).unwrap()).unwrap();
+    let listed = dbt_dbtor::ModelManifest::load(&from).unwrap().sha256;
+    for rel in so
+        .files
+        .keys()
+        .chain(listed.keys())
+        .map(String::as_str)
+        .chain([SIGNOFF_FILE])
+    {
+        let dst = tmp.path().join(rel);
+        std::fs::create_dir_all(dst.parent().unwrap()).unwrap();
+        std::fs::copy(from.join(rel), dst).unwrap();
+    }
+    let dir = tmp.path();
+    assert!(load(dir, Precision::Int8).unwrap().intervals.is_some());
+    // Recalibrated (the same figures, another file) and signed off again.
+    let cal = dir.join(dbt_model::CALIBRATION_FILE);
+    let text = std::fs::read_to_string(&cal).unwrap();
+    std::fs::write(&cal, text + "\n").unwrap();
+    dbt_model::sign_off(dir).unwrap();
+    let e = load(dir, Precision::Int8).err().unwrap().to_string();
+    assert!(
+        e.contains("report-intervals.json") && e.contains("dbt-eval intervals"),
+        "{e}"
+    );
+    // The intervals lost after the sign-off.
+    std::fs::remove_file(dir.join(dbt_model::INTERVALS_FILE)).unwrap();
+    let e = load(dir, Precision::Int8).err().unwrap().to_string();
+    assert!(e.contains("report-intervals.json is missing"), "{e}");
+}
+
 /// The model folder's calibration: none without the file; applied for the
 /// running precision and classification; not for another precision or
 /// classification; the one fit on corrected inputs where the counts are

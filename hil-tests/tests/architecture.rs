@@ -33,6 +33,7 @@ const PURE: &[&str] = &[
     "dbt-scatter",
     "dbt-tissue",
     "dbt-physics-density",
+    "dbt-intervals",
     "dbt-gantry",
     "dbt-dicom",
     "dbt-pipeline",

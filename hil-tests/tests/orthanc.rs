@@ -64,6 +64,10 @@ fn dose(agd: f64) -> DoseInput {
         relative_uncertainty: 0.008,
         model_agd_mgy: agd * 1.3,
         model_agd_at_physics_mgy: None,
+        agd_interval: dbt_dicom::FigureInterval {
+            limits: Some([0.9 * agd, 1.1 * agd]),
+            basis: "95 % prediction interval from 20 validation breasts".into(),
+        },
         content_date: "20261122".into(),
         content_time: "102000".into(),
         intent: ProcedureIntent::Diagnostic,
@@ -85,6 +89,10 @@ fn density() -> DensityInput {
             physics_glandularity: Some(0.25),
             confirmed: true,
             reasons: vec![],
+        },
+        glandularity_interval: dbt_dicom::FigureInterval {
+            limits: Some([0.08, 0.17]),
+            basis: "95 % prediction interval from 20 validation breasts".into(),
         },
         content_date: "20261122".into(),
         content_time: "102000".into(),

@@ -134,6 +134,10 @@ fn echo_store_and_refusal_with_dcmtk_and_host_sim() {
                 confirmed: true,
                 reasons: vec![],
             },
+            glandularity_interval: dbt_dicom::FigureInterval {
+                limits: None,
+                basis: "no validation residuals for MLTR".into(),
+            },
             content_date: "20261124".into(),
             content_time: "101500".into(),
         },

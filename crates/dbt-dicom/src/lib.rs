@@ -23,8 +23,8 @@ pub mod templates;
 pub use content::{format_ds, Code, FilterMaterial, Item, Rel, ANODE_TUNGSTEN};
 pub use reports::{
     composition_category, composition_code, density_report, dose_report, read_values,
-    DensityCheckReport, DensityInput, DoseEvent, DoseInput, Equipment, Header, Laterality,
-    ProcedureIntent, Report, UidSource,
+    DensityCheckReport, DensityInput, DoseEvent, DoseInput, Equipment, FigureInterval, Header,
+    Laterality, ProcedureIntent, Report, UidSource,
 };
 
 use thiserror::Error;

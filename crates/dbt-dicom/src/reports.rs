@@ -226,6 +226,8 @@ pub struct DoseInput {
     /// (issue #48 point 3; `None` when confirmed or without a physics
     /// density).
     pub model_agd_at_physics_mgy: Option<f64>,
+    /// The accumulated AGD's 95 % interval, or why none is given.
+    pub agd_interval: FigureInterval,
     /// Content date and time `YYYYMMDD`, `HHMMSS`.
     pub content_date: String,
     /// See `content_date`.
@@ -259,6 +261,8 @@ pub struct DensityInput {
     pub model_version: String,
     /// The cross-check against the physics density of the same counts.
     pub check: DensityCheckReport,
+    /// The glandularity's 95 % interval, or why none is given.
+    pub glandularity_interval: FigureInterval,
     /// Content date and time.
     pub content_date: String,
     /// See `content_date`.
@@ -277,6 +281,43 @@ pub struct DensityCheckReport {
     /// Why it does not (empty when confirmed).
     #[serde(default)]
     pub reasons: Vec<String>,
+}
+
+/// A 95 % interval of a reported figure (issue #48 point 4), or why none
+/// is given; the status file records the same.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct FigureInterval {
+    /// Lower and upper limit (glandularity by mass 0..1; AGD mGy), when
+    /// given.
+    pub limits: Option<[f64; 2]>,
+    /// What the interval rests on, or why none is given.
+    pub basis: String,
+}
+
+impl FigureInterval {
+    /// Checked as a report takes it: limits finite, ordered and within
+    /// `lo..=hi`; a basis always (an interval says what it rests on, its
+    /// absence why).
+    fn check(&self, field: &'static str, lo: f64, hi: f64) -> Result<(), DicomError> {
+        if let Some([a, b]) = self.limits {
+            check(field, a, lo, hi)?;
+            check(field, b, a, hi)?;
+        }
+        if self.basis.trim().is_empty() {
+            return Err(DicomError::Field {
+                field,
+                reason: "an interval needs its basis, its absence the reason".into(),
+            });
+        }
+        Ok(())
+    }
+
+    /// `lo-hi` in the report's unit (`scale` times the limits, `decimals`
+    /// places), or `None`.
+    pub fn describe(&self, scale: f64, decimals: usize) -> Option<String> {
+        self.limits
+            .map(|[a, b]| format!("{:.*}-{:.*}", decimals, scale * a, decimals, scale * b))
+    }
 }
 
 /// A built report: the dataset and its identity.
@@ -356,6 +397,40 @@ fn dcm(v: &str, m: &str) -> Code {
 
 fn private(v: &str, m: &str) -> Code {
     Code::new(v, PRIVATE_SCHEME, m)
+}
+
+/// A figure's 95 % interval as content items: its limits (`scale` times
+/// the interval's, in `unit`) where given, and always the basis or the
+/// reason there is none.
+fn interval_items(
+    iv: &FigureInterval,
+    lo: (&str, &str),
+    hi: (&str, &str),
+    basis: (&str, &str),
+    scale: f64,
+    unit: Code,
+) -> Vec<(Rel, Item)> {
+    let mut items = Vec::new();
+    if let Some([a, b]) = iv.limits {
+        for ((v, m), x) in [(lo, a), (hi, b)] {
+            items.push((
+                Rel::Contains,
+                Item::Num(private(v, m), scale * x, unit.clone(), vec![]),
+            ));
+        }
+    }
+    items.push((
+        Rel::Contains,
+        Item::Text(
+            private(basis.0, basis.1),
+            if iv.limits.is_some() {
+                iv.basis.clone()
+            } else {
+                format!("No 95 % interval is given: {}", iv.basis)
+            },
+        ),
+    ));
+    items
 }
 
 fn check(field: &'static str, v: f64, lo: f64, hi: f64) -> Result<(), DicomError> {
@@ -620,6 +695,7 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
         2000.0,
     )?;
     check("relative_uncertainty", input.relative_uncertainty, 0.0, 1.0)?;
+    input.agd_interval.check("agd_interval", 0.0, 1000.0)?;
     if input.events.is_empty() {
         return Err(DicomError::Field {
             field: "events",
@@ -719,7 +795,17 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
                         vec![],
                     ),
                 ),
-            ],
+            ]
+            .into_iter()
+            .chain(interval_items(
+                &input.agd_interval,
+                ("AGDLO95", "Accumulated AGD, 95 % interval, lower limit"),
+                ("AGDHI95", "Accumulated AGD, 95 % interval, upper limit"),
+                ("AGDINT95", "Accumulated AGD, 95 % interval, basis"),
+                1.0,
+                mgy(),
+            ))
+            .collect(),
         ),
     ));
     // Beside the patient's dose where the physics did not confirm the
@@ -1067,6 +1153,9 @@ pub fn density_report(input: &DensityInput, uids: &mut UidSource) -> Result<Repo
     if let Some(g) = input.check.physics_glandularity {
         check("check.physics_glandularity", g, 0.0, 1.0)?;
     }
+    input
+        .glandularity_interval
+        .check("glandularity_interval", 0.0, 1.0)?;
     if !input.check.confirmed && input.check.reasons.is_empty() {
         return Err(DicomError::Field {
             field: "check.reasons",
@@ -1085,6 +1174,23 @@ pub fn density_report(input: &DensityInput, uids: &mut UidSource) -> Result<Repo
             Code::ucum("%", "Percent"),
             vec![laterality_mod(input.header.laterality)],
         ),
+    ));
+    children.extend(interval_items(
+        &input.glandularity_interval,
+        (
+            "PFTLO95",
+            "Percent Fibroglandular Tissue, 95 % interval, lower limit",
+        ),
+        (
+            "PFTHI95",
+            "Percent Fibroglandular Tissue, 95 % interval, upper limit",
+        ),
+        (
+            "PFTINT95",
+            "Percent Fibroglandular Tissue, 95 % interval, basis",
+        ),
+        100.0,
+        Code::ucum("%", "Percent"),
     ));
     children.push((
         Rel::Contains,

@@ -67,6 +67,12 @@ pub fn dose_input() -> DoseInput {
         relative_uncertainty: 0.0072,
         model_agd_mgy: 1.84,
         model_agd_at_physics_mgy: None,
+        agd_interval: dbt_dicom::FigureInterval {
+            limits: Some([1.27, 1.61]),
+            basis: "95 % prediction interval from 27 validation breasts (thickness 45-60 mm, \
+                    reported glandularity below 30 %): estimate over truth +0.4 % on average"
+                .into(),
+        },
         content_date: "20261122".into(),
         content_time: "102000".into(),
         intent: ProcedureIntent::Diagnostic,
@@ -89,6 +95,13 @@ pub fn density_input() -> DensityInput {
             confirmed: true,
             reasons: vec![],
         },
+        glandularity_interval: dbt_dicom::FigureInterval {
+            limits: Some([0.201, 0.289]),
+            basis: "95 % prediction interval from 27 validation breasts (thickness 45-60 mm, \
+                    reported glandularity below 30 %): reported minus true glandularity -2.1 pp \
+                    on average, s.d. 2.0 pp"
+                .into(),
+        },
         content_date: "20261122".into(),
         content_time: "102000".into(),
     }
@@ -105,6 +118,7 @@ pub fn unconfirmed_density_input() -> DensityInput {
                     .into(),
             ],
         },
+        glandularity_interval: unconfirmed_interval(),
         ..density_input()
     }
 }
@@ -113,7 +127,18 @@ pub fn unconfirmed_density_input() -> DensityInput {
 pub fn unconfirmed_dose_input() -> DoseInput {
     DoseInput {
         model_agd_at_physics_mgy: Some(1.71),
+        agd_interval: unconfirmed_interval(),
         ..dose_input()
+    }
+}
+
+/// What an unconfirmed density's reports say of their intervals.
+pub fn unconfirmed_interval() -> dbt_dicom::FigureInterval {
+    dbt_dicom::FigureInterval {
+        limits: None,
+        basis: "the density is not confirmed by the physics-based density, so the validation \
+                residuals are not known to describe this breast"
+            .into(),
     }
 }
 
@@ -180,6 +205,87 @@ fn an_unconfirmed_density_report_has_no_category_and_says_why() {
         .unwrap()
         .to_string();
     assert!(e.contains("check.physics_glandularity"), "{e}");
+}
+
+/// Both figures carry their 95 % interval and what it rests on; a report
+/// without one says why; an interval out of order, out of range or without
+/// its basis is refused naming the field. (Both SRs with and without
+/// intervals go through dciodvfy, dsrdump and PixelMed in the tests above:
+/// `density_input`/`dose_input` have them, the unconfirmed ones not.)
+#[test]
+fn reports_carry_each_figures_95_percent_interval() {
+    let mut uids = UidSource::new("1.2.826.0.1.3680043.10.543", 44).unwrap();
+    let values = |r: dbt_dicom::Report| read_values(&r.to_bytes().unwrap()).unwrap().1;
+    let get =
+        |v: &[(String, String)], k: &str| v.iter().find(|(n, _)| n == k).map(|(_, s)| s.clone());
+    let d = values(density_report(&density_input(), &mut uids).unwrap());
+    assert_eq!(
+        get(
+            &d,
+            "Percent Fibroglandular Tissue, 95 % interval, lower limit"
+        )
+        .as_deref(),
+        Some("20.1 Percent")
+    );
+    assert_eq!(
+        get(
+            &d,
+            "Percent Fibroglandular Tissue, 95 % interval, upper limit"
+        )
+        .as_deref(),
+        Some("28.9 Percent")
+    );
+    let basis = get(&d, "Percent Fibroglandular Tissue, 95 % interval, basis").unwrap();
+    assert!(
+        basis.starts_with("95 % prediction interval from 27 validation breasts"),
+        "{basis}"
+    );
+    let m = values(dose_report(&dose_input(), &mut uids).unwrap());
+    assert_eq!(
+        get(&m, "Accumulated AGD, 95 % interval, lower limit").as_deref(),
+        Some("1.27 mGy")
+    );
+    assert_eq!(
+        get(&m, "Accumulated AGD, 95 % interval, upper limit").as_deref(),
+        Some("1.61 mGy")
+    );
+    // None given: no limits, the reason.
+    let d = values(density_report(&unconfirmed_density_input(), &mut uids).unwrap());
+    assert_eq!(
+        get(
+            &d,
+            "Percent Fibroglandular Tissue, 95 % interval, lower limit"
+        ),
+        None
+    );
+    let why = get(&d, "Percent Fibroglandular Tissue, 95 % interval, basis").unwrap();
+    assert!(
+        why.starts_with("No 95 % interval is given: the density is not confirmed"),
+        "{why}"
+    );
+    let m = values(dose_report(&unconfirmed_dose_input(), &mut uids).unwrap());
+    assert_eq!(get(&m, "Accumulated AGD, 95 % interval, upper limit"), None);
+    assert!(get(&m, "Accumulated AGD, 95 % interval, basis")
+        .unwrap()
+        .starts_with("No 95 % interval is given"));
+    // Refused: limits reversed, a glandularity beyond 1, no basis.
+    for (iv, field) in [
+        (Some([0.3, 0.2]), "glandularity_interval"),
+        (Some([0.2, 1.3]), "glandularity_interval"),
+        (None, "glandularity_interval"),
+    ] {
+        let mut bad = density_input();
+        bad.glandularity_interval = dbt_dicom::FigureInterval {
+            limits: iv,
+            basis: if iv.is_some() { "x".into() } else { " ".into() },
+        };
+        let e = density_report(&bad, &mut uids).err().unwrap().to_string();
+        assert!(e.contains(field), "{e}");
+    }
+    let mut bad = dose_input();
+    bad.agd_interval.limits = Some([f64::NAN, 1.0]);
+    let e = dose_report(&bad, &mut uids).err().unwrap().to_string();
+    assert!(e.contains("agd_interval"), "{e}");
 }
 
 /// Run both validators; returns the problems found (empty: valid).

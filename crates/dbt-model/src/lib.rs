@@ -3,17 +3,25 @@
 //!   the model is released and checked at every load;
 //! * [`calibration`]: the glandularity calibration file that `dbt-eval
 //!   calibrate` writes;
+//! * [`intervals`]: the report-interval file that `dbt-eval intervals`
+//!   writes (the validation residuals behind each figure's 95 % interval);
 //! * [`load_signed`]: the firmware's load: sign-off verified, the network's
 //!   checksums verified (by `dbt_dbtor`), and the calibration for the
-//!   configured precision required where the model was signed off calibrated.
+//!   configured precision required where the model was signed off calibrated,
+//!   and its report intervals for the configured inputs where it has them.
 
 pub mod calibration;
+pub mod intervals;
 pub mod signoff;
 
 pub use calibration::{
     load_calibration, load_calibrations, manifest_sha256, pick_beam_calibrations, pick_calibration,
     CalibrationError, CalibrationFile, Calibrations, InputCorrections, CALIBRATION_FILE,
     CALIBRATION_FORMAT,
+};
+pub use intervals::{
+    load_intervals, IntervalsEntry, IntervalsError, IntervalsFile, IntervalsSource, INTERVALS_FILE,
+    INTERVALS_FORMAT,
 };
 pub use signoff::{sign_off, verify, Signoff, SIGNOFF_FILE, SIGNOFF_FORMAT};
 
@@ -52,6 +60,9 @@ pub enum ModelError {
     /// The calibration file is unusable.
     #[error(transparent)]
     Calibration(#[from] CalibrationError),
+    /// The report-interval file is unusable.
+    #[error(transparent)]
+    Intervals(#[from] IntervalsError),
     /// The network was trained on other counts than the configured
     /// corrections give it.
     #[error("model {dir}: trained on {trained}, but fed {fed}: it would read them wrongly; {fix}")]
@@ -119,6 +130,10 @@ pub struct SignedModel {
     /// [`pick_beam_calibrations`]); a beam without one is refused by the
     /// pipeline while `calibration` is set.
     pub beam_calibrations: Vec<(String, GlandularityCalibration)>,
+    /// The validation residuals behind the reports' 95 % intervals for the
+    /// loaded precision and inputs, `None` where the model has none for
+    /// them (the reports then say so).
+    pub intervals: Option<dbt_intervals::IntervalTable>,
     /// The verified sign-off.
     pub signoff: Signoff,
 }
@@ -183,10 +198,27 @@ pub fn load_signed(
         tracing::warn!(model = %dir.display(), "the model was signed off without a glandularity calibration: glandularity reported uncalibrated");
         None
     };
+    let intervals = if signoff.files.contains_key(INTERVALS_FILE) {
+        let f = IntervalsFile::read(&dir.join(INTERVALS_FILE), &model)?;
+        let label = model.precision_label();
+        let t = f.pick(&label, input).cloned();
+        match &t {
+            Some(_) => {
+                tracing::info!(model = %dir.display(), key = %input.key(&label), "report intervals")
+            }
+            None => {
+                tracing::warn!(model = %dir.display(), key = %input.key(&label), have = ?f.tables.keys().collect::<Vec<_>>(), "no report intervals for this precision and input: the reports give none")
+            }
+        }
+        t
+    } else {
+        None
+    };
     Ok(SignedModel {
         model,
         calibration,
         beam_calibrations,
+        intervals,
         signoff,
     })
 }

@@ -39,12 +39,15 @@ pub struct Signoff {
 }
 
 /// The files of `dir` that the firmware reads: `manifest.json`, the
-/// calibration file if present, and every block's ONNX files.
+/// calibration and report-interval files if present, and every block's
+/// ONNX files.
 pub fn firmware_files(dir: &Path) -> Result<Vec<String>, ModelError> {
     let m = read_manifest(dir)?;
     let mut files = vec!["manifest.json".to_string()];
-    if dir.join(crate::CALIBRATION_FILE).is_file() {
-        files.push(crate::CALIBRATION_FILE.to_string());
+    for f in [crate::CALIBRATION_FILE, crate::INTERVALS_FILE] {
+        if dir.join(f).is_file() {
+            files.push(f.to_string());
+        }
     }
     for b in &m.blocks {
         for f in [&b.fp32, &b.int8] {
@@ -159,6 +162,8 @@ pub fn verify(dir: &Path, pinned: Option<&str>) -> Result<Signoff, ModelError> {
         if !fp.is_file() {
             let what = if f == crate::CALIBRATION_FILE {
                 " (the model was signed off calibrated: its glandularity would be reported uncalibrated)"
+            } else if f == crate::INTERVALS_FILE {
+                " (the model was signed off with report intervals: its reports would give none)"
             } else {
                 ""
             };

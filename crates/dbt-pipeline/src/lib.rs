@@ -27,5 +27,6 @@ pub mod rebin;
 pub use acquisition::{
     validate_header, Acquisition, AcquisitionHeader, HeaderError, Patient, Study, ACQ_FORMAT,
 };
+pub use dbt_dicom::FigureInterval;
 pub use plausibility::{CountsCheck, Implausible, VolumeCheck};
 pub use process::*;

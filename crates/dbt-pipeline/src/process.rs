@@ -13,8 +13,8 @@ use crate::plausibility::{
 };
 use dbt_acquisition::log_transform;
 use dbt_dicom::{
-    density_report, dose_report, DensityInput, DoseEvent, DoseInput, Equipment, Header, Laterality,
-    ProcedureIntent, Report, UidSource,
+    density_report, dose_report, DensityInput, DoseEvent, DoseInput, Equipment, FigureInterval,
+    Header, Laterality, ProcedureIntent, Report, UidSource,
 };
 use dbt_dose::patient::{dbt_views, mgd_to_uncertainty, Breast, MgdResult, Model};
 use dbt_dose::xray::AnodeFilter;
@@ -127,6 +127,13 @@ pub struct PipelineOptions {
     /// The limits of the cross-check against the physics density
     /// ([`crate::density_check::LIMITS`] unless a test sets others).
     pub density_limits: crate::density_check::CheckLimits,
+    /// The validation residuals of this reconstructor and input (the model
+    /// folder's `report-intervals.json`, `dbt_model::load_signed`), from
+    /// which the reported figures get their 95 % intervals (issue #48
+    /// point 4); `None`: the reports say no interval is given and why.
+    /// W/Rh acquisitions only: they were made on W/Rh validation breasts.
+    #[serde(skip)]
+    pub intervals: Option<std::sync::Arc<dbt_intervals::IntervalTable>>,
 }
 
 impl Default for PipelineOptions {
@@ -145,6 +152,7 @@ impl Default for PipelineOptions {
             slice_step: 1,
             scatter_in_input: false,
             density_limits: crate::density_check::LIMITS,
+            intervals: None,
         }
     }
 }
@@ -232,6 +240,9 @@ pub struct ProcessResult {
     pub mgd_mgy: f64,
     /// Model-breast MGD of the sweep, mGy.
     pub model_mgd_mgy: f64,
+    /// The 95 % intervals of the reported glandularity and MGD, or why
+    /// none is given ([`report_intervals`]).
+    pub intervals: ReportIntervals,
     /// Where the physics did not confirm the density: the model breast's
     /// MGD of the sweep at the physics density's glandularity, mGy (the
     /// dose report gives it beside the patient's).
@@ -864,6 +875,16 @@ pub fn process_with_progress(
         "acquisition processed"
     );
     let kerma_mgy = h.mas_total * h.tube_output_mgy_per_mas;
+    let mgd_mgy = dose_patient.mgd_per_kerma * kerma_mgy;
+    let intervals = report_intervals(
+        opts.intervals.as_deref(),
+        h.anode_filter,
+        h.thickness_mm,
+        glandularity,
+        &density_check,
+        mgd_mgy,
+        dose_patient.mgd_rel_uncertainty,
+    );
     Ok(ProcessResult {
         reconstructor,
         algorithm_version: algorithm_version(opts),
@@ -875,8 +896,9 @@ pub fn process_with_progress(
         density: dens,
         physics_density,
         density_check,
-        mgd_mgy: dose_patient.mgd_per_kerma * kerma_mgy,
+        mgd_mgy,
         model_mgd_mgy: dose_model.mgd_per_kerma * kerma_mgy,
+        intervals,
         model_mgd_at_physics_mgy: model_at_physics.map(|m| m.mgd_per_kerma * kerma_mgy),
         kerma_mgy,
         classification,
@@ -890,6 +912,79 @@ pub fn process_with_progress(
         },
         stage_seconds,
     })
+}
+
+/// The 95 % intervals of the two reported figures (issue #48 point 4), as
+/// the reports, the status file and `dbtor-diag` give them.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ReportIntervals {
+    /// The true glandularity by mass's, 0..1.
+    pub glandularity: FigureInterval,
+    /// The true patient MGD's, mGy.
+    pub mgd: FigureInterval,
+}
+
+/// The intervals of a breast `thickness_mm` thick reported at glandularity
+/// `glandularity` and MGD `mgd_mgy` (its Monte Carlo's relative standard
+/// error `mc_rel`), from the validation residuals `table`: none (each with
+/// the reason) without residuals for this reconstructor and input, for
+/// another beam than the W/Rh they were measured on, or where the physics
+/// density did not confirm the density (the residuals describe breasts the
+/// network reads as it read the validation's; one the physics contradicts
+/// is not known to be such a breast).
+pub fn report_intervals(
+    table: Option<&dbt_intervals::IntervalTable>,
+    beam: AnodeFilter,
+    thickness_mm: f64,
+    glandularity: f64,
+    check: &crate::density_check::DensityCheck,
+    mgd_mgy: f64,
+    mc_rel: f64,
+) -> ReportIntervals {
+    let none = |why: String| ReportIntervals {
+        glandularity: FigureInterval {
+            limits: None,
+            basis: why.clone(),
+        },
+        mgd: FigureInterval {
+            limits: None,
+            basis: why,
+        },
+    };
+    let Some(table) = table else {
+        return none(
+            "the reconstructor has no validation residuals for these inputs (its model folder's \
+             report-intervals.json)"
+                .into(),
+        );
+    };
+    if beam != AnodeFilter::WRh {
+        return none(format!(
+            "the validation residuals are of W/Rh acquisitions, this one is {}",
+            beam.name()
+        ));
+    }
+    if !check.confirmed {
+        return none(
+            "the density is not confirmed by the physics-based density, so the validation \
+             residuals are not known to describe this breast"
+                .into(),
+        );
+    }
+    let figure = |r: Result<dbt_intervals::Interval, dbt_intervals::IntervalError>| match r {
+        Ok(i) => FigureInterval {
+            limits: Some([i.lo, i.hi]),
+            basis: i.basis,
+        },
+        Err(e) => FigureInterval {
+            limits: None,
+            basis: format!("the interval could not be made: {e}"),
+        },
+    };
+    ReportIntervals {
+        glandularity: figure(table.glandularity(thickness_mm, glandularity)),
+        mgd: figure(table.mgd(thickness_mm, glandularity, mgd_mgy, mc_rel)),
+    }
 }
 
 /// The DICOM identity of an acquisition (patient, study, laterality, its
@@ -977,6 +1072,7 @@ pub fn reports(
             relative_uncertainty: res.dose_patient.mgd_rel_uncertainty,
             model_agd_mgy: res.model_mgd_mgy,
             model_agd_at_physics_mgy: res.model_mgd_at_physics_mgy,
+            agd_interval: res.intervals.mgd.clone(),
             content_date: content_date.into(),
             content_time: content_time.into(),
             // Nothing in the acquisition says screening or diagnostic: the
@@ -999,6 +1095,7 @@ pub fn reports(
             reconstructor: res.reconstructor.clone(),
             model_version: res.algorithm_version.clone(),
             check: res.density_check.report(),
+            glandularity_interval: res.intervals.glandularity.clone(),
             content_date: content_date.into(),
             content_time: content_time.into(),
         },
@@ -1066,5 +1163,98 @@ mod beam_tests {
             w_al_only.for_beam(AnodeFilter::WRh).unwrap().calibration,
             None
         );
+    }
+}
+
+#[cfg(test)]
+mod interval_tests {
+    use super::*;
+    use crate::density_check::{cross_check, LIMITS};
+
+    fn table() -> dbt_intervals::IntervalTable {
+        // 12 breasts in each of the product's six bands: reported 2 pp
+        // below the truth +- 2 pp, MGD exp(0.03) high +- 4 %.
+        let bands = dbt_intervals::product_bands();
+        let mut rs = Vec::new();
+        for t in [35.0, 50.0, 70.0] {
+            for g in [0.1, 0.4] {
+                for k in 0..12 {
+                    let z = (k as f64 - 5.5) / 3.6;
+                    rs.push(dbt_intervals::Residual {
+                        thickness_mm: t,
+                        g_reported: g,
+                        g_true: g + (2.0 + 2.0 * z) / 100.0,
+                        mgd_est_mgy: 1.0 * (0.03 + 0.04 * z).exp(),
+                        mgd_true_mgy: 1.0,
+                        mgd_est_rel_uncertainty: 0.01,
+                        mgd_true_rel_uncertainty: 0.01,
+                    });
+                }
+            }
+        }
+        dbt_intervals::IntervalTable::fit(&rs, bands).unwrap()
+    }
+
+    /// Intervals are given for a confirmed W/Rh density with residuals,
+    /// the truth's side of the reported figure (the residuals say it reads
+    /// low); never without residuals, for another beam, or for a density
+    /// the physics did not confirm, each saying why.
+    #[test]
+    fn intervals_only_where_the_residuals_describe_the_breast() {
+        let t = table();
+        let physics = Err("none".to_string());
+        let mut check = cross_check(0.4, None, None, 50.0, &physics, LIMITS);
+        assert!(!check.confirmed);
+        let unconfirmed =
+            report_intervals(Some(&t), AnodeFilter::WRh, 50.0, 0.4, &check, 1.2, 0.01);
+        assert!(unconfirmed.glandularity.limits.is_none() && unconfirmed.mgd.limits.is_none());
+        assert!(
+            unconfirmed.mgd.basis.contains("not confirmed"),
+            "{}",
+            unconfirmed.mgd.basis
+        );
+        check.confirmed = true;
+        check.reasons.clear();
+        let ok = report_intervals(Some(&t), AnodeFilter::WRh, 50.0, 0.4, &check, 1.2, 0.01);
+        let [lo, hi] = ok.glandularity.limits.unwrap();
+        assert!(
+            lo < 0.42 && hi > 0.42 && lo > 0.4 - 0.1 && hi < 0.42 + 0.1,
+            "{lo}-{hi}"
+        );
+        let [mlo, mhi] = ok.mgd.limits.unwrap();
+        let centre = 1.2 / 0.03_f64.exp();
+        assert!(
+            mlo < centre && mhi > centre && mhi / mlo < 1.25,
+            "{mlo}-{mhi}"
+        );
+        assert!(
+            ok.glandularity.basis.contains("thickness 45-60 mm"),
+            "{}",
+            ok.glandularity.basis
+        );
+        let none = report_intervals(None, AnodeFilter::WRh, 50.0, 0.4, &check, 1.2, 0.01);
+        assert!(none.glandularity.basis.contains("no validation residuals"));
+        let w_al = report_intervals(Some(&t), AnodeFilter::WAl, 50.0, 0.4, &check, 1.2, 0.01);
+        assert!(
+            w_al.mgd.limits.is_none() && w_al.mgd.basis.contains("W/Al"),
+            "{}",
+            w_al.mgd.basis
+        );
+        // An impossible figure gets no interval, and says why.
+        let nan = report_intervals(
+            Some(&t),
+            AnodeFilter::WRh,
+            50.0,
+            0.4,
+            &check,
+            f64::NAN,
+            0.01,
+        );
+        assert!(
+            nan.mgd.limits.is_none() && nan.mgd.basis.contains("mgd_mgy"),
+            "{}",
+            nan.mgd.basis
+        );
+        assert!(nan.glandularity.limits.is_some());
     }
 }

@@ -69,6 +69,41 @@ pub fn fmt_mgd(mgy: f64) -> String {
     format!("{mgy:.3}")
 }
 
+/// A glandularity interval as the page and `dbtor-diag` show it: `lo-hi`
+/// in %, or `-` (the cell's title gives the basis or the reason).
+pub fn fmt_glandularity_interval(iv: Option<&dbt_dicom::FigureInterval>) -> String {
+    iv.and_then(|i| i.describe(100.0, 1))
+        .unwrap_or_else(|| "-".into())
+}
+
+/// An MGD interval, `lo-hi` in mGy, or `-`.
+pub fn fmt_mgd_interval(iv: Option<&dbt_dicom::FigureInterval>) -> String {
+    iv.and_then(|i| i.describe(1.0, 3))
+        .unwrap_or_else(|| "-".into())
+}
+
+/// Both figures with their 95 % intervals in one line, e.g. "glandularity
+/// 23.4 % (95 % interval 20.1-28.9 %), MGD 1.428 mGy (95 % interval
+/// 1.270-1.610 mGy)"; a figure without one says why.
+pub fn interval_summary(
+    g: f64,
+    g_iv: &dbt_dicom::FigureInterval,
+    mgd: f64,
+    mgd_iv: &dbt_dicom::FigureInterval,
+) -> String {
+    let one = |v: String, unit: &str, iv: &dbt_dicom::FigureInterval, shown: Option<String>| {
+        match shown {
+            Some(r) => format!("{v} {unit} (95 % interval {r} {unit})"),
+            None => format!("{v} {unit} (no 95 % interval: {})", iv.basis),
+        }
+    };
+    format!(
+        "glandularity {}, MGD {}",
+        one(fmt_glandularity(g), "%", g_iv, g_iv.describe(100.0, 1)),
+        one(fmt_mgd(mgd), "mGy", mgd_iv, mgd_iv.describe(1.0, 3))
+    )
+}
+
 /// The URL of an acquisition's quick-look picture.
 pub fn picture_url(id: &str) -> String {
     format!("/acquisitions/{}/picture.svg", public_id(id))
@@ -168,13 +203,13 @@ pub fn render(s: &Snapshot, now_unix: u64) -> String {
     // Acquisitions.
     let _ = write!(
         h,
-        r#"<h2>Acquisitions (newest first, up to {TABLE_ROWS})</h2><table id="acquisitions"><tr><th>acquisition</th><th>reported (UTC)</th><th>thickness (mm)</th><th>glandularity (%)</th><th>composition</th><th>MGD patient (mGy)</th><th>MGD model breast (mGy)</th><th>reconstructor</th><th>flags</th><th>picture</th></tr>"#
+        r#"<h2>Acquisitions (newest first, up to {TABLE_ROWS})</h2><table id="acquisitions"><tr><th>acquisition</th><th>reported (UTC)</th><th>thickness (mm)</th><th>glandularity (%)</th><th>95 % interval (%)</th><th>composition</th><th>MGD patient (mGy)</th><th>95 % interval (mGy)</th><th>MGD model breast (mGy)</th><th>reconstructor</th><th>flags</th><th>picture</th></tr>"#
     );
     for r in s.history.iter().rev().take(TABLE_ROWS) {
         let comp = composition_cell(r);
         let _ = write!(
             h,
-            r#"<tr data-acquisition="{id}"><td>{id}</td><td>{at}</td><td class="num thickness">{t}</td><td class="num glandularity">{g}</td><td class="composition" data-category="{c}">{c} ({cn})</td><td class="num mgd">{mgd}</td><td class="num model-mgd">{model}</td><td>{rec}{cal}</td><td>{flags}</td><td><a href="{url}">picture</a></td></tr>"#,
+            r#"<tr data-acquisition="{id}"><td>{id}</td><td>{at}</td><td class="num thickness">{t}</td><td class="num glandularity">{g}</td><td class="num glandularity-interval" title="{giv_basis}">{giv}</td><td class="composition" data-category="{c}">{c} ({cn})</td><td class="num mgd">{mgd}</td><td class="num mgd-interval" title="{miv_basis}">{miv}</td><td class="num model-mgd">{model}</td><td>{rec}{cal}</td><td>{flags}</td><td><a href="{url}">picture</a></td></tr>"#,
             id = escape(&r.acquisition),
             at = utc(r.finished_unix),
             t = r
@@ -182,6 +217,14 @@ pub fn render(s: &Snapshot, now_unix: u64) -> String {
                 .map(|t| format!("{t:.1}"))
                 .unwrap_or_else(|| "-".into()),
             g = fmt_glandularity(r.glandularity_reported),
+            giv = fmt_glandularity_interval(r.glandularity_interval.as_ref()),
+            giv_basis = escape(
+                r.glandularity_interval
+                    .as_ref()
+                    .map_or("", |i| i.basis.as_str())
+            ),
+            miv = fmt_mgd_interval(r.mgd_interval.as_ref()),
+            miv_basis = escape(r.mgd_interval.as_ref().map_or("", |i| i.basis.as_str())),
             c = escape(comp.0),
             cn = escape(&comp.1),
             mgd = fmt_mgd(r.mgd_mgy),
@@ -292,13 +335,28 @@ fn summary(r: &AcquisitionRecord) -> String {
         ),
         None => String::new(),
     };
+    let interval = |iv: Option<&dbt_dicom::FigureInterval>, shown: String, unit: &str| match iv {
+        Some(i) if i.limits.is_some() => format!(", 95 % interval {shown} {unit}"),
+        Some(i) => format!(", no 95 % interval: {}", escape(&i.basis)),
+        None => String::new(),
+    };
     format!(
-        "glandularity {} % ({}), composition {} ({}){check}, MGD {} mGy patient-specific, {} mGy model breast, {}",
+        "glandularity {} % ({}{}), composition {} ({}){check}, MGD {} mGy patient-specific{}, {} mGy model breast, {}",
         fmt_glandularity(r.glandularity_reported),
         if r.calibrated { "calibrated" } else { "uncalibrated" },
+        interval(
+            r.glandularity_interval.as_ref(),
+            fmt_glandularity_interval(r.glandularity_interval.as_ref()),
+            "%"
+        ),
         escape(comp.0),
         escape(&comp.1),
         fmt_mgd(r.mgd_mgy),
+        interval(
+            r.mgd_interval.as_ref(),
+            fmt_mgd_interval(r.mgd_interval.as_ref()),
+            "mGy"
+        ),
         fmt_mgd(r.model_mgd_mgy),
         r.thickness_mm
             .map(|t| format!("{t:.1} mm compressed"))
@@ -341,6 +399,32 @@ mod tests {
         assert!(h.contains(r#"<td class="num glandularity">23.4</td>"#));
         assert!(h.contains(r#"<td class="num mgd">1.457</td>"#));
         assert!(h.contains(r#"<td class="num model-mgd">1.602</td>"#));
+        // The 95 % intervals (issue #48 point 4), each with its basis.
+        assert!(h.contains(
+            r#"<td class="num glandularity-interval" title="95 % prediction interval from 14 validation breasts">18.0-27.3</td>"#
+        ), "{h}");
+        assert!(h.contains(r#"<td class="num mgd-interval" title="95 % prediction interval from 14 validation breasts">1.250-1.625</td>"#));
+        assert!(h.contains("glandularity 23.4 % (calibrated, 95 % interval 18.0-27.3 %)"));
+        assert!(h.contains("MGD 1.457 mGy patient-specific, 95 % interval 1.250-1.625 mGy"));
+        let mut none = s.history[0].clone();
+        none.mgd_interval = Some(dbt_dicom::FigureInterval {
+            limits: None,
+            basis: "the density is not confirmed <by the physics>".into(),
+        });
+        let line = summary(&none);
+        assert!(
+            line.contains("no 95 % interval: the density is not confirmed &lt;by the physics&gt;"),
+            "{line}"
+        );
+        assert!(interval_summary(
+            0.234,
+            none.glandularity_interval.as_ref().unwrap(),
+            1.4567,
+            none.mgd_interval.as_ref().unwrap()
+        )
+        .ends_with(
+            "MGD 1.457 mGy (no 95 % interval: the density is not confirmed <by the physics>)"
+        ));
         assert!(h.contains("c (heterogeneously dense)"));
         assert!(h.contains("/acquisitions/1732467000123/picture.svg"));
         assert!(h.contains("/figures/mgd-thickness.svg"));

@@ -74,6 +74,13 @@ pub struct AcquisitionRecord {
     /// the check existed.
     #[serde(default)]
     pub density_check: Option<dbt_dicom::DensityCheckReport>,
+    /// The reported glandularity's 95 % interval, or why none (issue #48
+    /// point 4; the density SR's); `None` in records written before.
+    #[serde(default)]
+    pub glandularity_interval: Option<dbt_dicom::FigureInterval>,
+    /// The MGD's (the dose SR's).
+    #[serde(default)]
+    pub mgd_interval: Option<dbt_dicom::FigureInterval>,
 }
 
 /// The warning kind of a density the physics did not confirm.
@@ -363,6 +370,15 @@ pub(crate) mod tests {
                 physics_glandularity: Some(g),
                 confirmed: true,
                 reasons: vec![],
+            }),
+            glandularity_interval: Some(dbt_dicom::FigureInterval {
+                // Binary fractions: they survive the JSON round trip exactly.
+                limits: Some([0.179_687_5, 0.273_437_5]),
+                basis: "95 % prediction interval from 14 validation breasts".into(),
+            }),
+            mgd_interval: Some(dbt_dicom::FigureInterval {
+                limits: Some([1.25, 1.625]),
+                basis: "95 % prediction interval from 14 validation breasts".into(),
             }),
         }
     }

@@ -123,6 +123,14 @@ enum Cmd {
     /// written into the model folder (glandularity-calibration.json, bound
     /// to the manifest by its SHA-256), where the firmware finds it.
     Calibrate(CalibrateArgs),
+    /// Fit the reports' 95 % intervals of a model at one precision and input
+    /// from `accuracy` outputs on the validation split (never the test split,
+    /// never an external phantom): each band of thickness and reported
+    /// glandularity's residuals (`dbt_intervals`), written into the model
+    /// folder (report-intervals.json, bound to the manifest and the
+    /// calibration by their SHA-256), where the firmware finds it. Sign the
+    /// model off again afterwards (`dbtor-diag model DIR --sign-off`).
+    Intervals(IntervalsArgs),
     /// PNG of breast phantoms' three orthogonal mid-planes (attenuation,
     /// partial volumes where the phantom has them), drawn phantoms beside
     /// external ones, on axes in mm at one scale.
@@ -156,6 +164,28 @@ struct ConeViewsArgs {
     /// Noise level of the acquisitions.
     #[arg(long, default_value = "N8")]
     noise: String,
+}
+
+/// The options of `dbt-eval intervals`.
+#[derive(Args)]
+struct IntervalsArgs {
+    /// The model folder.
+    #[arg(long)]
+    model: PathBuf,
+    /// The precision the accuracy runs used (fp32, int8).
+    #[arg(long, default_value = "int8")]
+    precision: String,
+    /// The `accuracy` output folders (their accuracy.json), all of the
+    /// validation split, all with the same input corrections.
+    #[arg(long = "from", required = true)]
+    from: Vec<PathBuf>,
+    /// Interior thickness band edges, mm (default: the product's,
+    /// `dbt_intervals::PRODUCT_BANDS`).
+    #[arg(long, value_delimiter = ',')]
+    thickness_edges: Option<Vec<f64>>,
+    /// Interior reported-glandularity band edges, 0..1.
+    #[arg(long, value_delimiter = ',')]
+    glandularity_edges: Option<Vec<f64>>,
 }
 
 /// The options of `dbt-eval paired`.
@@ -929,6 +959,7 @@ fn main() -> Result<()> {
         Cmd::Classification(args) => run_classification(args),
         Cmd::Ladder(args) => run_ladder(args),
         Cmd::Calibrate(args) => run_calibrate(args),
+        Cmd::Intervals(args) => run_intervals(args),
         Cmd::Anatomy(args) => run_anatomy(args),
         Cmd::Picture(args) => run_picture(args),
         Cmd::ConeViews(args) => run_cone_views(args),
@@ -1203,6 +1234,12 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
             }
             _ => (None, Vec::new()),
         };
+        // Its report intervals, as the firmware loads them (fit on
+        // calibrated glandularities: none without the calibration).
+        let intervals = match (&dbtor, no_calibration) {
+            (Some(m), false) => dbt_model::load_intervals(m, input)?.map(std::sync::Arc::new),
+            _ => None,
+        };
         for &slice_step in &steps {
             let opts = dbt_pipeline::PipelineOptions {
                 dbtor: dbtor.clone(),
@@ -1218,6 +1255,7 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
                 slice_step,
                 scatter_in_input,
                 density_limits: dbt_pipeline::density_check::LIMITS,
+                intervals: intervals.clone(),
             };
             let label = dbt_pipeline::reconstructor_name(&opts);
             // The calibration this run's beam reads (a beam the model has
@@ -1418,8 +1456,200 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
             println!("  {}: {}", c.phantom, c.density_check.reasons.join("; "));
         }
     }
+    // The reports' 95 % intervals against the truth (issue #48 point 4).
+    for ((label, _, _), cases) in recs.iter().zip(&cases) {
+        let [g, m] = [
+            interval_coverage(cases.iter().map(|c| (&c.intervals.glandularity, c.g_true))),
+            interval_coverage(cases.iter().map(|c| (&c.intervals.mgd, c.mgd_true))),
+        ];
+        println!(
+            "95 % intervals [{label}]: glandularity given for {} of {}, covering the truth in {}; MGD given for {}, covering the truth in {}",
+            g.0,
+            cases.len(),
+            g.1,
+            m.0,
+            m.1,
+        );
+        if let Some(c) = cases
+            .iter()
+            .find(|c| c.intervals.glandularity.limits.is_none())
+        {
+            println!(
+                "  none for {}: {}",
+                c.phantom, c.intervals.glandularity.basis
+            );
+        }
+    }
     println!("\nJSON and Bland-Altman PNGs (x: mean of truth and estimate; y: difference; solid: bias; dashed: 95 % limits): {}", out.display());
     Ok(())
+}
+
+/// `dbt-eval intervals`.
+fn run_intervals(args: IntervalsArgs) -> Result<()> {
+    let IntervalsArgs {
+        model,
+        precision,
+        from,
+        thickness_edges,
+        glandularity_edges,
+    } = args;
+    let prec = match precision.as_str() {
+        "fp32" => dbt_dbtor::Precision::Fp32,
+        "int8" => dbt_dbtor::Precision::Int8,
+        other => anyhow::bail!("--precision {other:?}: fp32 or int8"),
+    };
+    let m = dbt_dbtor::Dbtor::load_mixed(&model, prec, &[], dbt_dbtor::Engine::Fast)
+        .with_context(|| format!("loading {}", model.display()))?;
+    let label = m.precision_label();
+    let name = m.manifest().name.clone();
+    let mut residuals = Vec::new();
+    let mut inputs = Vec::new();
+    let mut input: Option<dbt_model::InputCorrections> = None;
+    for dir in &from {
+        let path = dir.join("accuracy.json");
+        let text = std::fs::read_to_string(&path)
+            .with_context(|| format!("reading {}", path.display()))?;
+        let j: serde_json::Value =
+            serde_json::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
+        let phantoms = j["phantoms"].as_str().unwrap_or("");
+        anyhow::ensure!(
+            phantoms.starts_with("validation"),
+            "{}: phantoms {phantoms:?} are not the validation split; intervals are fit on validation breasts only",
+            path.display()
+        );
+        anyhow::ensure!(
+            j["anode_filter"].as_str() == Some("W/Rh"),
+            "{}: beam {}, the intervals are W/Rh's",
+            path.display(),
+            j["anode_filter"]
+        );
+        let flag = |k: &str| j[k].as_bool().unwrap_or(false);
+        let this = dbt_model::InputCorrections {
+            scatter_removed: flag("descattered"),
+            linearised: flag("linearised"),
+            known_path: flag("linearised_on_known_path"),
+            noise_matched: !j["noise_matched_to_photons"].is_null(),
+            uncorrected_clinical: flag("uncorrected_input"),
+        };
+        if let Some(first) = input {
+            anyhow::ensure!(
+                first == this,
+                "{}: inputs {:?}, but the first run's are {:?}; one table per input",
+                path.display(),
+                this.key(&label),
+                first.key(&label)
+            );
+        }
+        input = Some(this);
+        let recs = j["reconstructors"]
+            .as_array()
+            .context("no reconstructors")?;
+        let r = recs
+            .iter()
+            .find(|r| {
+                r["reconstructor"].as_str().is_some_and(|s| {
+                    s.contains(&name)
+                        && s.contains(&format!("({precision},"))
+                        && s.contains("calibrated")
+                })
+            })
+            .with_context(|| {
+                format!(
+                    "{}: no calibrated {precision} run of {name}",
+                    path.display()
+                )
+            })?;
+        let cases = r["cases"].as_array().context("no cases")?;
+        for c in cases {
+            let f = |k: &str| {
+                c[k].as_f64().with_context(|| {
+                    format!(
+                        "{}: a case without {k} (rerun `dbt-eval accuracy`)",
+                        path.display()
+                    )
+                })
+            };
+            residuals.push(dbt_intervals::Residual {
+                thickness_mm: f("thickness_mm")?,
+                g_reported: f("g_reported")?,
+                g_true: f("g_true")?,
+                mgd_est_mgy: f("mgd_est")?,
+                mgd_true_mgy: f("mgd_true")?,
+                mgd_est_rel_uncertainty: f("mgd_est_rel_uncertainty")?,
+                mgd_true_rel_uncertainty: f("mgd_true_rel_uncertainty")?,
+            });
+        }
+        inputs.push(format!(
+            "{} ({} cases, physics {}): {phantoms}",
+            dir.display(),
+            cases.len(),
+            j["physics"].as_str().unwrap_or("?")
+        ));
+    }
+    let input = input.context("no runs")?;
+    let mut bands = dbt_intervals::product_bands();
+    if let Some(e) = thickness_edges {
+        bands.thickness_mm = e;
+    }
+    if let Some(e) = glandularity_edges {
+        bands.glandularity = e;
+    }
+    let table = dbt_intervals::IntervalTable::fit(&residuals, bands)?;
+    let key = input.key(&label);
+    println!(
+        "report intervals of {name}, {key}: {} validation breasts",
+        residuals.len()
+    );
+    println!("| band | n | glandularity: reported - true, mean (pp) | s.d. (pp) | 95 % half-width (pp) | MGD: ln(est/true) mean (%) | s.d. (%) | of which Monte Carlo (%) |");
+    println!("|---|---|---|---|---|---|---|---|");
+    for st in &table.stats {
+        let n = st.n as f64;
+        println!(
+            "| {} | {} | {:+.2} | {:.2} | {:.2} | {:+.2} | {:.2} | {:.2} |",
+            table
+                .bands
+                .describe((st.thickness_band, st.glandularity_band)),
+            st.n,
+            st.g_mean_pp,
+            st.g_sd_pp,
+            dbt_intervals::t975(n - 1.0) * st.g_sd_pp * (1.0 + 1.0 / n).sqrt(),
+            100.0 * st.mgd_log_mean,
+            100.0 * st.mgd_log_sd,
+            100.0 * st.mgd_mc_var.sqrt()
+        );
+    }
+    let path = model.join(dbt_model::INTERVALS_FILE);
+    let mut file = dbt_model::IntervalsFile::open_or_new(&path, &m)?;
+    file.tables.insert(
+        key,
+        dbt_model::IntervalsEntry {
+            table,
+            source: dbt_model::IntervalsSource {
+                command: std::env::args().collect::<Vec<_>>().join(" "),
+                inputs,
+                cases: residuals.len(),
+            },
+        },
+    );
+    std::fs::write(&path, serde_json::to_string_pretty(&file)? + "\n")
+        .with_context(|| format!("writing {}", path.display()))?;
+    println!(
+        "written: {} (sign the model off again: dbtor-diag model {} --sign-off)",
+        path.display(),
+        model.display()
+    );
+    Ok(())
+}
+
+/// Of figures with their intervals and truths: how many intervals were
+/// given, and how many of those hold the truth.
+fn interval_coverage<'a>(
+    figures: impl Iterator<Item = (&'a dbt_pipeline::FigureInterval, f64)>,
+) -> (usize, usize) {
+    figures.fold((0, 0), |(n, k), (iv, truth)| match iv.limits {
+        Some([a, b]) => (n + 1, k + usize::from((a..=b).contains(&truth))),
+        None => (n, k),
+    })
 }
 
 /// `dbt-eval classification`.

@@ -403,6 +403,12 @@ fn run_status(args: StatusArgs) -> Result<bool> {
             ),
             None => {}
         }
+        if let (Some(g), Some(m)) = (&a.glandularity_interval, &a.mgd_interval) {
+            println!(
+                "    {}",
+                dbt_status::page::interval_summary(a.glandularity_reported, g, a.mgd_mgy, m)
+            );
+        }
     }
     if !st.warning_counts.is_empty() {
         println!(

@@ -149,6 +149,7 @@ fn run(cli: Cli) -> Result<()> {
             );
         }
         opts.calibration = signed.calibration;
+        opts.intervals = signed.intervals.map(std::sync::Arc::new);
         opts.beam_calibrations = dbt_pipeline::beam_calibrations(&signed.beam_calibrations);
         opts.dbtor = Some(std::sync::Arc::new(signed.model));
     }
@@ -174,6 +175,15 @@ fn run(cli: Cli) -> Result<()> {
     for r in &res.density_check.reasons {
         eprintln!("dbtor-process:   not confirmed: {r}");
     }
+    eprintln!(
+        "dbtor-process: {}",
+        dbt_status::page::interval_summary(
+            res.glandularity,
+            &res.intervals.glandularity,
+            res.mgd_mgy,
+            &res.intervals.mgd
+        )
+    );
     let (date, time) = dbt_dicom::dicom_datetime_utc(now / 1_000_000);
     let (dose, dens) = reports(&acq, &res, &equipment, &mut uids, &date, &time)?;
     let outbox = dbt_pacs::Outbox::open(&out, &out.join("outbox"))?;

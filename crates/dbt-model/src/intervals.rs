@@ -1,0 +1,162 @@
+//! The report-interval file of a model folder (adapter: file I/O):
+//! `dbt-eval intervals` fits it from `dbt-eval accuracy` outputs on the
+//! validation split, the daemon and `dbtor-process` read it when they load
+//! the model. The table and the intervals are `dbt_intervals` (pure).
+//!
+//! Bound to the model (its manifest's SHA-256) and to the calibration the
+//! reported glandularity went through (the calibration file's SHA-256): a
+//! recalibrated model whose intervals were not refit is refused by name.
+
+use crate::calibration::{manifest_sha256, InputCorrections, CALIBRATION_FILE};
+use dbt_intervals::IntervalTable;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use thiserror::Error;
+
+/// The interval file in a model folder.
+pub const INTERVALS_FILE: &str = "report-intervals.json";
+
+/// Format tag of [`INTERVALS_FILE`].
+pub const INTERVALS_FORMAT: &str = "dbtor-report-intervals/1";
+
+/// An interval file is unreadable, inconsistent or stale.
+#[derive(Debug, Error)]
+#[error("report intervals {path}: {reason}")]
+pub struct IntervalsError {
+    /// The file.
+    pub path: PathBuf,
+    /// Why.
+    pub reason: String,
+}
+
+/// How one table was fit: the command and the validation cases it read.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct IntervalsSource {
+    /// The command that wrote it.
+    pub command: String,
+    /// The `dbt-eval accuracy` outputs it read (their phantoms line: the
+    /// split, population and indices).
+    pub inputs: Vec<String>,
+    /// Validation breasts in all.
+    pub cases: usize,
+}
+
+/// One reconstructor's and input's table, with where it came from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct IntervalsEntry {
+    /// The residual table.
+    pub table: IntervalTable,
+    /// How it was fit.
+    pub source: IntervalsSource,
+}
+
+/// A model's report intervals ([`INTERVALS_FILE`]), keyed like its
+/// calibrations (precision label and input corrections,
+/// [`InputCorrections::key`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct IntervalsFile {
+    /// [`INTERVALS_FORMAT`].
+    pub format: String,
+    /// The model's name.
+    pub model: String,
+    /// SHA-256 of the model's manifest.json.
+    pub manifest_sha256: String,
+    /// SHA-256 of the calibration file the reported glandularity went
+    /// through (empty: the model has none).
+    pub calibration_sha256: String,
+    /// The tables by key.
+    pub tables: BTreeMap<String, IntervalsEntry>,
+}
+
+fn calibration_sha256(dir: &Path) -> Result<String, dbt_dbtor::DbtorError> {
+    let p = dir.join(CALIBRATION_FILE);
+    if p.is_file() {
+        dbt_dbtor::sha256_file(&p)
+    } else {
+        Ok(String::new())
+    }
+}
+
+impl IntervalsFile {
+    /// Read and check `path` against `model`: the format, the model's
+    /// manifest and calibration, every table valid.
+    pub fn read(path: &Path, model: &dbt_dbtor::Dbtor) -> Result<Self, IntervalsError> {
+        let fail = |reason: String| IntervalsError {
+            path: path.to_path_buf(),
+            reason,
+        };
+        let text = std::fs::read_to_string(path).map_err(|e| fail(e.to_string()))?;
+        let f: Self = serde_json::from_str(&text).map_err(|e| fail(e.to_string()))?;
+        if f.format != INTERVALS_FORMAT {
+            return Err(fail(format!(
+                "format {:?}, expected {INTERVALS_FORMAT:?}",
+                f.format
+            )));
+        }
+        let sha = manifest_sha256(model).map_err(|e| fail(e.to_string()))?;
+        if f.manifest_sha256 != sha {
+            return Err(fail(format!(
+                "fit for another model (manifest SHA-256 {}), not {} ({sha}); refit with `dbt-eval intervals`",
+                f.manifest_sha256,
+                model.manifest().name
+            )));
+        }
+        let cal = calibration_sha256(model.root()).map_err(|e| fail(e.to_string()))?;
+        if f.calibration_sha256 != cal {
+            return Err(fail(format!(
+                "fit on glandularities calibrated by another {CALIBRATION_FILE} (SHA-256 {:?}, now {cal:?}); refit with `dbt-eval intervals`",
+                f.calibration_sha256
+            )));
+        }
+        for (key, e) in &f.tables {
+            e.table
+                .validate()
+                .map_err(|e| fail(format!("table {key:?}: {e}")))?;
+        }
+        Ok(f)
+    }
+
+    /// The file at `path` to add `model`'s tables to: as read where it is
+    /// `model`'s under its present calibration (its other tables kept),
+    /// else an empty one bound to both.
+    pub fn open_or_new(
+        path: &Path,
+        model: &dbt_dbtor::Dbtor,
+    ) -> Result<Self, dbt_dbtor::DbtorError> {
+        match Self::read(path, model) {
+            Ok(f) => Ok(f),
+            Err(_) => Ok(Self {
+                format: INTERVALS_FORMAT.into(),
+                model: model.manifest().name.clone(),
+                manifest_sha256: manifest_sha256(model)?,
+                calibration_sha256: calibration_sha256(model.root())?,
+                tables: BTreeMap::new(),
+            }),
+        }
+    }
+
+    /// The table for inputs corrected as `input` at `precision_label`: the
+    /// exact key only (residuals of other inputs do not describe these).
+    pub fn pick(&self, precision_label: &str, input: InputCorrections) -> Option<&IntervalTable> {
+        self.tables
+            .get(&input.key(precision_label))
+            .map(|e| &e.table)
+    }
+}
+
+/// The table of `model` (its folder's [`INTERVALS_FILE`], read as
+/// [`IntervalsFile::read`] checks it) for inputs corrected as `input`, as
+/// the evaluation loads it: `None` where there is no file or no table for
+/// them.
+pub fn load_intervals(
+    model: &dbt_dbtor::Dbtor,
+    input: InputCorrections,
+) -> Result<Option<IntervalTable>, IntervalsError> {
+    let path = model.root().join(INTERVALS_FILE);
+    if !path.is_file() {
+        return Ok(None);
+    }
+    let f = IntervalsFile::read(&path, model)?;
+    Ok(f.pick(&model.precision_label(), input).cloned())
+}
