@@ -13,6 +13,7 @@ pub mod classification;
 pub mod ladder;
 pub mod picture;
 pub mod unet;
+pub mod victre;
 
 use dbt_acquisition::NoiseLevel;
 use dbt_geometry::Geometry;

@@ -274,6 +274,7 @@ fn a_network_answer_forced_wrong_is_flagged_and_gets_no_category() {
             density_limits: dbt_pipeline::density_check::CheckLimits {
                 whole_pp: 1e-6,
                 contact_pp: 1e-6,
+                ..dbt_pipeline::density_check::LIMITS
             },
             ..opts.clone()
         },

@@ -24,13 +24,20 @@ use dbt_physics_density::{ContactMap, PhysicsDensity};
 use dbt_tissue::{GlandularityCalibration, PartialVolumeMass};
 use serde::Serialize;
 
-/// The largest disagreements a confirmed density may show, pp.
+/// The largest disagreements a confirmed density may show, pp, and the
+/// validated domain it must lie in.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct CheckLimits {
     /// Reported minus physics, whole breast.
     pub whole_pp: f64,
     /// Network minus physics over the physics' contact region.
     pub contact_pp: f64,
+    /// The smallest fill of its box (reconstructed breast volume over
+    /// thickness x footprint, [`crate::plausibility::VolumeCheck::fill`]) a
+    /// confirmed breast may have: below it much of the compressed slab is
+    /// air, which neither estimate was validated on (both read such a
+    /// breast's periphery as fat, and so agree on a wrong figure).
+    pub min_fill: f64,
 }
 
 /// The product's limits, set on the validation splits (procedural and
@@ -38,10 +45,13 @@ pub struct CheckLimits {
 /// firmware's model): 1.2 times the largest |disagreement| seen there
 /// (11.4 pp whole breast, 7.1 pp over the contact region), rounded up to a
 /// whole percentage point (eval/density-check.md gives the figures and the
-/// command).
+/// command); the smallest fill, 0.95 times the smallest of the 160
+/// validation breasts of the report intervals (0.762), rounded down to two
+/// places (eval/density-check.md, "The validated domain").
 pub const LIMITS: CheckLimits = CheckLimits {
     whole_pp: 14.0,
     contact_pp: 9.0,
+    min_fill: 0.72,
 };
 
 impl Default for CheckLimits {
@@ -53,6 +63,12 @@ impl Default for CheckLimits {
 impl CheckLimits {
     /// Refused unless both limits are positive and finite.
     pub fn validate(&self) -> Result<(), PipelineError> {
+        if !(self.min_fill.is_finite() && (0.0..1.0).contains(&self.min_fill)) {
+            return Err(PipelineError::Input(format!(
+                "density check limit min_fill = {}: must be a fraction 0..1",
+                self.min_fill
+            )));
+        }
         for (name, v) in [("whole_pp", self.whole_pp), ("contact_pp", self.contact_pp)] {
             if !(v.is_finite() && v > 0.0) {
                 return Err(PipelineError::Input(format!(
@@ -90,6 +106,21 @@ pub struct DensityCheck {
 }
 
 impl DensityCheck {
+    /// Withhold the confirmation of a breast outside the validated domain:
+    /// one filling less than `limits.min_fill` of its box (`fill`), or whose
+    /// fill is not a number.
+    pub fn within_validated_domain(&mut self, fill: f64) {
+        if fill.is_nan() || fill < self.limits.min_fill {
+            self.reasons.push(format!(
+                "the breast fills {:.1} % of its compressed box, less than any validated breast \
+                 (limit {:.0} %): the estimates are not known to hold where so much of the box is air",
+                100.0 * fill,
+                100.0 * self.limits.min_fill
+            ));
+            self.confirmed = false;
+        }
+    }
+
     /// What the density report and the status file say of it.
     pub fn report(&self) -> dbt_dicom::DensityCheckReport {
         dbt_dicom::DensityCheckReport {
@@ -315,6 +346,7 @@ mod tests {
         let l = CheckLimits {
             whole_pp: 10.0,
             contact_pp: 5.0,
+            ..LIMITS
         };
         let ok = cross_check(0.30, Some(0.32), None, 50.0, &physics(0.25, 0.30), l);
         assert!(ok.confirmed, "{:?}", ok.reasons);
@@ -389,10 +421,42 @@ mod tests {
         let e = CheckLimits {
             whole_pp: 0.0,
             contact_pp: 5.0,
+            ..LIMITS
         }
         .validate()
         .unwrap_err()
         .to_string();
         assert!(e.contains("whole_pp = 0"), "{e}");
+        let e = CheckLimits {
+            min_fill: f64::NAN,
+            ..LIMITS
+        }
+        .validate()
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("min_fill = NaN"), "{e}");
+    }
+
+    /// A breast filling less of its box than any validated one is not
+    /// confirmed, whatever the two estimates say, and says why; one at the
+    /// limit is; a fill that is not a number is not.
+    #[test]
+    fn a_breast_outside_the_validated_fill_is_not_confirmed() {
+        let agree = || cross_check(0.30, Some(0.30), None, 50.0, &physics(0.30, 0.30), LIMITS);
+        let mut c = agree();
+        assert!(c.confirmed);
+        c.within_validated_domain(LIMITS.min_fill);
+        assert!(c.confirmed, "{:?}", c.reasons);
+        c.within_validated_domain(0.687);
+        assert!(!c.confirmed);
+        assert!(
+            c.reasons[0].contains("fills 68.7 % of its compressed box"),
+            "{:?}",
+            c.reasons
+        );
+        assert!(c.reasons[0].contains("limit 72 %"), "{:?}", c.reasons);
+        let mut n = agree();
+        n.within_validated_domain(f64::NAN);
+        assert!(!n.confirmed);
     }
 }

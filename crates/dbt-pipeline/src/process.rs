@@ -803,6 +803,8 @@ pub fn process_with_progress(
             opts.density_limits,
         )
     };
+    let mut density_check = density_check;
+    density_check.within_validated_domain(volume_check.fill);
     if density_check.confirmed {
         tracing::info!(check = %density_check.summary(), "density confirmed by the physics");
     } else {

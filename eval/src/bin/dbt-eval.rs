@@ -131,6 +131,12 @@ enum Cmd {
     /// calibration by their SHA-256), where the firmware finds it. Sign the
     /// model off again afterwards (`dbtor-diag model DIR --sign-off`).
     Intervals(IntervalsArgs),
+    /// Compress an uncompressed VICTRE breastPhantom volume (MetaImage) by
+    /// the documented volume-preserving map (`dbt_eval::victre`;
+    /// scripts/victre/README.md) and write it with a sidecar that
+    /// `accuracy --phantom` and `host-sim acquire --phantom` read.
+    /// EVALUATION ONLY.
+    VictreCompress(VictreCompressArgs),
     /// PNG of breast phantoms' three orthogonal mid-planes (attenuation,
     /// partial volumes where the phantom has them), drawn phantoms beside
     /// external ones, on axes in mm at one scale.
@@ -186,6 +192,37 @@ struct IntervalsArgs {
     /// Interior reported-glandularity band edges, 0..1.
     #[arg(long, value_delimiter = ',')]
     glandularity_edges: Option<Vec<f64>>,
+}
+
+/// The options of `dbt-eval victre-compress`.
+#[derive(Args)]
+struct VictreCompressArgs {
+    /// The generator's MetaImage header (p_SEED.mhd; its data file beside
+    /// it, raw or gzip-compressed).
+    #[arg(long)]
+    mhd: PathBuf,
+    /// Compressed thickness, mm.
+    #[arg(
+        long,
+        conflicts_with = "thickness_ratio",
+        required_unless_present = "thickness_ratio"
+    )]
+    thickness_mm: Option<f64>,
+    /// Compressed thickness as a fraction of the breast's height, rounded to
+    /// a whole output voxel (VICTRE's pipeline: about 0.49 dense to 0.55
+    /// fatty, scripts/victre/README.md).
+    #[arg(long)]
+    thickness_ratio: Option<f64>,
+    /// Output voxel side, mm.
+    #[arg(long, default_value_t = 0.5)]
+    voxel_mm: f64,
+    /// Contact fraction: columns at least this fraction of the tallest's
+    /// length are flattened against the paddle (1: the affine map).
+    #[arg(long, default_value_t = 0.5)]
+    contact: f64,
+    /// The sidecar to write (the raw volume beside it, same stem).
+    #[arg(long)]
+    out: PathBuf,
 }
 
 /// The options of `dbt-eval paired`.
@@ -960,6 +997,7 @@ fn main() -> Result<()> {
         Cmd::Ladder(args) => run_ladder(args),
         Cmd::Calibrate(args) => run_calibrate(args),
         Cmd::Intervals(args) => run_intervals(args),
+        Cmd::VictreCompress(args) => run_victre_compress(args),
         Cmd::Anatomy(args) => run_anatomy(args),
         Cmd::Picture(args) => run_picture(args),
         Cmd::ConeViews(args) => run_cone_views(args),
@@ -1449,8 +1487,10 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
         let contact = most(&|c| c.density_check.contact_difference_pp);
         let l = dbt_pipeline::density_check::LIMITS;
         println!(
-            "density check [{label}]: {unconfirmed} of {} not confirmed by the physics; largest |reported - physics| {whole:.1} pp (limit {:.0}), over the contact region {contact:.1} pp (limit {:.0})",
-            cases.len(), l.whole_pp, l.contact_pp
+            "density check [{label}]: {unconfirmed} of {} not confirmed by the physics; largest |reported - physics| {whole:.1} pp (limit {:.0}), over the contact region {contact:.1} pp (limit {:.0}); smallest fill of the box {:.3} (limit {:.2})",
+            cases.len(), l.whole_pp, l.contact_pp,
+            cases.iter().map(|c| c.plausibility.volume.fill).fold(f64::INFINITY, f64::min),
+            l.min_fill
         );
         for c in cases.iter().filter(|c| !c.density_check.confirmed) {
             println!("  {}: {}", c.phantom, c.density_check.reasons.join("; "));
@@ -1637,6 +1677,94 @@ fn run_intervals(args: IntervalsArgs) -> Result<()> {
         "written: {} (sign the model off again: dbtor-diag model {} --sign-off)",
         path.display(),
         model.display()
+    );
+    Ok(())
+}
+
+/// `dbt-eval victre-compress`.
+fn run_victre_compress(args: VictreCompressArgs) -> Result<()> {
+    let text = std::fs::read_to_string(&args.mhd)
+        .with_context(|| format!("reading {}", args.mhd.display()))?;
+    let field = |k: &str| {
+        text.lines()
+            .find_map(|l| {
+                let (a, b) = l.split_once('=')?;
+                (a.trim() == k).then(|| b.trim().to_string())
+            })
+            .with_context(|| format!("{}: no {k}", args.mhd.display()))
+    };
+    let nums = |k: &str| -> Result<Vec<f64>> {
+        field(k)?
+            .split_whitespace()
+            .map(|v| v.parse::<f64>().with_context(|| format!("{k}: {v:?}")))
+            .collect()
+    };
+    let d = nums("DimSize")?;
+    let sp = nums("ElementSpacing")?;
+    anyhow::ensure!(
+        d.len() == 3 && sp.len() == 3,
+        "{}: not a 3-D volume",
+        args.mhd.display()
+    );
+    anyhow::ensure!(
+        sp.iter().all(|v| (v - sp[0]).abs() < 1e-9),
+        "{}: voxels {sp:?} are not cubic",
+        args.mhd.display()
+    );
+    anyhow::ensure!(
+        field("ElementType")? == "MET_UCHAR",
+        "{}: not uint8 labels",
+        args.mhd.display()
+    );
+    let dir = args.mhd.parent().unwrap_or(std::path::Path::new("."));
+    let data = dir.join(field("ElementDataFile")?);
+    let gz = std::path::PathBuf::from(format!("{}.gz", data.display()));
+    let raw = dbt_store::read_maybe_gz(if data.is_file() { &data } else { &gz })?;
+    let dims = [d[0] as usize, d[1] as usize, d[2] as usize];
+    let thickness_mm = match (args.thickness_mm, args.thickness_ratio) {
+        (Some(t), _) => t,
+        (None, Some(r)) => {
+            let h = dbt_eval::victre::height_mm(&raw, dims, sp[0])
+                .with_context(|| format!("{}: no breast tissue", args.mhd.display()))?;
+            (r * h / args.voxel_mm).round() * args.voxel_mm
+        }
+        (None, None) => anyhow::bail!("--thickness-mm or --thickness-ratio"),
+    };
+    let c =
+        dbt_eval::victre::compress(&raw, dims, sp[0], thickness_mm, args.voxel_mm, args.contact)?;
+    let stem = args
+        .out
+        .file_stem()
+        .context("--out needs a file name")?
+        .to_string_lossy()
+        .to_string();
+    let raw_name = format!("{stem}.raw");
+    let out_dir = args.out.parent().unwrap_or(std::path::Path::new("."));
+    std::fs::write(out_dir.join(&raw_name), &c.labels)?;
+    let provenance = format!(
+        "VICTRE breastPhantom {} ({:.1} mm tall, chest wall cropped by {} voxels), compressed to {} mm \
+         (contact fraction {}, in-plane stretch {:.3}) by the volume-preserving map of dbt_eval::victre (`{}`)",
+        args.mhd.display(),
+        c.height_mm,
+        c.cropped_voxels,
+        thickness_mm,
+        args.contact,
+        c.stretch,
+        std::env::args().collect::<Vec<_>>().join(" ")
+    );
+    std::fs::write(
+        &args.out,
+        dbt_eval::victre::sidecar(&c, &raw_name, &provenance),
+    )?;
+    let vol = dbt_store::load_external_phantom(&args.out)?;
+    println!(
+        "{}: {:?} voxels of {} mm, {:.1} mm thick, glandularity by mass {:.3} (from {:.1} mm tall)",
+        args.out.display(),
+        c.dims,
+        c.voxel_mm,
+        vol.thickness_mm(),
+        vol.glandularity().unwrap_or(f64::NAN),
+        c.height_mm
     );
     Ok(())
 }
