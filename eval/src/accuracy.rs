@@ -126,90 +126,12 @@ pub struct Agreement {
     pub n: usize,
 }
 
-/// ln Gamma (Lanczos, g = 7, n = 9).
-fn ln_gamma(x: f64) -> f64 {
-    const C: [f64; 9] = [
-        0.999_999_999_999_809_9,
-        676.520_368_121_885_1,
-        -1_259.139_216_722_402_8,
-        771.323_428_777_653_1,
-        -176.615_029_162_140_6,
-        12.507_343_278_686_905,
-        -0.138_571_095_265_720_12,
-        9.984_369_578_019_572e-6,
-        1.505_632_735_149_311_6e-7,
-    ];
-    if x < 0.5 {
-        return (std::f64::consts::PI / (std::f64::consts::PI * x).sin()).ln() - ln_gamma(1.0 - x);
-    }
-    let x = x - 1.0;
-    let mut a = C[0];
-    let t = x + 7.5;
-    for (i, c) in C.iter().enumerate().skip(1) {
-        a += c / (x + i as f64);
-    }
-    0.5 * (2.0 * std::f64::consts::PI).ln() + (x + 0.5) * t.ln() - t + a.ln()
-}
-
-/// Regularised incomplete beta I_x(a, b) (continued fraction, Numerical
-/// Recipes `betacf`).
-fn inc_beta(x: f64, a: f64, b: f64) -> f64 {
-    if x <= 0.0 {
-        return 0.0;
-    }
-    if x >= 1.0 {
-        return 1.0;
-    }
-    let front =
-        (ln_gamma(a + b) - ln_gamma(a) - ln_gamma(b) + a * x.ln() + b * (1.0 - x).ln()).exp();
-    let cf = |x: f64, a: f64, b: f64| {
-        let (qab, qap, qam) = (a + b, a + 1.0, a - 1.0);
-        let (mut c, mut d) = (1.0, 1.0 - qab * x / qap);
-        d = if d.abs() < 1e-300 { 1e-300 } else { d };
-        d = 1.0 / d;
-        let mut h = d;
-        for m in 1..300 {
-            let m = m as f64;
-            let m2 = 2.0 * m;
-            let aa = m * (b - m) * x / ((qam + m2) * (a + m2));
-            d = 1.0 + aa * d;
-            d = if d.abs() < 1e-300 { 1e-300 } else { d };
-            c = 1.0 + aa / c;
-            c = if c.abs() < 1e-300 { 1e-300 } else { c };
-            d = 1.0 / d;
-            h *= d * c;
-            let aa = -(a + m) * (qab + m) * x / ((a + m2) * (qap + m2));
-            d = 1.0 + aa * d;
-            d = if d.abs() < 1e-300 { 1e-300 } else { d };
-            c = 1.0 + aa / c;
-            c = if c.abs() < 1e-300 { 1e-300 } else { c };
-            d = 1.0 / d;
-            let del = d * c;
-            h *= del;
-            if (del - 1.0).abs() < 1e-14 {
-                break;
-            }
-        }
-        h
-    };
-    if x < (a + 1.0) / (a + b + 2.0) {
-        front * cf(x, a, b) / a
-    } else {
-        1.0 - front * cf(1.0 - x, b, a) / b
-    }
-}
-
-/// Two-sided p-value of Student's t with `nu` degrees of freedom.
-pub fn t_test_p(t: f64, nu: f64) -> f64 {
-    inc_beta(nu / (nu + t * t), nu / 2.0, 0.5)
-}
-
 /// Bland-Altman statistics of `diffs`.
 pub fn agreement(diffs: &[f64]) -> Agreement {
     let n = diffs.len();
     let (bias, sd) = dbt_metrics::mean_sd(diffs);
     let p_value = if n > 1 && sd > 0.0 {
-        t_test_p(bias / (sd / (n as f64).sqrt()), (n - 1) as f64)
+        dbt_intervals::t_two_sided_p(bias / (sd / (n as f64).sqrt()), (n - 1) as f64)
     } else {
         f64::NAN
     };
@@ -629,16 +551,6 @@ mod tests {
         assert_eq!(g, vec![Some(2.0 / 3.0), None, Some(0.5)]);
         let g = gland_by_depth(&labels, [2, 1, 5], 10.0, 30.0, 2);
         assert_eq!(g, vec![Some(2.0 / 3.0), Some(0.5)]);
-    }
-
-    #[test]
-    fn p_values_match_tables() {
-        // Student t two-sided critical values: t(0.975, 10) = 2.228, t(0.975, 29) = 2.045.
-        assert!((t_test_p(2.228, 10.0) - 0.05).abs() < 5e-4);
-        assert!((t_test_p(2.045, 29.0) - 0.05).abs() < 5e-4);
-        assert!((t_test_p(0.0, 5.0) - 1.0).abs() < 1e-12);
-        // Large nu approaches the normal: 1.96 -> 0.05.
-        assert!((t_test_p(1.96, 1e6) - 0.05).abs() < 1e-3);
     }
 
     /// Several reconstructors on one acquisition share its truth: the same

@@ -371,12 +371,19 @@ fn incomplete_beta(a: f64, b: f64, x: f64) -> f64 {
     }
 }
 
+/// The two-sided p-value of Student's t statistic `t` with `nu` degrees of
+/// freedom, `I_{nu/(nu+t^2)}(nu/2, 1/2)` (also the evaluation's paired
+/// t-test for zero bias).
+pub fn t_two_sided_p(t: f64, nu: f64) -> f64 {
+    incomplete_beta(nu / 2.0, 0.5, nu / (nu + t * t))
+}
+
 /// Student's t 97.5 % quantile for `df` (real, at least 1) degrees of
-/// freedom: the upper tail `I_{df/(df+t^2)}(df/2, 1/2) / 2` solved for
-/// 0.025 by bisection; the unit test reads it against the tables.
+/// freedom: [`t_two_sided_p`] solved for 0.05 by bisection; the unit test
+/// reads it against the tables.
 pub fn t975(df: f64) -> f64 {
     let df = df.max(1.0);
-    let tail = |t: f64| 0.5 * incomplete_beta(df / 2.0, 0.5, df / (df + t * t));
+    let tail = |t: f64| 0.5 * t_two_sided_p(t, df);
     let (mut lo, mut hi) = (0.0f64, 100.0f64);
     for _ in 0..100 {
         let mid = 0.5 * (lo + hi);
@@ -680,6 +687,10 @@ mod tests {
             assert!((t975(df) - t).abs() < 1e-3, "df {df}: {} vs {t}", t975(df));
         }
         assert!((t975(1e6) - 1.959_964).abs() < 1e-5);
+        // The p-value at the tabled critical values, and at 0.
+        assert!((t_two_sided_p(2.228, 10.0) - 0.05).abs() < 5e-4);
+        assert!((t_two_sided_p(2.045, 29.0) - 0.05).abs() < 5e-4);
+        assert!((t_two_sided_p(0.0, 5.0) - 1.0).abs() < 1e-12);
         // Between the tabled degrees of freedom, between their quantiles.
         assert!(t975(2.5) < 4.303 && t975(2.5) > 3.182);
     }
