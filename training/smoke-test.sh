@@ -167,7 +167,10 @@ for f in state.dbts curve.csv LEDGER.md slot.log; do
 done
 grep -q "self-check passed" "$tmp/slot/slot.log" || { echo "smoke test: the GPU slot's self-check"; cat "$tmp/slot/slot.log"; exit 1; }
 grep -q '^| smoke-slot |' "$tmp/slot/LEDGER.md" || { echo "smoke test: no ledger row from the GPU slot"; exit 1; }
-$PY -m dbtor.state show "$tmp/slot/state.dbts" | grep -q '"iteration": 4' \
+# Into a file first: `grep -q` leaves at its first match, and the writer's
+# broken pipe then failed the pipeline (pipefail) now and then.
+$PY -m dbtor.state show "$tmp/slot/state.dbts" > "$tmp/slot-state.json"
+grep -q '"iteration": 4' "$tmp/slot-state.json" \
     || { echo "smoke test: the GPU slot's state is not at iteration 4"; exit 1; }
 # Quantisation-aware fine-tuning (2 iterations) and an export of its int8
 # blocks beside the first run's fp32 ones.
