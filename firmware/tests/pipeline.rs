@@ -332,6 +332,7 @@ fn a_network_answer_forced_wrong_is_flagged_and_gets_no_category() {
         None,
         h.thickness_mm,
         &res.physics_density,
+        res.plausibility.volume.fill,
         LIMITS,
     );
     assert!(

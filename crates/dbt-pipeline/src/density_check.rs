@@ -13,10 +13,12 @@
 //!   the sharp one: both read the same tissue from the same counts, so the
 //!   physics' largest error (the rim's edge model) is out of it.
 //!
-//! The density is *confirmed* when a physics density exists and both
-//! disagreements are within their limits ([`CheckLimits::default`]: set on
-//! the validation splits, eval/density-check.md). Otherwise the density
-//! report asserts no BI-RADS category, says why, and gives both figures.
+//! The density is *confirmed* when a physics density exists, both
+//! disagreements are within their limits and the breast lies in the
+//! validated domain (it fills its box as a validation breast did)
+//! ([`CheckLimits::default`]: set on the validation splits,
+//! eval/density-check.md). Otherwise the density report asserts no BI-RADS
+//! category, says why, and gives both figures.
 
 use crate::process::PipelineError;
 use dbt_geometry::Geometry;
@@ -61,7 +63,8 @@ impl Default for CheckLimits {
 }
 
 impl CheckLimits {
-    /// Refused unless both limits are positive and finite.
+    /// Refused unless both disagreement limits are positive and finite and
+    /// the smallest fill a fraction.
     pub fn validate(&self) -> Result<(), PipelineError> {
         if !(self.min_fill.is_finite() && (0.0..1.0).contains(&self.min_fill)) {
             return Err(PipelineError::Input(format!(
@@ -106,21 +109,6 @@ pub struct DensityCheck {
 }
 
 impl DensityCheck {
-    /// Withhold the confirmation of a breast outside the validated domain:
-    /// one filling less than `limits.min_fill` of its box (`fill`), or whose
-    /// fill is not a number.
-    pub fn within_validated_domain(&mut self, fill: f64) {
-        if fill.is_nan() || fill < self.limits.min_fill {
-            self.reasons.push(format!(
-                "the breast fills {:.1} % of its compressed box, less than any validated breast \
-                 (limit {:.0} %): the estimates are not known to hold where so much of the box is air",
-                100.0 * fill,
-                100.0 * self.limits.min_fill
-            ));
-            self.confirmed = false;
-        }
-    }
-
     /// What the density report and the status file say of it.
     pub fn report(&self) -> dbt_dicom::DensityCheckReport {
         dbt_dicom::DensityCheckReport {
@@ -198,13 +186,17 @@ pub fn contact_glandularity(
 /// The cross-check of a reported glandularity against the physics density.
 /// `contact_network_pv` is [`contact_glandularity`] of the reconstruction
 /// over the physics' contact region (uncalibrated); `calibration` and
-/// `thickness_mm` map it as the reported figure was mapped.
+/// `thickness_mm` map it as the reported figure was mapped; `fill` is the
+/// reconstructed breast's fill of its box
+/// ([`crate::plausibility::VolumeCheck::fill`]), below `limits.min_fill`
+/// (or not a number) outside the validated domain.
 pub fn cross_check(
     reported: f64,
     contact_network_pv: Option<f64>,
     calibration: Option<&GlandularityCalibration>,
     thickness_mm: f64,
     physics: &Result<PhysicsDensity, String>,
+    fill: f64,
     limits: CheckLimits,
 ) -> DensityCheck {
     let mut reasons = Vec::new();
@@ -253,6 +245,14 @@ pub fn cross_check(
     }
     if !reported.is_finite() {
         reasons.push("the reported glandularity is not a number".into());
+    }
+    if fill.is_nan() || fill < limits.min_fill {
+        reasons.push(format!(
+            "the breast fills {:.1} % of its compressed box, less than any validated breast \
+             (limit {:.0} %): the estimates are not known to hold where so much of the box is air",
+            100.0 * fill,
+            100.0 * limits.min_fill
+        ));
     }
     DensityCheck {
         reported,
@@ -348,26 +348,42 @@ mod tests {
             contact_pp: 5.0,
             ..LIMITS
         };
-        let ok = cross_check(0.30, Some(0.32), None, 50.0, &physics(0.25, 0.30), l);
+        let ok = cross_check(0.30, Some(0.32), None, 50.0, &physics(0.25, 0.30), 0.9, l);
         assert!(ok.confirmed, "{:?}", ok.reasons);
         assert!((ok.difference_pp.unwrap() - 5.0).abs() < 1e-9);
         assert!((ok.contact_difference_pp.unwrap() - 2.0).abs() < 1e-9);
-        let whole = cross_check(0.40, Some(0.32), None, 50.0, &physics(0.25, 0.30), l);
+        let whole = cross_check(0.40, Some(0.32), None, 50.0, &physics(0.25, 0.30), 0.9, l);
         assert!(!whole.confirmed);
         assert!(whole.reasons[0].contains("+15.0 pp"), "{:?}", whole.reasons);
-        let contact = cross_check(0.30, Some(0.38), None, 50.0, &physics(0.25, 0.30), l);
+        let contact = cross_check(0.30, Some(0.38), None, 50.0, &physics(0.25, 0.30), 0.9, l);
         assert!(!contact.confirmed);
         assert!(
             contact.reasons[0].contains("contact region") && contact.reasons[0].contains("+8.0"),
             "{:?}",
             contact.reasons
         );
-        let none = cross_check(0.30, Some(0.32), None, 50.0, &Err("no breast".into()), l);
+        let none = cross_check(
+            0.30,
+            Some(0.32),
+            None,
+            50.0,
+            &Err("no breast".into()),
+            0.9,
+            l,
+        );
         assert!(!none.confirmed && none.physics.is_none());
         assert!(none.reasons[0].contains("no breast"));
-        let nan = cross_check(0.30, Some(0.32), None, 50.0, &physics(f64::NAN, 0.3), l);
+        let nan = cross_check(
+            0.30,
+            Some(0.32),
+            None,
+            50.0,
+            &physics(f64::NAN, 0.3),
+            0.9,
+            l,
+        );
         assert!(!nan.confirmed);
-        assert!(!cross_check(0.30, None, None, 50.0, &physics(0.25, 0.30), l).confirmed);
+        assert!(!cross_check(0.30, None, None, 50.0, &physics(0.25, 0.30), 0.9, l).confirmed);
     }
 
     /// The network's contact figure is mapped by the report's calibration
@@ -386,6 +402,7 @@ mod tests {
             Some(&cal),
             50.0,
             &physics(0.30, 0.30),
+            0.9,
             LIMITS,
         );
         assert!((c.contact_network.unwrap() - 0.30).abs() < 1e-12);
@@ -442,12 +459,21 @@ mod tests {
     /// limit is; a fill that is not a number is not.
     #[test]
     fn a_breast_outside_the_validated_fill_is_not_confirmed() {
-        let agree = || cross_check(0.30, Some(0.30), None, 50.0, &physics(0.30, 0.30), LIMITS);
-        let mut c = agree();
-        assert!(c.confirmed);
-        c.within_validated_domain(LIMITS.min_fill);
+        let agree = |fill| {
+            cross_check(
+                0.30,
+                Some(0.30),
+                None,
+                50.0,
+                &physics(0.30, 0.30),
+                fill,
+                LIMITS,
+            )
+        };
+        assert!(agree(0.9).confirmed);
+        let c = agree(LIMITS.min_fill);
         assert!(c.confirmed, "{:?}", c.reasons);
-        c.within_validated_domain(0.687);
+        let c = agree(0.687);
         assert!(!c.confirmed);
         assert!(
             c.reasons[0].contains("fills 68.7 % of its compressed box"),
@@ -455,8 +481,6 @@ mod tests {
             c.reasons
         );
         assert!(c.reasons[0].contains("limit 72 %"), "{:?}", c.reasons);
-        let mut n = agree();
-        n.within_validated_domain(f64::NAN);
-        assert!(!n.confirmed);
+        assert!(!agree(f64::NAN).confirmed);
     }
 }

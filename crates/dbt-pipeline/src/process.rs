@@ -800,11 +800,10 @@ pub fn process_with_progress(
             opts.calibration.as_ref(),
             h.thickness_mm,
             &physics_density,
+            volume_check.fill,
             opts.density_limits,
         )
     };
-    let mut density_check = density_check;
-    density_check.within_validated_domain(volume_check.fill);
     if density_check.confirmed {
         tracing::info!(check = %density_check.summary(), "density confirmed by the physics");
     } else {
@@ -1205,7 +1204,7 @@ mod interval_tests {
     fn intervals_only_where_the_residuals_describe_the_breast() {
         let t = table();
         let physics = Err("none".to_string());
-        let mut check = cross_check(0.4, None, None, 50.0, &physics, LIMITS);
+        let mut check = cross_check(0.4, None, None, 50.0, &physics, 0.9, LIMITS);
         assert!(!check.confirmed);
         let unconfirmed =
             report_intervals(Some(&t), AnodeFilter::WRh, 50.0, 0.4, &check, 1.2, 0.01);
