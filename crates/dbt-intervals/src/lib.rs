@@ -25,14 +25,18 @@
 //!   `s_sys^2 = max(0, s^2 - v)`. A new acquisition whose own Monte Carlo
 //!   has relative standard error `u` has `ln(estimate / truth)` with
 //!   variance `s_sys^2 + u^2`, and the band's mean is known to `s^2 / n`;
-//!   so the truth lies in `estimate exp(-m -+ t sqrt(s^2/n + s_sys^2 + u^2))`.
+//!   so the truth lies in `estimate exp(-m -+ t sqrt(s^2/n + s_sys^2 + u^2))`,
+//!   `t` with Satterthwaite's degrees of freedom (fewer, the more of `s^2`
+//!   the Monte Carlo explains).
 //!
 //! Bands: the compressed thickness and the *reported* glandularity (the
 //! truth is not known where the interval is used), split at fixed interior
-//! edges chosen before the residuals were seen; the outer bands are open.
+//! edges chosen on how many breasts each band holds, not on their residuals
+//! ([`product_bands`]); the outer bands are open.
 //! A band needs [`MIN_PER_BAND`] residuals, else the table is refused
 //! naming it (merge bands by choosing other edges).
 
+use dbt_metrics::mean_sd;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
@@ -252,6 +256,14 @@ pub struct BandStats {
     pub g_seen: [f64; 2],
 }
 
+impl BandStats {
+    /// The glandularity interval's half-width, pp: `t(n-1) s sqrt(1 + 1/n)`.
+    pub fn glandularity_half_width_pp(&self) -> f64 {
+        let n = self.n as f64;
+        t975(n - 1.0) * self.g_sd_pp * (1.0 + 1.0 / n).sqrt()
+    }
+}
+
 /// A 95 % interval for the truth of one reported figure, and what it rests
 /// on (in words, for the reports).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -282,13 +294,6 @@ pub struct IntervalTable {
     pub bands: Bands,
     /// One per band, thickness-major.
     pub stats: Vec<BandStats>,
-}
-
-fn mean_sd(v: &[f64]) -> (f64, f64) {
-    let n = v.len() as f64;
-    let m = v.iter().sum::<f64>() / n;
-    let var = v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0).max(1.0);
-    (m, var.sqrt())
 }
 
 /// ln Gamma(x), x > 0 (Lanczos, g = 7, nine coefficients: relative error
@@ -549,8 +554,7 @@ impl IntervalTable {
         g_reported: f64,
     ) -> Result<Interval, IntervalError> {
         let s = self.band(thickness_mm, g_reported)?;
-        let n = s.n as f64;
-        let half = t975(n - 1.0) * s.g_sd_pp * (1.0 + 1.0 / n).sqrt();
+        let half = s.glandularity_half_width_pp();
         let lo = (g_reported - (s.g_mean_pp + half) / 100.0).clamp(0.0, 1.0);
         let hi = (g_reported - (s.g_mean_pp - half) / 100.0).clamp(0.0, 1.0);
         Ok(Interval {

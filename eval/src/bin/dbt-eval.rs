@@ -186,7 +186,7 @@ struct IntervalsArgs {
     #[arg(long = "from", required = true)]
     from: Vec<PathBuf>,
     /// Interior thickness band edges, mm (default: the product's,
-    /// `dbt_intervals::PRODUCT_BANDS`).
+    /// `dbt_intervals::product_bands`).
     #[arg(long, value_delimiter = ',')]
     thickness_edges: Option<Vec<f64>>,
     /// Interior reported-glandularity band edges, 0..1.
@@ -1533,11 +1533,7 @@ fn run_intervals(args: IntervalsArgs) -> Result<()> {
         thickness_edges,
         glandularity_edges,
     } = args;
-    let prec = match precision.as_str() {
-        "fp32" => dbt_dbtor::Precision::Fp32,
-        "int8" => dbt_dbtor::Precision::Int8,
-        other => anyhow::bail!("--precision {other:?}: fp32 or int8"),
-    };
+    let prec: dbt_dbtor::Precision = precision.parse().map_err(anyhow::Error::msg)?;
     let m = dbt_dbtor::Dbtor::load_mixed(&model, prec, &[], dbt_dbtor::Engine::Fast)
         .with_context(|| format!("loading {}", model.display()))?;
     let label = m.precision_label();
@@ -1643,7 +1639,6 @@ fn run_intervals(args: IntervalsArgs) -> Result<()> {
     println!("| band | n | glandularity: reported - true, mean (pp) | s.d. (pp) | 95 % half-width (pp) | MGD: ln(est/true) mean (%) | s.d. (%) | of which Monte Carlo (%) |");
     println!("|---|---|---|---|---|---|---|---|");
     for st in &table.stats {
-        let n = st.n as f64;
         println!(
             "| {} | {} | {:+.2} | {:.2} | {:.2} | {:+.2} | {:.2} | {:.2} |",
             table
@@ -1652,7 +1647,7 @@ fn run_intervals(args: IntervalsArgs) -> Result<()> {
             st.n,
             st.g_mean_pp,
             st.g_sd_pp,
-            dbt_intervals::t975(n - 1.0) * st.g_sd_pp * (1.0 + 1.0 / n).sqrt(),
+            st.glandularity_half_width_pp(),
             100.0 * st.mgd_log_mean,
             100.0 * st.mgd_log_sd,
             100.0 * st.mgd_mc_var.sqrt()
