@@ -56,22 +56,39 @@ impl CalibrationFile {
         };
         let text = std::fs::read_to_string(path).map_err(|e| fail(e.to_string()))?;
         let f: Self = serde_json::from_str(&text).map_err(|e| fail(e.to_string()))?;
-        if f.format != CALIBRATION_FORMAT {
-            return Err(fail(format!(
-                "format {:?}, expected {CALIBRATION_FORMAT:?}",
-                f.format
-            )));
-        }
-        let sha = manifest_sha256(model).map_err(|e| fail(e.to_string()))?;
-        if f.manifest_sha256 != sha {
-            return Err(fail(format!(
-                "fit for another model (manifest SHA-256 {}), not {} ({sha}); refit with `dbt-eval calibrate`",
-                f.manifest_sha256,
-                model.manifest().name
-            )));
-        }
+        check_binding(
+            &f.format,
+            CALIBRATION_FORMAT,
+            &f.manifest_sha256,
+            model,
+            "dbt-eval calibrate",
+        )
+        .map_err(fail)?;
         Ok(f)
     }
+}
+
+/// What every file bound to a model checks on reading: its format tag is
+/// `expected`, and it was made for `model` (the SHA-256 of its manifest);
+/// `refit` names the command that writes it again.
+pub(crate) fn check_binding(
+    format: &str,
+    expected: &str,
+    manifest_sha: &str,
+    model: &dbt_dbtor::Dbtor,
+    refit: &str,
+) -> Result<(), String> {
+    if format != expected {
+        return Err(format!("format {format:?}, expected {expected:?}"));
+    }
+    let sha = manifest_sha256(model).map_err(|e| e.to_string())?;
+    if manifest_sha != sha {
+        return Err(format!(
+            "fit for another model (manifest SHA-256 {manifest_sha}), not {} ({sha}); refit with `{refit}`",
+            model.manifest().name
+        ));
+    }
+    Ok(())
 }
 
 impl CalibrationFile {

@@ -7,7 +7,7 @@
 //! reported glandularity went through (the calibration file's SHA-256): a
 //! recalibrated model whose intervals were not refit is refused by name.
 
-use crate::calibration::{manifest_sha256, InputCorrections, CALIBRATION_FILE};
+use crate::calibration::{check_binding, manifest_sha256, InputCorrections, CALIBRATION_FILE};
 use dbt_intervals::IntervalTable;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -88,20 +88,14 @@ impl IntervalsFile {
         };
         let text = std::fs::read_to_string(path).map_err(|e| fail(e.to_string()))?;
         let f: Self = serde_json::from_str(&text).map_err(|e| fail(e.to_string()))?;
-        if f.format != INTERVALS_FORMAT {
-            return Err(fail(format!(
-                "format {:?}, expected {INTERVALS_FORMAT:?}",
-                f.format
-            )));
-        }
-        let sha = manifest_sha256(model).map_err(|e| fail(e.to_string()))?;
-        if f.manifest_sha256 != sha {
-            return Err(fail(format!(
-                "fit for another model (manifest SHA-256 {}), not {} ({sha}); refit with `dbt-eval intervals`",
-                f.manifest_sha256,
-                model.manifest().name
-            )));
-        }
+        check_binding(
+            &f.format,
+            INTERVALS_FORMAT,
+            &f.manifest_sha256,
+            model,
+            "dbt-eval intervals",
+        )
+        .map_err(fail)?;
         let cal = calibration_sha256(model.root()).map_err(|e| fail(e.to_string()))?;
         if f.calibration_sha256 != cal {
             return Err(fail(format!(
