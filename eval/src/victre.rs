@@ -79,22 +79,66 @@ pub struct Compressed {
     pub stretch: f64,
 }
 
-/// The uncompressed breast's height (support to top of its tissue in front
-/// of the chest wall), mm; `None` for a volume without breast tissue.
-pub fn height_mm(labels: &[u8], dims: [usize; 3], voxel_mm: f64) -> Option<f64> {
+/// The breast's vertical columns in front of the chest wall.
+struct Columns {
+    /// The chest wall: the first depth index in front of the muscle.
+    crop: usize,
+    /// Per column (x fastest, `nx * ny`): bottom voxel and length in voxels
+    /// (0: no tissue).
+    extent: Vec<(usize, usize)>,
+    /// Per column: the skin runs at its bottom and top, voxels.
+    skin: Vec<(usize, usize)>,
+    /// The breast's lateral and vertical voxel ranges `[y0, y1, z0, z1]`
+    /// (inclusive); `None` without tissue.
+    bounds: Option<[usize; 4]>,
+}
+
+/// The columns of `labels` (`dims`, x fastest; its size checked by the
+/// caller), the pectoral muscle cropped away.
+fn columns(labels: &[u8], dims: [usize; 3]) -> Columns {
     let [nx, ny, nz] = dims;
-    if labels.len() != nx * ny * nz {
-        return None;
-    }
     let at = |x: usize, y: usize, z: usize| labels[x + nx * (y + ny * z)];
     let crop = (0..nx)
         .rev()
         .find(|&x| (0..nz).any(|z| (0..ny).any(|y| at(x, y, z) == MUSCLE)))
         .map_or(0, |x| x + 1);
-    let has = |z: usize| (0..ny).any(|y| (crop..nx).any(|x| at(x, y, z) != 0));
-    let lo = (0..nz).find(|&z| has(z))?;
-    let hi = (0..nz).rev().find(|&z| has(z))?;
-    Some((hi - lo + 1) as f64 * voxel_mm)
+    let mut extent = vec![(0usize, 0usize); nx * ny];
+    let mut skin = vec![(0usize, 0usize); nx * ny];
+    let mut bounds: Option<[usize; 4]> = None;
+    for y in 0..ny {
+        for x in crop..nx {
+            let Some(lo) = (0..nz).find(|&z| at(x, y, z) != 0) else {
+                continue;
+            };
+            let hi = (lo..nz).rev().find(|&z| at(x, y, z) != 0).unwrap_or(lo);
+            extent[x + nx * y] = (lo, hi - lo + 1);
+            let bottom = (lo..=hi).take_while(|&z| at(x, y, z) == SKIN).count();
+            let upper = if lo + bottom > hi {
+                0
+            } else {
+                (lo..=hi).rev().take_while(|&z| at(x, y, z) == SKIN).count()
+            };
+            skin[x + nx * y] = (bottom, upper);
+            let b = bounds.get_or_insert([y, y, lo, hi]);
+            *b = [b[0].min(y), b[1].max(y), b[2].min(lo), b[3].max(hi)];
+        }
+    }
+    Columns {
+        crop,
+        extent,
+        skin,
+        bounds,
+    }
+}
+
+/// The uncompressed breast's height (support to top of its tissue in front
+/// of the chest wall), mm; `None` for a volume without breast tissue.
+pub fn height_mm(labels: &[u8], dims: [usize; 3], voxel_mm: f64) -> Option<f64> {
+    if labels.len() != dims.iter().product::<usize>() {
+        return None;
+    }
+    let [_, _, z0, z1] = columns(labels, dims).bounds?;
+    Some((z1 - z0 + 1) as f64 * voxel_mm)
 }
 
 /// Compress `labels` (dims `[nx, ny, nz]`, x fastest, `voxel_mm` cubic;
@@ -138,26 +182,13 @@ pub fn compress(
         }
     }
     let at = |x: usize, y: usize, z: usize| labels[x + nx * (y + ny * z)];
-    // The chest wall: in front of the muscle's deepest voxel.
-    let crop = (0..nx)
-        .rev()
-        .find(|&x| (0..nz).any(|z| (0..ny).any(|y| at(x, y, z) == MUSCLE)))
-        .map_or(0, |x| x + 1);
-    // The breast's extent in front of it.
-    let (mut y0, mut y1, mut z0, mut z1) = (usize::MAX, 0, usize::MAX, 0);
-    for z in 0..nz {
-        for y in 0..ny {
-            if (crop..nx).any(|x| at(x, y, z) != 0) {
-                y0 = y0.min(y);
-                y1 = y1.max(y);
-                z0 = z0.min(z);
-                z1 = z1.max(z);
-            }
-        }
-    }
-    if y0 == usize::MAX {
-        return Err(CompressError::Empty);
-    }
+    let Columns {
+        crop,
+        extent: column,
+        skin,
+        bounds,
+    } = columns(labels, dims);
+    let [y0, y1, z0, z1] = bounds.ok_or(CompressError::Empty)?;
     let h = voxel_mm;
     let height = (z1 - z0 + 1) as f64 * h;
     if thickness_mm > height {
@@ -166,31 +197,6 @@ pub fn compress(
             value: thickness_mm,
             why: "thicker than the uncompressed breast",
         });
-    }
-    // Each column's extent (bottom voxel, length in voxels; 0: no tissue)
-    // and the skin runs at its bottom and top.
-    let mut column = vec![(0usize, 0usize); nx * ny];
-    let mut skin = vec![(0usize, 0usize); nx * ny];
-    for y in 0..ny {
-        for x in crop..nx {
-            let (mut lo, mut hi) = (usize::MAX, 0);
-            for z in 0..nz {
-                if at(x, y, z) != 0 {
-                    lo = lo.min(z);
-                    hi = hi.max(z);
-                }
-            }
-            if lo != usize::MAX {
-                column[x + nx * y] = (lo, hi - lo + 1);
-                let bottom = (lo..=hi).take_while(|&z| at(x, y, z) == SKIN).count();
-                let upper = if lo + bottom > hi {
-                    0
-                } else {
-                    (lo..=hi).rev().take_while(|&z| at(x, y, z) == SKIN).count()
-                };
-                skin[x + nx * y] = (bottom, upper);
-            }
-        }
     }
     let full = contact * height / h; // columns this long touch the paddle
     let squeezed = |len: usize| thickness_mm * (len as f64 / full).min(1.0);
@@ -334,12 +340,19 @@ pub fn compress(
     })
 }
 
+/// phantoms/victre-pc1.toml, whose label map (its last section, with the
+/// modelling choices written beside it) every VICTRE breast is read with.
+const PC1_SIDECAR: &str = include_str!("../../phantoms/victre-pc1.toml");
+
 /// The sidecar `dbt_store::load_external_phantom` reads a compressed
 /// breast through: the raw file `raw` (relative to the sidecar), its
 /// dimensions and voxel, VICTRE's axes, and the label map of
-/// phantoms/victre-pc1.toml (the modelling choices are written there).
+/// phantoms/victre-pc1.toml.
 pub fn sidecar(c: &Compressed, raw: &str, provenance: &str) -> String {
     let [nx, ny, nz] = c.dims;
+    let labels = PC1_SIDECAR
+        .find("[labels]")
+        .map_or("", |i| &PC1_SIDECAR[i..]);
     format!(
         "# {provenance}\n\
          # EVALUATION ONLY: never train or tune on it.\n\
@@ -348,11 +361,7 @@ pub fn sidecar(c: &Compressed, raw: &str, provenance: &str) -> String {
          axes = [\"depth\", \"lateral\", \"vertical\"]\n\
          voxel_mm = {}\n\
          # The label map of phantoms/victre-pc1.toml.\n\
-         [labels]\n\
-         0 = \"air\"\n1 = \"adipose\"\n2 = \"skin\"\n29 = \"fibroglandular\"\n33 = \"skin\"\n\
-         40 = \"fibroglandular\"\n50 = \"air\"\n88 = \"ligament\"\n95 = \"fibroglandular\"\n\
-         125 = \"fibroglandular\"\n150 = \"fibroglandular\"\n200 = \"fibroglandular\"\n\
-         225 = \"fibroglandular\"\n250 = \"fibroglandular\"\n",
+         {labels}",
         c.voxel_mm
     )
 }
@@ -490,6 +499,28 @@ mod tests {
         let centre = flat.dims[0] / 3 + flat.dims[0] * (flat.dims[1] / 2);
         assert!((0..flat.dims[2]).all(|k| flat.labels[centre + n * k] != 0));
         assert!(compress(&v, dims, 0.5, 15.0, 0.5, 0.0).is_err());
+    }
+
+    /// The written sidecar reads back through the product's external-phantom
+    /// reader, with pc1's label map: the breast's thickness and its
+    /// glandularity as the labels give it.
+    #[test]
+    fn the_sidecar_reads_back_with_pc1s_labels() {
+        let (v, dims) = breast();
+        let c = compress(&v, dims, 0.5, 15.0, 0.5, 0.5).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("b.raw"), &c.labels).unwrap();
+        let toml = dir.path().join("b.toml");
+        std::fs::write(&toml, sidecar(&c, "b.raw", "test")).unwrap();
+        let vol = dbt_store::load_external_phantom(&toml).unwrap();
+        assert!(
+            (vol.thickness_mm() - 15.0).abs() < 0.51,
+            "{}",
+            vol.thickness_mm()
+        );
+        let g = vol.glandularity().unwrap();
+        assert!(g > 0.0 && g < 1.0, "{g}");
+        assert!(sidecar(&c, "b.raw", "test").contains("29 = \"fibroglandular\""));
     }
 
     /// Impossible requests are refused by name.
