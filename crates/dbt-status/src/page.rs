@@ -335,28 +335,21 @@ fn summary(r: &AcquisitionRecord) -> String {
         ),
         None => String::new(),
     };
-    let interval = |iv: Option<&dbt_dicom::FigureInterval>, shown: String, unit: &str| match iv {
-        Some(i) if i.limits.is_some() => format!(", 95 % interval {shown} {unit}"),
-        Some(i) => format!(", no 95 % interval: {}", escape(&i.basis)),
-        None => String::new(),
+    let interval = |iv: Option<&dbt_dicom::FigureInterval>, scale, decimals, unit: &str| {
+        iv.map_or(String::new(), |i| match i.describe(scale, decimals) {
+            Some(r) => format!(", 95 % interval {r} {unit}"),
+            None => format!(", no 95 % interval: {}", escape(&i.basis)),
+        })
     };
     format!(
         "glandularity {} % ({}{}), composition {} ({}){check}, MGD {} mGy patient-specific{}, {} mGy model breast, {}",
         fmt_glandularity(r.glandularity_reported),
         if r.calibrated { "calibrated" } else { "uncalibrated" },
-        interval(
-            r.glandularity_interval.as_ref(),
-            fmt_glandularity_interval(r.glandularity_interval.as_ref()),
-            "%"
-        ),
+        interval(r.glandularity_interval.as_ref(), 100.0, 1, "%"),
         escape(comp.0),
         escape(&comp.1),
         fmt_mgd(r.mgd_mgy),
-        interval(
-            r.mgd_interval.as_ref(),
-            fmt_mgd_interval(r.mgd_interval.as_ref()),
-            "mGy"
-        ),
+        interval(r.mgd_interval.as_ref(), 1.0, 3, "mGy"),
         fmt_mgd(r.model_mgd_mgy),
         r.thickness_mm
             .map(|t| format!("{t:.1} mm compressed"))
