@@ -271,11 +271,11 @@ fn a_network_answer_forced_wrong_is_flagged_and_gets_no_category() {
     let strict = process(
         &acq,
         &PipelineOptions {
-            density_limits: dbt_pipeline::density_check::CheckLimits {
-                whole_pp: 1e-6,
-                contact_pp: 1e-6,
-                ..dbt_pipeline::density_check::LIMITS
-            },
+            density_limits: dbt_pipeline::density_check::CheckLimits::uniform(
+                1e-6,
+                1e-6,
+                dbt_pipeline::density_check::LIMITS.min_fill,
+            ),
             ..opts.clone()
         },
     )

@@ -1485,10 +1485,37 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
         };
         let whole = most(&|c| c.density_check.difference_pp);
         let contact = most(&|c| c.density_check.contact_difference_pp);
+        // The nearest any case came to its band's limits, as a share of it.
+        let nearest = cases
+            .iter()
+            .flat_map(|c| {
+                let l = &c.density_check.limits;
+                [
+                    c.density_check.difference_pp.map(|d| d.abs() / l.whole_pp),
+                    c.density_check
+                        .contact_difference_pp
+                        .map(|d| d.abs() / l.contact_pp),
+                ]
+            })
+            .flatten()
+            .fold(0.0f64, f64::max);
         let l = dbt_pipeline::density_check::LIMITS;
+        let bands = (0..l.bands.len())
+            .map(|k| {
+                let a = l.at(l.bands[k].from_reported);
+                let band = if a.band[1].is_finite() {
+                    format!("{:.0}-{:.0} %", 100.0 * a.band[0], 100.0 * a.band[1])
+                } else {
+                    format!(">= {:.0} %", 100.0 * a.band[0])
+                };
+                format!("{band} {:.0}/{:.0}", a.whole_pp, a.contact_pp)
+            })
+            .collect::<Vec<_>>()
+            .join(", ");
         println!(
-            "density check [{label}]: {unconfirmed} of {} not confirmed by the physics; largest |reported - physics| {whole:.1} pp (limit {:.0}), over the contact region {contact:.1} pp (limit {:.0}); smallest fill of the box {:.3} (limit {:.2})",
-            cases.len(), l.whole_pp, l.contact_pp,
+            "density check [{label}]: {unconfirmed} of {} not confirmed by the physics; largest |reported - physics| {whole:.1} pp, over the contact region {contact:.1} pp, the nearest to its band's limit {:.0} % of it (limits, whole/contact pp, by the reported glandularity: {bands}); smallest fill of the box {:.3} (limit {:.2})",
+            cases.len(),
+            100.0 * nearest,
             cases.iter().map(|c| c.plausibility.volume.fill).fold(f64::INFINITY, f64::min),
             l.min_fill
         );
