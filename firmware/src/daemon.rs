@@ -23,7 +23,7 @@ use crate::link::{data_fault, receive, receive_from, to_acquisition, LinkError, 
 use crate::modbus::{read_registers, ModbusLink};
 use crate::status_page::{StateReader, StatusServer, PICTURE_FILE};
 use dbt_dicom::{Equipment, UidSource};
-use dbt_dose::xray::AnodeFilter;
+use dbt_intake::{GantryNote, RegisterReading, RegisterValues, Source};
 use dbt_pipeline::acquisition::Acquisition;
 use dbt_pipeline::{process, reports, PipelineOptions};
 use dbt_status::{AcquisitionRecord, FaultRecord, Status};
@@ -188,7 +188,7 @@ pub fn spool_entry(
     spool: &Path,
     id: &str,
     acq: &Acquisition,
-    gantry: &serde_json::Value,
+    gantry: &GantryNote,
 ) -> std::io::Result<()> {
     let tmp = spool.join("tmp").join(id);
     let dst = spool.join("incoming").join(id);
@@ -656,32 +656,22 @@ impl Daemon {
                 return Err(ReceiveFault::link(format!("acquisition not received: {e} (nothing spooled; the gantry keeps it for a resend)")));
             }
         };
-        let mut acq = to_acquisition(&rx, &self.site)
+        let acq = to_acquisition(&rx, &self.site)
             .map_err(|e| ReceiveFault::link(format!("acquisition rejected: {e}")))?;
-        // A stream header that states no beam takes register 6's, so the
-        // spooled acquisition (replayed by `dbtor-diag replay` and
-        // `dbtor-process`) carries the beam it was exposed with; a beam the
-        // dose model has no spectra for is refused at processing, naming it.
-        if rx.header.anode_filter.is_none() {
-            if let Some(b) = gantry["anode_filter"]
-                .as_str()
-                .and_then(|a| AnodeFilter::parse(a).ok())
-            {
-                acq.header.anode_filter = b;
-            }
-        }
         let id = entry_id(&acq.header.patient.id);
-        let gantry_json = serde_json::json!({
-            "link": stats,
-            "saturated_pixels": rx.saturated,
-            "modbus": gantry,
-            "modbus_end": self.read_gantry(),
-            // The beam the stream's header stated (optional there; the
-            // register is checked against it before processing).
-            "header_anode_filter": rx.header.anode_filter,
-            "data_fault": data_fault(&rx),
-        });
-        match self.spool(&id, &acq, &gantry_json) {
+        // The beam is settled from the note at processing
+        // (`dbt_intake::settle`), and the settled header written back.
+        let note = GantryNote {
+            source: Source::Frames,
+            link: Some(stats),
+            saturated_pixels: Some(rx.saturated as u64),
+            modbus: gantry,
+            modbus_end: self.read_gantry(),
+            header_anode_filter: rx.header.anode_filter.clone(),
+            data_fault: data_fault(&rx),
+            ..Default::default()
+        };
+        match self.spool(&id, &acq, &note) {
             Ok(()) => {
                 tracing::info!(acquisition = %id, slices = acq.header.slices, "spooled");
                 Ok(Some(id))
@@ -694,14 +684,19 @@ impl Daemon {
         }
     }
 
-    /// The registers at the start of the sweep, as JSON (`null` when Modbus is off, an error object when unreadable).
-    fn read_gantry(&mut self) -> serde_json::Value {
+    /// The registers now (`None` when Modbus is off; why not, when
+    /// unreadable).
+    fn read_gantry(&mut self) -> Option<RegisterReading> {
         if self.cfg.modbus.transport == ModbusTransport::Off {
-            return serde_json::Value::Null;
+            return None;
         }
         let endpoint = match self.cfg.modbus_endpoint(&self.config_path) {
             Ok(a) => a,
-            Err(e) => return serde_json::json!({"error": e.to_string()}),
+            Err(e) => {
+                return Some(RegisterReading::Failed {
+                    error: e.to_string(),
+                })
+            }
         };
         let link = ModbusLink {
             unit: self.cfg.modbus.unit,
@@ -710,21 +705,15 @@ impl Daemon {
             attempts: self.cfg.modbus.attempts,
             ..ModbusLink::with_endpoint(endpoint)
         };
-        match read_registers(&link) {
-            Ok(r) => serde_json::json!({"thickness_mm": r.thickness_mm, "kvp": r.kvp,
-                "mas_per_projection": r.mas_per_projection, "projections": r.projections,
-                "anode_filter": r.anode_filter, "laterality": r.laterality.to_string(),
-                "view": r.view, "fault": r.fault, "force_n": r.force_n}),
-            Err(e) => serde_json::json!({"error": e.to_string()}),
-        }
+        Some(match read_registers(&link) {
+            Ok(r) => RegisterReading::Read(RegisterValues::from(&r)),
+            Err(e) => RegisterReading::Failed {
+                error: e.to_string(),
+            },
+        })
     }
 
-    fn spool(
-        &self,
-        id: &str,
-        acq: &Acquisition,
-        gantry: &serde_json::Value,
-    ) -> std::io::Result<()> {
+    fn spool(&self, id: &str, acq: &Acquisition, gantry: &GantryNote) -> std::io::Result<()> {
         spool_entry(&self.cfg.paths.spool, id, acq, gantry)
     }
 
@@ -756,7 +745,7 @@ impl Daemon {
         let _span = tracing::info_span!("acquisition", id).entered();
         self.publish("processing", Some(id));
         let dir = self.cfg.paths.spool.join("incoming").join(id);
-        let mut acq = match read_acquisition(&dir) {
+        let acq = match read_acquisition(&dir) {
             Ok(a) => a,
             Err(e) => {
                 let msg = format!("spooled acquisition refused: {e}");
@@ -765,127 +754,29 @@ impl Daemon {
             }
         };
         let spooled = acq.header.clone();
-        // Thickness: the register at exposure time against the header.
-        let gantry: serde_json::Value = std::fs::read(dir.join("gantry.json"))
-            .ok()
-            .and_then(|b| serde_json::from_slice(&b).ok())
-            .unwrap_or(serde_json::Value::Null);
-        if let Some(msg) = gantry["data_fault"].as_str().map(String::from) {
-            self.reject(id, "data", msg);
-            return;
-        }
-        // The thickness cross-check is the gantry integration's: a DICOM
-        // object carries its own Body Part Thickness.
-        if self.cfg.modbus.transport != ModbusTransport::Off && gantry["source"] != "dicom" {
-            let reg = gantry["modbus"]["thickness_mm"].as_f64();
-            let end = gantry["modbus_end"]["thickness_mm"].as_f64();
-            let header = acq.header.thickness_mm;
-            let tol = self.cfg.modbus.thickness_tolerance_mm;
-            let msg = match reg {
-                Some(r) if end.is_some_and(|e| (e - r).abs() > tol) => Some(format!(
-                    "thickness changed during the sweep: Modbus register {r:.1} mm at the start, {:.1} mm at the end (tolerance {tol} mm)",
-                    end.unwrap_or(f64::NAN)
-                )),
-                None => Some(format!(
-                    "no Modbus thickness at exposure time ({}); header says {header} mm",
-                    gantry["modbus"]["error"].as_str().unwrap_or("not read")
-                )),
-                Some(r) if (r - header).abs() > self.cfg.modbus.thickness_tolerance_mm => Some(format!(
-                    "thickness disagreement: Modbus register {r:.1} mm, acquisition header {header:.1} mm (tolerance {} mm)",
-                    self.cfg.modbus.thickness_tolerance_mm
-                )),
-                Some(_) => None,
-            };
-            if let Some(msg) = msg {
-                self.reject(id, "thickness", msg);
-                return;
-            }
-            // The dose model has spectra for tungsten filtered by rhodium or
-            // aluminium: an exposure with another anode or filter would be
-            // reported with the wrong dose (issue #27; the DICOM input
-            // checks its objects' Anode Target Material and Filter Material
-            // the same way). The register names the beam; a stream header
-            // that states another is a disagreement, not reported.
-            let af = gantry["modbus"]["anode_filter"]
-                .as_str()
-                .unwrap_or("missing");
-            let Ok(beam) = AnodeFilter::parse(af) else {
-                self.reject(
-                    id,
-                    "technique",
-                    format!(
-                        "anode/filter {af} (Modbus register 6): the dose model's spectra are {} only; not reported",
-                        AnodeFilter::supported()
-                    ),
-                );
-                return;
-            };
-            if let Some(stated) = gantry["header_anode_filter"]
-                .as_str()
-                .filter(|s| *s != beam.name())
-            {
-                self.reject(
-                    id,
-                    "technique",
-                    format!(
-                        "anode/filter disagreement: Modbus register 6 {beam}, acquisition header {stated}; not reported"
-                    ),
-                );
-                return;
-            }
-            acq.header.anode_filter = beam;
-        } else if gantry["source"] != "dicom"
-            && gantry["header_anode_filter"].is_null()
-            && gantry["modbus"]["anode_filter"].as_str().is_none()
+        // What the link saw at receipt (the registers at the start and the
+        // end of the sweep, the stream header's beam, a data fault).
+        let note: GantryNote = match std::fs::read(dir.join("gantry.json"))
+            .map_err(|e| e.to_string())
+            .and_then(|b| serde_json::from_slice(&b).map_err(|e| e.to_string()))
         {
-            // Frames from a header that states no beam, and no register read
-            // at receipt (a register's beam was spooled with the entry): the
-            // site's unstated beam, or refused (a DICOM object's was settled
-            // by the input, `dicom_input::beam`).
-            match self.cfg.report.unstated_beam() {
-                Some(b) => acq.header.anode_filter = b,
-                None => {
-                    self.reject(
-                        id,
-                        "technique",
-                        "anode/filter: neither the acquisition header nor a Modbus register states the beam, and this site takes none for granted ([report] unstated_beam = \"refuse\"); not reported".into(),
-                    );
-                    return;
-                }
-            }
-        }
-        // The dose's incident kerma is the beam's own tube output (QC), not
-        // another beam's: a beam without one configured is not reported.
-        // At the exposure's kV where the QC measured it by kV.
-        let beam = acq.header.anode_filter;
-        let output = self
-            .cfg
-            .report
-            .tube_output(beam)
-            .ok_or_else(|| {
-                format!(
-                    "anode/filter {beam}: no tube output configured for this beam ([report] tube_output_w_al_mgy_per_mas); its dose cannot be computed; not reported"
-                )
-            })
-            .and_then(|t| {
-                t.at(acq.header.kvp).map_err(|e| {
-                    format!("tube output of {beam}: {e}; its dose cannot be computed; not reported")
-                })
-            });
-        match output {
-            Ok(v) => acq.header.tube_output_mgy_per_mas = v,
-            Err(msg) => {
-                self.reject(id, "technique", msg);
+            Ok(n) => n,
+            Err(e) => {
+                self.reject(
+                    id,
+                    "input",
+                    format!("the entry's gantry note (gantry.json) is unreadable: {e}"),
+                );
                 return;
             }
-        }
-        // The compression force the gantry reported at exposure time goes
-        // into the dose SR (a DICOM object carries its own).
-        if acq.header.compression_force_n.is_none() {
-            acq.header.compression_force_n = gantry["modbus"]["force_n"]
-                .as_f64()
-                .filter(|f| f.is_finite() && *f > 0.0 && *f <= 500.0);
-        }
+        };
+        let acq = match dbt_intake::settle(acq, &note, &self.cfg.site_policy()) {
+            Ok(a) => a,
+            Err(r) => {
+                self.reject(id, r.kind.name(), r.message);
+                return;
+            }
+        };
         // What was settled here (the beam, the tube output at the
         // exposure's kV, the force) goes into the spooled header, so that
         // `dbtor-diag replay` and `dbtor-process` on the entry compute what

@@ -25,6 +25,7 @@
 use crate::daemon::{entry_id, spool_entry, write_durable};
 use dbt_dicom::input::{for_presentation_classes, read_input_object, Layout, Mapping};
 use dbt_dicom::projections::ReceivedProjections;
+use dbt_intake::{GantryNote, Source};
 use dbt_pacs::scp::{
     serve_association, Unreadable, Verdict, STATUS_CANNOT_UNDERSTAND, STATUS_OUT_OF_RESOURCES,
 };
@@ -430,11 +431,12 @@ impl State {
             let acq =
                 acquisition_from_projections(&p, system).map_err(|e| refuse(e.to_string()))?;
             let id = entry_id(&acq.header.patient.id);
-            let note = serde_json::json!({
-                "source": "dicom",
-                "sop_class": class,
-                "objects": { instance: digest },
-            });
+            let note = GantryNote {
+                source: Source::Dicom,
+                sop_class: Some(class.to_string()),
+                objects: [(instance.to_string(), digest)].into(),
+                ..Default::default()
+            };
             self.spool(&id, &acq, &note, faults)?;
             tracing::info!(acquisition = %id, %instance, "spooled from DICOM");
             self.seen.insert(instance.to_string(), digest);
@@ -499,7 +501,7 @@ impl State {
         &self,
         id: &str,
         acq: &dbt_pipeline::Acquisition,
-        note: &serde_json::Value,
+        note: &GantryNote,
         faults: &mut Vec<FaultRecord>,
     ) -> Result<(), (u16, String)> {
         spool_entry(&self.settings.spool, id, acq, note).map_err(|e| {
@@ -522,11 +524,8 @@ impl State {
             return;
         };
         let dir = g.dir.clone();
-        let objects: serde_json::Map<String, serde_json::Value> = g
-            .views
-            .values()
-            .map(|(sop, d)| (sop.clone(), serde_json::json!(d)))
-            .collect();
+        let objects: BTreeMap<String, u64> =
+            g.views.values().map(|(sop, d)| (sop.clone(), *d)).collect();
         let class = g.first.sop_class.clone();
         let built = g
             .views
@@ -547,11 +546,12 @@ impl State {
         match built {
             Ok(acq) => {
                 let id = entry_id(&acq.header.patient.id);
-                let note = serde_json::json!({
-                    "source": "dicom",
-                    "sop_class": class,
-                    "objects": objects,
-                });
+                let note = GantryNote {
+                    source: Source::Dicom,
+                    sop_class: Some(class.to_string()),
+                    objects: objects.clone(),
+                    ..Default::default()
+                };
                 if self.spool(&id, &acq, &note, faults).is_err() {
                     // Kept in views/: tried again at the next start.
                     return;

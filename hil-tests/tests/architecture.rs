@@ -36,6 +36,7 @@ const PURE: &[&str] = &[
     "dbt-intervals",
     "dbt-gantry",
     "dbt-dicom",
+    "dbt-intake",
     "dbt-pipeline",
     "dbt-conv",
     "dbt-isa",

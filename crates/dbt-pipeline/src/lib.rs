@@ -4,7 +4,8 @@
 //! the reports.
 //!
 //! * [`acquisition`]: the [`Acquisition`] type and [`validate_header`], the
-//!   one header validation of every input (frame link, files, DICOM);
+//!   one header validation of every input (frame link, files, DICOM), from
+//!   the intake crate ([`dbt_intake`], where an acquisition is settled);
 //! * [`plausibility`]: the counts against the flat field and the thickness,
 //!   and the reconstructed breast against its tissues and its box;
 //! * [`density_check`]: the reported density against the physics density
@@ -14,7 +15,7 @@
 //! * [`descatter`], [`linearise`], [`noise_match`]: a polychromatic
 //!   detector's counts corrected to what the network was trained on.
 
-pub mod acquisition;
+pub use dbt_intake::acquisition;
 pub mod density_check;
 pub mod descatter;
 pub mod dicom_input;

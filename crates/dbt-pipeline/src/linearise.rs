@@ -713,7 +713,7 @@ mod tests {
 
     fn header(system: Option<dbt_geometry::ConeSystem>) -> crate::acquisition::AcquisitionHeader {
         let paper = dbt_geometry::Geometry::builtin("paper").unwrap();
-        crate::acquisition::test_header(paper, 1, system)
+        crate::acquisition::example_header(paper, 1, system)
     }
 
     /// Counts a breast cannot give pass as read; the others map.

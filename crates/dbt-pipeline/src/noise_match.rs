@@ -357,7 +357,7 @@ mod tests {
             thickness_mm: 50.0,
             slice_spacing_mm: 0.8,
             kvp: 29.0,
-            ..crate::acquisition::test_header(paper.binned(4).unwrap(), slices, None)
+            ..crate::acquisition::example_header(paper.binned(4).unwrap(), slices, None)
         }
     }
 

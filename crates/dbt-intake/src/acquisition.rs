@@ -482,11 +482,10 @@ pub fn counts_bytes(h: &AcquisitionHeader) -> Result<usize, HeaderError> {
     Ok(bytes)
 }
 
-/// A valid header for the crate's tests: `slices` rows on `geometry` (a
+/// A valid header for tests and examples: `slices` rows on `geometry` (a
 /// cone-beam `system`'s frames where given), a 45 mm breast at N8's flat
 /// field (16,000), 28 kV W/Rh, 60 mAs at 0.11 mGy/mAs.
-#[cfg(test)]
-pub(crate) fn test_header(
+pub fn example_header(
     geometry: dbt_geometry::Geometry,
     slices: usize,
     system: Option<dbt_geometry::ConeSystem>,
