@@ -4,11 +4,30 @@
 //! service engineer's replay computes what the daemon reported (the daemon
 //! writes the settled header back into the entry for the same reason).
 
-use crate::config::{Config, Reconstructor};
-use crate::daemon::DaemonError;
+use crate::config::{Config, ConfigError, Reconstructor};
 use dbt_pipeline::PipelineOptions;
 use std::path::Path;
 use std::sync::Arc;
+
+/// Why the processing could not be assembled from the configuration.
+#[derive(Debug, thiserror::Error)]
+pub enum AssemblyError {
+    /// The model folder fails its sign-off, its network does not load, or
+    /// its calibration is unusable.
+    #[error(transparent)]
+    Model(#[from] dbt_model::ModelError),
+    /// A resource the processing needs is missing or unusable.
+    #[error("{what}: {reason}")]
+    Resource {
+        /// The resource (a configuration key and its value).
+        what: String,
+        /// Why it cannot be used.
+        reason: String,
+    },
+    /// Bad configuration.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+}
 
 /// The processing options of the site configured by `cfg` (read from
 /// `config_path`, against which its relative paths resolve): the
@@ -16,7 +35,10 @@ use std::sync::Arc;
 /// matching, the counts' corrections, the slice step, the Monte Carlo's
 /// uncertainty. Everything the daemon's reports depend on beyond the
 /// acquisition itself.
-pub fn pipeline_options(cfg: &Config, config_path: &Path) -> Result<PipelineOptions, DaemonError> {
+pub fn pipeline_options(
+    cfg: &Config,
+    config_path: &Path,
+) -> Result<PipelineOptions, AssemblyError> {
     let mut opts = PipelineOptions {
         mltr_iterations: cfg.recon.mltr_iterations,
         dose_uncertainty: cfg.recon.dose_uncertainty,
@@ -43,7 +65,7 @@ pub fn pipeline_options(cfg: &Config, config_path: &Path) -> Result<PipelineOpti
 pub(crate) fn load_model(
     cfg: &Config,
     classify: &dbt_tissue::ClassifyOptions,
-) -> Result<dbt_model::SignedModel, DaemonError> {
+) -> Result<dbt_model::SignedModel, AssemblyError> {
     let dir = cfg.recon.model.clone().unwrap_or_default();
     let (precision, engine) = (cfg.recon.precision, cfg.recon.engine);
     Ok(dbt_model::load_signed(
@@ -63,13 +85,13 @@ pub(crate) fn load_model(
 pub fn noise_match(
     cfg: &Config,
     model: &dbt_dbtor::ModelManifest,
-) -> Result<Option<dbt_pipeline::noise_match::NoiseMatch>, DaemonError> {
+) -> Result<Option<dbt_pipeline::noise_match::NoiseMatch>, AssemblyError> {
     if cfg.recon.noise_match != crate::config::NoiseMatchMode::TrainingLevel {
         return Ok(None);
     }
     dbt_pipeline::noise_match::NoiseMatch::for_model(model)
         .map(Some)
-        .map_err(|e| DaemonError::Resource {
+        .map_err(|e| AssemblyError::Resource {
             what: "recon.noise_match = \"training-level\"".into(),
             reason: e.to_string(),
         })

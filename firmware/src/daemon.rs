@@ -1,34 +1,25 @@
-//! The acquisition daemon: receive from the gantry, spool, process, deliver,
-//! and keep a status file for the diagnostics CLI.
+//! The acquisition daemon's loop: receive from the gantry, spool
+//! (`crate::spool`), settle (`dbt_intake::settle`), process, deliver, and
+//! keep a status file for the diagnostics CLI.
 //!
-//! Spool (under `paths.spool`):
-//! ```text
-//! tmp/<id>/        being written (removed at start: never complete)
-//! incoming/<id>/   received and durable (acquisition.json, counts.f32, gantry.json); not yet reported
-//! done/<id>/       reported (result.json added)
-//! faulted/<id>/    not reportable (fault.json says why); kept for the service engineer
-//! ```
-//! An acquisition is written to `tmp/`, every file and the folder are
-//! fsynced, and only then renamed into `incoming/` (and that folder fsynced),
-//! so a crash or power loss leaves either nothing or a complete acquisition.
-//! At start every `incoming/` entry is processed first. Processing an entry
-//! is idempotent: the report file names come from the entry id and the DICOM
-//! UIDs from a seed fixed by the id, so an entry processed again after a crash
-//! (between delivery and the move to `done/`) rewrites the same two reports:
-//! every acquisition is reported exactly once.
+//! At start every `incoming/` entry of the spool is processed first.
+//! Processing an entry is idempotent: the report file names come from the
+//! entry id and the DICOM UIDs from a seed fixed by the id, so an entry
+//! processed again after a crash (between delivery and the move to `done/`)
+//! rewrites the same two reports: every acquisition is reported exactly
+//! once.
 
 use crate::assembly::load_model;
 use crate::config::{Config, FrameTransport, ModbusTransport, Reconstructor};
 use crate::link::{data_fault, receive, receive_from, to_acquisition, LinkError, LinkOptions};
 use crate::modbus::{read_registers, ModbusLink};
+use crate::spool::{entry_id, write_durable, Spool};
 use crate::status_page::{StateReader, StatusServer, PICTURE_FILE};
 use dbt_dicom::{Equipment, UidSource};
 use dbt_intake::{GantryNote, RegisterReading, RegisterValues, Source};
-use dbt_pipeline::acquisition::Acquisition;
 use dbt_pipeline::{process, reports, PipelineOptions};
 use dbt_status::{AcquisitionRecord, FaultRecord, Status};
-use dbt_store::acquisition::{read_acquisition, write_acquisition};
-use std::io::Write;
+use dbt_store::acquisition::read_acquisition;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -60,6 +51,9 @@ pub enum DaemonError {
     /// Bad configuration.
     #[error(transparent)]
     Config(#[from] crate::config::ConfigError),
+    /// The processing could not be assembled from the configuration.
+    #[error(transparent)]
+    Assembly(#[from] crate::assembly::AssemblyError),
 }
 
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> DaemonError + '_ {
@@ -161,83 +155,14 @@ pub fn preflight(cfg: &Config, config_path: &Path) -> Result<Vec<String>, Daemon
     Ok(done)
 }
 
-fn fsync_dir(dir: &Path) -> std::io::Result<()> {
-    std::fs::File::open(dir)?.sync_all()
-}
-
-/// Write `bytes` to `path` durably: temp file, fsync, rename, fsync folder.
-pub fn write_durable(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let tmp = path.with_extension("tmp");
-    {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-    }
-    std::fs::rename(&tmp, path)?;
-    if let Some(d) = path.parent() {
-        fsync_dir(d)?;
-    }
-    Ok(())
-}
-
-/// Write `acq` durably as spool entry `id`: into `tmp/`, every file and the
-/// folder fsynced, then renamed into `incoming/` (and that folder fsynced),
-/// so a crash leaves either nothing or a complete entry. Used by both
-/// inputs (the frame link, the DICOM input's thread).
-pub fn spool_entry(
-    spool: &Path,
-    id: &str,
-    acq: &Acquisition,
-    gantry: &GantryNote,
-) -> std::io::Result<()> {
-    let tmp = spool.join("tmp").join(id);
-    let dst = spool.join("incoming").join(id);
-    let _ = std::fs::remove_dir_all(&tmp);
-    write_acquisition(&tmp, acq).map_err(std::io::Error::other)?;
-    write_durable(
-        &tmp.join("gantry.json"),
-        &serde_json::to_vec_pretty(gantry).map_err(std::io::Error::other)?,
-    )?;
-    for f in ["acquisition.json", "counts.f32"] {
-        std::fs::File::open(tmp.join(f))?.sync_all()?;
-    }
-    fsync_dir(&tmp)?;
-    std::fs::rename(&tmp, &dst)?;
-    fsync_dir(&spool.join("incoming"))?;
-    fsync_dir(&spool.join("tmp"))
-}
-
-/// A spool entry id: the time in ms (one later than the last id's when
-/// two come in the same ms: the frame link and the DICOM input's
-/// associations make ids concurrently), then the patient id made safe for a
-/// file name (ASCII letters and digits, the rest `_`, at most 32).
-pub fn entry_id(patient_id: &str) -> String {
-    use std::sync::atomic::AtomicU64;
-    static LAST_MS: AtomicU64 = AtomicU64::new(0);
-    let now = SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map(|d| d.as_millis() as u64)
-        .unwrap_or(0);
-    let prev = LAST_MS
-        .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |last| {
-            Some(now.max(last + 1))
-        })
-        .unwrap_or(0);
-    let ms = now.max(prev + 1);
-    let safe: String = patient_id
-        .chars()
-        .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
-        .take(32)
-        .collect();
-    format!("{ms:013}-{safe}")
-}
-
 /// The daemon.
 pub struct Daemon {
     cfg: Config,
     config_path: PathBuf,
     /// The gantry's geometry and system, and the tube output.
     site: crate::link::Site,
+    /// Where every received acquisition is kept.
+    spool: Spool,
     opts: PipelineOptions,
     stop: Arc<AtomicBool>,
     status: Status,
@@ -289,16 +214,8 @@ impl Daemon {
         let site = cfg.site(&config_path)?;
         let opts = crate::assembly::pipeline_options(&cfg, &config_path)?;
         let reconstructor = dbt_pipeline::reconstructor_name(&opts);
-        for sub in ["tmp", "incoming", "done", "faulted"] {
-            let d = cfg.paths.spool.join(sub);
-            std::fs::create_dir_all(&d).map_err(io(&d))?;
-        }
-        // A tmp entry was never complete: the gantry still holds it.
-        let tmp = cfg.paths.spool.join("tmp");
-        for e in std::fs::read_dir(&tmp).map_err(io(&tmp))?.flatten() {
-            tracing::warn!(entry = %e.path().display(), "removing an incomplete spool entry");
-            let _ = std::fs::remove_dir_all(e.path());
-        }
+        let spool = Spool::open(&cfg.paths.spool)
+            .map_err(|(path, cause)| DaemonError::Io { path, cause })?;
         std::fs::create_dir_all(&cfg.paths.output).map_err(io(&cfg.paths.output))?;
         if let Some(d) = cfg.paths.status.parent() {
             std::fs::create_dir_all(d).map_err(io(d))?;
@@ -336,6 +253,7 @@ impl Daemon {
             cfg,
             config_path,
             site,
+            spool,
             opts,
             stop,
             status,
@@ -442,13 +360,7 @@ impl Daemon {
     }
 
     fn incoming(&self) -> std::io::Result<Vec<String>> {
-        let mut v: Vec<String> = std::fs::read_dir(self.cfg.paths.spool.join("incoming"))?
-            .flatten()
-            .filter(|e| e.path().is_dir())
-            .filter_map(|e| e.file_name().to_str().map(String::from))
-            .collect();
-        v.sort();
-        Ok(v)
+        self.spool.incoming()
     }
 
     /// While waiting for the gantry, send the reports that wait in the
@@ -671,7 +583,7 @@ impl Daemon {
             data_fault: data_fault(&rx),
             ..Default::default()
         };
-        match self.spool(&id, &acq, &note) {
+        match self.spool.write(&id, &acq, &note) {
             Ok(()) => {
                 tracing::info!(acquisition = %id, slices = acq.header.slices, "spooled");
                 Ok(Some(id))
@@ -713,22 +625,8 @@ impl Daemon {
         })
     }
 
-    fn spool(&self, id: &str, acq: &Acquisition, gantry: &GantryNote) -> std::io::Result<()> {
-        spool_entry(&self.cfg.paths.spool, id, acq, gantry)
-    }
-
-    fn move_entry(&mut self, id: &str, to: &str, note_name: &str, note: &serde_json::Value) {
-        let src = self.cfg.paths.spool.join("incoming").join(id);
-        let res = serde_json::to_vec_pretty(note)
-            .map_err(std::io::Error::other)
-            .and_then(|b| write_durable(&src.join(note_name), &b))
-            .and_then(|_| {
-                let dst = self.cfg.paths.spool.join(to).join(id);
-                let _ = std::fs::remove_dir_all(&dst);
-                std::fs::rename(&src, &dst)
-            })
-            .and_then(|_| fsync_dir(&self.cfg.paths.spool.join(to)));
-        if let Err(e) = res {
+    fn move_entry(&mut self, id: &str, to: &str, note_name: &str, note: &impl serde::Serialize) {
+        if let Err(e) = self.spool.move_entry(id, to, note_name, note) {
             self.fault(Some(id), "spool", format!("cannot move to {to}/: {e}"));
         }
     }
@@ -744,7 +642,7 @@ impl Daemon {
     fn process_entry(&mut self, id: &str) {
         let _span = tracing::info_span!("acquisition", id).entered();
         self.publish("processing", Some(id));
-        let dir = self.cfg.paths.spool.join("incoming").join(id);
+        let dir = self.spool.incoming_entry(id);
         let acq = match read_acquisition(&dir) {
             Ok(a) => a,
             Err(e) => {
@@ -756,10 +654,7 @@ impl Daemon {
         let spooled = acq.header.clone();
         // What the link saw at receipt (the registers at the start and the
         // end of the sweep, the stream header's beam, a data fault).
-        let note: GantryNote = match std::fs::read(dir.join("gantry.json"))
-            .map_err(|e| e.to_string())
-            .and_then(|b| serde_json::from_slice(&b).map_err(|e| e.to_string()))
-        {
+        let note = match self.spool.note(id) {
             Ok(n) => n,
             Err(e) => {
                 self.reject(

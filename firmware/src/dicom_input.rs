@@ -5,7 +5,7 @@
 //! What it takes (`dbt_dicom::input::read_input_object`):
 //! * a Breast Projection X-Ray For Processing object: the whole sweep, made
 //!   an acquisition on the configured system (`dbt_pipeline::dicom_input`)
-//!   and spooled durably (`daemon::spool_entry`) before the C-STORE is
+//!   and spooled durably (`spool::spool_entry`) before the C-STORE is
 //!   answered Success;
 //! * one object per view (Digital Mammography X-Ray For Processing, or a
 //!   configured private class): each checked against the system and the
@@ -22,7 +22,7 @@
 //! counts is refused. A restart reloads what was kept: the sweeps waiting
 //! for views (their quiet time starts again) and the objects already spooled.
 
-use crate::daemon::{entry_id, spool_entry, write_durable};
+use crate::spool::{entry_id, spool_entry, write_durable};
 use dbt_dicom::input::{for_presentation_classes, read_input_object, Layout, Mapping};
 use dbt_dicom::projections::ReceivedProjections;
 use dbt_intake::{GantryNote, Source};

@@ -227,3 +227,128 @@ fn the_edges_are_where_the_test_looks_for_them() {
         assert!(reached.contains(edge), "the firmware reaches {edge}");
     }
 }
+
+/// A crate's top-level modules (each `src/NAME.rs` and `src/NAME/`, their
+/// submodules folded in; `lib.rs`, `main.rs` and `bin/` aside) and, for
+/// each, the other top-level modules its code names as `crate::OTHER`
+/// (comments and the trailing `#[cfg(test)] mod tests` left out).
+fn module_imports(src: &std::path::Path) -> BTreeMap<String, BTreeSet<String>> {
+    fn rs_files(dir: &std::path::Path, out: &mut Vec<std::path::PathBuf>) {
+        for e in std::fs::read_dir(dir).unwrap().flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                rs_files(&p, out);
+            } else if p.extension().is_some_and(|x| x == "rs") {
+                out.push(p);
+            }
+        }
+    }
+    let mut files: BTreeMap<String, Vec<std::path::PathBuf>> = BTreeMap::new();
+    for e in std::fs::read_dir(src).unwrap().flatten() {
+        let p = e.path();
+        let name = p.file_stem().unwrap().to_string_lossy().to_string();
+        if p.is_dir() {
+            if name != "bin" {
+                rs_files(&p, files.entry(name).or_default());
+            }
+        } else if p.extension().is_some_and(|x| x == "rs") && name != "lib" && name != "main" {
+            files.entry(name).or_default().push(p);
+        }
+    }
+    let modules: BTreeSet<String> = files.keys().cloned().collect();
+    files
+        .iter()
+        .map(|(m, fs)| {
+            let mut used = BTreeSet::new();
+            for f in fs {
+                let text = std::fs::read_to_string(f).unwrap();
+                let text = text
+                    .find("#[cfg(test)]\nmod tests")
+                    .map_or(text.as_str(), |i| &text[..i]);
+                for line in text.lines() {
+                    let code = line.split("//").next().unwrap_or("");
+                    for (i, _) in code.match_indices("crate::") {
+                        let name: String = code[i + 7..]
+                            .chars()
+                            .take_while(|c| c.is_alphanumeric() || *c == '_')
+                            .collect();
+                        if name != *m && modules.contains(&name) {
+                            used.insert(name);
+                        }
+                    }
+                }
+            }
+            (m.clone(), used)
+        })
+        .collect()
+}
+
+/// A cycle of `g`, if it has one (the modules in order, the first again at
+/// the end).
+fn find_cycle(g: &BTreeMap<String, BTreeSet<String>>) -> Option<Vec<String>> {
+    fn visit(
+        g: &BTreeMap<String, BTreeSet<String>>,
+        m: &str,
+        path: &mut Vec<String>,
+        done: &mut BTreeSet<String>,
+    ) -> Option<Vec<String>> {
+        if let Some(i) = path.iter().position(|p| p == m) {
+            let mut c = path[i..].to_vec();
+            c.push(m.to_string());
+            return Some(c);
+        }
+        if done.contains(m) {
+            return None;
+        }
+        path.push(m.to_string());
+        for n in g.get(m).into_iter().flatten() {
+            if let Some(c) = visit(g, n, path, done) {
+                return Some(c);
+            }
+        }
+        path.pop();
+        done.insert(m.to_string());
+        None
+    }
+    let mut done = BTreeSet::new();
+    g.keys()
+        .find_map(|m| visit(g, m, &mut Vec::new(), &mut done))
+}
+
+/// No circle of imports among a crate's modules, in any workspace crate
+/// (issue #50): each module can be read after the ones it uses. (The
+/// crates' own graph cannot have one: cargo refuses it.)
+#[test]
+fn no_crate_has_a_circle_of_module_imports() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let manifest = std::fs::read_to_string(root.join("Cargo.toml")).unwrap();
+    let ws: toml::Value = toml::from_str(&manifest).unwrap();
+    let members = ws["workspace"]["members"].as_array().unwrap();
+    assert!(members.len() > 20, "{members:?}");
+    let mut circles = Vec::new();
+    for m in members {
+        let src = root.join(m.as_str().unwrap()).join("src");
+        if !src.is_dir() {
+            continue;
+        }
+        if let Some(c) = find_cycle(&module_imports(&src)) {
+            circles.push(format!("{}: {}", m.as_str().unwrap(), c.join(" -> ")));
+        }
+    }
+    assert!(
+        circles.is_empty(),
+        "circles of module imports:\n{}",
+        circles.join("\n")
+    );
+    // The search finds one where there is one.
+    let g: BTreeMap<String, BTreeSet<String>> = [
+        ("a", &["b"][..]),
+        ("b", &["c"][..]),
+        ("c", &["a"][..]),
+        ("d", &[][..]),
+    ]
+    .into_iter()
+    .map(|(m, n)| (m.to_string(), n.iter().map(|s| s.to_string()).collect()))
+    .collect();
+    assert_eq!(find_cycle(&g).map(|c| c.len()), Some(4));
+}

@@ -1,5 +1,7 @@
 //! fp32 blocks: packing, the workspace, the tile kernels and the block loop.
 
+mod winograd;
+
 use crate::{
     check_run, for_each_tile, BlockWeights, Conv3x3, ConvError, Kernel, GROUP, L, NP_NARROW,
 };
@@ -13,7 +15,7 @@ pub(crate) struct Packed {
     pub w: Vec<f32>,
     pub bias: Vec<f32>,
     pub slope: Option<Vec<f32>>,
-    /// The Winograd weights (`crate::winograd_fp32`), where asked for and
+    /// The Winograd weights (`winograd`), where asked for and
     /// eligible.
     pub wino: Option<Vec<f32>>,
 }
@@ -35,8 +37,8 @@ pub(crate) fn pack(l: &Conv3x3, winograd: bool) -> Packed {
         s[..l.out_ch].copy_from_slice(p);
         s
     });
-    let wino = (winograd && crate::winograd_fp32::eligible(l.in_ch))
-        .then(|| crate::winograd_fp32::transform_weights(&w, l.in_ch, ocp));
+    let wino = (winograd && winograd::eligible(l.in_ch))
+        .then(|| winograd::transform_weights(&w, l.in_ch, ocp));
     Packed {
         cin: l.in_ch,
         ocp,
@@ -101,7 +103,7 @@ impl Fp32Block {
 
     /// As [`Fp32Block::new`]; `winograd: true` convolves by Winograd's
     /// F(3x3, 3x3) on the AVX-512 and AVX2 kernels (not the direct
-    /// kernels' bits: `crate::winograd_fp32`; opt-in).
+    /// kernels' bits: `winograd`; opt-in).
     pub fn with_winograd(
         b: &BlockWeights,
         kernel: Kernel,
@@ -261,7 +263,7 @@ fn conv(
                     let orow = &mut orows[a * row_len..(a + 1) * row_len];
                     epilogue(p, 0, ocp, np, sums, &mut orow[px0 + x * ocp..]);
                 };
-                crate::winograd_fp32::row_triple(kernel, p, u, inp, k * per, rs, cs, w, &mut put);
+                winograd::row_triple(kernel, p, u, inp, k * per, rs, cs, w, &mut put);
                 return;
             }
             let mut tile = [0.0f32; NP_NARROW * GROUP];

@@ -147,7 +147,6 @@ pub(crate) fn check_run(
 
 mod fp32;
 mod int8;
-mod winograd_fp32;
 
 pub use fp32::{Fp32Block, Fp32Workspace};
 pub use int8::{

@@ -321,7 +321,7 @@ pub const WINOGRAD_ENV: &str = "DBTOR_WINOGRAD";
 
 /// The environment variable that turns the fp32 kernels' Winograd
 /// convolution on (`on` or `1`; `off`, `0` or unset: off). Unlike int8's it
-/// changes the fp32 sums' rounding (`dbt_conv`'s `winograd_fp32`), so it is
+/// changes the fp32 sums' rounding (`dbt_conv`'s `fp32::winograd`), so it is
 /// opt-in until an accuracy run chooses it.
 pub const FP32_WINOGRAD_ENV: &str = "DBTOR_FP32_WINOGRAD";
 

@@ -25,7 +25,7 @@ use dicom_dictionary_std::tags;
 use dicom_object::InMemDicomObject;
 
 /// Digital Mammography X-Ray Image Storage - For Processing.
-pub const DM_FOR_PROCESSING_CLASS: &str = "1.2.840.10008.5.1.4.1.1.1.2.1";
+pub use crate::reports::DM_FOR_PROCESSING_CLASS;
 
 /// One object per view of `p` (same series, Instance Number = view + 1),
 /// checked as `projection_object` checks the multi-frame one.

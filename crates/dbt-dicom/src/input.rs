@@ -5,9 +5,10 @@
 //! [`Mapping`] (which standard attribute is kept in which tag). Every
 //! refusal names the attribute and what is wrong with it.
 
-use crate::dm::DM_FOR_PROCESSING_CLASS;
-use crate::projections::BPXR_FOR_PROCESSING_CLASS;
 use crate::reports::{Header, Laterality};
+use crate::reports::{
+    BREAST_PROJECTION_FOR_PROCESSING_CLASS as BPXR_FOR_PROCESSING_CLASS, DM_FOR_PROCESSING_CLASS,
+};
 use dicom_core::header::HasLength as _;
 pub use dicom_core::Tag;
 use dicom_core::VR;

@@ -18,6 +18,9 @@ pub const COMPREHENSIVE_SR_CLASS: &str = "1.2.840.10008.5.1.4.1.1.88.33";
 /// per view; Breast Tomosynthesis Image Storage, 1.2.840.10008.5.1.4.1.1.13.1.3,
 /// is a reconstructed volume, which we never receive).
 pub const BREAST_PROJECTION_FOR_PROCESSING_CLASS: &str = "1.2.840.10008.5.1.4.1.1.13.1.5";
+/// Digital Mammography X-Ray Image Storage - For Processing (one view per
+/// object; `crate::dm` writes them, `crate::input` reads them).
+pub const DM_FOR_PROCESSING_CLASS: &str = "1.2.840.10008.5.1.4.1.1.1.2.1";
 /// Our private coding scheme.
 pub const PRIVATE_SCHEME: &str = "99DBTOR";
 

@@ -20,7 +20,7 @@
 //! eval/density-check.md). Otherwise the density report asserts no BI-RADS
 //! category, says why, and gives both figures.
 
-use crate::process::PipelineError;
+use crate::error::PipelineError;
 use dbt_geometry::Geometry;
 use dbt_physics_density::{ContactMap, PhysicsDensity};
 use dbt_tissue::{GlandularityCalibration, PartialVolumeMass};

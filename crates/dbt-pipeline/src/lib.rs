@@ -19,6 +19,7 @@ pub use dbt_intake::acquisition;
 pub mod density_check;
 pub mod descatter;
 pub mod dicom_input;
+pub mod error;
 pub mod linearise;
 pub mod noise_match;
 pub mod plausibility;

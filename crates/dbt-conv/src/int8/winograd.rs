@@ -252,7 +252,7 @@ fn triple_in(
 /// with `$badd`/`$bsub`, and `$at(x) = A^T x` (9 additions; [`AT`]'s rows:
 /// `y0 = x0 + (x1 + x2) + x3`, `y1 = (x1 - x2) + 2 x3`,
 /// `y2 = (x1 + x2) + 4 x3 + x4`) with `$aadd`/`$asub`. Here on i16 and i32
-/// lanes; `crate::winograd_fp32` makes the float pair.
+/// lanes; `crate::fp32::winograd` makes the float pair.
 macro_rules! factorised_transforms {
     ($bt:ident, $at:ident, $ty:ty, $badd:ident, $bsub:ident, $aadd:ident, $asub:ident) => {
         #[doc = concat!("`B^T x`, factorised (`", stringify!($badd), "`).")]

@@ -14,7 +14,7 @@
 //! kernels until an accuracy run on the validation split says otherwise.
 //! On the AVX-512 and AVX2 kernels; the portable one stays direct.
 
-use crate::fp32::{run_tile, Packed};
+use super::{run_tile, Packed};
 use crate::int8::winograd::{GP, M, N, POS};
 use crate::{group_width, Kernel, GROUP, L, NP_NARROW};
 
