@@ -21,10 +21,10 @@
 //!   the box, both relative to that tissue's true attenuation.
 
 use anyhow::{ensure, Context, Result};
-use dbt_acquisition::NoiseLevel;
 use dbt_dbtor::{Dbtor, Precision};
 use dbt_eval::accuracy::{split_phantoms, Split};
 use dbt_eval::classification::{confusion, truth_on_grid};
+use dbt_forward::NoiseLevel;
 use dbt_phantom::{labels_to_mu, PopulationKind};
 use dbt_pipeline::{reconstruct_volume, PipelineOptions};
 use dbt_tissue::{classify, density, ClassifyOptions};

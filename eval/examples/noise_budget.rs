@@ -19,9 +19,9 @@
 //! would have (`exp(l) / b`).
 
 use anyhow::{ensure, Context, Result};
-use dbt_acquisition::NoiseLevel;
 use dbt_dose::xray::AnodeFilter;
 use dbt_eval::accuracy::{split_phantoms, Split};
+use dbt_forward::NoiseLevel;
 use dbt_phantom::PopulationKind;
 use dbt_pipeline::{correct_counts, PipelineOptions};
 use host_sim::{simulate_on, Physics, Technique};

@@ -4,9 +4,9 @@
 //! statistics, for whichever reconstructor the pipeline options select (DBToR
 //! with a model, else MLTR).
 
-use dbt_acquisition::NoiseLevel;
 use dbt_dose::patient::{dbt_views, mgd_to_uncertainty, Breast, Model};
 use dbt_dose::xray::AnodeFilter;
+use dbt_forward::NoiseLevel;
 use dbt_geometry::Geometry;
 use dbt_phantom::{LabelVolume, Population, PopulationKind};
 use dbt_pipeline::{process, PipelineOptions};

@@ -11,8 +11,8 @@
 //! split.
 
 use crate::accuracy::{agreement, Agreement};
-use dbt_acquisition::NoiseLevel;
 use dbt_dose::patient::{dbt_views, mgd_to_uncertainty, Breast, Model};
+use dbt_forward::NoiseLevel;
 use dbt_geometry::Geometry;
 use dbt_phantom::{coronal_slice, LabelVolume};
 use dbt_pipeline::{correct_counts, reconstruct_volume, PipelineOptions, Volume};

@@ -27,8 +27,8 @@
 
 use crate::accuracy::{agreement, Agreement};
 use crate::classification::{confusion, mgd_per_kerma, truth_and_mu_on_grid};
-use dbt_acquisition::NoiseLevel;
 use dbt_dose::xray::AnodeFilter;
+use dbt_forward::NoiseLevel;
 use dbt_geometry::Geometry;
 use dbt_materials::Tissue;
 use dbt_phantom::LabelVolume;
@@ -253,7 +253,7 @@ pub fn data_residual(
             img[r * cols..(r + 1) * cols].copy_from_slice(&mu[src..src + cols]);
         }
         proj.forward(&img, &mut sino)?;
-        let meas = dbt_acquisition::log_transform(&acq.counts[d], h.flux);
+        let meas = dbt_forward::log_transform(&acq.counts[d], h.flux);
         for (p, m) in sino.iter().zip(&meas) {
             num += (*p as f64 - *m as f64).powi(2);
             den += (*m as f64).powi(2);

@@ -15,7 +15,7 @@ pub mod picture;
 pub mod unet;
 pub mod victre;
 
-use dbt_acquisition::NoiseLevel;
+use dbt_forward::NoiseLevel;
 use dbt_geometry::Geometry;
 use dbt_metrics::{mean_sd, score, ImageScores, Shape};
 use dbt_phantom::PopulationKind;
@@ -306,7 +306,7 @@ pub fn evaluate_baselines_observed(
             .into_par_iter()
             .map(|k| {
                 let (m, _) = mltr(&proj, &s.counts[k], s.flux[k], &s.mask, &mltr_opts)?;
-                let line = dbt_acquisition::log_transform(&s.counts[k], s.flux[k]);
+                let line = dbt_forward::log_transform(&s.counts[k], s.flux[k]);
                 let f = fbp.reconstruct(&line, Some(&s.mask))?;
                 let mut out = vec![
                     score(shape, &truth, &to_per_cm(&m))?,

@@ -3,7 +3,7 @@
 //! packages of `eval/peers/requirements.txt` (`.ci/run` installs them); a
 //! missing peer fails the test with the install command.
 
-use dbt_acquisition::NoiseLevel;
+use dbt_forward::NoiseLevel;
 use dbt_geometry::Geometry;
 use dbt_metrics::{data_range, mse, psnr, score, ssim, RegionSsim, Shape};
 use dbt_projector::Projector;
@@ -114,7 +114,7 @@ fn metrics_match_scikit_image() {
     };
     let (rec, _) = mltr(&proj, &s.counts[0], s.flux[0], &s.mask, &opts).unwrap();
     compare(dir.path(), "MLTR", &truth, &per_cm(&rec), shape);
-    let line = dbt_acquisition::log_transform(&s.counts[0], s.flux[0]);
+    let line = dbt_forward::log_transform(&s.counts[0], s.flux[0]);
     let f = Fbp::new(&g).reconstruct(&line, Some(&s.mask)).unwrap();
     compare(dir.path(), "FBP", &truth, &per_cm(&f), shape);
     // An odd-sized random pair.

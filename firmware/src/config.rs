@@ -1048,7 +1048,7 @@ impl Config {
     pub fn linearise(&self) -> Option<dbt_pipeline::linearise::BeamHardening> {
         (self.recon.beam_hardening == BeamHardeningMode::Csi).then(|| {
             dbt_pipeline::linearise::BeamHardening {
-                detector: dbt_acquisition::clinical::Detector {
+                detector: dbt_forward::clinical::Detector {
                     csi_um: self.recon.csi_um,
                     ..Default::default()
                 },

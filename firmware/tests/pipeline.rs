@@ -1,8 +1,8 @@
 //! The processing chain on a small simulated acquisition: counts in, two
 //! DICOM reports out, with values that agree with what was computed.
 
-use dbt_acquisition::NoiseLevel;
 use dbt_dicom::{read_values, Equipment, UidSource};
+use dbt_forward::NoiseLevel;
 use dbt_geometry::Geometry;
 use dbt_phantom::{generate, PhantomSpec};
 use dbt_pipeline::{process, process_with_progress, reports, PipelineOptions, Stage};

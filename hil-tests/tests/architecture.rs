@@ -26,7 +26,7 @@ const PURE: &[&str] = &[
     "dbt-cone",
     "dbt-materials",
     "dbt-phantom",
-    "dbt-acquisition",
+    "dbt-forward",
     "dbt-recon",
     "dbt-metrics",
     "dbt-dose",

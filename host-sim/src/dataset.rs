@@ -13,7 +13,7 @@ use crate::{
     mix_seed, simulate_acquisition_with, simulate_slices, tissue_slices, Physics, SimError,
     SimSlice, Technique,
 };
-use dbt_acquisition::{log_transform, NoiseLevel};
+use dbt_forward::{log_transform, NoiseLevel};
 use dbt_geometry::Geometry;
 use dbt_phantom::{AnySpec, Population, PopulationKind};
 use dbt_projector::Projector;

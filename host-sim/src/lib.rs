@@ -10,7 +10,7 @@ use dbt_pipeline::acquisition::{
     Acquisition as AcqFile, AcquisitionHeader, Patient, Study, ACQ_FORMAT,
 };
 
-use dbt_acquisition::{simulate_from_line_integrals, NoiseLevel};
+use dbt_forward::{simulate_from_line_integrals, NoiseLevel};
 use dbt_geometry::Geometry;
 use dbt_phantom::{coronal_slice, LabelVolume, PhantomError};
 use dbt_projector::{Projector, ProjectorError};
@@ -130,14 +130,14 @@ pub enum Physics {
     /// A polychromatic beam (the spectrum of the acquisition's kV,
     /// `dbt_dose::xray::technique_spectrum`: the one the dose uses), an energy-integrating CsI
     /// detector, quantum and electronic noise
-    /// (`dbt_acquisition::clinical`): the noise level's photons reach each
+    /// (`dbt_forward::clinical`): the noise level's photons reach each
     /// element without the breast (an N8-equivalent dose at N8), and its
     /// flat field reads that many ADU; with `scatter`, each view's scatter
     /// from the shipped kernel model (`dbt_scatter`, fitted to our Monte
     /// Carlo engine) added before the noise.
     Clinical {
         /// The detector.
-        detector: dbt_acquisition::clinical::Detector,
+        detector: dbt_forward::clinical::Detector,
         /// Whether the scatter reaches the detector (no grid).
         scatter: bool,
     },
@@ -176,19 +176,19 @@ impl Physics {
     /// of a breast `thickness_mm` thick at `noise` (the spectrum:
     /// `dbt_dose::xray::technique_spectrum`, as the dose's).
     fn clinical(
-        detector: &dbt_acquisition::clinical::Detector,
+        detector: &dbt_forward::clinical::Detector,
         technique: Technique,
         kvp: f64,
         thickness_mm: f64,
         noise: NoiseLevel,
-    ) -> Result<dbt_acquisition::clinical::ClinicalPhysics, SimError> {
+    ) -> Result<dbt_forward::clinical::ClinicalPhysics, SimError> {
         let tube = dbt_dose::xray::technique_spectrum(technique.anode_filter, kvp, thickness_mm)
             .map_err(|e| SimError::Options(e.to_string()))?;
         let spectrum = tube
             .spectrum
             .ok_or_else(|| SimError::Options("no spectrum".into()))?;
         let n = noise.flux();
-        dbt_acquisition::clinical::ClinicalPhysics::new(&spectrum, n, detector, n)
+        dbt_forward::clinical::ClinicalPhysics::new(&spectrum, n, detector, n)
             .map_err(|e| SimError::Options(e.to_string()))
     }
 }
@@ -198,17 +198,17 @@ impl Physics {
 /// form the stack `layout` of a breast `thickness_mm` thick exposed with
 /// the beam `af` (its shipped scatter table).
 fn clinical_signals(
-    model: &dbt_acquisition::clinical::ClinicalPhysics,
+    model: &dbt_forward::clinical::ClinicalPhysics,
     paths: &[Vec<f32>; 3],
     scatter: Option<(
-        &dbt_acquisition::clinical::StackLayout,
+        &dbt_forward::clinical::StackLayout,
         f64,
         dbt_dose::xray::AnodeFilter,
     )>,
     noise: NoiseLevel,
     seed: u64,
 ) -> Result<Vec<f32>, SimError> {
-    let err = |e: dbt_acquisition::AcquisitionError| SimError::Options(e.to_string());
+    let err = |e: dbt_forward::AcquisitionError| SimError::Options(e.to_string());
     let noisy = noise != NoiseLevel::NoiseFree;
     match scatter {
         None => model.simulate(paths, noisy, seed).map_err(err),
@@ -311,7 +311,7 @@ pub fn simulate_acquisition_with(
         })
         .collect::<Result<_, SimError>>()?;
     let counts: Vec<Vec<f32>> = if scatter {
-        let layout = dbt_acquisition::clinical::StackLayout::fan(geom, paths.len(), vol.voxel_mm());
+        let layout = dbt_forward::clinical::StackLayout::fan(geom, paths.len(), vol.voxel_mm());
         let all: [Vec<f32>; 3] =
             std::array::from_fn(|m| paths.iter().flat_map(|p| p[m].iter().copied()).collect());
         let signals = clinical_signals(
@@ -547,7 +547,7 @@ pub fn simulate_cone_acquisition_with(
                 projected[1].clone(),
                 projected[2].clone(),
             ];
-            let layout = dbt_acquisition::clinical::StackLayout::cone(system);
+            let layout = dbt_forward::clinical::StackLayout::cone(system);
             let c = clinical_signals(
                 &model,
                 &paths,

@@ -5,8 +5,8 @@
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
-use dbt_acquisition::NoiseLevel;
 use dbt_cli::{GeometryArgs, Progress};
+use dbt_forward::NoiseLevel;
 use dbt_phantom::{Population, PopulationKind};
 use host_sim::dataset::{export_observed, ExportOptions, ExportStage};
 use std::path::PathBuf;

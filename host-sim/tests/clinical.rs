@@ -9,8 +9,8 @@
 //! fat: its contrast reads low). MLTR here; the shipped model's figures are
 //! eval/README.md's.
 
-use dbt_acquisition::NoiseLevel;
 use dbt_dose::xray::AnodeFilter;
+use dbt_forward::NoiseLevel;
 use dbt_geometry::Geometry;
 use dbt_phantom::{Population, PopulationKind};
 use dbt_pipeline::{process, PipelineOptions};

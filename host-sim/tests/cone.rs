@@ -4,7 +4,7 @@
 //! element is found in the frames, corrected and flagged; a dead detector
 //! is refused naming it.
 
-use dbt_acquisition::NoiseLevel;
+use dbt_forward::NoiseLevel;
 use dbt_geometry::{ConeSystem, Geometry};
 use dbt_phantom::{Population, PopulationKind};
 use dbt_pipeline::{process, PipelineError, PipelineOptions};

@@ -131,7 +131,7 @@ impl PointSource {
 /// signal is `E (1 - exp(-mu(E) t / cos a))` for an absorber layer of
 /// thickness `t` met at incidence `a` (the energy of the photons the layer
 /// stops, which an energy-integrating detector records; K-fluorescence
-/// escape neglected as in `dbt_acquisition::clinical`), or `E` without
+/// escape neglected as in `dbt_forward::clinical`), or `E` without
 /// one (the energy fluence: an ideal detector).
 #[derive(Debug, Clone)]
 pub struct DetectorScore {

@@ -9,7 +9,7 @@
 //! field's primary: GANTRY_INTERFACE.md) form the detector image
 //! `m = T + s(T)` (rows: coronal slices, or a cone-beam
 //! detector's rows; columns: detector elements). On blocks of about 4 mm
-//! ([`dbt_acquisition::clinical::SCATTER_BLOCK_MM`]: scatter varies over
+//! ([`dbt_forward::clinical::SCATTER_BLOCK_MM`]: scatter varies over
 //! centimetres) the primary `T` is solved for by
 //! [`dbt_scatter::ScatterTable::remove`]; the blocks' scatter, interpolated
 //! back to every element, is subtracted from each count (at least
@@ -20,8 +20,8 @@
 //! counts check to name them.
 
 use crate::acquisition::AcquisitionHeader;
-use dbt_acquisition::clinical::StackLayout;
 use dbt_dose::xray::AnodeFilter;
+use dbt_forward::clinical::StackLayout;
 use dbt_scatter::{block_mean, upsample, ScatterTable};
 use thiserror::Error;
 

@@ -7,7 +7,7 @@
 //! For the acquisition's technique (the spectrum of the kV received for
 //! its thickness: [`dbt_dose::xray::technique_spectrum`], the one the
 //! simulator and the dose use) and the site's detector
-//! ([`dbt_acquisition::clinical::Detector`]), the polychromatic log signal
+//! ([`dbt_forward::clinical::Detector`]), the polychromatic log signal
 //! `P(L) = -ln(S(L) / S(0))` of `L` mm of a reference tissue is computed
 //! from the material tables on a grid of `L`, and each measured count
 //! `c` is replaced by `b exp(-mu_ref L(P))`, `P = ln(b / c)`: the count of a
@@ -44,8 +44,8 @@
 //! computed on a grid of `sec a` ([`SEC_STEP`]) and interpolated between.
 
 use crate::acquisition::AcquisitionHeader;
-use dbt_acquisition::clinical::{ClinicalPhysics, Detector};
 use dbt_dose::xray::AnodeFilter;
+use dbt_forward::clinical::{ClinicalPhysics, Detector};
 use dbt_materials::Tissue;
 use rayon::prelude::*;
 use thiserror::Error;

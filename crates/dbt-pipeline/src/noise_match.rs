@@ -78,7 +78,7 @@ const W_MAX: [f64; 2] = [0.5, 1.0 / 3.0];
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NoiseMatch {
     /// Photons per detector element without the breast of the training
-    /// level (N8: 16,000, `dbt_acquisition::NoiseLevel::flux`).
+    /// level (N8: 16,000, `dbt_forward::NoiseLevel::flux`).
     pub target_photons: f64,
 }
 
@@ -131,8 +131,8 @@ impl NoiseMatch {
                 model.name
             ))
             })?;
-        match dbt_acquisition::NoiseLevel::parse(level) {
-            Ok(n @ dbt_acquisition::NoiseLevel::Poisson(_)) => Self::to_photons(n.flux()),
+        match dbt_forward::NoiseLevel::parse(level) {
+            Ok(n @ dbt_forward::NoiseLevel::Poisson(_)) => Self::to_photons(n.flux()),
             _ => Err(NoiseMatchError::Input(format!(
                 "model {}: training noise level {level:?} is not a photon level such as N8",
                 model.name

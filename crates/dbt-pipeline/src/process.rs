@@ -11,13 +11,13 @@ use crate::acquisition::{validate_header, Acquisition};
 use crate::plausibility::{
     check_counts_with, check_volume, footprint_mm, CountsCheck, VolumeCheck,
 };
-use dbt_acquisition::log_transform;
 use dbt_dicom::{
     density_report, dose_report, DensityInput, DoseEvent, DoseInput, Equipment, FigureInterval,
     Header, Laterality, ProcedureIntent, Report, UidSource,
 };
 use dbt_dose::patient::{dbt_views, mgd_to_uncertainty, Breast, MgdResult, Model};
 use dbt_dose::xray::AnodeFilter;
+use dbt_forward::log_transform;
 use dbt_projector::Projector;
 use dbt_recon::{mltr, MltrOptions};
 use dbt_tissue::{

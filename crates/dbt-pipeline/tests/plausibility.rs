@@ -71,7 +71,7 @@ fn acquisition(slices: usize, thickness: f64, width: f64, height: f64, seed: u64
         }
     }
     let counts = (0..slices)
-        .map(|i| dbt_acquisition::poisson_counts(&expected, seed + i as u64))
+        .map(|i| dbt_forward::poisson_counts(&expected, seed + i as u64))
         .collect();
     Acquisition { header: h, counts }
 }
@@ -99,7 +99,7 @@ fn a_clean_acquisition_passes_without_corrections() {
             (FLUX * (-mu * chord_in_rect(s, p, -w, w, z0, z0 + 50.0)).exp()) as f32
         })
         .collect();
-    let c = dbt_acquisition::poisson_counts(&c, 9);
+    let c = dbt_forward::poisson_counts(&c, 9);
     assert!(check_counts(&h, &[c.clone(), c]).unwrap().is_empty());
 }
 
@@ -820,7 +820,7 @@ fn cone_beam_frames_are_checked_as_read() {
                         .collect::<Vec<_>>()
                 })
                 .collect();
-            dbt_acquisition::poisson_counts(&expected, 77 + r as u64)
+            dbt_forward::poisson_counts(&expected, 77 + r as u64)
         })
         .collect();
     let mut h = header(rows, t);
@@ -918,7 +918,7 @@ fn the_physics_density_reads_fat_as_fat_and_dense_as_dense() {
             })
             .collect();
         a.counts = (0..40)
-            .map(|i| dbt_acquisition::poisson_counts(&expected, seed + i))
+            .map(|i| dbt_forward::poisson_counts(&expected, seed + i))
             .collect();
         a
     };

@@ -116,7 +116,7 @@ pub fn mltr(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use dbt_acquisition::{simulate, NoiseLevel};
+    use dbt_forward::{simulate, NoiseLevel};
     use dbt_geometry::Geometry;
 
     fn small_case() -> (Geometry, Vec<f32>, Vec<f32>) {

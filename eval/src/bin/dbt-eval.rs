@@ -2,11 +2,11 @@
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
-use dbt_acquisition::NoiseLevel;
 use dbt_cli::Progress;
 use dbt_dbtor::{Dbtor, Precision};
 use dbt_eval::picture::{auto_window, compose, Panel};
 use dbt_eval::{region_table, table, test_set, BaselineOptions, Learned};
+use dbt_forward::NoiseLevel;
 use dbt_geometry::Geometry;
 use dbt_phantom::PopulationKind;
 use dbt_projector::Projector;
@@ -404,10 +404,10 @@ impl PhysicsArgs {
             },
             noise_match: match &self.noise_match {
                 Some(level) => {
-                    let n = dbt_acquisition::NoiseLevel::parse(level)
+                    let n = dbt_forward::NoiseLevel::parse(level)
                         .with_context(|| format!("--noise-match {level}"))?;
                     anyhow::ensure!(
-                        n != dbt_acquisition::NoiseLevel::NoiseFree,
+                        n != dbt_forward::NoiseLevel::NoiseFree,
                         "--noise-match {level}: a network's training level has noise"
                     );
                     Some(dbt_pipeline::noise_match::NoiseMatch::to_photons(n.flux())?)
@@ -2341,7 +2341,7 @@ fn run_picture(args: PictureArgs) -> Result<()> {
         &s.mask,
         &MltrOptions::default(),
     )?;
-    let line = dbt_acquisition::log_transform(&s.counts[0], s.flux[0]);
+    let line = dbt_forward::log_transform(&s.counts[0], s.flux[0]);
     let f = Fbp::new(&g).reconstruct(&line, Some(&s.mask))?;
     let (rows, cols) = (g.image.rows, g.image.columns);
     let mu_window = (0.0, 0.0854 * 1.05);
@@ -2387,7 +2387,7 @@ fn run_picture(args: PictureArgs) -> Result<()> {
     );
     if let Some(m) = &model {
         let x = m.reconstruct(
-            &dbt_acquisition::log_transform(&s.counts[0], s.flux[0]),
+            &dbt_forward::log_transform(&s.counts[0], s.flux[0]),
             s.thickness_mm,
         )?;
         let diff: Vec<f32> = x.iter().zip(&s.mu).map(|(a, b)| a - b).collect();
