@@ -1034,13 +1034,17 @@ impl Config {
             })
     }
 
-    /// What the frame link receives for: the gantry's geometry and system
-    /// and the site's tube output.
-    pub fn site(&self, path: &Path) -> Result<crate::link::Site, ConfigError> {
-        Ok(crate::link::Site {
+    /// The site's gantry, as every input checks against it: its geometry
+    /// and cone-beam system, the nominal tube output and the unstated beam
+    /// (the flat field of For Processing objects is the DICOM input's:
+    /// [`Self::dicom_input`]).
+    pub fn gantry(&self, path: &Path) -> Result<dbt_intake::Gantry, ConfigError> {
+        Ok(dbt_intake::Gantry {
             geometry: self.gantry_geometry(path)?,
-            system: self.gantry_system(path)?,
+            cone: self.gantry_system(path)?,
+            flux: None,
             tube_output_mgy_per_mas: self.report.tube_output_mgy_per_mas.nominal(),
+            unstated_beam: self.report.unstated_beam(),
         })
     }
 
@@ -1674,7 +1678,7 @@ mod tests {
         let c = example(|t| t).unwrap();
         let s = c.gantry_system(p).unwrap().unwrap();
         assert_eq!((s.name.as_str(), s.detector.columns), ("paper-cone", 320));
-        assert_eq!(c.site(p).unwrap().system, Some(s));
+        assert_eq!(c.gantry(p).unwrap().cone, Some(s));
         let c = example(|t| without(&t, "system")).unwrap();
         assert_eq!(c.gantry_system(p).unwrap(), None);
         // The stationary system's fan has another source radius and views.

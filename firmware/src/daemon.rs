@@ -159,8 +159,8 @@ pub fn preflight(cfg: &Config, config_path: &Path) -> Result<Vec<String>, Daemon
 pub struct Daemon {
     cfg: Config,
     config_path: PathBuf,
-    /// The gantry's geometry and system, and the tube output.
-    site: crate::link::Site,
+    /// The site's gantry (geometry, cone-beam system, tube output).
+    gantry: dbt_intake::Gantry,
     /// Where every received acquisition is kept.
     spool: Spool,
     opts: PipelineOptions,
@@ -211,7 +211,7 @@ impl Daemon {
         config_path: PathBuf,
         stop: Arc<AtomicBool>,
     ) -> Result<Self, DaemonError> {
-        let site = cfg.site(&config_path)?;
+        let gantry = cfg.gantry(&config_path)?;
         let opts = crate::assembly::pipeline_options(&cfg, &config_path)?;
         let reconstructor = dbt_pipeline::reconstructor_name(&opts);
         let spool = Spool::open(&cfg.paths.spool)
@@ -252,7 +252,7 @@ impl Daemon {
         let mut d = Self {
             cfg,
             config_path,
-            site,
+            gantry,
             spool,
             opts,
             stop,
@@ -269,12 +269,9 @@ impl Daemon {
             let settings = crate::dicom_input::InputSettings {
                 ae_title: di.ae_title.clone(),
                 spool: d.cfg.paths.spool.clone(),
-                system: dbt_pipeline::dicom_input::System {
-                    geometry: d.site.geometry.clone(),
-                    cone: d.site.system.clone(),
-                    flux: di.flat_field_counts,
-                    tube_output_mgy_per_mas: d.cfg.report.tube_output_mgy_per_mas.nominal(),
-                    unstated_beam: d.cfg.report.unstated_beam(),
+                system: dbt_intake::Gantry {
+                    flux: Some(di.flat_field_counts),
+                    ..d.gantry.clone()
                 },
                 quiet_time: di.quiet_time,
                 max_associations: di.max_associations,
@@ -481,7 +478,7 @@ impl Daemon {
             stop: Some(Arc::clone(&self.stop)),
             // Before the first byte, the DICOM input's work goes first.
             yield_to: self.dicom.as_ref().map(|_| Arc::clone(&self.wake)),
-            ..LinkOptions::new(self.cfg.idle_timeout()).for_site(&self.site)
+            ..LinkOptions::new(self.cfg.idle_timeout()).for_site(&self.gantry)
         };
         if self.cfg.frames.transport == FrameTransport::Off {
             // DICOM input only: wait for it (or SIGTERM), sending what waits
@@ -568,7 +565,7 @@ impl Daemon {
                 return Err(ReceiveFault::link(format!("acquisition not received: {e} (nothing spooled; the gantry keeps it for a resend)")));
             }
         };
-        let acq = to_acquisition(&rx, &self.site)
+        let acq = to_acquisition(&rx, &self.gantry)
             .map_err(|e| ReceiveFault::link(format!("acquisition rejected: {e}")))?;
         let id = entry_id(&acq.header.patient.id);
         // The beam is settled from the note at processing

@@ -31,7 +31,6 @@ use dbt_pacs::scp::{
 };
 use dbt_pipeline::dicom_input::{
     acquisition_from_projections, assemble, check_object, check_same_sweep, group_key, view_index,
-    System,
 };
 use dbt_status::{DicomInputStatus, FaultRecord, WaitingSweep};
 use std::collections::{BTreeMap, HashMap};
@@ -49,7 +48,7 @@ pub struct InputSettings {
     /// The spool folder.
     pub spool: PathBuf,
     /// The configured system.
-    pub system: System,
+    pub system: dbt_intake::Gantry,
     /// How long a sweep waits for a view.
     pub quiet_time: Duration,
     /// Associations served at once.

@@ -9,7 +9,6 @@ use dbt_gantry::assemble::{Assembler, Budget, Received, Reply};
 use dbt_gantry::frame::{
     encode, system_name, AcquisitionHeader as GantryHeader, Decoder, Frame, FrameError,
 };
-use dbt_geometry::{ConeSystem, Geometry};
 use dbt_pipeline::acquisition::{Acquisition, AcquisitionHeader, Patient, Study, ACQ_FORMAT};
 use std::io::{Read, Write};
 use std::net::TcpStream;
@@ -89,49 +88,31 @@ pub enum LinkError {
     },
 }
 
-/// What a receiver is configured for: the reconstruction geometry, the
-/// cone-beam system the gantry streams from (`None`: the slice-wise
-/// fan-beam stream), and the site's tube output.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Site {
-    /// The (fan-beam) reconstruction geometry, the model's.
-    pub geometry: Geometry,
-    /// The gantry's cone-beam system (binned as the geometry), if any.
-    pub system: Option<ConeSystem>,
-    /// Incident air kerma per mAs at the reference point, mGy/mAs.
-    pub tube_output_mgy_per_mas: f64,
-}
+/// What a receiver is configured for: the site's gantry (its
+/// reconstruction geometry, the cone-beam system the gantry streams from,
+/// the site's tube output), the one description the DICOM input checks
+/// against too.
+pub use dbt_intake::Gantry;
 
-impl Site {
-    /// The slice-wise fan-beam stream on `geometry`.
-    pub fn fan(geometry: &Geometry, tube_output_mgy_per_mas: f64) -> Self {
-        Self {
-            geometry: geometry.clone(),
-            system: None,
-            tube_output_mgy_per_mas,
+/// Refuse a stream header from another system than the site's gantry,
+/// naming both, or of an exposure the dose model has no spectra for (an
+/// anode/filter other than W/Rh and W/Al), naming it.
+pub fn check_header(gantry: &Gantry, h: &GantryHeader) -> Result<(), LinkError> {
+    if let Some(a) = h.anode_filter.as_deref() {
+        if AnodeFilter::parse(a).is_err() {
+            return Err(LinkError::Technique {
+                stated: a.to_string(),
+            });
         }
     }
-
-    /// Refuse a header from another system than this site's, naming both,
-    /// or of an exposure the dose model has no spectra for (an anode/filter
-    /// other than W/Rh and W/Al), naming it.
-    pub fn check_header(&self, h: &GantryHeader) -> Result<(), LinkError> {
-        if let Some(a) = h.anode_filter.as_deref() {
-            if AnodeFilter::parse(a).is_err() {
-                return Err(LinkError::Technique {
-                    stated: a.to_string(),
-                });
-            }
-        }
-        let want = self.system.as_ref().map(|s| s.name.as_str());
-        if h.system.as_deref() == want {
-            return Ok(());
-        }
-        Err(LinkError::System {
-            stream: system_name(h.system.as_deref()),
-            configured: system_name(want),
-        })
+    let want = gantry.cone.as_ref().map(|s| s.name.as_str());
+    if h.system.as_deref() == want {
+        return Ok(());
     }
+    Err(LinkError::System {
+        stream: system_name(h.system.as_deref()),
+        configured: system_name(want),
+    })
 }
 
 pub use dbt_gantry::stats::LinkStats;
@@ -159,8 +140,8 @@ pub struct LinkOptions {
     pub yield_to: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
     /// The configured geometry, system and tube output: the header is
     /// checked against the system and validated as soon as it arrives
-    /// ([`Site::check_header`], [`dbt_pipeline::validate_header`]).
-    pub site: Option<Site>,
+    /// ([`Gantry::check_header`], [`dbt_pipeline::validate_header`]).
+    pub site: Option<Gantry>,
 }
 
 impl LinkOptions {
@@ -180,7 +161,7 @@ impl LinkOptions {
 
     /// With the memory budget of `site`, and the header checked against it
     /// on arrival.
-    pub fn for_site(mut self, site: &Site) -> Self {
+    pub fn for_site(mut self, site: &Gantry) -> Self {
         self.budget = Some(budget_for(site));
         self.site = Some(site.clone());
         self
@@ -190,9 +171,9 @@ impl LinkOptions {
 /// The receiver's budget for `site`: the fan-beam stream's views and
 /// detector elements and at most `DEPTH_MAX_MM / pixel` detector rows
 /// (coronal slices); a cone-beam system's views, columns and rows.
-pub fn budget_for(site: &Site) -> Budget {
+pub fn budget_for(site: &Gantry) -> Budget {
     let to16 = |n: usize| n.min(u16::MAX as usize) as u16;
-    match &site.system {
+    match &site.cone {
         Some(s) => Budget {
             projections: to16(s.n_views()),
             columns: to16(s.detector.columns),
@@ -372,7 +353,7 @@ pub fn receive_from<S: Read + Write>(
                     let had_header = asm.has_header();
                     let (reply, done) = asm.accept(seq, frame)?;
                     if let (false, Some(h), Some(site)) = (had_header, asm.header(), &opts.site) {
-                        site.check_header(h)?;
+                        check_header(site, h)?;
                         // The domain's validation, before any projection is
                         // kept. The flat field comes with the projections
                         // (`to_acquisition` checks it is positive and uniform,
@@ -449,12 +430,12 @@ pub fn data_fault(r: &Received) -> Option<String> {
 /// The site's tube output is its calibration (configuration). A cone-beam
 /// system's frames stay detector rows (`[row][view * column]`), the header
 /// carrying the system: the processing rebins them.
-pub fn to_acquisition(r: &Received, site: &Site) -> Result<Acquisition, LinkError> {
+pub fn to_acquisition(r: &Received, site: &Gantry) -> Result<Acquisition, LinkError> {
     let h = &r.header;
     let geom = &site.geometry;
     let bad = |m: String| LinkError::Geometry(m);
-    site.check_header(h)?;
-    let (views, columns, what) = match &site.system {
+    check_header(site, h)?;
+    let (views, columns, what) = match &site.cone {
         Some(s) => (
             s.n_views(),
             s.detector.columns,
@@ -462,7 +443,7 @@ pub fn to_acquisition(r: &Received, site: &Site) -> Result<Acquisition, LinkErro
         ),
         None => (geom.n_views(), geom.n_det(), "geometry".to_string()),
     };
-    let angle = |v: usize| match &site.system {
+    let angle = |v: usize| match &site.cone {
         Some(s) => s.angle_deg(v),
         None => geom.angle_deg(v),
     };
@@ -478,7 +459,7 @@ pub fn to_acquisition(r: &Received, site: &Site) -> Result<Acquisition, LinkErro
             h.columns
         )));
     }
-    if let Some(s) = &site.system {
+    if let Some(s) = &site.cone {
         if h.rows as usize != s.detector.rows {
             return Err(bad(format!(
                 "{} rows, the {what}'s detector has {}",
@@ -539,7 +520,7 @@ pub fn to_acquisition(r: &Received, site: &Site) -> Result<Acquisition, LinkErro
 /// The domain's acquisition header from the gantry's header frame: detector
 /// rows are coronal slices one pixel apart (the slice-wise stream), or the
 /// rows of the site's cone-beam system.
-pub fn domain_header(h: &GantryHeader, site: &Site, flux: f64) -> AcquisitionHeader {
+pub fn domain_header(h: &GantryHeader, site: &Gantry, flux: f64) -> AcquisitionHeader {
     let geom = &site.geometry;
     AcquisitionHeader {
         format: ACQ_FORMAT.into(),
@@ -562,7 +543,7 @@ pub fn domain_header(h: &GantryHeader, site: &Site, flux: f64) -> AcquisitionHea
         laterality: h.laterality.clone(),
         compression_force_n: None,
         exposure_ms_per_view: None,
-        system: site.system.clone(),
+        system: site.cone.clone(),
         patient: Patient {
             name: h.patient_name.clone(),
             id: h.patient_id.clone(),
@@ -593,6 +574,7 @@ pub fn domain_header(h: &GantryHeader, site: &Site, flux: f64) -> AcquisitionHea
 mod tests {
     use super::*;
     use dbt_gantry::frame::AcquisitionHeader as H;
+    use dbt_geometry::{ConeSystem, Geometry};
 
     /// A byte stream that delivers `input` then times out, and whose writes
     /// time out (a peer that stopped reading) or succeed.
@@ -654,7 +636,7 @@ mod tests {
         let g = Geometry::builtin("paper").unwrap().binned(4).unwrap();
         let mut o = LinkOptions::new(Duration::from_millis(300));
         if site {
-            o = o.for_site(&Site::fan(&g, 0.11));
+            o = o.for_site(&Gantry::fan(&g, 0.11));
         }
         receive_from(&mut p, &o).unwrap_err()
     }
@@ -740,9 +722,9 @@ mod tests {
     #[test]
     fn a_stream_from_another_system_is_refused_naming_both() {
         let g = Geometry::builtin("paper-tall").unwrap().binned(4).unwrap();
-        let fan = Site::fan(&g, 0.11);
-        let cone = Site {
-            system: Some(
+        let fan = Gantry::fan(&g, 0.11);
+        let cone = Gantry {
+            cone: Some(
                 ConeSystem::builtin("paper-cone")
                     .unwrap()
                     .binned(4)
@@ -750,7 +732,7 @@ mod tests {
             ),
             ..fan.clone()
         };
-        let go = |h: H, site: &Site| {
+        let go = |h: H, site: &Gantry| {
             run_with(
                 encode(&Frame::Header(h), 0),
                 &LinkOptions::new(Duration::from_millis(300)).for_site(site),
@@ -806,7 +788,7 @@ mod tests {
         }
         // The stated beam reaches the acquisition's header.
         h.anode_filter = Some("W/Al".into());
-        let site = Site::fan(&dbt_geometry::Geometry::paper(), 0.11);
+        let site = Gantry::fan(&dbt_geometry::Geometry::paper(), 0.11);
         assert_eq!(domain_header(&h, &site, 1e4).anode_filter, AnodeFilter::WAl);
         h.anode_filter = None;
         assert_eq!(domain_header(&h, &site, 1e4).anode_filter, AnodeFilter::WRh);

@@ -7,16 +7,19 @@
 //!
 //! * [`acquisition`]: the acquisition type, its header and the limits of a
 //!   plausible header;
+//! * [`gantry`]: the configured gantry every input checks against;
 //! * [`technique`]: a beam's tube output as the site's QC measured it;
 //! * [`settle`]: the note, the policy and the rules.
 
 pub mod acquisition;
+pub mod gantry;
 pub mod settle;
 pub mod technique;
 
 pub use acquisition::{
     validate_header, Acquisition, AcquisitionHeader, HeaderError, Patient, Study, ACQ_FORMAT,
 };
+pub use gantry::Gantry;
 pub use settle::{
     settle, GantryNote, Refusal, RefusalKind, RegisterReading, RegisterValues, SitePolicy, Source,
 };

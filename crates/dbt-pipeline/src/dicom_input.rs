@@ -13,71 +13,9 @@ use crate::acquisition::{
 use dbt_dicom::input::Layout;
 use dbt_dicom::projections::{ProjectionSet, ReceivedProjections};
 use dbt_dose::xray::AnodeFilter;
-use dbt_geometry::{ConeSystem, Geometry};
 
-/// The configured system the objects must come from.
-#[derive(Debug, Clone)]
-pub struct System {
-    /// The gantry's geometry, as configured (`frames.geometry`, `binning`):
-    /// the reconstruction's.
-    pub geometry: Geometry,
-    /// The gantry's cone-beam system (`frames.system`): the objects' frames
-    /// are its detector's (rows from the chest wall), rebinned by the
-    /// processing. `None`: each frame row is one coronal slice of
-    /// `geometry`'s fan beam.
-    pub cone: Option<ConeSystem>,
-    /// Photons per detector element without the breast (the flat field the
-    /// For Processing counts are relative to), from the system's calibration.
-    pub flux: f64,
-    /// Incident air kerma at the reference point per mAs, mGy/mAs.
-    pub tube_output_mgy_per_mas: f64,
-    /// The beam of an object that does not state its filter (Filter
-    /// Material is optional in the DM IOD and the X-Ray Filter Macro in the
-    /// BPXR one): the site's one beam (the firmware's `[report]
-    /// unstated_beam`), or `None`, a site with several beams: such an
-    /// object is refused, naming the attribute, never dosed with a beam
-    /// taken for granted.
-    pub unstated_beam: Option<AnodeFilter>,
-}
-
-impl System {
-    /// Views of the sweep.
-    pub fn n_views(&self) -> usize {
-        match &self.cone {
-            Some(c) => c.n_views(),
-            None => self.geometry.n_views(),
-        }
-    }
-
-    /// Angle of view `v`, degrees.
-    pub fn angle_deg(&self, v: usize) -> f64 {
-        match &self.cone {
-            Some(c) => c.angle_deg(v),
-            None => self.geometry.angle_deg(v),
-        }
-    }
-
-    /// Detector columns and their pitch, mm.
-    fn columns(&self) -> (usize, f64) {
-        match &self.cone {
-            Some(c) => (c.detector.columns, c.detector.pitch_mm),
-            None => (self.geometry.n_det(), self.geometry.detector.pitch_mm),
-        }
-    }
-
-    /// Source to detector (at 0 degrees for a cone-beam system: a
-    /// stationary detector's distance along the central ray changes with
-    /// the view) and source to rotation axis, mm.
-    fn distances(&self) -> (f64, f64) {
-        match &self.cone {
-            Some(c) => (c.arc_radius_mm + c.axis_height_mm, c.arc_radius_mm),
-            None => (
-                self.geometry.source_to_detector_mm,
-                self.geometry.source_to_center_mm,
-            ),
-        }
-    }
-}
+/// The configured gantry the objects must come from.
+pub use dbt_intake::Gantry;
 
 /// Angles and distances of an object may differ from the configuration's by
 /// this much (rounding in DS/FD encodings; a real mismatch is degrees and
@@ -97,7 +35,7 @@ const THICKNESS_TOL_MM: f64 = 0.5;
 /// for); another anode or filter is refused naming the attribute and its
 /// value, never reported with another beam's dose. Where the object does
 /// not state its filter (optional in the DM IOD), the site's `unstated`
-/// beam ([`System::unstated_beam`]; `None` refuses it, naming Filter
+/// beam ([`Gantry::unstated_beam`]; `None` refuses it, naming Filter
 /// Material); a filter without an anode is taken on a tungsten anode.
 pub fn beam(
     p: &ReceivedProjections,
@@ -163,7 +101,7 @@ fn refuse(field: &'static str, value: impl ToString, reason: impl Into<String>) 
 /// The checks of one object against the configured system that do not
 /// depend on how many views it holds: detector columns and pitch, source
 /// distances, anode and filter.
-pub fn check_object(p: &ReceivedProjections, system: &System) -> Result<(), HeaderError> {
+pub fn check_object(p: &ReceivedProjections, system: &Gantry) -> Result<(), HeaderError> {
     let (det, pitch) = system.columns();
     if p.columns != det {
         return Err(refuse(
@@ -234,7 +172,7 @@ pub fn check_object(p: &ReceivedProjections, system: &System) -> Result<(), Head
 /// distances, detector columns and pitch) or with the header's limits.
 pub fn acquisition_from_projections(
     p: &ReceivedProjections,
-    system: &System,
+    system: &Gantry,
 ) -> Result<Acquisition, HeaderError> {
     let g = &system.geometry;
     let (views, (det, _)) = (system.n_views(), system.columns());
@@ -277,7 +215,13 @@ pub fn acquisition_from_projections(
         format: ACQ_FORMAT.into(),
         geometry: g.clone(),
         thickness_mm: p.thickness_mm,
-        flux: system.flux,
+        flux: system.flux.ok_or_else(|| {
+            refuse(
+                "flux",
+                "none",
+                "the configured gantry states no flat field for For Processing objects ([dicom_input] flat_field_counts)",
+            )
+        })?,
         slices: rows,
         // A cone-beam system's rows are rebinned to slices one pixel apart.
         slice_spacing_mm: match &system.cone {
@@ -327,7 +271,7 @@ pub fn group_key(p: &ReceivedProjections) -> String {
 
 /// The configured view a one-view object is, by its angle; refused naming
 /// the angle when no configured view is within the tolerance.
-pub fn view_index(p: &ReceivedProjections, system: &System) -> Result<usize, HeaderError> {
+pub fn view_index(p: &ReceivedProjections, system: &Gantry) -> Result<usize, HeaderError> {
     let [a] = p.angles_deg[..] else {
         return Err(refuse(
             "NumberOfFrames",
@@ -358,7 +302,7 @@ pub fn view_index(p: &ReceivedProjections, system: &System) -> Result<usize, Hea
 /// or twice.
 pub fn assemble(
     views: &[ReceivedProjections],
-    system: &System,
+    system: &Gantry,
 ) -> Result<ReceivedProjections, HeaderError> {
     let n = system.n_views();
     let mut slots: Vec<Option<&ReceivedProjections>> = vec![None; n];

@@ -495,16 +495,16 @@ fn written_and_read(
 /// an object from another gantry is refused naming the attribute.
 #[test]
 fn a_projection_object_reads_back_as_the_same_acquisition() {
-    use dbt_pipeline::dicom_input::{acquisition_from_projections, System};
+    use dbt_pipeline::dicom_input::{acquisition_from_projections, Gantry};
     let acq = acquisition(6, 45.0, 120.0, 45.0, 5);
     let h = &acq.header;
     let g = &h.geometry;
     let angles: Vec<f64> = (0..g.n_views()).map(|v| g.angle_deg(v)).collect();
     let (received, objects) = written_and_read(&acq, &angles);
-    let system = System {
+    let system = Gantry {
         geometry: g.clone(),
         cone: None,
-        flux: h.flux,
+        flux: Some(h.flux),
         tube_output_mgy_per_mas: h.tube_output_mgy_per_mas,
         unstated_beam: Some(dbt_dose::xray::AnodeFilter::WRh),
     };
@@ -526,7 +526,7 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
     want.mas_total = back.header.mas_total;
     assert_eq!(back.header, want);
 
-    let other = System {
+    let other = Gantry {
         geometry: g.clone().binned(2).unwrap(),
         ..system.clone()
     };
@@ -642,13 +642,13 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
         (r.anode, r.filter) = (anode.map(String::from), None);
         let plain = acquisition_from_projections(&r, &system).unwrap();
         assert_eq!(plain.header.anode_filter, AnodeFilter::WRh);
-        let w_al_site = System {
+        let w_al_site = Gantry {
             unstated_beam: Some(AnodeFilter::WAl),
             ..system.clone()
         };
         let got = acquisition_from_projections(&r, &w_al_site).unwrap();
         assert_eq!(got.header.anode_filter, AnodeFilter::WAl);
-        let strict = System {
+        let strict = Gantry {
             unstated_beam: None,
             ..system.clone()
         };
@@ -673,7 +673,7 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
 /// naming the attribute.
 #[test]
 fn a_cone_beam_projection_object_reads_back_on_its_system() {
-    use dbt_pipeline::dicom_input::{acquisition_from_projections, assemble, System};
+    use dbt_pipeline::dicom_input::{acquisition_from_projections, assemble, Gantry};
     let sys = dbt_geometry::ConeSystem::builtin("paper-cone")
         .unwrap()
         .binned(8)
@@ -704,10 +704,10 @@ fn a_cone_beam_projection_object_reads_back_on_its_system() {
     // The detector's frames, its square elements.
     assert_eq!((received.rows, received.columns), (rows, cols));
     assert_eq!(received.pixel_spacing_mm, [sys.detector.pitch_mm; 2]);
-    let system = System {
+    let system = Gantry {
         geometry: g.clone(),
         cone: Some(sys.clone()),
-        flux: h.flux,
+        flux: Some(h.flux),
         tube_output_mgy_per_mas: h.tube_output_mgy_per_mas,
         unstated_beam: Some(dbt_dose::xray::AnodeFilter::WRh),
     };
@@ -732,7 +732,7 @@ fn a_cone_beam_projection_object_reads_back_on_its_system() {
         .unwrap()
         .binned(8)
         .unwrap();
-    let other = System {
+    let other = Gantry {
         cone: Some(victre),
         ..system.clone()
     };
@@ -742,7 +742,7 @@ fn a_cone_beam_projection_object_reads_back_on_its_system() {
     assert!(e.contains("XRaySourceIsocenterPrimaryAngle"), "{e}");
     let mut fewer_rows = sys.clone();
     fewer_rows.detector.rows -= 1;
-    let other = System {
+    let other = Gantry {
         cone: Some(fewer_rows),
         ..system
     };

@@ -14,7 +14,7 @@
 use anyhow::{bail, Context, Result};
 use clap::Parser;
 use dbtor_firmware::cli::error_chain;
-use dbtor_firmware::link::{receive, receive_from, to_acquisition, LinkOptions, Site};
+use dbtor_firmware::link::{receive, receive_from, to_acquisition, Gantry, LinkOptions};
 use std::net::TcpStream;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -80,10 +80,9 @@ fn run(cli: Cli) -> Result<bool> {
             )
         })?;
     }
-    let site = Site {
-        geometry: geom,
-        system,
-        tube_output_mgy_per_mas: cli.tube_output,
+    let site = Gantry {
+        cone: system,
+        ..Gantry::fan(&geom, cli.tube_output)
     };
     let timeout = Duration::from_secs(cli.timeout_s);
     let link = LinkOptions::new(timeout).for_site(&site);
