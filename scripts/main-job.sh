@@ -2,7 +2,10 @@
 # The main job: a simulated acquisition through the firmware's processing to
 # validated DICOM output.
 #  1. dbtor-diag selftest: the shipped geometry and projector at the paper's
-#     full geometry (adjointness, analytic slab line integrals, norm bound).
+#     full geometry (adjointness, analytic slab line integrals, norm bound),
+#     and the reconstruction's kernels measured on the shipped model's blocks
+#     (each checked against the portable kernel and timed; the chosen one
+#     marked).
 #  2. host-sim acquire: test-set phantom 0 (never trained on), acquired at
 #     N = 8 (Poisson) on the gantry that firmware/config/dbtor.toml names: the
 #     cone-beam system frames.system (the whole breast volume through the
@@ -41,7 +44,6 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=out/main-job
 cargo build --release --locked -q -p dbtor-firmware -p host-sim
-./target/release/dbtor-diag selftest --binning 1
 rm -rf "$OUT"
 mkdir -p "$OUT"
 # The shipped configuration is the one place that names the model and the
@@ -52,6 +54,7 @@ c = tomllib.load(open(sys.argv[1], "rb"))
 r, f = c["recon"], c["frames"]
 print("models/" + pathlib.PurePosixPath(r["model"]).name, r["precision"], r["model_digest"],
       f["geometry"], f.get("binning", 1), f.get("system", "-"))' firmware/config/dbtor.toml)
+./target/release/dbtor-diag selftest --binning 1 --model "$MODEL" --precision "${DBTOR_PRECISION:-$PRECISION}"
 SYSTEM_ARGS=()
 [ "$SYSTEM" = "-" ] || SYSTEM_ARGS=(--system "$SYSTEM")
 PHYSICS=${PHYSICS:-mono}

@@ -226,6 +226,16 @@ impl Daemon {
             now_unix(),
             reconstructor,
         );
+        // How the kernels were chosen (issue #52): measured at the model's
+        // load, or forced.
+        status.kernels = match &opts.dbtor {
+            Some(m) if !m.kernel_measurements().is_empty() => m.kernel_measurements().to_vec(),
+            Some(m) => vec![match m.kernel() {
+                Some(k) => format!("{k} (forced by {}, not measured)", dbt_dbtor::KERNEL_ENV),
+                None => "the tract engine (no fast kernels to choose)".into(),
+            }],
+            None => vec![],
+        };
         // The status page: a bind failure is a fault, not a reason to stop
         // reporting.
         let mut page_fault = None;

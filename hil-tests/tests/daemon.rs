@@ -748,6 +748,14 @@ fn clinical_physics_is_reported_after_both_corrections() {
             assert!(s["faults"].as_array().unwrap().is_empty(), "{s}");
             let g = s["recent"][0]["glandularity_reported"].as_f64().unwrap();
             assert!((g - truth).abs() < 0.03, "reported {g}, truth {truth}");
+            // The kernels were chosen by measurement on the model's own
+            // blocks, and the status says which and how fast (issue #52).
+            assert!(
+                s["kernels"].as_array().is_some_and(|k| k
+                    .iter()
+                    .any(|l| l.as_str().is_some_and(|l| l.contains("(chosen)")))),
+                "{s}"
+            );
             // The daemon states its peak memory (issue #30).
             let rss = s["peak_rss_mib"].as_f64().unwrap();
             assert!(rss > 10.0, "{s}");

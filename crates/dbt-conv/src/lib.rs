@@ -147,6 +147,7 @@ pub(crate) fn check_run(
 
 mod fp32;
 mod int8;
+pub mod select;
 
 pub use fp32::{Fp32Block, Fp32Workspace};
 pub use int8::{
@@ -290,10 +291,10 @@ pub enum Kernel {
     /// AVX-512F fused multiply-add (fp32) or AVX-512 VNNI `vpdpbusd` (int8).
     Avx512,
     /// int8 only: AMX-INT8 tile products (`tdpbusd`), on CPUs with AMX and
-    /// AVX-512 VNNI (Intel Sapphire Rapids and later). Reached only when
-    /// asked for (`DBTOR_KERNEL=amx`: not yet run on AMX hardware; see
-    /// `int8/amx.rs`), never by [`Kernel::best_int8`]; fp32 runs AVX-512 at
-    /// this level.
+    /// AVX-512 VNNI (Intel Sapphire Rapids and later). Never ranked first by
+    /// [`Kernel::best_int8`]: chosen where [`select`] measures it fastest
+    /// and correct, or forced (`DBTOR_KERNEL=amx`; not yet run on AMX
+    /// hardware, see `int8/amx.rs`); fp32 runs AVX-512 at this level.
     Amx,
 }
 

@@ -289,14 +289,18 @@ pub struct Dbtor {
     crop_margin: Option<usize>,
     /// The physical constraints applied to the network's output.
     constraints: Constraints,
+    /// What the kernels' measurement found, one line per precision measured
+    /// (empty where a kernel was forced or on the tract engine).
+    kernel_measurements: Vec<String>,
 }
 
-/// The environment variable that forces the fast engine down to a slower
-/// kernel (`portable`, `avx2`, `avx-vnni`, `avx512`), its convolutions and its fused
-/// projector (`portable` is the projector's scalar kernel): to test and
-/// benchmark every path on a CPU that has a faster one. Unset: the fastest
-/// the CPU runs, short of AMX: `amx` is the only way to the AMX int8 kernel
-/// (not yet run on AMX hardware; `crates/dbt-conv/src/int8/amx.rs`).
+/// The environment variable that forces the fast engine to the fastest
+/// kernel up to a level (`portable`, `avx2`, `avx-vnni`, `avx512`, `amx`),
+/// its convolutions and its fused projector (`portable` is the projector's
+/// scalar kernel): to test and benchmark every path on a CPU that has a
+/// faster one. Unset: the kernels are chosen by measurement on the model's
+/// own blocks ([`KernelChoice::Measure`]), AMX among them where the CPU
+/// has it.
 pub const KERNEL_ENV: &str = "DBTOR_KERNEL";
 
 /// The fastest kernel the fast engine may use: [`KERNEL_ENV`] if set (an
@@ -311,6 +315,162 @@ pub fn kernel_limit() -> Result<Kernel, DbtorError> {
             ))
         }),
     }
+}
+
+/// How the fast engine picks its kernels: by measurement on the model's own
+/// blocks (the default, issue #52), or the fastest the CPU runs up to a
+/// level ([`KERNEL_ENV`], the benchmarks' forced rows).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum KernelChoice {
+    /// Every configuration the CPU runs checked against the portable kernel
+    /// and timed on the model's first block of each precision; the fastest
+    /// that agrees runs (`dbt_conv::select`).
+    Measure,
+    /// The fastest the CPU runs up to this level, by instruction-set rank.
+    UpTo(Kernel),
+}
+
+impl KernelChoice {
+    /// The level the fused projector may use.
+    pub fn projector_limit(self) -> dbt_projector::Kernel {
+        match self {
+            KernelChoice::Measure => dbt_projector::Kernel::Avx512,
+            KernelChoice::UpTo(k) => projector_limit(k),
+        }
+    }
+}
+
+/// [`KernelChoice::UpTo`] the level [`KERNEL_ENV`] names where it is set (an
+/// unknown name is an error naming it and the choices), else
+/// [`KernelChoice::Measure`].
+pub fn kernel_choice() -> Result<KernelChoice, DbtorError> {
+    match std::env::var(KERNEL_ENV) {
+        Err(_) => Ok(KernelChoice::Measure),
+        Ok(_) => kernel_limit().map(KernelChoice::UpTo),
+    }
+}
+
+/// The measured choices of this process, by precision and block shape (the
+/// CPU does not change while it runs; a model loaded again is not measured
+/// again): the configuration and the measurement's one-line description.
+type Measured<C> = std::sync::Mutex<std::collections::HashMap<String, (C, String)>>;
+static MEASURED_INT8: std::sync::OnceLock<Measured<dbt_conv::select::Int8Config>> =
+    std::sync::OnceLock::new();
+static MEASURED_FP32: std::sync::OnceLock<Measured<dbt_conv::select::Fp32Config>> =
+    std::sync::OnceLock::new();
+
+/// Rows of the grid a block is measured on (the model's width, so that the
+/// kernels' row tiling is the real one; few rows, so that the portable
+/// reference costs a fraction of a second).
+const MEASURE_ROWS: usize = 16;
+
+fn measured_int8(
+    w: &dbt_conv::Int8BlockWeights,
+    grid: (usize, usize),
+    winograd: bool,
+) -> Result<(dbt_conv::select::Int8Config, String), DbtorError> {
+    use dbt_conv::select::{measure_int8, Int8Config};
+    let (h, wd) = (grid.0.min(MEASURE_ROWS), grid.1);
+    let key = format!(
+        "{}+{} ch, {h}x{wd}, winograd {winograd}",
+        w.state_ch, w.aux_ch
+    );
+    let cache = MEASURED_INT8.get_or_init(Default::default);
+    if let Some(hit) = cache.lock().ok().and_then(|m| m.get(&key).cloned()) {
+        return Ok(hit);
+    }
+    let cands: Vec<Int8Config> = Int8Config::candidates()
+        .into_iter()
+        .filter(|c| winograd || !c.winograd)
+        .collect();
+    let sel = measure_int8(w, h, wd, &cands)
+        .map_err(|e| DbtorError::Input(format!("measuring the int8 kernels: {e}")))?;
+    let got = (sel.chosen, format!("int8 on {h}x{wd}: {}", sel.describe()));
+    tracing::info!(chosen = %sel.chosen.label(), timings = %got.1, "int8 kernel chosen by measurement");
+    if let Ok(mut m) = cache.lock() {
+        m.insert(key, got.clone());
+    }
+    Ok(got)
+}
+
+fn measured_fp32(
+    w: &dbt_conv::BlockWeights,
+    grid: (usize, usize),
+    winograd: bool,
+) -> Result<(dbt_conv::select::Fp32Config, String), DbtorError> {
+    use dbt_conv::select::{measure_fp32, Fp32Config};
+    let (h, wd) = (grid.0.min(MEASURE_ROWS), grid.1);
+    let key = format!(
+        "{}+{} ch, {h}x{wd}, winograd {winograd}",
+        w.state_ch, w.aux_ch
+    );
+    let cache = MEASURED_FP32.get_or_init(Default::default);
+    if let Some(hit) = cache.lock().ok().and_then(|m| m.get(&key).cloned()) {
+        return Ok(hit);
+    }
+    let sel = measure_fp32(w, h, wd, &Fp32Config::candidates(winograd))
+        .map_err(|e| DbtorError::Input(format!("measuring the fp32 kernels: {e}")))?;
+    let got = (sel.chosen, format!("fp32 on {h}x{wd}: {}", sel.describe()));
+    tracing::info!(chosen = %sel.chosen.label(), timings = %got.1, "fp32 kernel chosen by measurement");
+    if let Ok(mut m) = cache.lock() {
+        m.insert(key, got.clone());
+    }
+    Ok(got)
+}
+
+static MEASURED_PROJECTOR: std::sync::OnceLock<Measured<dbt_projector::Kernel>> =
+    std::sync::OnceLock::new();
+
+/// The fused projector's kernel chosen as the blocks' are: each kernel the
+/// CPU runs applied forward and adjoint to the same pseudo-random image and
+/// sinogram of `g`, checked against the scalar kernel (within 1e-5 of the
+/// largest value: the kernels sum in other orders) and timed; the fastest
+/// that agrees. Cached per geometry.
+fn measured_projector(g: &Geometry) -> Result<(Projector, String), DbtorError> {
+    use dbt_projector::Kernel as P;
+    let key = g.describe();
+    let base = Projector::new(g);
+    let cache = MEASURED_PROJECTOR.get_or_init(Default::default);
+    if let Some((k, what)) = cache.lock().ok().and_then(|m| m.get(&key).cloned()) {
+        return Ok((base.up_to(k), what));
+    }
+    let rand = |n: usize, mut st: u64| -> Vec<f32> {
+        (0..n)
+            .map(|_| {
+                st ^= st << 13;
+                st ^= st >> 7;
+                st ^= st << 17;
+                (st >> 40) as f32 / (1u64 << 24) as f32
+            })
+            .collect()
+    };
+    let (x, y) = (
+        rand(base.domain_len(), 0x9E37_79B9_7F4A_7C15),
+        rand(base.range_len(), 0xD1B5_4A32_D192_ED03),
+    );
+    let run = |k: &P| -> Result<Vec<f32>, dbt_conv::ConvError> {
+        let p = base.clone().up_to(*k);
+        let mut out = vec![0.0f32; p.range_len() + p.domain_len()];
+        let (sino, img) = out.split_at_mut(p.range_len());
+        p.forward(&x, sino)
+            .and_then(|_| p.adjoint(&y, img))
+            .map_err(|e| dbt_conv::ConvError::Shape(e.to_string()))?;
+        Ok(out)
+    };
+    let reference = run(&P::Scalar).map_err(|e| DbtorError::Input(e.to_string()))?;
+    let cands: Vec<(P, String)> = [P::Scalar, P::Avx2, P::Avx512]
+        .into_iter()
+        .filter(|k| dbt_projector::best_kernel_up_to(*k) == *k)
+        .map(|k| (k, format!("{k:?}").to_lowercase()))
+        .collect();
+    let sel = dbt_conv::select::select(&cands, &reference, 1e-5, dbt_conv::select::REPS, run)
+        .map_err(|e| DbtorError::Input(format!("measuring the projector's kernels: {e}")))?;
+    let what = format!("projector forward + adjoint: {}", sel.describe());
+    tracing::info!(chosen = ?sel.chosen, timings = %what, "projector kernel chosen by measurement");
+    if let Ok(mut m) = cache.lock() {
+        m.insert(key, (sel.chosen, what.clone()));
+    }
+    Ok((base.up_to(sel.chosen), what))
 }
 
 /// The environment variable that turns the AVX2 and AVX-VNNI int8 kernels' Winograd
@@ -439,7 +599,7 @@ impl Dbtor {
             fp32_blocks,
             engine,
             &g,
-            kernel_limit()?,
+            kernel_choice()?,
         )
     }
 
@@ -453,13 +613,18 @@ impl Dbtor {
         engine: Engine,
         geometry: &Geometry,
     ) -> Result<Self, DbtorError> {
-        Self::load_for_geometry_up_to(
+        let manifest = ModelManifest::load(dir)?;
+        manifest.verify_files(dir)?;
+        let mut m = manifest;
+        m.geometry = geometry.clone();
+        Self::load_on(
             dir,
+            m,
             precision,
             fp32_blocks,
             engine,
             geometry,
-            kernel_limit()?,
+            kernel_choice()?,
         )
     }
 
@@ -478,7 +643,15 @@ impl Dbtor {
         let mut m = manifest;
         m.geometry = geometry.clone();
         let g = geometry.clone();
-        Self::load_on(dir, m, precision, fp32_blocks, engine, &g, limit)
+        Self::load_on(
+            dir,
+            m,
+            precision,
+            fp32_blocks,
+            engine,
+            &g,
+            KernelChoice::UpTo(limit),
+        )
     }
 
     fn load_on(
@@ -488,7 +661,7 @@ impl Dbtor {
         fp32_blocks: &[String],
         engine: Engine,
         g: &Geometry,
-        limit: Kernel,
+        choice: KernelChoice,
     ) -> Result<Self, DbtorError> {
         let c = manifest.state_channels;
         let names: Vec<String> = manifest.blocks.iter().map(block_name).collect();
@@ -517,6 +690,7 @@ impl Dbtor {
             };
             (b, p, dir.join(rel))
         });
+        let mut kernel_measurements = Vec::new();
         let blocks = match engine {
             Engine::Tract => {
                 let mut plans = Vec::with_capacity(manifest.blocks.len());
@@ -542,31 +716,53 @@ impl Dbtor {
                 Blocks::Tract(plans)
             }
             Engine::Fast => {
+                use dbt_conv::select::{Fp32Config, Int8Config};
                 let winograd = winograd_allowed()?;
                 let fp32_winograd = fp32_winograd_wanted()?;
+                let mut int8_cfg: Option<Int8Config> = None;
+                let mut fp32_cfg: Option<Fp32Config> = None;
                 let mut v = Vec::new();
                 for (b, p, path) in files {
                     let blk = match p {
                         Precision::Fp32 => {
                             let w = fast::fp32_block(&path, c, b.aux_channels)?;
+                            let cfg = match (fp32_cfg, choice) {
+                                (Some(cfg), _) => cfg,
+                                (None, KernelChoice::UpTo(limit)) => Fp32Config {
+                                    kernel: Kernel::best_fp32_up_to(limit),
+                                    winograd: fp32_winograd,
+                                },
+                                (None, KernelChoice::Measure) => {
+                                    let (cfg, what) =
+                                        measured_fp32(&w, grid(g, b.role), fp32_winograd)?;
+                                    kernel_measurements.push(what);
+                                    cfg
+                                }
+                            };
+                            fp32_cfg = Some(cfg);
                             FastBlock::Fp32(
-                                Fp32Block::with_winograd(
-                                    &w,
-                                    Kernel::best_fp32_up_to(limit),
-                                    fp32_winograd,
-                                )
-                                .map_err(fast_path_err(&path))?,
+                                Fp32Block::with_winograd(&w, cfg.kernel, cfg.winograd)
+                                    .map_err(fast_path_err(&path))?,
                             )
                         }
                         Precision::Int8 => {
                             let w = fast::int8_block(&path, c, b.aux_channels)?;
-                            FastBlock::Int8(
-                                Int8Block::with_winograd(
-                                    &w,
-                                    Kernel::best_int8_up_to(limit),
+                            let cfg = match (int8_cfg, choice) {
+                                (Some(cfg), _) => cfg,
+                                (None, KernelChoice::UpTo(limit)) => Int8Config {
+                                    kernel: Kernel::best_int8_up_to(limit),
                                     winograd,
-                                )
-                                .map_err(fast_path_err(&path))?,
+                                },
+                                (None, KernelChoice::Measure) => {
+                                    let (cfg, what) = measured_int8(&w, grid(g, b.role), winograd)?;
+                                    kernel_measurements.push(what);
+                                    cfg
+                                }
+                            };
+                            int8_cfg = Some(cfg);
+                            FastBlock::Int8(
+                                Int8Block::with_winograd(&w, cfg.kernel, cfg.winograd)
+                                    .map_err(fast_path_err(&path))?,
                             )
                         }
                     };
@@ -574,6 +770,16 @@ impl Dbtor {
                 }
                 Blocks::Fast(v)
             }
+        };
+        // The fused projector: measured with the blocks (fast engine), else
+        // the fastest up to the forced level.
+        let projector = match (engine, choice) {
+            (Engine::Fast, KernelChoice::Measure) => {
+                let (p, what) = measured_projector(g)?;
+                kernel_measurements.push(what);
+                p
+            }
+            _ => Projector::new(g).up_to(choice.projector_limit()),
         };
         // The support is the thickness prior: DBToR's, not LPD's. No
         // attenuation is negative, whatever the network.
@@ -584,7 +790,8 @@ impl Dbtor {
         let s = Self {
             // The fused projector follows the forced kernel too, so that a
             // forced path is the whole slice of a CPU that has no faster one.
-            projector: Projector::new(g).up_to(projector_limit(limit)),
+            projector,
+            kernel_measurements,
             manifest,
             root: dir.to_path_buf(),
             precision,
@@ -661,6 +868,13 @@ impl Dbtor {
     /// The executor.
     pub fn engine(&self) -> Engine {
         self.engine
+    }
+
+    /// What the kernels' measurement found at load, one line per precision
+    /// (each configuration's median time, the chosen one marked); empty
+    /// where `DBTOR_KERNEL` forced the kernels or on the tract engine.
+    pub fn kernel_measurements(&self) -> &[String] {
+        &self.kernel_measurements
     }
 
     /// The fused projector's kernel (either engine; `DBTOR_KERNEL` limits it).

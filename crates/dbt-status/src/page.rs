@@ -140,13 +140,22 @@ pub fn render(s: &Snapshot, now_unix: u64) -> String {
     // State.
     let _ = write!(
         h,
-        r#"<h2>Daemon</h2><table id="daemon"><tr><th>state</th><td id="state">{}{}</td></tr><tr><th>reconstructor</th><td id="reconstructor">{}</td></tr><tr><th>version, pid</th><td>{} (pid {})</td></tr><tr><th>started</th><td>{} UTC</td></tr><tr><th>last update</th><td>{} UTC</td></tr><tr><th>reported since start</th><td id="processed">{}</td></tr><tr><th>recovered from the spool at start</th><td>{}</td></tr><tr><th>waiting in the spool</th><td>{}</td></tr><tr><th>faults since start</th><td id="fault-total">{}</td></tr></table>"#,
+        r#"<h2>Daemon</h2><table id="daemon"><tr><th>state</th><td id="state">{}{}</td></tr><tr><th>reconstructor</th><td id="reconstructor">{}</td></tr><tr><th>kernels</th><td id="kernels">{}</td></tr><tr><th>version, pid</th><td>{} (pid {})</td></tr><tr><th>started</th><td>{} UTC</td></tr><tr><th>last update</th><td>{} UTC</td></tr><tr><th>reported since start</th><td id="processed">{}</td></tr><tr><th>recovered from the spool at start</th><td>{}</td></tr><tr><th>waiting in the spool</th><td>{}</td></tr><tr><th>faults since start</th><td id="fault-total">{}</td></tr></table>"#,
         escape(&st.state),
         st.current
             .as_deref()
             .map(|c| format!(" ({})", escape(c)))
             .unwrap_or_default(),
         escape(&st.reconstructor),
+        if st.kernels.is_empty() {
+            "-".to_string()
+        } else {
+            st.kernels
+                .iter()
+                .map(|k| escape(k))
+                .collect::<Vec<_>>()
+                .join("<br>")
+        },
         escape(&st.version),
         st.pid,
         utc(st.started_unix),

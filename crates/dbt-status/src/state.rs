@@ -134,6 +134,11 @@ pub struct Status {
     /// operating system says; issue #30).
     #[serde(default)]
     pub peak_rss_mib: Option<f64>,
+    /// How the reconstruction's kernels were chosen at start: one line per
+    /// precision measured (each configuration's median time on the model's
+    /// own block, the chosen one marked; issue #52), or why none was.
+    #[serde(default)]
+    pub kernels: Vec<String>,
 }
 
 /// The DICOM input's state (issue #31): where it listens, its associations
@@ -207,6 +212,7 @@ impl Status {
             warning_counts: BTreeMap::new(),
             status_page: None,
             dicom_input: None,
+            kernels: vec![],
         }
     }
 

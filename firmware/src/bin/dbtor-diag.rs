@@ -66,6 +66,15 @@ enum Cmd {
 struct SelftestArgs {
     #[command(flatten)]
     geometry: GeometryArgs,
+    /// Also measure the fast engine's kernels on this model folder's own
+    /// blocks (each configuration the CPU runs checked against the portable
+    /// kernel and timed; the fastest that agrees is the one the daemon
+    /// runs) and print what was measured and chosen.
+    #[arg(long)]
+    model: Option<PathBuf>,
+    /// The precision measured with `--model`.
+    #[arg(long, default_value = "int8")]
+    precision: Precision,
     #[arg(long)]
     json: bool,
 }
@@ -243,12 +252,35 @@ fn conv_kernels() -> Result<String> {
 
 /// `dbtor-diag selftest`: `Ok(false)` when a check failed.
 fn run_selftest(args: SelftestArgs) -> Result<bool> {
-    let SelftestArgs { geometry, json } = args;
+    let SelftestArgs {
+        geometry,
+        model,
+        precision,
+        json,
+    } = args;
     let g = load_geometry(&geometry)?;
     let checks = selftest::projector(&g);
     let ok = checks.iter().all(|c| c.passed());
     let cpu = dbt_cli::cpu_summary();
-    let kernels = conv_kernels()?;
+    let kernels = match &model {
+        // The model's own blocks measured, as the daemon's load measures them.
+        Some(dir) => {
+            let m = dbt_dbtor::Dbtor::load_with(dir, precision, Engine::Fast)
+                .with_context(|| format!("loading {}", dir.display()))?;
+            match m.kernel_measurements() {
+                [] => format!(
+                    "{} (forced by {}, not measured)",
+                    conv_kernels()?,
+                    dbt_dbtor::KERNEL_ENV
+                ),
+                lines => format!("measured on {}: {}", dir.display(), lines.join("; ")),
+            }
+        }
+        None => format!(
+            "{} (by instruction set; --model DIR measures them)",
+            conv_kernels()?
+        ),
+    };
     if json {
         let v: Vec<_> = checks
             .iter()
@@ -348,6 +380,9 @@ fn run_status(args: StatusArgs) -> Result<bool> {
             .unwrap_or_default()
     );
     println!("reconstructor {}", st.reconstructor);
+    for k in &st.kernels {
+        println!("kernels       {k}");
+    }
     println!(
         "processed     {} (recovered from spool at start: {}; waiting in spool: {})",
         st.processed, st.recovered, st.incoming

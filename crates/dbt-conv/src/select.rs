@@ -1,0 +1,390 @@
+//! Choosing the kernel by measurement, not by instruction-set rank (issue
+//! #52): every configuration this CPU runs is checked against the portable
+//! kernel on the same block and input, and timed; the fastest that agrees
+//! runs. A kernel that disagrees is never chosen, however fast.
+//!
+//! [`select`] is the rule, for any kind of candidate; [`measure_int8`] and
+//! [`measure_fp32`] apply it to a block's int8 and fp32 configurations
+//! (kernel, and whether it convolves by Winograd).
+
+use crate::{BlockWeights, ConvError, Fp32Block, Int8Block, Int8BlockWeights, Kernel};
+use std::time::Instant;
+
+/// One candidate's measurement.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Timing<C> {
+    /// The candidate.
+    pub candidate: C,
+    /// Its name in tables and logs.
+    pub label: String,
+    /// Whether its output agreed with the reference.
+    pub agrees: bool,
+    /// Its largest difference from the reference, relative to the
+    /// reference's largest magnitude (infinite where it failed to run).
+    pub deviation: f64,
+    /// Median time of one run, ms.
+    pub median_ms: f64,
+}
+
+/// The candidates measured and the one chosen.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Selection<C> {
+    /// The fastest candidate that agreed.
+    pub chosen: C,
+    /// Every candidate, in the order measured.
+    pub timings: Vec<Timing<C>>,
+}
+
+impl<C: PartialEq> Selection<C> {
+    /// One line for logs, the status file and the self-test: each
+    /// candidate's median time, the chosen one marked, a disagreeing one
+    /// named as refused.
+    pub fn describe(&self) -> String {
+        self.timings
+            .iter()
+            .map(|t| {
+                let what = if t.candidate == self.chosen {
+                    " (chosen)"
+                } else if !t.agrees {
+                    " (disagrees with the portable kernel: refused)"
+                } else {
+                    ""
+                };
+                format!("{} {:.2} ms{what}", t.label, t.median_ms)
+            })
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+}
+
+/// The largest difference between `a` and `b` relative to `b`'s largest
+/// magnitude (infinite when the lengths differ or a value is not a number).
+fn deviation(a: &[f32], b: &[f32]) -> f64 {
+    if a.len() != b.len() {
+        return f64::INFINITY;
+    }
+    let scale = b
+        .iter()
+        .fold(0.0f64, |m, v| m.max(v.abs() as f64))
+        .max(1e-30);
+    let mut d = 0.0f64;
+    for (x, y) in a.iter().zip(b) {
+        let e = (x - y).abs() as f64;
+        if e.is_nan() {
+            return f64::INFINITY;
+        }
+        d = d.max(e);
+    }
+    d / scale
+}
+
+/// Run every candidate `reps` times after one warm-up run (the first, the
+/// reference's maker, once more only if it is to be timed), compare its
+/// output with `reference` (agreeing when its [`Timing::deviation`] is at
+/// most `tolerance`: 0 asks for the same bits) and choose the fastest that
+/// agrees. `run` returns a candidate's output for the measurement's input;
+/// a candidate whose run fails disagrees. Refused when none agrees.
+pub fn select<C: Clone + PartialEq>(
+    candidates: &[(C, String)],
+    reference: &[f32],
+    tolerance: f64,
+    reps: usize,
+    mut run: impl FnMut(&C) -> Result<Vec<f32>, ConvError>,
+) -> Result<Selection<C>, ConvError> {
+    let mut timings = Vec::with_capacity(candidates.len());
+    for (c, label) in candidates {
+        let mut times = Vec::with_capacity(reps.max(1));
+        let mut dev = 0.0f64;
+        // One warm-up run (its output is checked too), then the timed ones.
+        for k in 0..=reps.max(1) {
+            let t0 = Instant::now();
+            let out = run(c);
+            let dt = t0.elapsed().as_secs_f64() * 1e3;
+            match out {
+                Ok(o) => dev = dev.max(deviation(&o, reference)),
+                Err(_) => dev = f64::INFINITY,
+            }
+            if k > 0 {
+                times.push(dt);
+            }
+            if !dev.is_finite() {
+                break;
+            }
+        }
+        times.sort_by(f64::total_cmp);
+        let median_ms = times.get(times.len() / 2).copied().unwrap_or(f64::INFINITY);
+        timings.push(Timing {
+            candidate: c.clone(),
+            label: label.clone(),
+            agrees: dev <= tolerance,
+            deviation: dev,
+            median_ms,
+        });
+    }
+    let chosen = timings
+        .iter()
+        .filter(|t| t.agrees && t.median_ms.is_finite())
+        .min_by(|a, b| a.median_ms.total_cmp(&b.median_ms))
+        .map(|t| t.candidate.clone())
+        .ok_or_else(|| {
+            ConvError::Shape(format!(
+                "no kernel agrees with the portable one: {}",
+                timings
+                    .iter()
+                    .map(|t| format!("{} deviation {:.3e}", t.label, t.deviation))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ))
+        })?;
+    Ok(Selection { chosen, timings })
+}
+
+/// An int8 configuration: the kernel, and whether its convolutions run by
+/// Winograd (AVX2 and AVX-VNNI have it; bit for bit the direct ones).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Int8Config {
+    /// The kernel.
+    pub kernel: Kernel,
+    /// Winograd's F(3x3, 3x3) where the kernel has it.
+    pub winograd: bool,
+}
+
+impl Int8Config {
+    /// `avx2 winograd`, `avx512 direct`, ...
+    pub fn label(&self) -> String {
+        let conv = if self.winograd { "winograd" } else { "direct" };
+        format!("{} {conv}", self.kernel.name())
+    }
+
+    /// Every int8 configuration this CPU runs, the portable kernel first;
+    /// AMX where the CPU has it and the OS grants its tiles.
+    pub fn candidates() -> Vec<Int8Config> {
+        let mut v = vec![Int8Config {
+            kernel: Kernel::Portable,
+            winograd: false,
+        }];
+        for k in [Kernel::Avx2, Kernel::AvxVnni, Kernel::Avx512, Kernel::Amx] {
+            let runs = if k == Kernel::Amx {
+                Kernel::amx_available()
+            } else {
+                Kernel::best_int8_up_to(k) == k
+            };
+            if !runs {
+                continue;
+            }
+            v.push(Int8Config {
+                kernel: k,
+                winograd: false,
+            });
+            if matches!(k, Kernel::Avx2 | Kernel::AvxVnni) {
+                v.push(Int8Config {
+                    kernel: k,
+                    winograd: true,
+                });
+            }
+        }
+        v
+    }
+}
+
+/// An fp32 configuration (Winograd changes the sums' rounding, so it is a
+/// candidate only where asked for).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Fp32Config {
+    /// The kernel.
+    pub kernel: Kernel,
+    /// Winograd's F(3x3, 3x3).
+    pub winograd: bool,
+}
+
+impl Fp32Config {
+    /// `avx512`, `avx2 winograd`, ...
+    pub fn label(&self) -> String {
+        if self.winograd {
+            format!("{} winograd", self.kernel.name())
+        } else {
+            self.kernel.name().to_string()
+        }
+    }
+
+    /// Every fp32 configuration this CPU runs, the portable kernel first;
+    /// with `winograd`, each SIMD kernel's Winograd convolution too.
+    pub fn candidates(winograd: bool) -> Vec<Fp32Config> {
+        let mut v = vec![Fp32Config {
+            kernel: Kernel::Portable,
+            winograd: false,
+        }];
+        for k in [Kernel::Avx2, Kernel::Avx512] {
+            if Kernel::best_fp32_up_to(k) != k {
+                continue;
+            }
+            v.push(Fp32Config {
+                kernel: k,
+                winograd: false,
+            });
+            if winograd {
+                v.push(Fp32Config {
+                    kernel: k,
+                    winograd: true,
+                });
+            }
+        }
+        v
+    }
+}
+
+/// Deterministic inputs in [-1, 1) (xorshift: the same on every machine).
+fn inputs(n: usize, mut state: u64) -> Vec<f32> {
+    (0..n)
+        .map(|_| {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            ((state >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
+        })
+        .collect()
+}
+
+/// How many times each candidate is timed.
+pub const REPS: usize = 3;
+
+/// The int8 configurations of `candidates` measured on `weights` (the
+/// model's own block) over an `h x w` grid: each against the portable
+/// kernel's output bit for bit, timed ([`REPS`] runs), the fastest that
+/// agrees chosen.
+pub fn measure_int8(
+    weights: &Int8BlockWeights,
+    h: usize,
+    w: usize,
+    candidates: &[Int8Config],
+) -> Result<Selection<Int8Config>, ConvError> {
+    let state = inputs(weights.state_ch * h * w, 0x9E37_79B9_7F4A_7C15);
+    let aux = inputs(weights.aux_ch * h * w, 0xD1B5_4A32_D192_ED03);
+    let run = |c: &Int8Config| -> Result<Vec<f32>, ConvError> {
+        let b = Int8Block::with_winograd(weights, c.kernel, c.winograd)?;
+        let mut ws = crate::Int8Workspace::new(&b, h, w);
+        let mut s = state.clone();
+        b.run(&mut ws, &mut s, &aux)?;
+        Ok(s)
+    };
+    let reference = run(&Int8Config {
+        kernel: Kernel::Portable,
+        winograd: false,
+    })?;
+    let labelled: Vec<_> = candidates.iter().map(|c| (*c, c.label())).collect();
+    select(&labelled, &reference, 0.0, REPS, run)
+}
+
+/// The fp32 configurations of `candidates` measured on `weights` over an
+/// `h x w` grid: each against the portable kernel's output (within 1e-4 of
+/// its largest magnitude: the kernels sum in other orders, and Winograd
+/// rounds differently), timed, the fastest that agrees chosen.
+pub fn measure_fp32(
+    weights: &BlockWeights,
+    h: usize,
+    w: usize,
+    candidates: &[Fp32Config],
+) -> Result<Selection<Fp32Config>, ConvError> {
+    let state = inputs(weights.state_ch * h * w, 0x9E37_79B9_7F4A_7C15);
+    let aux = inputs(weights.aux_ch * h * w, 0xD1B5_4A32_D192_ED03);
+    let run = |c: &Fp32Config| -> Result<Vec<f32>, ConvError> {
+        let b = Fp32Block::with_winograd(weights, c.kernel, c.winograd)?;
+        let mut ws = crate::Fp32Workspace::new(&b, h, w);
+        let mut s = state.clone();
+        b.run(&mut ws, &mut s, &aux)?;
+        Ok(s)
+    };
+    let reference = run(&Fp32Config {
+        kernel: Kernel::Portable,
+        winograd: false,
+    })?;
+    let labelled: Vec<_> = candidates.iter().map(|c| (*c, c.label())).collect();
+    select(&labelled, &reference, 1e-4, REPS, run)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The rule: the fastest candidate that agrees; a faster one that
+    /// disagrees (a deliberately broken kernel) or fails is never chosen
+    /// and is named as refused.
+    #[test]
+    fn a_kernel_that_disagrees_is_never_chosen() {
+        let reference = vec![1.0f32, -2.0, 3.0];
+        let c = |n: &str| (n.to_string(), n.to_string());
+        let cands = [
+            c("portable"),
+            c("slow"),
+            c("fast"),
+            c("broken"),
+            c("failing"),
+        ];
+        let delay = |ms: u64| std::thread::sleep(std::time::Duration::from_millis(ms));
+        let sel = select(&cands, &reference, 0.0, 3, |name| {
+            match name.as_str() {
+                "portable" => delay(12),
+                "slow" => delay(8),
+                "fast" => delay(3),
+                // Fastest of all, and wrong in one value's last bit.
+                "broken" => {
+                    return Ok(vec![1.0, -2.0, f32::from_bits(3.0f32.to_bits() + 1)]);
+                }
+                _ => return Err(ConvError::Shape("no such kernel here".into())),
+            }
+            Ok(reference.clone())
+        })
+        .unwrap();
+        assert_eq!(sel.chosen, "fast");
+        let broken = sel
+            .timings
+            .iter()
+            .find(|t| t.candidate == "broken")
+            .unwrap();
+        assert!(!broken.agrees && broken.deviation > 0.0);
+        let failing = sel
+            .timings
+            .iter()
+            .find(|t| t.candidate == "failing")
+            .unwrap();
+        assert!(!failing.agrees && failing.deviation.is_infinite());
+        let d = sel.describe();
+        assert!(d.contains("fast") && d.contains("(chosen)"), "{d}");
+        assert!(d.contains("broken") && d.contains("refused"), "{d}");
+        // A tolerance admits the broken one (fp32's rule), and then it wins.
+        let lax = select(&cands[..4], &reference, 1e-6, 1, |name| {
+            if name == "broken" {
+                Ok(vec![1.0, -2.0, f32::from_bits(3.0f32.to_bits() + 1)])
+            } else {
+                delay(2);
+                Ok(reference.clone())
+            }
+        })
+        .unwrap();
+        assert_eq!(lax.chosen, "broken");
+        // None agrees: refused, naming each.
+        let e = select(&cands[3..4], &reference, 0.0, 1, |_| Ok(vec![0.0; 3]))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("broken deviation"), "{e}");
+    }
+
+    /// On this CPU every int8 configuration agrees with the portable kernel
+    /// bit for bit and one of them is chosen; the portable kernel is never
+    /// chosen where a SIMD kernel runs.
+    #[test]
+    fn every_int8_configuration_here_agrees_and_one_is_chosen() {
+        let wts = crate::int8::tests::random_int8(5, 4, 32, 7);
+        let cands = Int8Config::candidates();
+        let sel = measure_int8(&wts, 12, 40, &cands).unwrap();
+        assert_eq!(sel.timings.len(), cands.len());
+        assert!(sel.timings.iter().all(|t| t.agrees), "{}", sel.describe());
+        if cands.len() > 1 {
+            assert_ne!(sel.chosen.kernel, Kernel::Portable, "{}", sel.describe());
+        }
+        let f = crate::testutil::random_block(5, 4, 32, 9);
+        let fc = Fp32Config::candidates(false);
+        let sel = measure_fp32(&f, 12, 40, &fc).unwrap();
+        assert!(sel.timings.iter().all(|t| t.agrees), "{}", sel.describe());
+    }
+}
