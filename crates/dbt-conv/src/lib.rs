@@ -380,6 +380,12 @@ impl Kernel {
         Self::Portable
     }
 
+    /// Whether this kernel's int8 convolution can run by Winograd (AVX2
+    /// and AVX-VNNI; bit for bit the direct one).
+    pub fn has_int8_winograd(self) -> bool {
+        matches!(self, Self::Avx2 | Self::AvxVnni)
+    }
+
     /// Name for tables and logs.
     pub fn name(self) -> &'static str {
         match self {

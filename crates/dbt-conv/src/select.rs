@@ -78,17 +78,25 @@ fn deviation(a: &[f32], b: &[f32]) -> f64 {
     d / scale
 }
 
-/// Run every candidate `reps` times after one warm-up run (the first, the
-/// reference's maker, once more only if it is to be timed), compare its
+/// A preferred candidate is kept unless another that agrees is faster by
+/// more than this share of its time: timings on a busy machine wobble by a
+/// few per cent, and a choice that flips between runs would change the
+/// float kernels' last bits from one start to the next.
+pub const KEEP_PREFERRED_WITHIN: f64 = 0.05;
+
+/// Run every candidate `reps` times after one warm-up run, compare its
 /// output with `reference` (agreeing when its [`Timing::deviation`] is at
 /// most `tolerance`: 0 asks for the same bits) and choose the fastest that
-/// agrees. `run` returns a candidate's output for the measurement's input;
-/// a candidate whose run fails disagrees. Refused when none agrees.
+/// agrees, or `preferred` (the instruction-set rank's choice) where it
+/// agrees and is within [`KEEP_PREFERRED_WITHIN`] of the fastest. `run`
+/// returns a candidate's output for the measurement's input; a candidate
+/// whose run fails disagrees. Refused when none agrees.
 pub fn select<C: Clone + PartialEq>(
     candidates: &[(C, String)],
     reference: &[f32],
     tolerance: f64,
     reps: usize,
+    preferred: Option<&C>,
     mut run: impl FnMut(&C) -> Result<Vec<f32>, ConvError>,
 ) -> Result<Selection<C>, ConvError> {
     let mut timings = Vec::with_capacity(candidates.len());
@@ -121,10 +129,19 @@ pub fn select<C: Clone + PartialEq>(
             median_ms,
         });
     }
-    let chosen = timings
+    let fastest = timings
         .iter()
         .filter(|t| t.agrees && t.median_ms.is_finite())
-        .min_by(|a, b| a.median_ms.total_cmp(&b.median_ms))
+        .min_by(|a, b| a.median_ms.total_cmp(&b.median_ms));
+    let kept = fastest.and_then(|f| {
+        timings.iter().find(|t| {
+            preferred == Some(&t.candidate)
+                && t.agrees
+                && t.median_ms <= f.median_ms * (1.0 + KEEP_PREFERRED_WITHIN)
+        })
+    });
+    let chosen = kept
+        .or(fastest)
         .map(|t| t.candidate.clone())
         .ok_or_else(|| {
             ConvError::Shape(format!(
@@ -272,7 +289,14 @@ pub fn measure_int8(
         winograd: false,
     })?;
     let labelled: Vec<_> = candidates.iter().map(|c| (*c, c.label())).collect();
-    select(&labelled, &reference, 0.0, REPS, run)
+    let preferred = Int8Config {
+        kernel: Kernel::best_int8(),
+        winograd: true,
+    };
+    let preferred = candidates
+        .iter()
+        .find(|c| c.kernel == preferred.kernel && (c.winograd || !c.kernel.has_int8_winograd()));
+    select(&labelled, &reference, 0.0, REPS, preferred, run)
 }
 
 /// The fp32 configurations of `candidates` measured on `weights` over an
@@ -299,7 +323,10 @@ pub fn measure_fp32(
         winograd: false,
     })?;
     let labelled: Vec<_> = candidates.iter().map(|c| (*c, c.label())).collect();
-    select(&labelled, &reference, 1e-4, REPS, run)
+    let preferred = candidates
+        .iter()
+        .find(|c| c.kernel == Kernel::best_fp32() && !c.winograd);
+    select(&labelled, &reference, 1e-4, REPS, preferred, run)
 }
 
 #[cfg(test)]
@@ -321,7 +348,7 @@ mod tests {
             c("failing"),
         ];
         let delay = |ms: u64| std::thread::sleep(std::time::Duration::from_millis(ms));
-        let sel = select(&cands, &reference, 0.0, 3, |name| {
+        let sel = select(&cands, &reference, 0.0, 3, None, |name| {
             match name.as_str() {
                 "portable" => delay(12),
                 "slow" => delay(8),
@@ -352,7 +379,7 @@ mod tests {
         assert!(d.contains("fast") && d.contains("(chosen)"), "{d}");
         assert!(d.contains("broken") && d.contains("refused"), "{d}");
         // A tolerance admits the broken one (fp32's rule), and then it wins.
-        let lax = select(&cands[..4], &reference, 1e-6, 1, |name| {
+        let lax = select(&cands[..4], &reference, 1e-6, 1, None, |name| {
             if name == "broken" {
                 Ok(vec![1.0, -2.0, f32::from_bits(3.0f32.to_bits() + 1)])
             } else {
@@ -363,10 +390,33 @@ mod tests {
         .unwrap();
         assert_eq!(lax.chosen, "broken");
         // None agrees: refused, naming each.
-        let e = select(&cands[3..4], &reference, 0.0, 1, |_| Ok(vec![0.0; 3]))
+        let e = select(&cands[3..4], &reference, 0.0, 1, None, |_| Ok(vec![0.0; 3]))
             .unwrap_err()
             .to_string();
         assert!(e.contains("broken deviation"), "{e}");
+        // A preferred candidate within 5 % of the fastest is kept; one far
+        // slower, or one that disagrees, is not.
+        let timed = |name: &String| {
+            delay(match name.as_str() {
+                "portable" => 20,
+                "slow" => 12,
+                _ => 10,
+            });
+            if name == "broken" {
+                Ok(vec![0.0; 3])
+            } else {
+                Ok(reference.clone())
+            }
+        };
+        let near = [c("fast"), c("fast2")];
+        let kept = select(&near, &reference, 0.0, 3, Some(&"fast2".to_string()), timed).unwrap();
+        assert_eq!(kept.chosen, "fast2", "{}", kept.describe());
+        let far = [c("slow"), c("fast")];
+        let sel = select(&far, &reference, 0.0, 3, Some(&"slow".to_string()), timed).unwrap();
+        assert_eq!(sel.chosen, "fast", "{}", sel.describe());
+        let bad = [c("broken"), c("slow")];
+        let sel = select(&bad, &reference, 0.0, 1, Some(&"broken".to_string()), timed).unwrap();
+        assert_eq!(sel.chosen, "slow");
     }
 
     /// On this CPU every int8 configuration agrees with the portable kernel

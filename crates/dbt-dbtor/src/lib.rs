@@ -463,8 +463,16 @@ fn measured_projector(g: &Geometry) -> Result<(Projector, String), DbtorError> {
         .filter(|k| dbt_projector::best_kernel_up_to(*k) == *k)
         .map(|k| (k, format!("{k:?}").to_lowercase()))
         .collect();
-    let sel = dbt_conv::select::select(&cands, &reference, 1e-5, dbt_conv::select::REPS, run)
-        .map_err(|e| DbtorError::Input(format!("measuring the projector's kernels: {e}")))?;
+    let preferred = dbt_projector::best_kernel_up_to(P::Avx512);
+    let sel = dbt_conv::select::select(
+        &cands,
+        &reference,
+        1e-5,
+        dbt_conv::select::REPS,
+        Some(&preferred),
+        run,
+    )
+    .map_err(|e| DbtorError::Input(format!("measuring the projector's kernels: {e}")))?;
     let what = format!("projector forward + adjoint: {}", sel.describe());
     tracing::info!(chosen = ?sel.chosen, timings = %what, "projector kernel chosen by measurement");
     if let Ok(mut m) = cache.lock() {
