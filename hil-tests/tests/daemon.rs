@@ -1161,7 +1161,24 @@ fn a_stream_from_another_system_is_refused_and_the_next_one_reported() {
         Duration::from_secs(240),
         |s| s["processed"] == 1,
     );
-    assert_eq!(s["faults"].as_array().unwrap().len(), 1, "{s}");
+    // One fault: the refused stream. (A loaded machine may take longer
+    // than the idle timeout to start the second stream; the daemon then
+    // also records the frame server as unreachable, which is not what this
+    // test is about.)
+    let faults: Vec<_> = s["faults"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|f| !f["message"].as_str().unwrap_or("").contains("unreachable"))
+        .collect();
+    assert_eq!(faults.len(), 1, "{s}");
+    assert!(
+        faults[0]["message"]
+            .as_str()
+            .unwrap()
+            .contains("configured for cone-beam system"),
+        "{s}"
+    );
     let st = wait_exit(&mut g.stream, Duration::from_secs(60), "host-sim stream");
     assert_eq!(st.code(), Some(0), "host-sim: delivered");
     sigterm(&mut d.0);
