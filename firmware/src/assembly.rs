@@ -49,12 +49,40 @@ pub fn pipeline_options(
     };
     if cfg.recon.reconstructor == Reconstructor::Dbtor {
         let signed = load_model(cfg, &opts.classify)?;
-        opts.noise_match = noise_match(cfg, signed.model.manifest())?;
-        opts.calibration = signed.calibration;
-        opts.beam_calibrations = dbt_pipeline::beam_calibrations(&signed.beam_calibrations);
-        opts.intervals = signed.intervals.map(Arc::new);
-        opts.dbtor = Some(Arc::new(signed.model));
+        let asked = (cfg.recon.noise_match == crate::config::NoiseMatchMode::TrainingLevel)
+            .then_some("recon.noise_match = \"training-level\"");
+        opts = with_model(opts, signed, asked)?;
     }
+    Ok(opts)
+}
+
+/// `opts` with a signed model in it: the network, its glandularity
+/// calibrations (the loaded precision's and each beam's) and report
+/// intervals, and, where `noise_match` names what asked for it (a
+/// configuration key, a command-line option), the counts' noise matched to
+/// its training level (a model that names no photon level is refused,
+/// naming what asked). The one
+/// place a loaded model becomes processing options: the daemon and replay
+/// (through [`pipeline_options`]) and `dbtor-process` use it.
+pub fn with_model(
+    mut opts: PipelineOptions,
+    signed: dbt_model::SignedModel,
+    noise_match: Option<&str>,
+) -> Result<PipelineOptions, AssemblyError> {
+    if let Some(asked) = noise_match {
+        opts.noise_match = Some(
+            dbt_pipeline::noise_match::NoiseMatch::for_model(signed.model.manifest()).map_err(
+                |e| AssemblyError::Resource {
+                    what: asked.to_string(),
+                    reason: e.to_string(),
+                },
+            )?,
+        );
+    }
+    opts.calibration = signed.calibration;
+    opts.beam_calibrations = dbt_pipeline::beam_calibrations(&signed.beam_calibrations);
+    opts.intervals = signed.intervals.map(Arc::new);
+    opts.dbtor = Some(Arc::new(signed.model));
     Ok(opts)
 }
 

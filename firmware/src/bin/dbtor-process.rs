@@ -142,16 +142,11 @@ fn run(cli: Cli) -> Result<()> {
             cli.model_digest.as_deref(),
         )
         .with_context(|| format!("loading the DBToR model {}", dir.display()))?;
-        if cli.corrections.noise_match {
-            opts.noise_match = Some(
-                dbt_pipeline::noise_match::NoiseMatch::for_model(signed.model.manifest())
-                    .context("--noise-match")?,
-            );
-        }
-        opts.calibration = signed.calibration;
-        opts.intervals = signed.intervals.map(std::sync::Arc::new);
-        opts.beam_calibrations = dbt_pipeline::beam_calibrations(&signed.beam_calibrations);
-        opts.dbtor = Some(std::sync::Arc::new(signed.model));
+        opts = dbtor_firmware::assembly::with_model(
+            opts,
+            signed,
+            cli.corrections.noise_match.then_some("--noise-match"),
+        )?;
     }
     let acq = dbt_store::acquisition::read_acquisition(&acq_dir)?;
     let t = std::time::Instant::now();
