@@ -250,8 +250,9 @@ impl Fp32Config {
     }
 }
 
-/// Deterministic inputs in [-1, 1) (xorshift: the same on every machine).
-fn inputs(n: usize, mut state: u64) -> Vec<f32> {
+/// Deterministic inputs in [-1, 1) (xorshift: the same on every machine),
+/// for the measurements here and the projector's.
+pub fn inputs(n: usize, mut state: u64) -> Vec<f32> {
     (0..n)
         .map(|_| {
             state ^= state << 13;

@@ -364,6 +364,32 @@ static MEASURED_FP32: std::sync::OnceLock<Measured<dbt_conv::select::Fp32Config>
 /// reference costs a fraction of a second).
 const MEASURE_ROWS: usize = 16;
 
+/// A measurement of `what` cached under `key` in `cache`: `measure` runs
+/// once per process and key; its choice, with a line naming every
+/// candidate's time, is logged and returned.
+fn cached<C: Clone + PartialEq + std::fmt::Debug>(
+    cache: &'static std::sync::OnceLock<Measured<C>>,
+    key: String,
+    what: &str,
+    measure: impl FnOnce() -> Result<dbt_conv::select::Selection<C>, dbt_conv::ConvError>,
+) -> Result<(C, String), DbtorError> {
+    let cache = cache.get_or_init(Default::default);
+    if let Some(hit) = cache.lock().ok().and_then(|m| m.get(&key).cloned()) {
+        return Ok(hit);
+    }
+    let sel =
+        measure().map_err(|e| DbtorError::Input(format!("measuring the {what} kernels: {e}")))?;
+    let got = (
+        sel.chosen.clone(),
+        format!("{what} on {key}: {}", sel.describe()),
+    );
+    tracing::info!(chosen = ?sel.chosen, timings = %got.1, "{what} kernel chosen by measurement");
+    if let Ok(mut m) = cache.lock() {
+        m.insert(key, got.clone());
+    }
+    Ok(got)
+}
+
 fn measured_int8(
     w: &dbt_conv::Int8BlockWeights,
     grid: (usize, usize),
@@ -371,26 +397,14 @@ fn measured_int8(
 ) -> Result<(dbt_conv::select::Int8Config, String), DbtorError> {
     use dbt_conv::select::{measure_int8, Int8Config};
     let (h, wd) = (grid.0.min(MEASURE_ROWS), grid.1);
-    let key = format!(
-        "{}+{} ch, {h}x{wd}, winograd {winograd}",
-        w.state_ch, w.aux_ch
-    );
-    let cache = MEASURED_INT8.get_or_init(Default::default);
-    if let Some(hit) = cache.lock().ok().and_then(|m| m.get(&key).cloned()) {
-        return Ok(hit);
-    }
-    let cands: Vec<Int8Config> = Int8Config::candidates()
-        .into_iter()
-        .filter(|c| winograd || !c.winograd)
-        .collect();
-    let sel = measure_int8(w, h, wd, &cands)
-        .map_err(|e| DbtorError::Input(format!("measuring the int8 kernels: {e}")))?;
-    let got = (sel.chosen, format!("int8 on {h}x{wd}: {}", sel.describe()));
-    tracing::info!(chosen = %sel.chosen.label(), timings = %got.1, "int8 kernel chosen by measurement");
-    if let Ok(mut m) = cache.lock() {
-        m.insert(key, got.clone());
-    }
-    Ok(got)
+    let key = format!("{h}x{wd}, {}+{} channels", w.state_ch, w.aux_ch);
+    cached(&MEASURED_INT8, key, "int8", || {
+        let cands: Vec<Int8Config> = Int8Config::candidates()
+            .into_iter()
+            .filter(|c| winograd || !c.winograd)
+            .collect();
+        measure_int8(w, h, wd, &cands)
+    })
 }
 
 fn measured_fp32(
@@ -400,22 +414,10 @@ fn measured_fp32(
 ) -> Result<(dbt_conv::select::Fp32Config, String), DbtorError> {
     use dbt_conv::select::{measure_fp32, Fp32Config};
     let (h, wd) = (grid.0.min(MEASURE_ROWS), grid.1);
-    let key = format!(
-        "{}+{} ch, {h}x{wd}, winograd {winograd}",
-        w.state_ch, w.aux_ch
-    );
-    let cache = MEASURED_FP32.get_or_init(Default::default);
-    if let Some(hit) = cache.lock().ok().and_then(|m| m.get(&key).cloned()) {
-        return Ok(hit);
-    }
-    let sel = measure_fp32(w, h, wd, &Fp32Config::candidates(winograd))
-        .map_err(|e| DbtorError::Input(format!("measuring the fp32 kernels: {e}")))?;
-    let got = (sel.chosen, format!("fp32 on {h}x{wd}: {}", sel.describe()));
-    tracing::info!(chosen = %sel.chosen.label(), timings = %got.1, "fp32 kernel chosen by measurement");
-    if let Ok(mut m) = cache.lock() {
-        m.insert(key, got.clone());
-    }
-    Ok(got)
+    let key = format!("{h}x{wd}, {}+{} channels", w.state_ch, w.aux_ch);
+    cached(&MEASURED_FP32, key, "fp32", || {
+        measure_fp32(w, h, wd, &Fp32Config::candidates(winograd))
+    })
 }
 
 static MEASURED_PROJECTOR: std::sync::OnceLock<Measured<dbt_projector::Kernel>> =
@@ -428,57 +430,36 @@ static MEASURED_PROJECTOR: std::sync::OnceLock<Measured<dbt_projector::Kernel>> 
 /// that agrees. Cached per geometry.
 fn measured_projector(g: &Geometry) -> Result<(Projector, String), DbtorError> {
     use dbt_projector::Kernel as P;
-    let key = g.describe();
     let base = Projector::new(g);
-    let cache = MEASURED_PROJECTOR.get_or_init(Default::default);
-    if let Some((k, what)) = cache.lock().ok().and_then(|m| m.get(&key).cloned()) {
-        return Ok((base.up_to(k), what));
-    }
-    let rand = |n: usize, mut st: u64| -> Vec<f32> {
-        (0..n)
-            .map(|_| {
-                st ^= st << 13;
-                st ^= st >> 7;
-                st ^= st << 17;
-                (st >> 40) as f32 / (1u64 << 24) as f32
-            })
-            .collect()
-    };
-    let (x, y) = (
-        rand(base.domain_len(), 0x9E37_79B9_7F4A_7C15),
-        rand(base.range_len(), 0xD1B5_4A32_D192_ED03),
-    );
-    let run = |k: &P| -> Result<Vec<f32>, dbt_conv::ConvError> {
-        let p = base.clone().up_to(*k);
-        let mut out = vec![0.0f32; p.range_len() + p.domain_len()];
-        let (sino, img) = out.split_at_mut(p.range_len());
-        p.forward(&x, sino)
-            .and_then(|_| p.adjoint(&y, img))
-            .map_err(|e| dbt_conv::ConvError::Shape(e.to_string()))?;
-        Ok(out)
-    };
-    let reference = run(&P::Scalar).map_err(|e| DbtorError::Input(e.to_string()))?;
-    let cands: Vec<(P, String)> = [P::Scalar, P::Avx2, P::Avx512]
-        .into_iter()
-        .filter(|k| dbt_projector::best_kernel_up_to(*k) == *k)
-        .map(|k| (k, format!("{k:?}").to_lowercase()))
-        .collect();
-    let preferred = dbt_projector::best_kernel_up_to(P::Avx512);
-    let sel = dbt_conv::select::select(
-        &cands,
-        &reference,
-        1e-5,
-        dbt_conv::select::REPS,
-        Some(&preferred),
-        run,
-    )
-    .map_err(|e| DbtorError::Input(format!("measuring the projector's kernels: {e}")))?;
-    let what = format!("projector forward + adjoint: {}", sel.describe());
-    tracing::info!(chosen = ?sel.chosen, timings = %what, "projector kernel chosen by measurement");
-    if let Ok(mut m) = cache.lock() {
-        m.insert(key, (sel.chosen, what.clone()));
-    }
-    Ok((base.up_to(sel.chosen), what))
+    let (k, what) = cached(&MEASURED_PROJECTOR, g.describe(), "projector", || {
+        let x = dbt_conv::select::inputs(base.domain_len(), 0x9E37_79B9_7F4A_7C15);
+        let y = dbt_conv::select::inputs(base.range_len(), 0xD1B5_4A32_D192_ED03);
+        let run = |k: &P| -> Result<Vec<f32>, dbt_conv::ConvError> {
+            let p = base.clone().up_to(*k);
+            let mut out = vec![0.0f32; p.range_len() + p.domain_len()];
+            let (sino, img) = out.split_at_mut(p.range_len());
+            p.forward(&x, sino)
+                .and_then(|_| p.adjoint(&y, img))
+                .map_err(|e| dbt_conv::ConvError::Shape(e.to_string()))?;
+            Ok(out)
+        };
+        let reference = run(&P::Scalar)?;
+        let cands: Vec<(P, String)> = [P::Scalar, P::Avx2, P::Avx512]
+            .into_iter()
+            .filter(|k| dbt_projector::best_kernel_up_to(*k) == *k)
+            .map(|k| (k, format!("{k:?}").to_lowercase()))
+            .collect();
+        let preferred = dbt_projector::best_kernel_up_to(P::Avx512);
+        dbt_conv::select::select(
+            &cands,
+            &reference,
+            1e-5,
+            dbt_conv::select::REPS,
+            Some(&preferred),
+            run,
+        )
+    })?;
+    Ok((base.up_to(k), what))
 }
 
 /// The environment variable that turns the AVX2 and AVX-VNNI int8 kernels' Winograd
