@@ -179,6 +179,11 @@ mod peak {
     }
 }
 
+/// One row to run: engine, precision, the blocks kept in fp32, the kernel
+/// level forced (`None`: chosen by measurement), Winograd toggled from the
+/// precision's default.
+type Combo<'a> = (Engine, Precision, &'a [String], Option<Kernel>, bool);
+
 struct Variant {
     name: String,
     slice_ms: f64,
@@ -271,7 +276,15 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
         .collect();
     // (engine, precision, blocks in fp32, kernel limit, Winograd toggled from
     // the precision's default: int8 direct, fp32 by Winograd)
-    let mut combos: Vec<(Engine, Precision, &[String], Kernel, bool)> = Vec::new();
+    // (limit `None`: the kernels chosen by measurement at load, as the
+    // firmware chooses them when `DBTOR_KERNEL` is unset: issue #52's
+    // "default choice" row, beside the forced ones of the same run)
+    let mut combos: Vec<Combo> = Vec::new();
+    if std::env::var_os(dbt_dbtor::KERNEL_ENV).is_none() {
+        for p in [Precision::Fp32, Precision::Int8] {
+            combos.push((Engine::Fast, p, &[][..], None, false));
+        }
+    }
     let mut seen: Vec<(Precision, Kernel)> = Vec::new();
     for k in &forced {
         for (precision, runs) in [
@@ -280,44 +293,50 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
         ] {
             if !seen.contains(&(precision, runs)) {
                 seen.push((precision, runs));
-                combos.push((Engine::Fast, precision, &[][..], *k, false));
+                combos.push((Engine::Fast, precision, &[][..], Some(*k), false));
                 // Winograd is the AVX2 and AVX-VNNI int8 kernels' default,
                 // the fp32 kernels' option
                 if a.direct
                     && precision == Precision::Int8
                     && matches!(runs, Kernel::Avx2 | Kernel::AvxVnni)
                 {
-                    combos.push((Engine::Fast, precision, &[][..], *k, true));
+                    combos.push((Engine::Fast, precision, &[][..], Some(*k), true));
                 }
                 if a.fp32_winograd
                     && precision == Precision::Fp32
                     && matches!(runs, Kernel::Avx2 | Kernel::Avx512)
                 {
-                    combos.push((Engine::Fast, precision, &[][..], *k, true));
+                    combos.push((Engine::Fast, precision, &[][..], Some(*k), true));
                 }
             }
         }
     }
     if a.tract {
         for p in [Precision::Fp32, Precision::Int8] {
-            combos.push((Engine::Tract, p, &[][..], best, false));
+            combos.push((Engine::Tract, p, &[][..], Some(best), false));
         }
     }
     if let Some(Blocks(mixed)) = a.mixed.as_ref().filter(|b| !b.0.is_empty()) {
-        combos.insert(2, (Engine::Fast, Precision::Int8, &mixed[..], best, false));
+        let at = combos.len().min(2);
+        combos.insert(
+            at,
+            (Engine::Fast, Precision::Int8, &mixed[..], Some(best), false),
+        );
     }
+    let mut measurements: Vec<String> = Vec::new();
     for (engine, precision, fp32_blocks, limit, toggled) in combos {
         // Forced rows are named by the kernel they run (fp32 at the AVX-VNNI
-        // level runs AVX2).
-        let runs = match precision {
+        // level runs AVX2); the measured rows by what the measurement chose.
+        let runs = |limit: Kernel| match precision {
             Precision::Fp32 => Kernel::best_fp32_up_to(limit),
             Precision::Int8 => Kernel::best_int8_up_to(limit),
         };
-        let forced_note = if engine == Engine::Fast && limit != best {
-            format!(" [{}]", runs.name())
-        } else {
-            String::new()
+        let forced_note = match limit {
+            None => " (measured choice)".to_string(),
+            Some(l) if engine == Engine::Fast && l != best => format!(" [{}]", runs(l).name()),
+            Some(_) => String::new(),
         };
+        let runs = runs(limit.unwrap_or(best));
         let name = if toggled && precision == Precision::Fp32 {
             format!("{engine} {precision} [{} winograd]", runs.name())
         } else if toggled {
@@ -328,8 +347,18 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
             format!("{engine} mixed")
         };
         let t = Instant::now();
-        let d = Dbtor::load_for_geometry_up_to(&a.model, precision, fp32_blocks, engine, g, limit)
-            .with_context(|| format!("loading {name}"))?;
+        let d = match limit {
+            None => Dbtor::load_for_geometry(&a.model, precision, fp32_blocks, engine, g),
+            Some(l) => {
+                Dbtor::load_for_geometry_up_to(&a.model, precision, fp32_blocks, engine, g, l)
+            }
+        }
+        .with_context(|| format!("loading {name}"))?;
+        for m in d.kernel_measurements() {
+            if !measurements.contains(m) {
+                measurements.push(m.clone());
+            }
+        }
         let d = match (toggled, precision) {
             (false, _) => Ok(d),
             (true, Precision::Int8) => d.without_winograd(),
@@ -478,7 +507,7 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
     );
     let mut rows_json = Vec::new();
     for v in &variants {
-        let int8 = v.name.ends_with("int8");
+        let int8 = v.name.contains("int8");
         let peak = if int8 { peaks.1 } else { peaks.0 };
         let rate = v.ops / ((v.slice_ms - v.projector_ms) * 1e-3) / 1e9;
         let floor_ms = v.ops / (peak * 1e9) * 1e3;
@@ -507,6 +536,30 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
             "speedup_vs_best_ort": vs_ort, "load_s": v.load_s,
             "slice_buffers_mb": v.buffers_mb, "note": v.note,
         }));
+    }
+    // The measured choice against the fastest row of its precision in this
+    // run (issue #52: within 5 %).
+    for m in &measurements {
+        println!("  measured at load: {m}");
+    }
+    let mut measured_vs_fastest = Map::new();
+    for p in ["fp32", "int8"] {
+        let measured = format!("fast {p} (measured choice)");
+        let Some(mv) = variants.iter().find(|v| v.name == measured) else {
+            continue;
+        };
+        let fastest = variants
+            .iter()
+            .filter(|v| v.name.starts_with(&format!("fast {p}")))
+            .min_by(|a, b| a.slice_ms.total_cmp(&b.slice_ms));
+        if let Some(f) = fastest {
+            let over = 100.0 * (mv.slice_ms / f.slice_ms - 1.0);
+            println!(
+                "  {measured}: {:.1} ms, {over:+.1} % against the fastest {p} row of this run ({}, {:.1} ms)",
+                mv.slice_ms, f.name, f.slice_ms
+            );
+            measured_vs_fastest.insert(p.into(), json!({"measured_ms": mv.slice_ms, "fastest": f.name, "fastest_ms": f.slice_ms, "over_percent": over}));
+        }
     }
     // Agreement with the reference executor on this input.
     let mut agreement = Map::new();
@@ -548,6 +601,8 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
         "slice_ms_fast_fp32_portable": by("fast fp32 [portable]"),
         "slice_ms_fast_int8_portable": by("fast int8 [portable]"),
         "variants": rows_json,
+        "kernel_measurements": measurements,
+        "measured_vs_fastest": measured_vs_fastest,
         "agreement": agreement,
     }))
 }

@@ -360,9 +360,13 @@ static MEASURED_FP32: std::sync::OnceLock<Measured<dbt_conv::select::Fp32Config>
     std::sync::OnceLock::new();
 
 /// Rows of the grid a block is measured on (the model's width, so that the
-/// kernels' row tiling is the real one; few rows, so that the portable
-/// reference costs a fraction of a second).
-const MEASURE_ROWS: usize = 16;
+/// kernels' row tiling is the real one; a band of rows, so that the
+/// portable reference costs a fraction of a second). The measured block is
+/// the first primal one, which holds most of a slice's work: on the first
+/// (dual, 16 x 320) block the fp32 AVX2 kernel measured faster than the
+/// AVX-512 one, which is 1.5 times as fast over a whole slice
+/// (`dbtor-bench`, docs/benchmarks.md).
+const MEASURE_ROWS: usize = 32;
 
 /// A measurement of `what` cached under `key` in `cache`: `measure` runs
 /// once per process and key; its choice, with a line naming every
@@ -667,18 +671,32 @@ impl Dbtor {
         } else {
             Vec::new()
         };
-        let files = manifest.blocks.iter().map(|b| {
-            let p = if fp32_blocks.contains(&block_name(b)) {
-                Precision::Fp32
-            } else {
-                precision
-            };
-            let rel = match p {
-                Precision::Fp32 => &b.fp32,
-                Precision::Int8 => &b.int8,
-            };
-            (b, p, dir.join(rel))
-        });
+        let files: Vec<_> = manifest
+            .blocks
+            .iter()
+            .map(|b| {
+                let p = if fp32_blocks.contains(&block_name(b)) {
+                    Precision::Fp32
+                } else {
+                    precision
+                };
+                let rel = match p {
+                    Precision::Fp32 => &b.fp32,
+                    Precision::Int8 => &b.int8,
+                };
+                (b, p, dir.join(rel))
+            })
+            .collect();
+        // The block each precision's kernels are measured on: its first
+        // primal block (most of a slice's work), else its first.
+        let measured_block = |p: Precision| {
+            files
+                .iter()
+                .filter(|f| f.1 == p)
+                .find(|f| f.0.role == Role::Primal)
+                .or_else(|| files.iter().find(|f| f.1 == p))
+                .ok_or_else(|| DbtorError::Input(format!("no {p} block to measure")))
+        };
         let mut kernel_measurements = Vec::new();
         let blocks = match engine {
             Engine::Tract => {
@@ -711,7 +729,7 @@ impl Dbtor {
                 let mut int8_cfg: Option<Int8Config> = None;
                 let mut fp32_cfg: Option<Fp32Config> = None;
                 let mut v = Vec::new();
-                for (b, p, path) in files {
+                for (b, p, path) in files.iter().cloned() {
                     let blk = match p {
                         Precision::Fp32 => {
                             let w = fast::fp32_block(&path, c, b.aux_channels)?;
@@ -722,8 +740,11 @@ impl Dbtor {
                                     winograd: fp32_winograd,
                                 },
                                 (None, KernelChoice::Measure) => {
-                                    let (cfg, what) =
-                                        measured_fp32(&w, grid(g, b.role), fp32_winograd)?;
+                                    let (cfg, what) = {
+                                        let (mb, _, mpath) = measured_block(Precision::Fp32)?;
+                                        let mw = fast::fp32_block(mpath, c, mb.aux_channels)?;
+                                        measured_fp32(&mw, grid(g, mb.role), fp32_winograd)?
+                                    };
                                     kernel_measurements.push(what);
                                     cfg
                                 }
@@ -743,7 +764,11 @@ impl Dbtor {
                                     winograd,
                                 },
                                 (None, KernelChoice::Measure) => {
-                                    let (cfg, what) = measured_int8(&w, grid(g, b.role), winograd)?;
+                                    let (cfg, what) = {
+                                        let (mb, _, mpath) = measured_block(Precision::Int8)?;
+                                        let mw = fast::int8_block(mpath, c, mb.aux_channels)?;
+                                        measured_int8(&mw, grid(g, mb.role), winograd)?
+                                    };
                                     kernel_measurements.push(what);
                                     cfg
                                 }
