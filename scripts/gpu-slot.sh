@@ -13,7 +13,8 @@
 #
 # What it does, each step logged with its second in $OUT/slot.log:
 # 1. a self-check that fails within about 30 s: host-sim runs on this
-#    image's glibc, the GPU is seen (nvidia-smi, torch.cuda), one bf16
+#    image's glibc, the GPU is seen (nvidia-smi, torch.cuda), the run has
+#    iterations left in its schedule (a finished run is refused), one bf16
 #    training iteration on a tiny dataset, and the run's state unpacked and
 #    packed again (its round trip);
 # 2. the run's datasets regenerated from its recipe on every core into
@@ -73,6 +74,16 @@ if [ "$DEVICE" = cuda ]; then
         || fail "PyTorch sees no CUDA device"
 fi
 log "device: $device_name"
+# A run that has finished its schedule has nothing to train: refuse in
+# seconds rather than spend the slot regenerating its datasets.
+if [ -f "$RUNS/$RUN/state.dbts" ]; then
+    left=$(cd training && $PY -m dbtor.state show "$RUNS/$RUN/state.dbts" | $PY -c \
+        'import json, sys; h = json.load(sys.stdin); print(h["options"]["iters"] - h["iteration"], h["iteration"], h["options"]["iters"])') \
+        || fail "cannot read the state's header ($RUNS/$RUN/state.dbts)"
+    read -r n done_it all_it <<< "$left"
+    [ "$n" -gt 0 ] || fail "run $RUN has finished its schedule (iteration $done_it of $all_it): nothing to train; make the next run first (python -m dbtor.continue_run new NAME ... --current)"
+    log "run $RUN: iteration $done_it of $all_it"
+fi
 sc=$(mktemp -d)
 "$hs" dataset --out "$sc/ds" --slices 1500 --test-phantoms 0 --levels N8 --binning 4 2> /dev/null \
     || fail "host-sim could not make the self-check's dataset"
