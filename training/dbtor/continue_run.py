@@ -3,8 +3,8 @@
 
     ./scripts/train-continue.sh [--minutes M | --until HH:MM] [--threads T] [--device auto]
     python -m dbtor.continue_run  (the same, from training/)
-    python -m dbtor.continue_run new NAME --dataset 'ARGS' [--dataset 'ARGS'] --train 'ARGS'
-        [--init-git COMMIT:PATH | --init PATH] [--current]
+    python -m dbtor.continue_run new NAME (--dataset 'ARGS' [--dataset 'ARGS'] | --datasets-of RUN)
+        --train 'ARGS' [--init-git COMMIT:PATH | --init-run COMMIT:RUN | --init PATH] [--current]
 
 A run lives in `training/runs/NAME/`: `recipe.json` (written once by `new`:
 the datasets' exact `host-sim dataset` arguments and the commit whose
@@ -23,7 +23,7 @@ What it does:
    the state's SHA-256 would refuse);
 2. the trainer (train.py) restores the state (or, for the first segment, starts
    from the recipe's --init: a model folder, read from git history with
-   --init-git), refuses a dataset whose files' SHA-256 differ from the state's
+   --init-git, or another run's state as committed, --init-run), refuses a dataset whose files' SHA-256 differ from the state's
    (naming them), trains until the time limit or SIGTERM/SIGINT, saving the state every
    --save-every-minutes (default 10) and at the end, and appends its line to
    the ledger (training/LEDGER.md unless --ledger).
@@ -141,12 +141,18 @@ def parse_until(s):
 def cmd_new(argv):
     ap = argparse.ArgumentParser(prog="python -m dbtor.continue_run new")
     ap.add_argument("name")
-    ap.add_argument("--dataset", action="append", required=True,
+    ap.add_argument("--dataset", action="append", default=[],
                     help="the arguments of `host-sim dataset` without --out (quoted); repeat for several")
     ap.add_argument("--train", required=True,
                     help="train.py's options (quoted), without --data/--out/--device/--threads/--max-minutes")
     ap.add_argument("--init-git", default=None, help="COMMIT:PATH of a model folder in git history")
     ap.add_argument("--init", default=None, help="a model folder or run (the first segment's --init)")
+    ap.add_argument("--init-run", default=None,
+                    help="COMMIT:NAME: start from the weights of run NAME's state as committed at COMMIT "
+                         "(training/runs/NAME/state.dbts, read with git show and unpacked)")
+    ap.add_argument("--datasets-of", default=None,
+                    help="the datasets of run NAME's recipe (the same arguments and generator commit), "
+                         "instead of --dataset")
     ap.add_argument("--why", default="", help="a sentence recorded in the recipe")
     ap.add_argument("--runs", default=RUNS)
     ap.add_argument("--current", action="store_true", help="make it training/runs/CURRENT")
@@ -160,8 +166,13 @@ def cmd_new(argv):
     for bad in ("--data", "--out", "--device", "--threads", "--max-minutes", "--state", "--init"):
         if bad in train:
             sys.exit(f"--train: {bad} is set by continue_run, not by the recipe")
+    if bool(a.dataset) == bool(a.datasets_of):
+        sys.exit("give --dataset (one or more) or --datasets-of RUN")
     init = None
-    if a.init_git:
+    if a.init_run:
+        c, _, run = a.init_run.partition(":")
+        init = {"git": git("rev-parse", c), "run_state": f"training/runs/{run}/state.dbts"}
+    elif a.init_git:
         c, _, p = a.init_git.partition(":")
         init = {"git": git("rev-parse", c), "path": p}
     elif a.init:
@@ -171,9 +182,10 @@ def cmd_new(argv):
         "name": a.name,
         "created": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "why": a.why,
-        "datasets": [{"command": "host-sim dataset --out DIR " + shlex.join(shlex.split(ds)),
-                      "args": shlex.join(shlex.split(ds)),
-                      "generator_commit": commit, "generator_dirty": dirty} for ds in a.dataset],
+        "datasets": ([{"command": "host-sim dataset --out DIR " + shlex.join(shlex.split(ds)),
+                       "args": shlex.join(shlex.split(ds)),
+                       "generator_commit": commit, "generator_dirty": dirty} for ds in a.dataset]
+                     or load_run(a.runs, a.datasets_of)[2]["datasets"]),
         "train": shlex.join(train),
         "init": init,
     }
@@ -252,7 +264,22 @@ def main(argv=None):
     init = []
     if not os.path.exists(state) and recipe.get("init"):
         src = recipe["init"]
-        if "git" in src:
+        if "run_state" in src:
+            # Another run's state as committed: its weights, unpacked into a
+            # run folder train.py's --init reads.
+            dest = os.path.join(cache, "init", src["git"][:12] + "-" + os.path.basename(
+                os.path.dirname(src["run_state"])))
+            if not os.path.exists(os.path.join(dest, "checkpoint.pt")):
+                blob = subprocess.run(["git", "-C", REPO, "show", f"{src['git']}:{src['run_state']}"],
+                                      capture_output=True, check=True).stdout
+                os.makedirs(os.path.dirname(dest), exist_ok=True)
+                packed = dest + ".dbts"
+                with open(packed, "wb") as f:
+                    f.write(blob)
+                subprocess.run([sys.executable, "-m", "dbtor.state", "unpack", packed, "--out", dest],
+                               check=True, cwd=os.path.join(REPO, "training"))
+            init = ["--init", dest]
+        elif "git" in src:
             dest = os.path.join(cache, "init", src["git"][:12])
             path = os.path.join(dest, src["path"])
             if not os.path.exists(path):
