@@ -99,23 +99,10 @@ fn main() -> Result<()> {
     let per_slice_rebin = rebin_ms / slices as f64;
     // The frames' counts check, as `process` runs it on a cone-beam header.
     let header = dbt_pipeline::acquisition::AcquisitionHeader {
-        format: dbt_pipeline::acquisition::ACQ_FORMAT.into(),
-        geometry: fan.clone(),
         thickness_mm: thickness,
         flux,
-        slices: rows,
         slice_spacing_mm: fan.image.pixel_mm,
-        kvp: 28.0,
-        anode_filter: Default::default(),
-        mas_total: 60.0,
-        tube_output_mgy_per_mas: 0.11,
-        laterality: "L".into(),
-        compression_force_n: None,
-        exposure_ms_per_view: None,
-        system: Some(sys.clone()),
-        patient: Default::default(),
-        study: Default::default(),
-        truth: None,
+        ..dbt_pipeline::acquisition::example_header(fan.clone(), rows, Some(sys.clone()))
     };
     let check_ms = median_ms(1, a.reps, || {
         let _ = dbt_pipeline::plausibility::check_counts(&header, &frames);

@@ -21,20 +21,9 @@ fn geometry() -> Geometry {
 fn header(slices: usize, thickness: f64) -> AcquisitionHeader {
     let g = geometry();
     AcquisitionHeader {
-        format: ACQ_FORMAT.into(),
         slice_spacing_mm: g.image.pixel_mm,
-        geometry: g,
         thickness_mm: thickness,
         flux: FLUX,
-        slices,
-        kvp: 28.0,
-        anode_filter: Default::default(),
-        mas_total: 60.0,
-        tube_output_mgy_per_mas: 0.11,
-        laterality: "L".into(),
-        compression_force_n: None,
-        exposure_ms_per_view: None,
-        system: None,
         patient: Patient {
             name: "Doe^Jane".into(),
             id: "P-0001".into(),
@@ -51,7 +40,7 @@ fn header(slices: usize, thickness: f64) -> AcquisitionHeader {
             instance_uids: vec![],
             source_class: None,
         },
-        truth: None,
+        ..dbt_pipeline::acquisition::example_header(g, slices, None)
     }
 }
 
