@@ -266,68 +266,92 @@ pub fn inputs(n: usize, mut state: u64) -> Vec<f32> {
 /// How many times each candidate is timed.
 pub const REPS: usize = 3;
 
+/// `candidates` measured on one block with `state_ch` + `aux_ch` input
+/// channels over an `h x w` grid: `run` gives a configuration's new state
+/// for the deterministic inputs ([`inputs`]); `reference`'s output is the
+/// one every candidate is compared with, within `tolerance`.
+fn measure_block<C: Copy + PartialEq>(
+    (state_ch, aux_ch, h, w): (usize, usize, usize, usize),
+    candidates: &[C],
+    label: impl Fn(&C) -> String,
+    reference: C,
+    tolerance: f64,
+    preferred: Option<&C>,
+    run: impl Fn(&C, &mut [f32], &[f32]) -> Result<(), ConvError>,
+) -> Result<Selection<C>, ConvError> {
+    let state = inputs(state_ch * h * w, 0x9E37_79B9_7F4A_7C15);
+    let aux = inputs(aux_ch * h * w, 0xD1B5_4A32_D192_ED03);
+    let run = |c: &C| -> Result<Vec<f32>, ConvError> {
+        let mut s = state.clone();
+        run(c, &mut s, &aux)?;
+        Ok(s)
+    };
+    let reference = run(&reference)?;
+    let labelled: Vec<_> = candidates.iter().map(|c| (*c, label(c))).collect();
+    select(&labelled, &reference, tolerance, REPS, preferred, run)
+}
+
 /// The int8 configurations of `candidates` measured on `weights` (the
 /// model's own block) over an `h x w` grid: each against the portable
 /// kernel's output bit for bit, timed ([`REPS`] runs), the fastest that
-/// agrees chosen.
+/// agrees chosen (the instruction-set rank's within
+/// [`KEEP_PREFERRED_WITHIN`]).
 pub fn measure_int8(
     weights: &Int8BlockWeights,
     h: usize,
     w: usize,
     candidates: &[Int8Config],
 ) -> Result<Selection<Int8Config>, ConvError> {
-    let state = inputs(weights.state_ch * h * w, 0x9E37_79B9_7F4A_7C15);
-    let aux = inputs(weights.aux_ch * h * w, 0xD1B5_4A32_D192_ED03);
-    let run = |c: &Int8Config| -> Result<Vec<f32>, ConvError> {
-        let b = Int8Block::with_winograd(weights, c.kernel, c.winograd)?;
-        let mut ws = crate::Int8Workspace::new(&b, h, w);
-        let mut s = state.clone();
-        b.run(&mut ws, &mut s, &aux)?;
-        Ok(s)
-    };
-    let reference = run(&Int8Config {
-        kernel: Kernel::Portable,
-        winograd: false,
-    })?;
-    let labelled: Vec<_> = candidates.iter().map(|c| (*c, c.label())).collect();
-    let preferred = Int8Config {
-        kernel: Kernel::best_int8(),
-        winograd: true,
-    };
+    let best = Kernel::best_int8();
     let preferred = candidates
         .iter()
-        .find(|c| c.kernel == preferred.kernel && (c.winograd || !c.kernel.has_int8_winograd()));
-    select(&labelled, &reference, 0.0, REPS, preferred, run)
+        .find(|c| c.kernel == best && (c.winograd || !c.kernel.has_int8_winograd()));
+    measure_block(
+        (weights.state_ch, weights.aux_ch, h, w),
+        candidates,
+        Int8Config::label,
+        Int8Config {
+            kernel: Kernel::Portable,
+            winograd: false,
+        },
+        0.0,
+        preferred,
+        |c, state, aux| {
+            let b = Int8Block::with_winograd(weights, c.kernel, c.winograd)?;
+            b.run(&mut crate::Int8Workspace::new(&b, h, w), state, aux)
+        },
+    )
 }
 
 /// The fp32 configurations of `candidates` measured on `weights` over an
 /// `h x w` grid: each against the portable kernel's output (within 1e-4 of
 /// its largest magnitude: the kernels sum in other orders, and Winograd
-/// rounds differently), timed, the fastest that agrees chosen.
+/// rounds differently), timed, the fastest that agrees chosen (the
+/// instruction-set rank's within [`KEEP_PREFERRED_WITHIN`]).
 pub fn measure_fp32(
     weights: &BlockWeights,
     h: usize,
     w: usize,
     candidates: &[Fp32Config],
 ) -> Result<Selection<Fp32Config>, ConvError> {
-    let state = inputs(weights.state_ch * h * w, 0x9E37_79B9_7F4A_7C15);
-    let aux = inputs(weights.aux_ch * h * w, 0xD1B5_4A32_D192_ED03);
-    let run = |c: &Fp32Config| -> Result<Vec<f32>, ConvError> {
-        let b = Fp32Block::with_winograd(weights, c.kernel, c.winograd)?;
-        let mut ws = crate::Fp32Workspace::new(&b, h, w);
-        let mut s = state.clone();
-        b.run(&mut ws, &mut s, &aux)?;
-        Ok(s)
-    };
-    let reference = run(&Fp32Config {
-        kernel: Kernel::Portable,
-        winograd: false,
-    })?;
-    let labelled: Vec<_> = candidates.iter().map(|c| (*c, c.label())).collect();
     let preferred = candidates
         .iter()
         .find(|c| c.kernel == Kernel::best_fp32() && !c.winograd);
-    select(&labelled, &reference, 1e-4, REPS, preferred, run)
+    measure_block(
+        (weights.state_ch, weights.aux_ch, h, w),
+        candidates,
+        Fp32Config::label,
+        Fp32Config {
+            kernel: Kernel::Portable,
+            winograd: false,
+        },
+        1e-4,
+        preferred,
+        |c, state, aux| {
+            let b = Fp32Block::with_winograd(weights, c.kernel, c.winograd)?;
+            b.run(&mut crate::Fp32Workspace::new(&b, h, w), state, aux)
+        },
+    )
 }
 
 #[cfg(test)]

@@ -688,14 +688,14 @@ impl Dbtor {
             })
             .collect();
         // The block each precision's kernels are measured on: its first
-        // primal block (most of a slice's work), else its first.
+        // primal block (most of a slice's work), else its first; `None`
+        // where no block runs in that precision.
         let measured_block = |p: Precision| {
             files
                 .iter()
                 .filter(|f| f.1 == p)
                 .find(|f| f.0.role == Role::Primal)
                 .or_else(|| files.iter().find(|f| f.1 == p))
-                .ok_or_else(|| DbtorError::Input(format!("no {p} block to measure")))
         };
         let mut kernel_measurements = Vec::new();
         let blocks = match engine {
@@ -726,61 +726,61 @@ impl Dbtor {
                 use dbt_conv::select::{Fp32Config, Int8Config};
                 let winograd = winograd_allowed()?;
                 let fp32_winograd = fp32_winograd_wanted()?;
-                let mut int8_cfg: Option<Int8Config> = None;
-                let mut fp32_cfg: Option<Fp32Config> = None;
+                // Each precision's configuration, once, for every block that
+                // runs in it: the fastest up to the forced level, or measured.
+                let fp32_cfg = match (choice, measured_block(Precision::Fp32)) {
+                    (_, None) => None,
+                    (KernelChoice::UpTo(limit), Some(_)) => Some(Fp32Config {
+                        kernel: Kernel::best_fp32_up_to(limit),
+                        winograd: fp32_winograd,
+                    }),
+                    (KernelChoice::Measure, Some((b, _, path))) => {
+                        let w = fast::fp32_block(path, c, b.aux_channels)?;
+                        let (cfg, what) = measured_fp32(&w, grid(g, b.role), fp32_winograd)?;
+                        kernel_measurements.push(what);
+                        Some(cfg)
+                    }
+                };
+                let int8_cfg = match (choice, measured_block(Precision::Int8)) {
+                    (_, None) => None,
+                    (KernelChoice::UpTo(limit), Some(_)) => Some(Int8Config {
+                        kernel: Kernel::best_int8_up_to(limit),
+                        winograd,
+                    }),
+                    (KernelChoice::Measure, Some((b, _, path))) => {
+                        let w = fast::int8_block(path, c, b.aux_channels)?;
+                        let (cfg, what) = measured_int8(&w, grid(g, b.role), winograd)?;
+                        kernel_measurements.push(what);
+                        Some(cfg)
+                    }
+                };
                 let mut v = Vec::new();
-                for (b, p, path) in files.iter().cloned() {
-                    let blk = match p {
-                        Precision::Fp32 => {
-                            let w = fast::fp32_block(&path, c, b.aux_channels)?;
-                            let cfg = match (fp32_cfg, choice) {
-                                (Some(cfg), _) => cfg,
-                                (None, KernelChoice::UpTo(limit)) => Fp32Config {
-                                    kernel: Kernel::best_fp32_up_to(limit),
-                                    winograd: fp32_winograd,
-                                },
-                                (None, KernelChoice::Measure) => {
-                                    let (cfg, what) = {
-                                        let (mb, _, mpath) = measured_block(Precision::Fp32)?;
-                                        let mw = fast::fp32_block(mpath, c, mb.aux_channels)?;
-                                        measured_fp32(&mw, grid(g, mb.role), fp32_winograd)?
-                                    };
-                                    kernel_measurements.push(what);
-                                    cfg
-                                }
-                            };
-                            fp32_cfg = Some(cfg);
+                for (b, p, path) in &files {
+                    let blk = match (p, fp32_cfg, int8_cfg) {
+                        (Precision::Fp32, Some(cfg), _) => {
+                            let w = fast::fp32_block(path, c, b.aux_channels)?;
                             FastBlock::Fp32(
                                 Fp32Block::with_winograd(&w, cfg.kernel, cfg.winograd)
-                                    .map_err(fast_path_err(&path))?,
+                                    .map_err(fast_path_err(path))?,
                             )
                         }
-                        Precision::Int8 => {
-                            let w = fast::int8_block(&path, c, b.aux_channels)?;
-                            let cfg = match (int8_cfg, choice) {
-                                (Some(cfg), _) => cfg,
-                                (None, KernelChoice::UpTo(limit)) => Int8Config {
-                                    kernel: Kernel::best_int8_up_to(limit),
-                                    winograd,
-                                },
-                                (None, KernelChoice::Measure) => {
-                                    let (cfg, what) = {
-                                        let (mb, _, mpath) = measured_block(Precision::Int8)?;
-                                        let mw = fast::int8_block(mpath, c, mb.aux_channels)?;
-                                        measured_int8(&mw, grid(g, mb.role), winograd)?
-                                    };
-                                    kernel_measurements.push(what);
-                                    cfg
-                                }
-                            };
-                            int8_cfg = Some(cfg);
+                        (Precision::Int8, _, Some(cfg)) => {
+                            let w = fast::int8_block(path, c, b.aux_channels)?;
                             FastBlock::Int8(
                                 Int8Block::with_winograd(&w, cfg.kernel, cfg.winograd)
-                                    .map_err(fast_path_err(&path))?,
+                                    .map_err(fast_path_err(path))?,
                             )
                         }
+                        // measured_block finds a block of every precision
+                        // that runs, so each has its configuration.
+                        (p, _, _) => {
+                            return Err(DbtorError::Input(format!(
+                                "{}: no {p} kernel configuration",
+                                path.display()
+                            )))
+                        }
                     };
-                    v.push((blk, path));
+                    v.push((blk, path.clone()));
                 }
                 Blocks::Fast(v)
             }
