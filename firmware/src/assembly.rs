@@ -49,9 +49,7 @@ pub fn pipeline_options(
     };
     if cfg.recon.reconstructor == Reconstructor::Dbtor {
         let signed = load_model(cfg, &opts.classify)?;
-        let asked = (cfg.recon.noise_match == crate::config::NoiseMatchMode::TrainingLevel)
-            .then_some("recon.noise_match = \"training-level\"");
-        opts = with_model(opts, signed, asked)?;
+        opts = with_model(opts, signed, noise_match_key(cfg))?;
     }
     Ok(opts)
 }
@@ -69,16 +67,7 @@ pub fn with_model(
     signed: dbt_model::SignedModel,
     noise_match: Option<&str>,
 ) -> Result<PipelineOptions, AssemblyError> {
-    if let Some(asked) = noise_match {
-        opts.noise_match = Some(
-            dbt_pipeline::noise_match::NoiseMatch::for_model(signed.model.manifest()).map_err(
-                |e| AssemblyError::Resource {
-                    what: asked.to_string(),
-                    reason: e.to_string(),
-                },
-            )?,
-        );
-    }
+    opts.noise_match = matched_noise(noise_match, signed.model.manifest())?;
     opts.calibration = signed.calibration;
     opts.beam_calibrations = dbt_pipeline::beam_calibrations(&signed.beam_calibrations);
     opts.intervals = signed.intervals.map(Arc::new);
@@ -114,13 +103,31 @@ pub fn noise_match(
     cfg: &Config,
     model: &dbt_dbtor::ModelManifest,
 ) -> Result<Option<dbt_pipeline::noise_match::NoiseMatch>, AssemblyError> {
-    if cfg.recon.noise_match != crate::config::NoiseMatchMode::TrainingLevel {
-        return Ok(None);
-    }
-    dbt_pipeline::noise_match::NoiseMatch::for_model(model)
-        .map(Some)
-        .map_err(|e| AssemblyError::Resource {
-            what: "recon.noise_match = \"training-level\"".into(),
-            reason: e.to_string(),
+    matched_noise(noise_match_key(cfg), model)
+}
+
+/// The configuration's key and value that ask for noise matching, or
+/// `None` when it is off.
+fn noise_match_key(cfg: &Config) -> Option<&'static str> {
+    (cfg.recon.noise_match == crate::config::NoiseMatchMode::TrainingLevel)
+        .then_some("recon.noise_match = \"training-level\"")
+}
+
+/// The noise matching to `model`'s training level where `asked` names what
+/// asked for it (a configuration key, a command-line option), refused
+/// naming it when the model names no photon level; `None` when not asked.
+fn matched_noise(
+    asked: Option<&str>,
+    model: &dbt_dbtor::ModelManifest,
+) -> Result<Option<dbt_pipeline::noise_match::NoiseMatch>, AssemblyError> {
+    asked
+        .map(|what| {
+            dbt_pipeline::noise_match::NoiseMatch::for_model(model).map_err(|e| {
+                AssemblyError::Resource {
+                    what: what.to_string(),
+                    reason: e.to_string(),
+                }
+            })
         })
+        .transpose()
 }

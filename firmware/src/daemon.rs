@@ -36,10 +36,6 @@ pub enum DaemonError {
         /// Why.
         cause: std::io::Error,
     },
-    /// The model folder fails its sign-off, its network does not load, or
-    /// its calibration is unusable.
-    #[error(transparent)]
-    Model(#[from] dbt_model::ModelError),
     /// A resource the daemon needs is missing or unusable.
     #[error("{what}: {reason}")]
     Resource {
@@ -51,7 +47,8 @@ pub enum DaemonError {
     /// Bad configuration.
     #[error(transparent)]
     Config(#[from] crate::config::ConfigError),
-    /// The processing could not be assembled from the configuration.
+    /// The processing could not be assembled from the configuration (the
+    /// model folder's sign-off, network or calibration among it).
     #[error(transparent)]
     Assembly(#[from] crate::assembly::AssemblyError),
 }

@@ -51,18 +51,6 @@ impl Spool {
         })
     }
 
-    /// The spool under `root` as it is (nothing made or removed).
-    pub fn at(root: &Path) -> Self {
-        Spool {
-            root: root.to_path_buf(),
-        }
-    }
-
-    /// The root folder.
-    pub fn root(&self) -> &Path {
-        &self.root
-    }
-
     /// Entry `id`'s folder in `incoming/`.
     pub fn incoming_entry(&self, id: &str) -> PathBuf {
         self.root.join("incoming").join(id)
