@@ -66,7 +66,8 @@ fn main() -> Result<()> {
             28.0,
             "BUDGET",
             "1.2.826.0.1.3680043.10.543.3",
-        )?;
+        )?
+        .into_sinograms()?;
         let dims = [
             g.image.columns,
             g.rows_within_thickness(vol.thickness_mm()),

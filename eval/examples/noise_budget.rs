@@ -83,7 +83,8 @@ fn main() -> Result<()> {
             .enumerate()
         {
             let acq = |noise| -> Result<_> {
-                let a = simulate_on(&vol, &g, None, noise, physics, seed, tech, kvp, "NB", root)?;
+                let a = simulate_on(&vol, &g, None, noise, physics, seed, tech, kvp, "NB", root)?
+                    .into_sinograms()?;
                 Ok(if i == 1 {
                     correct_counts(&a, &opts)?.into_owned()
                 } else {
@@ -105,7 +106,8 @@ fn main() -> Result<()> {
                     kvp,
                     "NB",
                     root,
-                )?;
+                )?
+                .into_sinograms()?;
                 if i == 1 {
                     let o = PipelineOptions {
                         noise_match: None,

@@ -182,6 +182,7 @@ pub fn run_phantom(
         "EVAL",
         "1.2.826.0.1.3680043.10.543.3",
     )?;
+    let acq = acq.into_sinograms()?;
     let acq = correct_counts(&acq, opts)?;
     let Volume {
         dims, voxel_mm, mu, ..

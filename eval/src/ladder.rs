@@ -226,7 +226,7 @@ fn pv_sums(mu: &[f32], labels: &[u8], idx: impl Iterator<Item = usize>) -> Parti
 /// network far from what it was trained on may not fit (a data-consistency
 /// check needs no truth).
 pub fn data_residual(
-    acq: &dbt_pipeline::acquisition::Acquisition,
+    acq: &dbt_pipeline::SliceSinograms,
     mu: &[f32],
     dims: [usize; 3],
 ) -> anyhow::Result<f64> {
@@ -488,6 +488,8 @@ pub fn run_ladder(
             "LADDER",
             "1.2.826.0.1.3680043.10.543.3",
         )
+        .map_err(anyhow::Error::from)
+        .and_then(|a| Ok(a.into_sinograms()?))
     };
     let clean = acquire(NoiseLevel::NoiseFree)?;
     let noisy = acquire(setup.noise)?;

@@ -600,7 +600,8 @@ fn a_breast_taller_than_the_image_is_refused() {
     };
     // At the image's height it still fits.
     acq.header.thickness_mm = g.height_mm();
-    dbt_pipeline::reconstruct_volume(&acq, &opts, &mut |_| {}).unwrap();
+    dbt_pipeline::reconstruct_volume(&acq.clone().into_sinograms().unwrap(), &opts, &mut |_| {})
+        .unwrap();
     acq.header.thickness_mm = g.height_mm() + 0.5;
     let e = process(&acq, &opts).unwrap_err().to_string();
     assert!(
@@ -637,8 +638,12 @@ fn nonnegativity_changes_the_image_not_the_density_or_dose() {
         }
     };
     let (on, off) = (opts(true), opts(false));
-    let raw = dbt_pipeline::reconstruct_volume(&acq, &off, &mut |_| {}).unwrap();
-    let clamped = dbt_pipeline::reconstruct_volume(&acq, &on, &mut |_| {}).unwrap();
+    let raw =
+        dbt_pipeline::reconstruct_volume(&acq.clone().into_sinograms().unwrap(), &off, &mut |_| {})
+            .unwrap();
+    let clamped =
+        dbt_pipeline::reconstruct_volume(&acq.clone().into_sinograms().unwrap(), &on, &mut |_| {})
+            .unwrap();
     let negative = raw.mu.iter().filter(|v| **v < 0.0).count();
     assert!(
         negative > 0,
@@ -719,15 +724,24 @@ fn a_slice_step_reconstructs_some_slices_and_interpolates_the_rest() {
         slice_step,
         ..PipelineOptions::default()
     };
-    let every = dbt_pipeline::reconstruct_volume(&acq, &opts(1), &mut |_| {}).unwrap();
+    let every = dbt_pipeline::reconstruct_volume(
+        &acq.clone().into_sinograms().unwrap(),
+        &opts(1),
+        &mut |_| {},
+    )
+    .unwrap();
     let slab = every.dims[0] * every.dims[1];
     for step in [2, 3, n + 4] {
         let wanted = dbt_pipeline::reconstructed_slices(n, step);
         assert_eq!(wanted[0], 0);
         assert_eq!(*wanted.last().unwrap(), n - 1);
         let mut stages = Vec::new();
-        let v =
-            dbt_pipeline::reconstruct_volume(&acq, &opts(step), &mut |s| stages.push(s)).unwrap();
+        let v = dbt_pipeline::reconstruct_volume(
+            &acq.clone().into_sinograms().unwrap(),
+            &opts(step),
+            &mut |s| stages.push(s),
+        )
+        .unwrap();
         assert_eq!(v.dims, every.dims);
         let want: Vec<Stage> = (1..=wanted.len())
             .map(|done| Stage::Slice {
@@ -763,6 +777,11 @@ fn a_slice_step_reconstructs_some_slices_and_interpolates_the_rest() {
     assert_eq!(dbt_pipeline::reconstructed_slices(6, 2), [0, 2, 4, 5]);
     assert_eq!(dbt_pipeline::reconstructed_slices(1, 3), [0]);
     assert!(!dbt_pipeline::algorithm_version(&opts(1)).contains("interpolated"));
-    let e = dbt_pipeline::reconstruct_volume(&acq, &opts(0), &mut |_| {}).unwrap_err();
+    let e = dbt_pipeline::reconstruct_volume(
+        &acq.clone().into_sinograms().unwrap(),
+        &opts(0),
+        &mut |_| {},
+    )
+    .unwrap_err();
     assert!(e.to_string().contains("slice step 0"), "{e}");
 }

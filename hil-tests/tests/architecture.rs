@@ -352,3 +352,61 @@ fn no_crate_has_a_circle_of_module_imports() {
     .collect();
     assert_eq!(find_cycle(&g).map(|c| c.len()), Some(4));
 }
+
+/// Where a pipeline stage reads the header's cone-beam system (the field,
+/// not a [`dbt_intake::ConeHeader`]'s `system()`): `.system` followed by
+/// neither `(` nor a further identifier character.
+fn field_reads_of_system(code: &str) -> usize {
+    code.match_indices(".system")
+        .filter(|(i, m)| {
+            let next = code[i + m.len()..].chars().next();
+            !matches!(next, Some(c) if c == '(' || c == '_' || c.is_alphanumeric())
+        })
+        .count()
+}
+
+/// Issue #50 point 2: cone-beam frames and slice sinograms are two types
+/// (`dbt_intake::layout`), the layout is asked once (`into_layout`, in
+/// `process_with_progress`), and no stage of the pipeline reads the
+/// header's `system` to find out which it holds. The DICOM mapping
+/// (`dicom_input.rs`) writes and reads the file form of both layouts and
+/// is exempt; tests are not stages.
+#[test]
+fn no_stage_of_the_pipeline_asks_for_the_layout() {
+    let src = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../crates/dbt-pipeline/src");
+    let (mut reads, mut asks) = (Vec::new(), Vec::new());
+    let mut files = 0;
+    for e in std::fs::read_dir(&src).unwrap() {
+        let p = e.unwrap().path();
+        let name = p.file_name().unwrap().to_string_lossy().into_owned();
+        if !name.ends_with(".rs") || name == "dicom_input.rs" {
+            continue;
+        }
+        files += 1;
+        let text = std::fs::read_to_string(&p).unwrap();
+        let code = text.split("#[cfg(test)]").next().unwrap_or_default();
+        let code: String = code
+            .lines()
+            .filter(|l| !l.trim_start().starts_with("//"))
+            .collect::<Vec<_>>()
+            .join("\n");
+        let n = field_reads_of_system(&code);
+        if n > 0 {
+            reads.push(format!("{name}: {n}"));
+        }
+        for _ in code.matches("into_layout(") {
+            asks.push(name.clone());
+        }
+    }
+    assert!(files >= 10, "{files} stage files in {}", src.display());
+    assert!(
+        reads.is_empty(),
+        "stages reading the header's cone-beam system: {reads:?}"
+    );
+    assert_eq!(asks, ["process.rs"], "where the layout is asked");
+    // The search finds what it looks for.
+    assert_eq!(
+        field_reads_of_system("match &h.system { } h.system() s.system_name x.system;"),
+        2
+    );
+}

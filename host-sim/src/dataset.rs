@@ -164,6 +164,9 @@ fn phantom_records(
             "DATASET",
             "1.2.826.0.1.3680043.10.543.3",
         )?;
+        let acq = acq
+            .into_sinograms()
+            .map_err(|e| SimError::Options(e.to_string()))?;
         let corrected = if uncorrected {
             std::borrow::Cow::Borrowed(&acq)
         } else {

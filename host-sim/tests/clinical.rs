@@ -128,7 +128,9 @@ fn scatter_is_added_and_removed() {
         );
         assert_eq!(scattered.header.anode_filter, af);
         let mut corrected = scattered.counts.clone();
-        let spr = removal.apply(&scattered.header, &mut corrected).unwrap();
+        let spr = removal
+            .apply(&slices(&scattered.header), &mut corrected)
+            .unwrap();
         let b = primary.header.flux as f32;
         let (mut worst, mut n, mut spr_min, mut spr_max) = (0.0f64, 0, f64::MAX, 0.0f64);
         for ((p, s), c) in primary
@@ -191,11 +193,13 @@ fn scatter_is_added_and_removed() {
         scatter_in_input: true,
         ..Default::default()
     };
-    assert!(
-        dbt_pipeline::plausibility::check_counts_with(&noisy.header, &noisy.counts, true)
-            .unwrap()
-            .is_empty()
-    );
+    assert!(dbt_pipeline::plausibility::check_counts_with(
+        &slices(&noisy.header),
+        &noisy.counts,
+        true
+    )
+    .unwrap()
+    .is_empty());
     process(&noisy, &as_detected).unwrap();
     // Corrected counts cannot also be read as detected.
     let both = PipelineOptions {
@@ -218,4 +222,9 @@ fn scatter_is_added_and_removed() {
     );
     assert!(removed.flags.is_empty(), "{:?}", removed.flags);
     assert!((err(&removed) - err(&reference)).abs() < 0.015);
+}
+
+/// The slice-wise header of a fan-beam acquisition.
+fn slices(h: &dbt_pipeline::AcquisitionHeader) -> dbt_pipeline::SliceHeader {
+    dbt_pipeline::SliceHeader::try_from(h.clone()).expect("a slice-wise acquisition")
 }

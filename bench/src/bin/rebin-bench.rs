@@ -78,7 +78,7 @@ fn main() -> Result<()> {
                 .collect()
         })
         .collect();
-    // As `fan_acquisition`: every slice the detector covers at mid-breast
+    // As `rebin::slice_sinograms`: every slice the detector covers at mid-breast
     // of a 60 mm breast.
     let thickness = 60.0;
     let z_ref = sys.support_height_mm + thickness / 2.0;
@@ -98,12 +98,15 @@ fn main() -> Result<()> {
     });
     let per_slice_rebin = rebin_ms / slices as f64;
     // The frames' counts check, as `process` runs it on a cone-beam header.
-    let header = dbt_pipeline::acquisition::AcquisitionHeader {
-        thickness_mm: thickness,
-        flux,
-        slice_spacing_mm: fan.image.pixel_mm,
-        ..dbt_pipeline::acquisition::example_header(fan.clone(), rows, Some(sys.clone()))
-    };
+    let header = dbt_pipeline::ConeHeader::new(
+        dbt_pipeline::acquisition::AcquisitionHeader {
+            thickness_mm: thickness,
+            flux,
+            slice_spacing_mm: fan.image.pixel_mm,
+            ..dbt_pipeline::acquisition::example_header(fan.clone(), rows, None)
+        },
+        sys.clone(),
+    );
     let check_ms = median_ms(1, a.reps, || {
         let _ = dbt_pipeline::plausibility::check_counts(&header, &frames);
     });

@@ -93,8 +93,8 @@ pub struct AcquisitionHeader {
     /// The cone-beam system the counts come from (issue #28): then the
     /// counts are its detector's frames, `[detector row][view * column]`
     /// (`slices` = detector rows), rebinned to coronal slices
-    /// `slice_spacing_mm` apart in `geometry` before anything else
-    /// (`rebin::fan_acquisition`). Absent: the counts are already coronal
+    /// `slice_spacing_mm` apart in `geometry` (`rebin::slice_sinograms`
+    /// in the pipeline). Absent: the counts are already coronal
     /// fan-beam sinograms.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub system: Option<dbt_geometry::ConeSystem>,

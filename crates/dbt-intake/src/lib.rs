@@ -7,12 +7,15 @@
 //!
 //! * [`acquisition`]: the acquisition type, its header and the limits of a
 //!   plausible header;
+//! * [`layout`]: the two layouts of the counts as two types (slice-wise
+//!   sinograms, cone-beam frames), decided once;
 //! * [`gantry`]: the configured gantry every input checks against;
 //! * [`technique`]: a beam's tube output as the site's QC measured it;
 //! * [`settle`]: the note, the policy and the rules.
 
 pub mod acquisition;
 pub mod gantry;
+pub mod layout;
 pub mod settle;
 pub mod technique;
 
@@ -20,6 +23,9 @@ pub use acquisition::{
     validate_header, Acquisition, AcquisitionHeader, HeaderError, Patient, Study, ACQ_FORMAT,
 };
 pub use gantry::Gantry;
+pub use layout::{
+    ConeFrames, ConeHeader, Layout, NotSlices, Projections, SliceHeader, SliceSinograms,
+};
 pub use settle::{
     settle, GantryNote, Refusal, RefusalKind, RegisterReading, RegisterValues, SitePolicy, Source,
 };

@@ -19,9 +19,8 @@
 //! can give (`c <= 0`, `c >` [`MAX_SIGNAL`] `b`) pass as read, for the
 //! counts check to name them.
 
-use crate::acquisition::AcquisitionHeader;
+use crate::layout::RayLayout;
 use dbt_dose::xray::AnodeFilter;
-use dbt_forward::clinical::StackLayout;
 use dbt_scatter::{block_mean, upsample, ScatterTable};
 use thiserror::Error;
 
@@ -77,46 +76,18 @@ impl ScatterRemoval {
         }
     }
 
-    /// How the counts of `h` form the views' detector images.
-    pub fn layout(h: &AcquisitionHeader) -> StackLayout {
-        match &h.system {
-            Some(sys) => StackLayout::cone(sys),
-            None => StackLayout::fan(&h.geometry, h.slices, h.slice_spacing_mm),
-        }
-    }
-
-    /// [`Self::layout`] of `h`, once `counts` (`what`, for the message) are
-    /// checked to be that stack: `rows` rows of `views * cols` counts.
-    pub(crate) fn checked_layout(
-        h: &AcquisitionHeader,
-        counts: &[Vec<f32>],
-        what: &str,
-    ) -> Result<StackLayout, String> {
-        let l = Self::layout(h);
-        if counts.len() != l.rows || counts.iter().any(|r| r.len() != l.views * l.cols) {
-            return Err(format!(
-                "{} rows of {what} for a stack of {} rows x {} views x {} elements",
-                counts.len(),
-                l.rows,
-                l.views,
-                l.cols
-            ));
-        }
-        Ok(l)
-    }
-
     /// Remove the scatter from an acquisition's counts in place
     /// (`counts[row][view * cols + element]`, flat field `h.flux`; the
     /// header already validated). Returns the mean scatter-to-primary
     /// ratio removed under the breast (elements whose corrected counts
     /// are below 95 % of the flat field).
-    pub fn apply(
+    pub fn apply<H: RayLayout>(
         &self,
-        h: &AcquisitionHeader,
+        h: &H,
         counts: &mut [Vec<f32>],
     ) -> Result<f64, DescatterError> {
         let fail = |w: String| DescatterError::Model(w);
-        let l = Self::checked_layout(h, counts, "counts").map_err(fail)?;
+        let l = h.check_shape(counts, "counts").map_err(fail)?;
         let table = self.table(h.anode_filter);
         let (lo, hi) = table.range_mm();
         if !(lo..=hi).contains(&h.thickness_mm) {

@@ -6,6 +6,9 @@
 //! * [`acquisition`]: the [`Acquisition`] type and [`validate_header`], the
 //!   one header validation of every input (frame link, files, DICOM), from
 //!   the intake crate ([`dbt_intake`], where an acquisition is settled);
+//! * [`layout`]: what the stages need of the counts' layout, one trait
+//!   implemented by the intake's two layouts (slice-wise sinograms,
+//!   cone-beam frames);
 //! * [`plausibility`]: the counts against the flat field and the thickness,
 //!   and the reconstructed breast against its tissues and its box;
 //! * [`density_check`]: the reported density against the physics density
@@ -16,10 +19,12 @@
 //!   detector's counts corrected to what the network was trained on.
 
 pub use dbt_intake::acquisition;
+pub use dbt_intake::{ConeFrames, ConeHeader, Layout, NotSlices, SliceHeader, SliceSinograms};
 pub mod density_check;
 pub mod descatter;
 pub mod dicom_input;
 pub mod error;
+pub mod layout;
 pub mod linearise;
 pub mod noise_match;
 pub mod plausibility;

@@ -43,7 +43,7 @@
 //! all dense (noise) as dense tissue over a longer path. The curves are
 //! computed on a grid of `sec a` ([`SEC_STEP`]) and interpolated between.
 
-use crate::acquisition::AcquisitionHeader;
+use crate::layout::RayLayout;
 use dbt_dose::xray::AnodeFilter;
 use dbt_forward::clinical::{ClinicalPhysics, Detector};
 use dbt_materials::Tissue;
@@ -204,9 +204,9 @@ impl BeamHardening {
     /// validated): counts a breast can give (`0 < c <= b`) are mapped; any
     /// other value passes as read, for the counts check to name it.
     /// Returns how many were mapped.
-    pub fn apply(
+    pub fn apply<H: RayLayout>(
         &self,
-        h: &AcquisitionHeader,
+        h: &H,
         counts: &mut [Vec<f32>],
     ) -> Result<usize, LineariseError> {
         if let PathModel::Known { skin_mm } = self.path {
@@ -301,9 +301,9 @@ impl BeamHardening {
         })
     }
 
-    fn apply_on_known_path(
+    fn apply_on_known_path<H: RayLayout>(
         &self,
-        h: &AcquisitionHeader,
+        h: &H,
         counts: &mut [Vec<f32>],
         skin_mm: f64,
     ) -> Result<usize, LineariseError> {
@@ -311,25 +311,15 @@ impl BeamHardening {
             thickness_mm: h.thickness_mm,
             reason,
         };
-        let stack =
-            crate::descatter::ScatterRemoval::checked_layout(h, counts, "counts").map_err(fail)?;
+        h.check_shape(counts, "counts").map_err(fail)?;
         // Each ray's sec a: the fan's rays are every slice's; the cone's
         // differ by detector row too.
-        let sec = ray_secants(h);
-        let (lo, hi) = sec
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &s| {
-                (a.min(s), b.max(s))
-            });
-        let t = self.known_path_table(h.anode_filter, h.kvp, h.thickness_mm, skin_mm, (lo, hi))?;
+        let sec = h.ray_secants();
+        let t =
+            self.known_path_table(h.anode_filter, h.kvp, h.thickness_mm, skin_mm, sec.range())?;
         let b = h.flux;
-        let per_row = stack.views * stack.cols;
         let n = counts.par_iter_mut().enumerate().map(|(r, row)| {
-            let sec = if sec.len() == per_row {
-                &sec[..]
-            } else {
-                &sec[r * per_row..(r + 1) * per_row]
-            };
+            let sec = sec.row(r);
             let mut n = 0;
             for (c, &s) in row.iter_mut().zip(sec) {
                 let v = f64::from(*c);
@@ -350,41 +340,6 @@ const KP_SHORTER: usize = 40;
 const KP_MIXTURE: usize = 20;
 /// Points of a known-path curve beyond all dense tissue.
 const KP_LONGER: usize = 8;
-
-/// `sec a` of every ray of `h`'s counts (a ray's path through a slab
-/// over its thickness): `[view * cols + element]` for the slice-wise fan
-/// (every slice the same), `[(row * views + view) * cols + column]` for a
-/// cone-beam system's frames.
-pub fn ray_secants(h: &AcquisitionHeader) -> Vec<f64> {
-    let sec = |d: [f64; 3]| (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt() / d[2].abs();
-    match &h.system {
-        Some(sys) => {
-            let (rows, views, cols) = (sys.detector.rows, sys.n_views(), sys.detector.columns);
-            let mut out = Vec::with_capacity(rows * views * cols);
-            for r in 0..rows {
-                for v in 0..views {
-                    let s = sys.source(v);
-                    for c in 0..cols {
-                        let e = sys.element(v, r, c);
-                        out.push(sec([e[0] - s[0], e[1] - s[1], e[2] - s[2]]));
-                    }
-                }
-            }
-            out
-        }
-        None => {
-            let g = &h.geometry;
-            (0..g.n_views())
-                .flat_map(|v| {
-                    (0..g.n_det()).map(move |k| {
-                        let (s, p) = g.ray_endpoints_mm(v, k);
-                        sec([p.0 - s.0, 0.0, p.1 - s.1])
-                    })
-                })
-                .collect()
-        }
-    }
-}
 
 /// One known-path curve: log signal and 20 keV line integral, both
 /// increasing.
@@ -640,7 +595,7 @@ mod tests {
             .unwrap_err();
         assert!(e.to_string().contains("secant"), "{e}");
         let mut c = vec![vec![8_000.0; 7]];
-        let e = kp.apply(&header(None), &mut c).unwrap_err();
+        let e = kp.apply(&header(), &mut c).unwrap_err();
         assert!(
             e.to_string()
                 .contains("1 rows of counts for a stack of 1 rows x"),
@@ -661,65 +616,61 @@ mod tests {
             .unwrap()
             .binned(8)
             .unwrap();
-        for system in [None, Some(cone)] {
-            let h = header(system);
-            let sec = ray_secants(&h);
-            let s = dbt_dose::xray::technique_spectrum(h.anode_filter, h.kvp, h.thickness_mm)
-                .unwrap()
-                .spectrum
-                .unwrap();
-            let m = ClinicalPhysics::new(&s, 1.0, &Detector::default(), 1.0).unwrap();
-            let (rows, per_row) = match &h.system {
-                Some(sys) => (sys.detector.rows, sys.n_views() * sys.detector.columns),
-                None => (h.slices, h.geometry.n_views() * h.geometry.n_det()),
-            };
-            let ray = |r: usize, i: usize| {
-                sec[if sec.len() == per_row {
-                    i
-                } else {
-                    r * per_row + i
-                }]
-            };
-            let path = |sec: f64| {
-                let skin = 2.0 * NOMINAL_SKIN_MM * sec;
-                let interior = h.thickness_mm * sec - skin;
-                [interior * 0.6, interior * 0.4, skin]
-            };
-            let mut c: Vec<Vec<f32>> = (0..rows)
-                .map(|r| {
-                    (0..per_row)
-                        .map(|i| (h.flux * m.expected(path(ray(r, i))).0) as f32)
-                        .collect()
-                })
-                .collect();
-            assert_eq!(kp.apply(&h, &mut c).unwrap(), rows * per_row);
-            let (lo, hi) = sec
-                .iter()
-                .fold((9.0_f64, 0.0_f64), |a, &s| (a.0.min(s), a.1.max(s)));
-            assert!(lo >= 1.0 && hi > 1.05, "{lo} {hi}");
-            for (r, row) in c.iter().enumerate() {
-                for (i, &v) in row.iter().enumerate() {
-                    let l = path(ray(r, i));
-                    let want = 0.0512 * l[0] + 0.0798 * l[1] + 0.0854 * l[2];
-                    let got = (h.flux / f64::from(v)).ln();
-                    assert!(
-                        (got / want - 1.0).abs() < 5e-4,
-                        "row {r} ray {i}: {got} vs {want}"
-                    );
-                }
+        let paper = dbt_geometry::Geometry::builtin("paper").unwrap();
+        let fan = crate::acquisition::example_header(paper.clone(), 1, None);
+        on_its_own_path(&kp, &dbt_intake::SliceHeader::try_from(fan).unwrap());
+        let frames = crate::acquisition::example_header(paper, 1, None);
+        on_its_own_path(&kp, &dbt_intake::ConeHeader::new(frames, cone));
+    }
+
+    fn on_its_own_path<H: RayLayout>(kp: &BeamHardening, h: &H) {
+        let sec = h.ray_secants();
+        let s = dbt_dose::xray::technique_spectrum(h.anode_filter, h.kvp, h.thickness_mm)
+            .unwrap()
+            .spectrum
+            .unwrap();
+        let m = ClinicalPhysics::new(&s, 1.0, &Detector::default(), 1.0).unwrap();
+        let stack = h.stack();
+        let (rows, per_row) = (stack.rows, stack.views * stack.cols);
+        let path = |sec: f64| {
+            let skin = 2.0 * NOMINAL_SKIN_MM * sec;
+            let interior = h.thickness_mm * sec - skin;
+            [interior * 0.6, interior * 0.4, skin]
+        };
+        let mut c: Vec<Vec<f32>> = (0..rows)
+            .map(|r| {
+                sec.row(r)
+                    .iter()
+                    .map(|&s| (h.flux * m.expected(path(s)).0) as f32)
+                    .collect()
+            })
+            .collect();
+        assert_eq!(kp.apply(h, &mut c).unwrap(), rows * per_row);
+        let (lo, hi) = sec.range();
+        assert!(lo >= 1.0 && hi > 1.05, "{lo} {hi}");
+        for (r, row) in c.iter().enumerate() {
+            for (i, &v) in row.iter().enumerate() {
+                let l = path(sec.row(r)[i]);
+                let want = 0.0512 * l[0] + 0.0798 * l[1] + 0.0854 * l[2];
+                let got = (h.flux / f64::from(v)).ln();
+                assert!(
+                    (got / want - 1.0).abs() < 5e-4,
+                    "row {r} ray {i}: {got} vs {want}"
+                );
             }
         }
     }
 
-    fn header(system: Option<dbt_geometry::ConeSystem>) -> crate::acquisition::AcquisitionHeader {
+    fn header() -> dbt_intake::SliceHeader {
         let paper = dbt_geometry::Geometry::builtin("paper").unwrap();
-        crate::acquisition::example_header(paper, 1, system)
+        dbt_intake::SliceHeader::try_from(crate::acquisition::example_header(paper, 1, None))
+            .unwrap()
     }
 
     /// Counts a breast cannot give pass as read; the others map.
     #[test]
     fn impossible_counts_pass_unchanged() {
-        let h = header(None);
+        let h = header();
         let mut c = vec![vec![
             0.0,
             -1.0,

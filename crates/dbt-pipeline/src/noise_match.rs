@@ -38,7 +38,7 @@
 //! Linear in the line integrals: the partial volume is kept on average. The
 //! price is depth resolution where the counts were noisier than N8.
 
-use crate::acquisition::AcquisitionHeader;
+use crate::layout::RayLayout;
 use crate::linearise::{BeamHardening, PathModel};
 use rayon::prelude::*;
 use thiserror::Error;
@@ -145,9 +145,9 @@ impl NoiseMatch {
     /// acquisition (all `[row][view * cols + element]`; the header
     /// validated), linearised by `bh` (one reference tissue: the known path
     /// is refused).
-    pub fn apply(
+    pub fn apply<H: RayLayout>(
         &self,
-        h: &AcquisitionHeader,
+        h: &H,
         bh: &BeamHardening,
         raw: &[Vec<f32>],
         primary: &[Vec<f32>],
@@ -159,10 +159,9 @@ impl NoiseMatch {
                 "implemented for the one-reference linearisation only".into()
             ));
         }
-        let layout = crate::descatter::ScatterRemoval::checked_layout;
-        let stack = layout(h, raw, "detector counts").map_err(bad)?;
-        layout(h, primary, "primary counts").map_err(bad)?;
-        layout(h, lin, "linearised counts").map_err(bad)?;
+        let stack = h.check_shape(raw, "detector counts").map_err(bad)?;
+        h.check_shape(primary, "primary counts").map_err(bad)?;
+        h.check_shape(lin, "linearised counts").map_err(bad)?;
         let (rows, views, cols) = (stack.rows, stack.views, stack.cols);
         let per_row = views * cols;
         let table = bh
@@ -347,18 +346,20 @@ pub fn weight(ratio: f64, m: usize) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::acquisition::AcquisitionHeader;
     use rand::{Rng, SeedableRng};
 
     /// A slice-wise acquisition header of `slices` rows on the paper
     /// geometry binned x4 (25 views of 320 elements).
-    fn header(slices: usize) -> AcquisitionHeader {
+    fn header(slices: usize) -> dbt_intake::SliceHeader {
         let paper = dbt_geometry::Geometry::builtin("paper").unwrap();
-        AcquisitionHeader {
+        dbt_intake::SliceHeader::try_from(AcquisitionHeader {
             thickness_mm: 50.0,
             slice_spacing_mm: 0.8,
             kvp: 29.0,
             ..crate::acquisition::example_header(paper.binned(4).unwrap(), slices, None)
-        }
+        })
+        .unwrap()
     }
 
     /// The detector's counts of a uniform breast (elements 80..240 of every

@@ -48,7 +48,8 @@
 //!   degrees (rays with a line integral above the noise), per slice.
 
 use crate::acquisition::AcquisitionHeader;
-use dbt_geometry::{chord_in_rect, Geometry};
+pub use crate::layout::{box_chords, chord_in_box, cone_box_chords};
+use crate::layout::{PerRay, RayLayout};
 use dbt_materials::Tissue;
 use serde::Serialize;
 use thiserror::Error;
@@ -174,115 +175,23 @@ impl CountsCheck {
     }
 }
 
-/// The chord (mm) of each ray `(view, element)` through the compression box
-/// of thickness `t` on the geometry's support, within the image's width.
-pub fn box_chords(g: &Geometry, t: f64) -> Vec<f64> {
-    let (hw, z0) = (g.width_mm() / 2.0, g.support_z_mm());
-    let mut out = Vec::with_capacity(g.n_rays());
-    for v in 0..g.n_views() {
-        for k in 0..g.n_det() {
-            let (s, p) = g.ray_endpoints_mm(v, k);
-            out.push(chord_in_rect(s, p, -hw, hw, z0, z0 + t));
-        }
-    }
-    out
-}
-
 /// The count above which a ray holds more photons than the unattenuated
 /// beam, beyond its Poisson noise.
 fn hot_bound(flux: f64) -> f64 {
     flux + NOISE_Z * flux.sqrt() + 1.0
 }
 
-/// The chord (mm) of the segment from `s` to `e` through the box
-/// `[lo, hi]` (slab method; 0 when it misses).
-pub fn chord_in_box(s: [f64; 3], e: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> f64 {
-    let (mut t0, mut t1) = (0.0f64, 1.0f64);
-    for a in 0..3 {
-        let d = e[a] - s[a];
-        if d.abs() < 1e-12 {
-            if s[a] < lo[a] || s[a] > hi[a] {
-                return 0.0;
-            }
-            continue;
-        }
-        let (u, w) = ((lo[a] - s[a]) / d, (hi[a] - s[a]) / d);
-        t0 = t0.max(u.min(w));
-        t1 = t1.min(u.max(w));
-    }
-    let len = (0..3).map(|a| (e[a] - s[a]).powi(2)).sum::<f64>().sqrt();
-    (t1 - t0).max(0.0) * len
-}
-
-/// The chord (mm) of each cone-beam ray `[row][view * column + column]`
-/// of `sys` (the half-line from the source through the element) through
-/// the compression box: thickness `t` on the support, the
-/// fan image's width `width_mm` across, the detector's depth.
-pub fn cone_box_chords(sys: &dbt_geometry::ConeSystem, width_mm: f64, t: f64) -> Vec<Vec<f64>> {
-    let d = &sys.detector;
-    let lo = [-width_mm / 2.0, 0.0, sys.support_height_mm];
-    let hi = [
-        width_mm / 2.0,
-        d.rows as f64 * d.pitch_mm,
-        sys.support_height_mm + t,
-    ];
-    (0..d.rows)
-        .map(|r| {
-            (0..sys.n_views())
-                .flat_map(|v| {
-                    let src = sys.source(v);
-                    (0..d.columns).map(move |c| {
-                        // The half-line from the source through the element
-                        // (as the projector takes it: a rotating detector's
-                        // edge rises into the box at the widest angles).
-                        let e = sys.element(v, r, c);
-                        let far = [0, 1, 2].map(|a| src[a] + 10.0 * (e[a] - src[a]));
-                        chord_in_box(src, far, lo, hi)
-                    })
-                })
-                .collect()
-        })
-        .collect()
-}
-
 /// The per-ray count below which a ray is darker than the thickness
 /// allows: one bound per ray of a slice (the slice-wise stream), or per
 /// ray of each detector row (a cone-beam system's frames, whose rows cross
 /// the breast at other angles).
-pub(crate) enum DarkBounds {
-    Shared(Vec<f64>),
-    PerRow(Vec<Vec<f64>>),
-}
-
-impl DarkBounds {
-    pub(crate) fn row(&self, r: usize) -> &[f64] {
-        match self {
-            DarkBounds::Shared(v) => v,
-            DarkBounds::PerRow(v) => v.get(r).map_or(&[], Vec::as_slice),
-        }
-    }
-}
-
-pub(crate) fn dark_bounds(h: &AcquisitionHeader) -> DarkBounds {
+pub(crate) fn dark_bounds<H: RayLayout>(h: &H) -> PerRay {
     let mu = mu_max_per_mm();
-    let bound = |l: f64| {
-        let lam = h.flux * (-mu * l).exp();
+    let flux = h.flux;
+    h.box_chords().map(|l| {
+        let lam = flux * (-mu * l).exp();
         lam - NOISE_Z * lam.sqrt()
-    };
-    match &h.system {
-        None => DarkBounds::Shared(
-            box_chords(&h.geometry, h.thickness_mm)
-                .into_iter()
-                .map(bound)
-                .collect(),
-        ),
-        Some(sys) => DarkBounds::PerRow(
-            cone_box_chords(sys, h.geometry.width_mm(), h.thickness_mm)
-                .into_iter()
-                .map(|r| r.into_iter().map(bound).collect())
-                .collect(),
-        ),
-    }
+    })
 }
 
 /// Counts with their defects corrected (borrowed where there were none),
@@ -366,7 +275,7 @@ impl Defects {
 /// [`crate::acquisition::validate_header`]. A cone-beam acquisition's
 /// counts are its detector's frames (rows of views of columns): checked as
 /// read, before the rebinning spreads a defect over slices and views.
-pub fn check_counts(h: &AcquisitionHeader, counts: &[Vec<f32>]) -> Result<Defects, Implausible> {
+pub fn check_counts<H: RayLayout>(h: &H, counts: &[Vec<f32>]) -> Result<Defects, Implausible> {
     check_counts_with(h, counts, false)
 }
 
@@ -388,16 +297,13 @@ pub const SCATTER_AIR_MAX: f64 = 1.0;
 /// bound holds for every element, so a hot element under the breast is
 /// caught only above it too: the price of reading counts with scatter.
 /// Saturation is judged on the flat field alone, as without scatter.
-pub fn check_counts_with(
-    h: &AcquisitionHeader,
+pub fn check_counts_with<H: RayLayout>(
+    h: &H,
     counts: &[Vec<f32>],
     scatter_in_counts: bool,
 ) -> Result<Defects, Implausible> {
-    let g = &h.geometry;
-    let (nv, nd) = match &h.system {
-        Some(s) => (s.n_views(), s.detector.columns),
-        None => (g.n_views(), g.n_det()),
-    };
+    let stack = h.stack();
+    let (nv, nd) = (stack.views, stack.cols);
     let nr = nv * nd;
     if counts.len() != h.slices {
         return Err(Implausible::Shape {

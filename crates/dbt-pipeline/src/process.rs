@@ -7,7 +7,8 @@
 //! figure is returned. Pure: the adapters read the acquisition and deliver
 //! the reports.
 
-use crate::acquisition::{validate_header, Acquisition};
+use crate::acquisition::{validate_header, Acquisition, AcquisitionHeader};
+use crate::layout::RayLayout;
 use crate::plausibility::{
     check_counts_with, check_volume, footprint_mm, CountsCheck, VolumeCheck,
 };
@@ -18,6 +19,7 @@ use dbt_dicom::{
 use dbt_dose::patient::{dbt_views, mgd_to_uncertainty, Breast, MgdResult, Model};
 use dbt_dose::xray::AnodeFilter;
 use dbt_forward::log_transform;
+use dbt_intake::{ConeFrames, ConeHeader, Layout, Projections, SliceHeader, SliceSinograms};
 use dbt_projector::Projector;
 use dbt_recon::{mltr, MltrOptions};
 use dbt_tissue::{
@@ -408,11 +410,11 @@ pub fn algorithm_version(opts: &PipelineOptions) -> String {
 /// read mono-energetic primary counts); `acq` itself where `opts` asks for
 /// neither. The header is validated first (the corrections use its flux,
 /// thickness and technique).
-pub fn correct_counts<'a>(
-    acq: &'a Acquisition,
+pub fn correct_counts<'a, H: RayLayout>(
+    acq: &'a Projections<H>,
     opts: &PipelineOptions,
-) -> Result<std::borrow::Cow<'a, Acquisition>, PipelineError> {
-    validate_header(&acq.header)?;
+) -> Result<std::borrow::Cow<'a, Projections<H>>, PipelineError> {
+    acq.header.validate()?;
     if opts.scatter_in_input && (opts.descatter.is_some() || opts.linearise.is_some()) {
         return Err(PipelineError::Input(
             "counts read with their scatter left in (scatter_in_input) cannot also be corrected: \
@@ -464,13 +466,41 @@ pub fn correct_counts<'a>(
 /// polychromatic detector's) and stack the rows within the compressed thickness into a volume,
 /// calling `progress` after each slice.
 pub fn reconstruct_volume(
-    acq: &Acquisition,
+    acq: &SliceSinograms,
     opts: &PipelineOptions,
     progress: &mut dyn FnMut(Stage),
 ) -> Result<Volume, PipelineError> {
     let h = &acq.header;
+    h.validate()?;
+    preflight(h, opts)?;
+    // The counts last: every cheaper refusal above comes first.
+    let (counts, counts_check) = checked_counts(h, &acq.counts, opts.scatter_in_input)?;
+    reconstruct_checked(h, &counts, counts_check, opts, progress)
+}
+
+/// The counts of `h` checked ([`check_counts_with`]) and their defects
+/// corrected (borrowed where there were none).
+fn checked_counts<'a, H: RayLayout>(
+    h: &H,
+    counts: &'a [Vec<f32>],
+    scatter_in_counts: bool,
+) -> Result<crate::plausibility::Corrected<'a>, PipelineError> {
+    let (counts, check) = check_counts_with(h, counts, scatter_in_counts)?.applied(counts)?;
+    if let std::borrow::Cow::Owned(_) = counts {
+        tracing::warn!(
+            corrected = check.corrected,
+            rows = h.stack().rows,
+            "defective detector counts corrected"
+        );
+    }
+    Ok((counts, check))
+}
+
+/// The refusals of an acquisition's header and `opts` that need no count:
+/// the slice spacing against the pixel, the thickness against the image,
+/// the slice step, the model's geometry.
+fn preflight(h: &AcquisitionHeader, opts: &PipelineOptions) -> Result<(), PipelineError> {
     let g = &h.geometry;
-    validate_header(h)?;
     if (h.slice_spacing_mm - g.image.pixel_mm).abs() > 1e-6 {
         return Err(PipelineError::Input(format!(
             "slice spacing {} mm differs from the pixel {} mm (the dose grid must be isotropic)",
@@ -488,9 +518,7 @@ pub fn reconstruct_volume(
             g.describe()
         )));
     }
-    let (rows, cols) = (g.image.rows, g.image.columns);
-    let nv = g.rows_within_thickness(h.thickness_mm);
-    if nv == 0 {
+    if g.rows_within_thickness(h.thickness_mm) == 0 {
         return Err(PipelineError::Input(format!(
             "thickness {} mm holds no image row",
             h.thickness_mm
@@ -502,10 +530,6 @@ pub fn reconstruct_volume(
                 .into(),
         ));
     }
-    let mopts = MltrOptions {
-        iterations: opts.mltr_iterations,
-        track_likelihood: false,
-    };
     if let Some(m) = &opts.dbtor {
         if m.geometry() != g {
             return Err(PipelineError::Input(format!(
@@ -515,16 +539,25 @@ pub fn reconstruct_volume(
             )));
         }
     }
-    // The counts last: every cheaper refusal above comes first.
-    let (counts, counts_check) =
-        check_counts_with(h, &acq.counts, opts.scatter_in_input)?.applied(&acq.counts)?;
-    if let std::borrow::Cow::Owned(_) = counts {
-        tracing::warn!(
-            corrected = counts_check.corrected,
-            "defective detector counts corrected"
-        );
-    }
-    let counts = counts.as_ref();
+    Ok(())
+}
+
+/// [`reconstruct_volume`] of sinograms already checked ([`preflight`],
+/// the counts' check `counts_check`, their defects corrected in `counts`).
+fn reconstruct_checked(
+    h: &SliceHeader,
+    counts: &[Vec<f32>],
+    counts_check: CountsCheck,
+    opts: &PipelineOptions,
+    progress: &mut dyn FnMut(Stage),
+) -> Result<Volume, PipelineError> {
+    let g = &h.geometry;
+    let (rows, cols) = (g.image.rows, g.image.columns);
+    let nv = g.rows_within_thickness(h.thickness_mm);
+    let mopts = MltrOptions {
+        iterations: opts.mltr_iterations,
+        track_likelihood: false,
+    };
     let proj = Projector::new(g);
     let mask = dbt_phantom::thickness_mask(g, h.thickness_mm);
     let nd = counts.len();
@@ -597,25 +630,33 @@ pub fn reconstruct_volume(
     })
 }
 
-/// The physics-based density ([`dbt_physics_density::estimate`]) of a
-/// slice-wise acquisition whose counts are the primary's on the 20 keV scale
-/// (after [`correct_counts`] and the cone-beam rebinning), its defective
-/// elements corrected first; the error as text where none can be made (the
-/// reconstruction's own checks name the acquisition's faults).
+/// The physics-based density ([`dbt_physics_density::estimate`]) of
+/// slice-wise sinograms whose counts are the primary's on the 20 keV scale
+/// (after [`correct_counts`] and, for a cone-beam acquisition, the
+/// rebinning), its defective elements corrected first; the error as text
+/// where none can be made (the reconstruction's own checks name the
+/// acquisition's faults).
 pub fn physics_density(
-    acq: &Acquisition,
+    acq: &SliceSinograms,
     opts: &PipelineOptions,
 ) -> Result<dbt_physics_density::PhysicsDensity, String> {
-    let h = &acq.header;
-    let (counts, _) = check_counts_with(h, &acq.counts, opts.scatter_in_input)
+    let (counts, _) = check_counts_with(&acq.header, &acq.counts, opts.scatter_in_input)
         .and_then(|d| d.applied(&acq.counts))
         .map_err(|e| e.to_string())?;
+    physics_density_checked(&acq.header, &counts)
+}
+
+/// [`physics_density`] of counts already checked and corrected.
+fn physics_density_checked(
+    h: &SliceHeader,
+    counts: &[Vec<f32>],
+) -> Result<dbt_physics_density::PhysicsDensity, String> {
     let input = dbt_physics_density::Input {
         geometry: &h.geometry,
         slice_spacing_mm: h.slice_spacing_mm,
         thickness_mm: h.thickness_mm,
         flux: h.flux,
-        counts: &counts,
+        counts,
     };
     let o = dbt_physics_density::Options {
         skin_mm: crate::linearise::NOMINAL_SKIN_MM,
@@ -626,10 +667,112 @@ pub fn physics_density(
     dbt_physics_density::estimate(&input, &o).map_err(|e| e.to_string())
 }
 
+/// How each layout reaches the reconstruction, written once per layout so
+/// that no stage asks which it holds: its counts checked once (defects
+/// corrected) and made slice-wise sinograms, and the reconstructed stack
+/// made a regular volume.
+pub trait ToSinograms: RayLayout + Sized {
+    /// The (corrected) counts of `p` checked once, their defects
+    /// corrected, as slice-wise sinograms, with the check.
+    fn checked_sinograms(
+        p: Projections<Self>,
+        scatter_in_counts: bool,
+    ) -> Result<(SliceSinograms, CountsCheck), PipelineError>;
+
+    /// The stack reconstructed from [`Self::checked_sinograms`]' sinograms
+    /// (`dims` lateral x vertical x depth, voxels `pixel_mm` wide) as a
+    /// regular volume, its dims, and the depth of its voxels, mm.
+    fn regular_volume(
+        &self,
+        mu: Vec<f32>,
+        dims: [usize; 3],
+        pixel_mm: f64,
+    ) -> (Vec<f32>, [usize; 3], f64);
+}
+
+impl ToSinograms for SliceHeader {
+    fn checked_sinograms(
+        mut p: SliceSinograms,
+        scatter_in_counts: bool,
+    ) -> Result<(SliceSinograms, CountsCheck), PipelineError> {
+        let (counts, check) = checked_counts(&p.header, &p.counts, scatter_in_counts)?;
+        let fixed = match counts {
+            std::borrow::Cow::Owned(c) => Some(c),
+            std::borrow::Cow::Borrowed(_) => None,
+        };
+        if let Some(c) = fixed {
+            p.counts = c;
+        }
+        Ok((p, check))
+    }
+
+    fn regular_volume(
+        &self,
+        mu: Vec<f32>,
+        dims: [usize; 3],
+        _pixel_mm: f64,
+    ) -> (Vec<f32>, [usize; 3], f64) {
+        (mu, dims, self.slice_spacing_mm)
+    }
+}
+
+impl ToSinograms for ConeHeader {
+    /// The detector's frames are checked as read (a stuck or dead element
+    /// is one element there, spread over slices and views once rebinned),
+    /// their defects corrected, then rebinned.
+    fn checked_sinograms(
+        mut p: ConeFrames,
+        scatter_in_counts: bool,
+    ) -> Result<(SliceSinograms, CountsCheck), PipelineError> {
+        let (counts, check) = checked_counts(&p.header, &p.counts, scatter_in_counts)?;
+        let fixed = match counts {
+            std::borrow::Cow::Owned(c) => Some(c),
+            std::borrow::Cow::Borrowed(_) => None,
+        };
+        if let Some(c) = fixed {
+            p.counts = c;
+        }
+        Ok((crate::rebin::slice_sinograms(&p)?, check))
+    }
+
+    /// A cone-beam stack is the breast sheared in depth: resampled to a
+    /// regular volume.
+    fn regular_volume(
+        &self,
+        mu: Vec<f32>,
+        dims: [usize; 3],
+        pixel_mm: f64,
+    ) -> (Vec<f32>, [usize; 3], f64) {
+        let (mu, dims) =
+            crate::rebin::resample_depth(self.system(), self.thickness_mm, pixel_mm, &mu, dims);
+        (mu, dims, pixel_mm)
+    }
+}
+
 /// [`process`], calling `progress` after each slice and at each later stage
 /// (for the service CLI's progress display).
 pub fn process_with_progress(
     acq: &Acquisition,
+    opts: &PipelineOptions,
+    progress: &mut dyn FnMut(Stage),
+) -> Result<ProcessResult, PipelineError> {
+    // The cross-check's limits and the calibration of the acquisition's
+    // beam (before any work): a limit that is not a positive number would
+    // confirm every density or none.
+    opts.density_limits.validate()?;
+    let beam_opts = opts.for_beam(acq.header.anode_filter)?;
+    let opts = beam_opts.as_ref();
+    validate_header(&acq.header)?;
+    // The one place the layout is chosen: each is processed by the same
+    // code, monomorphised.
+    match acq.clone().into_layout() {
+        Layout::Slices(s) => process_layout(s, opts, progress),
+        Layout::Cone(c) => process_layout(c, opts, progress),
+    }
+}
+
+fn process_layout<H: ToSinograms>(
+    acq: Projections<H>,
     opts: &PipelineOptions,
     progress: &mut dyn FnMut(Stage),
 ) -> Result<ProcessResult, PipelineError> {
@@ -641,42 +784,14 @@ pub fn process_with_progress(
         s
     };
     let mut stage_seconds = StageSeconds::default();
-    // The cross-check's limits and the calibration of the acquisition's
-    // beam (before any work): a limit that is not a positive number would
-    // confirm every density or none.
-    opts.density_limits.validate()?;
-    let beam_opts = opts.for_beam(acq.header.anode_filter)?;
-    let opts = beam_opts.as_ref();
-    let corrected = correct_counts(acq, opts)?;
-    let acq = corrected.as_ref();
-    // A cone-beam acquisition is then made the slice-wise fan-beam one: its
-    // detector frames checked as read (a stuck or
-    // dead element is one element there, spread over slices and views once
-    // rebinned), defects corrected, then rebinned.
-    let rebinned;
-    let mut raw_check = None;
-    let cone = acq.header.system.clone();
-    let acq = if acq.header.system.is_some() {
-        let (counts, chk) = check_counts_with(&acq.header, &acq.counts, opts.scatter_in_input)?
-            .applied(&acq.counts)?;
-        rebinned = match counts {
-            std::borrow::Cow::Borrowed(_) => crate::rebin::fan_acquisition(acq)?,
-            std::borrow::Cow::Owned(counts) => {
-                tracing::warn!(
-                    corrected = chk.corrected,
-                    "defective detector counts corrected in the cone-beam frames"
-                );
-                crate::rebin::fan_acquisition(&Acquisition {
-                    header: acq.header.clone(),
-                    counts,
-                })?
-            }
-        };
-        raw_check = Some(chk);
-        &rebinned
-    } else {
-        acq
+    let acq = match correct_counts(&acq, opts)? {
+        std::borrow::Cow::Owned(a) => a,
+        std::borrow::Cow::Borrowed(_) => acq,
     };
+    preflight(&acq.header, opts)?;
+    let layout = acq.header.clone();
+    // The counts last: every cheaper refusal above comes first.
+    let (acq, counts_check) = H::checked_sinograms(acq, opts.scatter_in_input)?;
     let h = &acq.header;
     let g = &h.geometry;
     let _span =
@@ -690,27 +805,11 @@ pub fn process_with_progress(
         counts_check,
         footprint_mm,
         ..
-    } = reconstruct_volume(acq, opts, progress)?;
-    // A cone-beam stack is the breast sheared in depth: resampled to a
-    // regular volume (lateral x vertical x depth).
-    let (mu, dims) = match &cone {
-        Some(sys) => crate::rebin::resample_depth(sys, h.thickness_mm, g.image.pixel_mm, &mu, dims),
-        None => (mu, dims),
-    };
-    // The record of a cone-beam acquisition is its frames' check, with what
-    // the rebinned sinograms' check still corrected.
-    let counts_check = match raw_check {
-        Some(raw) => CountsCheck {
-            dead: raw.dead + counts_check.dead,
-            dark: raw.dark + counts_check.dark,
-            hot: raw.hot + counts_check.hot,
-            saturated: raw.saturated + counts_check.saturated,
-            stuck: raw.stuck + counts_check.stuck,
-            corrected: raw.corrected + counts_check.corrected,
-            rays: raw.rays,
-        },
-        None => counts_check,
-    };
+    } = reconstruct_checked(h, &acq.counts, counts_check, opts, progress)?;
+    // The volume lateral x vertical x depth, and its depth voxel (a
+    // cone-beam stack is resampled to the pixel, a slice-wise one keeps the
+    // slices).
+    let (mu, dims, depth_step) = layout.regular_volume(mu, dims, g.image.pixel_mm);
     stage_seconds.reconstruction = lap();
     progress(Stage::Classification);
     let classification = classify(&mu, dims, g.image.pixel_mm, &opts.classify)?;
@@ -725,7 +824,7 @@ pub fn process_with_progress(
     // The second density, of the same corrected counts: after every
     // refusal of the reconstruction and the volume, so that an acquisition
     // refused costs none of it.
-    let physics_density = physics_density(acq, opts);
+    let physics_density = physics_density_checked(h, &acq.counts);
     let glandularity = opts
         .calibration
         .map_or(dens.glandularity_partial_volume, |c| {
@@ -733,13 +832,6 @@ pub fn process_with_progress(
         });
     let density_check = {
         let _s = tracing::debug_span!("density_check").entered();
-        // The volume's depth voxel: a cone-beam stack is resampled to the
-        // pixel, a slice-wise one keeps the slices.
-        let depth_step = if cone.is_some() {
-            g.image.pixel_mm
-        } else {
-            h.slice_spacing_mm
-        };
         let contact = physics_density.as_ref().ok().and_then(|p| {
             crate::density_check::contact_glandularity(
                 &mu,

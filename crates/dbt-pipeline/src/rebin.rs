@@ -31,8 +31,9 @@
 //! sheared in depth, which [`resample_depth`] undoes, leaving the part due
 //! to the source's height changing with the view (about 0.5 mm at 150 mm).
 
-use crate::acquisition::Acquisition;
+use crate::acquisition::AcquisitionHeader;
 use dbt_geometry::{ConeSystem, DetectorMotion, Geometry};
+use dbt_intake::{ConeFrames, SliceHeader, SliceSinograms};
 use rayon::prelude::*;
 use thiserror::Error;
 
@@ -141,7 +142,7 @@ fn mean_source_height(sys: &ConeSystem) -> f64 {
 ///
 /// `mu` has dims `[columns, rows, slices]` (row 0 on the support at
 /// `support_mm`, rows `pixel_mm` high, slices `pixel_mm` apart from the
-/// chest wall); `thickness_mm` sets `z_ref` as [`fan_acquisition`] does.
+/// chest wall); `thickness_mm` sets `z_ref` as [`slice_sinograms`] does.
 /// Returns the volume and its dims: as many slices as the deepest row needs.
 pub fn resample_depth(
     sys: &ConeSystem,
@@ -337,19 +338,18 @@ const AIR_MEAN_LINE_INTEGRAL: f64 = 0.005;
 /// slice the detector covers at mid-breast, `slice_spacing_mm` apart,
 /// rebinned ([`rebin`]) at mid-breast height; trailing slices of air
 /// (beyond the nipple) dropped. The fan geometry's image must rest on the
-/// system's support (the breast sits there in both).
-pub fn fan_acquisition(acq: &Acquisition) -> Result<Acquisition, RebinError> {
-    let h = &acq.header;
-    let Some(sys) = &h.system else {
-        return Ok(acq.clone());
-    };
+/// system's support (the breast sits there in both). The one bridge from
+/// [`ConeFrames`] to [`SliceSinograms`].
+pub fn slice_sinograms(frames: &ConeFrames) -> Result<SliceSinograms, RebinError> {
+    let h = &frames.header;
+    let sys = h.system();
     let fan = &h.geometry;
     check_site(sys, fan)?;
-    if h.slices != sys.detector.rows || acq.counts.len() != sys.detector.rows {
+    if h.slices != sys.detector.rows || frames.counts.len() != sys.detector.rows {
         return Err(RebinError::Shape(format!(
             "header says {} rows, {} rows of counts, the detector has {}",
             h.slices,
-            acq.counts.len(),
+            frames.counts.len(),
             sys.detector.rows
         )));
     }
@@ -359,7 +359,15 @@ pub fn fan_acquisition(acq: &Acquisition) -> Result<Acquisition, RebinError> {
     // towards the source).
     let covered = sys.detector.rows as f64 * sys.detector.pitch_mm * (z_s - z_ref) / z_s;
     let n = (covered / h.slice_spacing_mm).floor() as usize;
-    let out = rebin(sys, fan, &acq.counts, h.flux, n, h.slice_spacing_mm, z_ref)?;
+    let out = rebin(
+        sys,
+        fan,
+        &frames.counts,
+        h.flux,
+        n,
+        h.slice_spacing_mm,
+        z_ref,
+    )?;
     let mut counts = out.counts;
     while counts.last().is_some_and(|s| {
         let mean = s
@@ -380,8 +388,8 @@ pub fn fan_acquisition(acq: &Acquisition) -> Result<Acquisition, RebinError> {
             "rays through the image box beyond the detector's edge: edge counts used"
         );
     }
-    let mut header = h.clone();
-    header.system = None;
+    let mut header: AcquisitionHeader = (**h).clone();
     header.slices = counts.len();
-    Ok(Acquisition { header, counts })
+    let header = SliceHeader::try_from(header).map_err(|e| RebinError::Shape(e.to_string()))?;
+    Ok(SliceSinograms { header, counts })
 }

@@ -8,11 +8,42 @@ use dbt_pipeline::acquisition::{
     limits, validate_header, Acquisition, AcquisitionHeader, Patient, Study, ACQ_FORMAT,
 };
 use dbt_pipeline::plausibility::{
-    check_counts, check_volume, footprint_mm, Implausible, DEFECT_FRACTION_MAX, DETECTOR_MAX_COUNT,
+    check_volume, footprint_mm, Implausible, DEFECT_FRACTION_MAX, DETECTOR_MAX_COUNT,
     VOLUME_FILL_MAX,
 };
 
 const FLUX: f64 = 16_000.0; // N8
+
+/// The counts check of a recorded header's counts, in the layout the
+/// header states (the tests write headers as a file holds them).
+fn check_counts(
+    h: &AcquisitionHeader,
+    counts: &[Vec<f32>],
+) -> Result<dbt_pipeline::plausibility::Defects, Implausible> {
+    check_counts_with(h, counts, false)
+}
+
+/// [`check_counts`], with scatter in the counts or not.
+fn check_counts_with(
+    h: &AcquisitionHeader,
+    counts: &[Vec<f32>],
+    scatter: bool,
+) -> Result<dbt_pipeline::plausibility::Defects, Implausible> {
+    use dbt_pipeline::plausibility::check_counts_with as check;
+    match h.system.clone() {
+        None => check(&slices(h), counts, scatter),
+        Some(sys) => check(
+            &dbt_pipeline::ConeHeader::new(h.clone(), sys),
+            counts,
+            scatter,
+        ),
+    }
+}
+
+/// The slice-wise header of a fan-beam acquisition.
+fn slices(h: &AcquisitionHeader) -> dbt_pipeline::SliceHeader {
+    dbt_pipeline::SliceHeader::try_from(h.clone()).expect("a slice-wise acquisition")
+}
 
 fn geometry() -> Geometry {
     Geometry::builtin("paper-tall").unwrap().binned(4).unwrap()
@@ -98,7 +129,7 @@ fn a_clean_acquisition_passes_without_corrections() {
 /// (a flat field of 40,000 puts twice it above 65,535).
 #[test]
 fn counts_with_scatter_have_their_own_hot_bound_and_still_saturate() {
-    use dbt_pipeline::plausibility::{check_counts_with, SCATTER_AIR_MAX};
+    use dbt_pipeline::plausibility::SCATTER_AIR_MAX;
     let a = acquisition(2, 50.0, 120.0, 50.0, 4);
     let scaled = |f: f32| -> Vec<Vec<f32>> {
         a.counts
@@ -865,7 +896,7 @@ fn scatter_removal_checks_its_input_and_keeps_impossible_counts() {
     let mut short = a.counts.clone();
     short.pop();
     let e = removal
-        .apply(&a.header, &mut short)
+        .apply(&slices(&a.header), &mut short)
         .unwrap_err()
         .to_string();
     assert!(
@@ -875,7 +906,7 @@ fn scatter_removal_checks_its_input_and_keeps_impossible_counts() {
     let mut c = a.counts.clone();
     c[2][7] = 0.0;
     c[3][11] = 2.0 * FLUX as f32;
-    removal.apply(&a.header, &mut c).unwrap();
+    removal.apply(&slices(&a.header), &mut c).unwrap();
     assert_eq!((c[2][7], c[3][11]), (0.0, 2.0 * FLUX as f32));
     for (r, (row, orig)) in c.iter().zip(&a.counts).enumerate() {
         for (k, (got, was)) in row.iter().zip(orig).enumerate() {
@@ -912,14 +943,16 @@ fn the_physics_density_reads_fat_as_fat_and_dense_as_dense() {
         a
     };
     let fat = block(Tissue::Adipose.mu_per_mm() as f64, 11);
-    let p = dbt_pipeline::process::physics_density(&fat, &opts).expect("fat");
+    let p = dbt_pipeline::process::physics_density(&fat.clone().into_sinograms().unwrap(), &opts)
+        .expect("fat");
     assert!(
         p.central.glandularity < 0.03,
         "fat reads {}",
         p.central.glandularity
     );
     let mut dense = block(Tissue::Fibroglandular.mu_per_mm() as f64, 12);
-    let p = dbt_pipeline::process::physics_density(&dense, &opts).expect("dense");
+    let p = dbt_pipeline::process::physics_density(&dense.clone().into_sinograms().unwrap(), &opts)
+        .expect("dense");
     assert!(
         p.central.glandularity > 0.9,
         "dense reads {}",
@@ -929,6 +962,7 @@ fn the_physics_density_reads_fat_as_fat_and_dense_as_dense() {
     let nd = dense.header.geometry.n_det();
     let centre = 12 * nd + nd / 2;
     dense.counts[20][centre] = 0.0;
-    let q = dbt_pipeline::process::physics_density(&dense, &opts).expect("dense, one dead");
+    let q = dbt_pipeline::process::physics_density(&dense.clone().into_sinograms().unwrap(), &opts)
+        .expect("dense, one dead");
     assert!((q.central.glandularity - p.central.glandularity).abs() < 1e-3);
 }
