@@ -87,6 +87,7 @@ pub fn preflight(cfg: &Config, config_path: &Path) -> Result<Vec<String>, Daemon
             match s.detector_motion {
                 dbt_geometry::DetectorMotion::Rotating => "rotating",
                 dbt_geometry::DetectorMotion::Stationary => "stationary",
+                dbt_geometry::DetectorMotion::Tilting => "tilting",
             }
         ));
     }

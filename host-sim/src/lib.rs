@@ -223,6 +223,58 @@ fn clinical_signals(
     }
 }
 
+/// The positions of one exposure of each view: the system itself for a
+/// step-and-shoot gantry, else the source (with a detector that moves with
+/// it) at three points across the arc `source_blur_deg` it travels during
+/// the exposure, the midpoints of its thirds.
+pub fn exposure_positions(
+    system: &dbt_geometry::ConeSystem,
+) -> Result<Vec<dbt_geometry::ConeSystem>, SimError> {
+    let b = system.source_blur_deg;
+    if b == 0.0 {
+        return Ok(vec![system.clone()]);
+    }
+    [-b / 3.0, 0.0, b / 3.0]
+        .iter()
+        .map(|&off| {
+            let mut s = system.clone();
+            s.source_blur_deg = 0.0;
+            s.views.first_deg += off;
+            s.views.last_deg += off;
+            s.view_angles_deg = Some(
+                (0..system.n_views())
+                    .map(|v| system.angle_deg(v) + off)
+                    .collect(),
+            );
+            s.validate().map_err(|e| SimError::Cone(e.to_string()))?;
+            Ok(s)
+        })
+        .collect()
+}
+
+/// The line integral of the mean transmission of each ray over several
+/// positions' line integrals: `-ln(mean exp(-p))`.
+fn mean_transmission_path(ps: &[Vec<f32>]) -> Vec<f32> {
+    if ps.len() == 1 {
+        return ps[0].clone();
+    }
+    let n = ps.len() as f64;
+    (0..ps[0].len())
+        .map(|i| {
+            let t: f64 = ps.iter().map(|p| (-f64::from(p[i])).exp()).sum::<f64>() / n;
+            (-t.ln()) as f32
+        })
+        .collect()
+}
+
+/// The mean of several positions' paths, ray by ray.
+fn mean_path(ps: &[Vec<f32>]) -> Vec<f32> {
+    let n = ps.len() as f32;
+    (0..ps[0].len())
+        .map(|i| ps.iter().map(|p| p[i]).sum::<f32>() / n)
+        .collect()
+}
+
 /// Technique of a simulated acquisition (plausible values, not a measured
 /// tube): the beam, a sweep of `mas_total` and a tube output at the
 /// reference point (the kV is the beam's automatic exposure for the
@@ -511,8 +563,15 @@ pub fn simulate_cone_acquisition_with(
             }
         }
     }
-    let proj =
-        dbt_cone::ConeProjector::new(system, grid).map_err(|e| SimError::Cone(e.to_string()))?;
+    // The positions the source (and a detector that moves with it) takes
+    // during each exposure: the view's own, or for continuous motion three
+    // across the arc it travels.
+    let positions = exposure_positions(system)?;
+    let projectors = positions
+        .iter()
+        .map(|p| dbt_cone::ConeProjector::new(p, grid))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| SimError::Cone(e.to_string()))?;
     let (drows, dcols, views) = (
         system.detector.rows,
         system.detector.columns,
@@ -530,11 +589,25 @@ pub fn simulate_cone_acquisition_with(
         }
         f
     };
-    let projected: Vec<Vec<f32>> = vols
-        .iter()
-        .map(|v| proj.forward(v).map(|p| frames_of(&p)))
-        .collect::<Result<_, _>>()
-        .map_err(|e| SimError::Cone(e.to_string()))?;
+    let forward = |v: &[f32]| -> Result<Vec<Vec<f32>>, SimError> {
+        projectors
+            .iter()
+            .map(|p| p.forward(v).map(|p| frames_of(&p)))
+            .collect::<Result<_, _>>()
+            .map_err(|e| SimError::Cone(e.to_string()))
+    };
+    let projected: Vec<Vec<f32>> = match physics {
+        // One attenuation: the mean transmission over the positions, as
+        // the line integral that gives it (exact).
+        Physics::Mono => vec![mean_transmission_path(&forward(&vols[0])?)],
+        // Each material's path averaged over the positions: the
+        // polychromatic signal is not linear in the paths, an error of the
+        // second order in their change across one exposure's arc.
+        Physics::Clinical { .. } => vols
+            .iter()
+            .map(|v| forward(v).map(|ps| mean_path(&ps)))
+            .collect::<Result<_, _>>()?,
+    };
     let (counts, flux) = match physics {
         Physics::Mono => {
             let a = simulate_from_line_integrals(&projected[0], noise, mix_seed(seed, &[u64::MAX]));

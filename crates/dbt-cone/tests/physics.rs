@@ -1,6 +1,6 @@
 //! The cone-beam projector against physics (issue #28): adjointness, the
 //! line integrals through a slab and an ellipsoid against their analytic
-//! values at every view of both built-in systems, and agreement with the
+//! values at every view of every built-in system, and agreement with the
 //! 2-D fan-beam projector where the two must agree (a volume uniform in
 //! depth, the rotating system).
 
@@ -9,18 +9,25 @@ use dbt_geometry::cone::Point3;
 use dbt_geometry::ConeSystem;
 use rand::{Rng, SeedableRng};
 
-/// Both built-in systems, binned so that a test runs in seconds.
+/// Every built-in system (rotating, stationary and tilting detectors, the
+/// pivot above the detector or in its plane), binned to elements of
+/// 1.36-1.6 mm so that a test runs in seconds.
 fn systems() -> Vec<ConeSystem> {
-    vec![
-        ConeSystem::builtin("paper-cone")
-            .unwrap()
-            .binned(8)
-            .unwrap(),
-        ConeSystem::builtin("siemens-victre")
-            .unwrap()
-            .binned(16)
-            .unwrap(),
-    ]
+    let bins = [
+        ("paper-cone", 8),
+        ("siemens-victre", 16),
+        ("hologic-dimensions", 10),
+        ("ge-essential", 14),
+        ("siemens-inspiration", 16),
+    ];
+    assert_eq!(
+        bins.len(),
+        dbt_geometry::cone::BUILTIN_SYSTEMS.len(),
+        "every built-in system is tested"
+    );
+    bins.iter()
+        .map(|&(name, bin)| ConeSystem::builtin(name).unwrap().binned(bin).unwrap())
+        .collect()
 }
 
 fn dot(a: &[f32], b: &[f32]) -> f64 {

@@ -15,7 +15,11 @@
 //! at every view; a `rotating` one turns with the source about the same
 //! axis, so that in every plane `y = const` the source, the axis and the
 //! detector's centre line stay aligned (the paper's fan-beam geometry is
-//! the plane `y = source_depth_mm` of the rotating system).
+//! the plane `y = source_depth_mm` of the rotating system); a `tilting` one
+//! turns about the same axis by `detector_tilt_factor` times the source's
+//! angle (Hologic's, about 0.28: 4.2 degrees over a 15 degree sweep). All
+//! three are the one rule `detector angle = k x source angle`, k 0, 1 or
+//! the factor ([`ConeSystem::detector_angle_deg`]).
 //!
 //! A breast volume rests on the support (`z = support_height_mm`), is
 //! centred across (`x = 0`) and starts at the chest wall (`y = 0`).
@@ -28,10 +32,21 @@ pub const PAPER_CONE_TOML: &str = include_str!("../geometry/paper-cone.toml");
 /// `siemens-victre`: a stationary-detector, wide-angle system.
 pub const SIEMENS_VICTRE_TOML: &str = include_str!("../geometry/siemens-victre.toml");
 
+/// `hologic-dimensions`: Hologic Selenia Dimensions, a tilting detector,
+/// the pivot in its plane (every value cited in `geometry/SOURCES-vendors.md`).
+pub const HOLOGIC_DIMENSIONS_TOML: &str = include_str!("../geometry/hologic-dimensions.toml");
+/// `ge-essential`: GE Senographe Essential, 9 views, stationary CsI detector.
+pub const GE_ESSENTIAL_TOML: &str = include_str!("../geometry/ge-essential.toml");
+/// `siemens-inspiration`: Siemens Mammomat Inspiration as NifTK measured it.
+pub const SIEMENS_INSPIRATION_TOML: &str = include_str!("../geometry/siemens-inspiration.toml");
+
 /// The built-in cone-beam systems by name.
-pub const BUILTIN_SYSTEMS: [(&str, &str); 2] = [
+pub const BUILTIN_SYSTEMS: [(&str, &str); 5] = [
     ("paper-cone", PAPER_CONE_TOML),
     ("siemens-victre", SIEMENS_VICTRE_TOML),
+    ("hologic-dimensions", HOLOGIC_DIMENSIONS_TOML),
+    ("ge-essential", GE_ESSENTIAL_TOML),
+    ("siemens-inspiration", SIEMENS_INSPIRATION_TOML),
 ];
 
 /// Whether the detector turns with the source.
@@ -42,6 +57,9 @@ pub enum DetectorMotion {
     Rotating,
     /// Stays in the plane `z = 0`.
     Stationary,
+    /// Turns about the rotation axis by `detector_tilt_factor` times the
+    /// source's angle.
+    Tilting,
 }
 
 /// A flat 2-D detector of square elements.
@@ -70,16 +88,35 @@ pub struct ConeSystem {
     pub support_height_mm: f64,
     /// The source's depth `y`, mm (0: above the chest-wall edge).
     pub source_depth_mm: f64,
-    /// Rotating or stationary detector.
+    /// Rotating, stationary or tilting detector.
     pub detector_motion: DetectorMotion,
-    /// Views.
+    /// A tilting detector's angle over the source's (0 < k < 1); given for
+    /// a tilting detector only.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub detector_tilt_factor: Option<f64>,
+    /// Views: `count` of them from `first_deg` to `last_deg`, evenly spaced
+    /// unless `view_angles_deg` gives each.
     pub views: Views,
+    /// Each view's source angle, degrees, increasing, where the system's
+    /// views are not evenly spaced (measured angles; the first and last
+    /// must be `views.first_deg` and `views.last_deg`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub view_angles_deg: Option<Vec<f64>>,
+    /// The arc the source travels during one view's exposure, degrees
+    /// (continuous motion: the focal spot is smeared over it); 0 for
+    /// step-and-shoot.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub source_blur_deg: f64,
     /// Detector.
     pub detector: Detector2d,
 }
 
 /// A point, mm.
 pub type Point3 = [f64; 3];
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
+}
 
 impl ConeSystem {
     /// Parse and validate from TOML text.
@@ -89,7 +126,7 @@ impl ConeSystem {
         Ok(s)
     }
 
-    /// A built-in system by name (`paper-cone`, `siemens-victre`).
+    /// A built-in system by name ([`BUILTIN_SYSTEMS`]).
     pub fn builtin(name: &str) -> Option<Self> {
         BUILTIN_SYSTEMS
             .iter()
@@ -129,7 +166,47 @@ impl ConeSystem {
             }
         };
         positive("arc_radius_mm", self.arc_radius_mm)?;
-        positive("axis_height_mm", self.axis_height_mm)?;
+        // The axis may lie in the detector's plane (Hologic's pivot), not
+        // below it.
+        if !(self.axis_height_mm.is_finite() && self.axis_height_mm >= 0.0) {
+            return Err(invalid(
+                "axis_height_mm",
+                format!(
+                    "must be a finite number, 0 or above (0: the axis in the detector's plane), got {}",
+                    self.axis_height_mm
+                ),
+            ));
+        }
+        match (self.detector_motion, self.detector_tilt_factor) {
+            (DetectorMotion::Tilting, Some(k)) if k.is_finite() && k > 0.0 && k < 1.0 => {}
+            (DetectorMotion::Tilting, k) => {
+                return Err(invalid(
+                    "detector_tilt_factor",
+                    format!(
+                        "a tilting detector needs a factor between 0 and 1 (exclusive; 0 is stationary, 1 rotating), got {k:?}"
+                    ),
+                ))
+            }
+            (_, Some(k)) => {
+                return Err(invalid(
+                    "detector_tilt_factor",
+                    format!("{k} given for a detector that is not tilting"),
+                ))
+            }
+            (_, None) => {}
+        }
+        if !(self.source_blur_deg.is_finite()
+            && self.source_blur_deg >= 0.0
+            && self.source_blur_deg < 5.0)
+        {
+            return Err(invalid(
+                "source_blur_deg",
+                format!(
+                    "must be 0 (step-and-shoot) or the arc of one exposure, below 5 degrees, got {}",
+                    self.source_blur_deg
+                ),
+            ));
+        }
         positive("detector.pitch_mm", self.detector.pitch_mm)?;
         if !(self.support_height_mm.is_finite()
             && self.support_height_mm >= 0.0
@@ -163,6 +240,34 @@ impl ConeSystem {
         if self.views.last_deg <= self.views.first_deg {
             return Err(invalid("views.last_deg", "must exceed views.first_deg"));
         }
+        if let Some(a) = &self.view_angles_deg {
+            if a.len() != self.views.count {
+                return Err(invalid(
+                    "view_angles_deg",
+                    format!("{} angles for {} views", a.len(), self.views.count),
+                ));
+            }
+            if a.iter().any(|x| !x.is_finite()) || a.windows(2).any(|w| w[1] <= w[0]) {
+                return Err(invalid(
+                    "view_angles_deg",
+                    "must be finite and increasing, one per view",
+                ));
+            }
+            let ends = (a[0] - self.views.first_deg).abs() < 1e-9
+                && (a[a.len() - 1] - self.views.last_deg).abs() < 1e-9;
+            if !ends {
+                return Err(invalid(
+                    "view_angles_deg",
+                    format!(
+                        "first and last ({}, {}) must be views.first_deg and views.last_deg ({}, {})",
+                        a[0],
+                        a[a.len() - 1],
+                        self.views.first_deg,
+                        self.views.last_deg
+                    ),
+                ));
+            }
+        }
         for (field, n) in [
             ("detector.columns", self.detector.columns),
             ("detector.rows", self.detector.rows),
@@ -192,10 +297,30 @@ impl ConeSystem {
         self.views.count
     }
 
-    /// View angle, degrees.
+    /// View angle, degrees: the measured one where the system gives each
+    /// view's, else evenly spaced.
     pub fn angle_deg(&self, v: usize) -> f64 {
+        if let Some(a) = self.view_angles_deg.as_ref().and_then(|a| a.get(v)) {
+            return *a;
+        }
         let w = &self.views;
         w.first_deg + (w.last_deg - w.first_deg) * v as f64 / (w.count - 1) as f64
+    }
+
+    /// Whether the views are evenly spaced (no measured angles).
+    pub fn evenly_spaced(&self) -> bool {
+        self.view_angles_deg.is_none()
+    }
+
+    /// The detector's angle at view `v`, degrees: `k x` the source's, `k` 0
+    /// (stationary), 1 (rotating) or the tilt factor.
+    pub fn detector_angle_deg(&self, v: usize) -> f64 {
+        let k = match self.detector_motion {
+            DetectorMotion::Stationary => 0.0,
+            DetectorMotion::Rotating => 1.0,
+            DetectorMotion::Tilting => self.detector_tilt_factor.unwrap_or(0.0),
+        };
+        k * self.angle_deg(v)
     }
 
     /// Detector elements of one view (rows x columns).
@@ -221,18 +346,17 @@ impl ConeSystem {
         match self.detector_motion {
             DetectorMotion::Stationary => [x, y, 0.0],
             DetectorMotion::Rotating => self.rotating_point(v, x, y),
+            DetectorMotion::Tilting => self.turned_point(self.detector_angle_deg(v), x, y),
         }
     }
 
-    /// The point at `(x_mm, y_mm)` of a detector that turns with the source
-    /// (in the plane `z = 0` at 0 degrees), at view `v`: the rotating
-    /// detector's elements, and the fan geometry's elements that the
-    /// rebinning reads a stationary detector for.
-    pub fn rotating_point(&self, v: usize, x_mm: f64, y_mm: f64) -> Point3 {
-        // (x, 0) turned about the axis (0, h) in the x-z plane as the source
-        // is: (0, R) relative to the axis goes to (R sin t, R cos t), so
-        // (dx, dz) goes to (dx cos t + dz sin t, -dx sin t + dz cos t).
-        let t = self.angle_deg(v).to_radians();
+    /// The point at `(x_mm, y_mm)` of the detector's plane (`z = 0` at 0
+    /// degrees) turned by `deg` about the rotation axis: (x, 0) turned
+    /// about the axis (0, h) in the x-z plane as the source is ((0, R)
+    /// relative to the axis goes to (R sin t, R cos t)), so (dx, dz) goes to
+    /// (dx cos t + dz sin t, -dx sin t + dz cos t).
+    pub fn turned_point(&self, deg: f64, x_mm: f64, y_mm: f64) -> Point3 {
+        let t = deg.to_radians();
         let h = self.axis_height_mm;
         let (dx, dz) = (x_mm, -h);
         [
@@ -240,6 +364,14 @@ impl ConeSystem {
             y_mm,
             h - dx * t.sin() + dz * t.cos(),
         ]
+    }
+
+    /// The point at `(x_mm, y_mm)` of a detector that turns with the source
+    /// (in the plane `z = 0` at 0 degrees), at view `v`: the rotating
+    /// detector's elements, and the fan geometry's elements that the
+    /// rebinning reads a stationary detector for.
+    pub fn rotating_point(&self, v: usize, x_mm: f64, y_mm: f64) -> Point3 {
+        self.turned_point(self.angle_deg(v), x_mm, y_mm)
     }
 
     /// The fan geometry this system's projections are rebinned to for a
@@ -252,6 +384,12 @@ impl ConeSystem {
         &self,
         template: &crate::Geometry,
     ) -> Result<crate::Geometry, GeometryError> {
+        if !self.evenly_spaced() {
+            return Err(invalid(
+                "view_angles_deg",
+                "a fan geometry's views are evenly spaced: this system's measured angles have no rebinning fan",
+            ));
+        }
         let g = crate::Geometry {
             source_to_center_mm: self.arc_radius_mm,
             source_to_detector_mm: self.arc_radius_mm + self.axis_height_mm,
@@ -375,6 +513,137 @@ mod tests {
         );
         bad("last_deg = 24.0", "last_deg = -30.0", "views.last_deg");
         bad("columns = 1280", "columns = 0", "detector.columns");
+        bad(
+            "axis_height_mm = 50.0",
+            "axis_height_mm = -1.0",
+            "axis_height_mm",
+        );
+        let tilting = "detector_motion = \"tilting\"";
+        bad(
+            "detector_motion = \"rotating\"",
+            tilting,
+            "detector_tilt_factor",
+        );
+        for k in ["0.0", "1.0", "-0.3", "nan"] {
+            bad(
+                "detector_motion = \"rotating\"",
+                &format!("{tilting}\ndetector_tilt_factor = {k}"),
+                "detector_tilt_factor",
+            );
+        }
+        bad(
+            "detector_motion = \"rotating\"",
+            "detector_motion = \"stationary\"\ndetector_tilt_factor = 0.3",
+            "not tilting",
+        );
+        for blur in ["-0.1", "5.0"] {
+            bad(
+                "detector_motion = \"rotating\"",
+                &format!("detector_motion = \"rotating\"\nsource_blur_deg = {blur}"),
+                "source_blur_deg",
+            );
+        }
+        let angles = |list: &str| {
+            PAPER_CONE_TOML.replace(
+                "detector_motion = \"rotating\"",
+                &format!("detector_motion = \"rotating\"\nview_angles_deg = [{list}]"),
+            )
+        };
+        let even: Vec<String> = (0..25)
+            .map(|v| format!("{}", -24.0 + 2.0 * v as f64))
+            .collect();
+        let mut uneven = even.clone();
+        uneven[1] = "-23.5".into();
+        let p = ConeSystem::from_toml_str(&angles(&uneven.join(","))).unwrap();
+        assert_eq!(p.angle_deg(1), -23.5);
+        assert!(!p.evenly_spaced());
+        assert!(p.rebinning_fan(&crate::Geometry::paper()).is_err());
+        for (list, why) in [
+            (even[..24].join(","), "24 angles for 25 views"),
+            (
+                {
+                    let mut l = even.clone();
+                    l.swap(3, 4);
+                    l.join(",")
+                },
+                "increasing",
+            ),
+            (
+                {
+                    let mut l = even.clone();
+                    l[24] = "23.0".into();
+                    l.join(",")
+                },
+                "must be views.first_deg and views.last_deg",
+            ),
+        ] {
+            let e = ConeSystem::from_toml_str(&angles(&list))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("view_angles_deg") && e.contains(why), "{e}");
+        }
+    }
+
+    /// The vendors' systems carry the figures of their sources
+    /// (`geometry/SOURCES-vendors.md`): source-to-detector distance at 0
+    /// degrees, views, pitch; the tilting detector turns by 0.28 x the
+    /// source's angle about the pivot in its plane, rigidly (every element
+    /// keeps its distance from the axis), and a factor of 1 would be the
+    /// rotating detector, 0 the stationary one.
+    #[test]
+    fn vendor_systems_match_their_sources() {
+        for (name, sid, views, pitch) in [
+            ("hologic-dimensions", 700.0, 15, 0.14),
+            ("ge-essential", 660.0, 9, 0.1),
+            ("siemens-inspiration", 655.5, 25, 0.085),
+        ] {
+            let s = ConeSystem::builtin(name).unwrap();
+            assert_eq!(s.name, name);
+            let mid = s.n_views() / 2;
+            assert!((s.source(mid)[2] - sid).abs() < 1e-9, "{name}");
+            assert_eq!(s.n_views(), views, "{name}");
+            assert_eq!(s.detector.pitch_mm, pitch, "{name}");
+        }
+        let h = ConeSystem::builtin("hologic-dimensions").unwrap();
+        assert_eq!(h.detector_motion, DetectorMotion::Tilting);
+        let last = h.n_views() - 1;
+        assert!((h.detector_angle_deg(last) - 0.28 * 7.5).abs() < 1e-12);
+        assert!((h.detector_angle_deg(0) + 0.28 * 7.5).abs() < 1e-12);
+        let (c, r) = (h.detector.columns - 1, h.detector.rows - 1);
+        for v in [0, 7, last] {
+            let (a, b) = (h.element(v, 0, 0), h.element(v, 0, c));
+            // The detector's row turned by the detector's angle: its
+            // direction (cos phi, -sin phi) in x-z.
+            let phi = h.detector_angle_deg(v).to_radians();
+            let len = ((b[0] - a[0]).powi(2) + (b[2] - a[2]).powi(2)).sqrt();
+            assert!(((b[0] - a[0]) / len - phi.cos()).abs() < 1e-12, "view {v}");
+            assert!(((b[2] - a[2]) / len + phi.sin()).abs() < 1e-12, "view {v}");
+            // Rigid about the axis at z = 0: distances in x-z kept.
+            for (row, col) in [(0, 0), (r, c), (r / 2, c / 3)] {
+                let e = h.element(v, row, col);
+                let e0 = h.element(mid_view(&h), row, col);
+                let d = |p: Point3| (p[0] * p[0] + p[2] * p[2]).sqrt();
+                assert!((d(e) - d(e0)).abs() < 1e-9, "view {v} ({row}, {col})");
+                assert_eq!(e[1], e0[1]);
+            }
+        }
+        // k = 1 and k = 0 as the rule: the turned point at the source's
+        // angle is the rotating element, at 0 the stationary one.
+        let p = ConeSystem::builtin("paper-cone").unwrap();
+        for v in [0, 12, 24] {
+            assert_eq!(
+                p.turned_point(p.angle_deg(v), 1.4, 2.2),
+                p.rotating_point(v, 1.4, 2.2)
+            );
+            let g = ConeSystem::builtin("siemens-victre").unwrap();
+            let e = g.element(v, 4, 9);
+            let t = g.turned_point(0.0, e[0], e[1]);
+            assert!((t[0] - e[0]).abs() < 1e-12 && t[2].abs() < 1e-12);
+        }
+    }
+
+    fn mid_view(s: &ConeSystem) -> usize {
+        s.n_views() / 2
     }
 
     /// The paper's geometries are `paper-cone`'s rebinning fan; the

@@ -282,6 +282,21 @@ pub fn rebin(
                             let td = -s[2] / dz;
                             (td, (s[0] + td * dx) / pitch + (cols as f64 - 1.0) / 2.0)
                         }
+                        // The detector turned by phi about the axis (0, h):
+                        // its points (u cos phi - h sin phi, h - u sin phi
+                        // - h cos phi) form the line x sin phi + z cos phi
+                        // = h (cos phi - 1), which gives the ray's
+                        // parameter; the column from u = x cos phi
+                        // - (z - h) sin phi.
+                        DetectorMotion::Tilting => {
+                            let phi = sys.detector_angle_deg(v).to_radians();
+                            let (sn, cs) = phi.sin_cos();
+                            let h = sys.axis_height_mm;
+                            let td = (h * cs - h - s[0] * sn - s[2] * cs) / (dx * sn + dz * cs);
+                            let (x, z) = (s[0] + td * dx, s[2] + td * dz);
+                            let u = x * cs - (z - h) * sn;
+                            (td, u / pitch + (cols as f64 - 1.0) / 2.0)
+                        }
                     };
                     let row = (s[1] + t_det * dy) / pitch - 0.5;
                     let (ri, ci) = (row.round(), col.round());
