@@ -59,20 +59,17 @@ pub fn pipeline_options(
 /// intervals, and, where `noise_match` names what asked for it (a
 /// configuration key, a command-line option), the counts' noise matched to
 /// its training level (a model that names no photon level is refused,
-/// naming what asked). The one
-/// place a loaded model becomes processing options: the daemon and replay
-/// (through [`pipeline_options`]) and `dbtor-process` use it.
+/// naming what asked): [`PipelineOptions::with_model`], the one place a
+/// model becomes processing options, here for the daemon and replay
+/// (through [`pipeline_options`]) and `dbtor-process`.
 pub fn with_model(
-    mut opts: PipelineOptions,
+    opts: PipelineOptions,
     signed: dbt_model::SignedModel,
     noise_match: Option<&str>,
 ) -> Result<PipelineOptions, AssemblyError> {
-    opts.noise_match = matched_noise(noise_match, signed.model.manifest())?;
-    opts.calibration = signed.calibration;
-    opts.beam_calibrations = dbt_pipeline::beam_calibrations(&signed.beam_calibrations);
-    opts.intervals = signed.intervals.map(Arc::new);
-    opts.dbtor = Some(Arc::new(signed.model));
-    Ok(opts)
+    let (model, settings) = signed.into_parts();
+    opts.with_model(Arc::new(model), settings, noise_match)
+        .map_err(refused)
 }
 
 /// The configured DBToR model, loaded the firmware's way: the sign-off and
@@ -103,7 +100,15 @@ pub fn noise_match(
     cfg: &Config,
     model: &dbt_dbtor::ModelManifest,
 ) -> Result<Option<dbt_pipeline::noise_match::NoiseMatch>, AssemblyError> {
-    matched_noise(noise_match_key(cfg), model)
+    dbt_pipeline::matched_noise(noise_match_key(cfg), model).map_err(refused)
+}
+
+/// A refused noise matching as the assembly's error, naming what asked.
+fn refused(e: dbt_pipeline::NoiseMatchRefused) -> AssemblyError {
+    AssemblyError::Resource {
+        what: e.asked,
+        reason: e.cause.to_string(),
+    }
 }
 
 /// The configuration's key and value that ask for noise matching, or
@@ -111,23 +116,4 @@ pub fn noise_match(
 fn noise_match_key(cfg: &Config) -> Option<&'static str> {
     (cfg.recon.noise_match == crate::config::NoiseMatchMode::TrainingLevel)
         .then_some("recon.noise_match = \"training-level\"")
-}
-
-/// The noise matching to `model`'s training level where `asked` names what
-/// asked for it (a configuration key, a command-line option), refused
-/// naming it when the model names no photon level; `None` when not asked.
-fn matched_noise(
-    asked: Option<&str>,
-    model: &dbt_dbtor::ModelManifest,
-) -> Result<Option<dbt_pipeline::noise_match::NoiseMatch>, AssemblyError> {
-    asked
-        .map(|what| {
-            dbt_pipeline::noise_match::NoiseMatch::for_model(model).map_err(|e| {
-                AssemblyError::Resource {
-                    what: what.to_string(),
-                    reason: e.to_string(),
-                }
-            })
-        })
-        .transpose()
 }

@@ -13,8 +13,8 @@
 //!   per model and keeps a retired model's commands and figures in it; the
 //!   section says once that the model is retired and how `git archive`
 //!   restores it, so there the section (heading to heading) counts. A second,
-//!   narrower one: eval/README.md, ordered by model generation, names the
-//!   retired models whose figures it holds without saying so each time; there
+//!   narrower one: eval/README.md names the retired models whose
+//!   comparisons a current decision rests on without saying so each time; there
 //!   (only there) a model is accepted when models/README.md gives the
 //!   `git archive COMMIT models/NAME` that restores it;
 //! - (c) a command's program (the first word of a code span with arguments,

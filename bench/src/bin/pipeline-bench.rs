@@ -99,7 +99,7 @@ fn main() -> Result<()> {
     }
     let acq = dbt_store::acquisition::read_acquisition(&a.acquisition)
         .with_context(|| format!("reading {}", a.acquisition.display()))?;
-    let mut base = PipelineOptions {
+    let base = PipelineOptions {
         linearise: a.corrections.linearise().context("--csi-um")?,
         descatter: a.corrections.descatter()?,
         slice_step: a.slice_step,
@@ -152,7 +152,20 @@ fn main() -> Result<()> {
             m.kernel().unwrap_or("tract"),
             m.projector_kernel().name()
         );
-        base.dbtor = Some(Arc::new(m));
+        // The model as the daemon assembles it (its calibrations and report
+        // intervals: a density the physics does not confirm costs a third
+        // Monte Carlo run).
+        let noise_matched = a.corrections.noise_match;
+        let settings = dbt_model::load_settings(
+            &m,
+            &base.classify,
+            dbt_model::InputCorrections::of(&base, noise_matched),
+        )?;
+        let base = base.clone().with_model(
+            Arc::new(m),
+            settings,
+            noise_matched.then_some("--noise-match"),
+        )?;
         let mut medians = Vec::new();
         for &t in &threads {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build()?;

@@ -824,7 +824,8 @@ impl Dbtor {
     /// breast, plus `margin` rows above (fast engine only; the rows above
     /// stay zero). This changes the network's function (the blocks see a
     /// zero border where they saw empty image): its effect on accuracy is
-    /// measured by `dbt-eval baselines --crop-margin N` (eval/README.md).
+    /// measured by `dbt-eval baselines --crop-margin N` against the same
+    /// command without it (no figure of it is kept in the documents).
     pub fn with_crop(mut self, margin: Option<usize>) -> Result<Self, DbtorError> {
         if margin.is_some() && self.engine != Engine::Fast {
             return Err(DbtorError::Input(

@@ -145,6 +145,20 @@ pub struct InputCorrections {
 }
 
 impl InputCorrections {
+    /// The corrections `opts` apply to the counts, with the noise matched
+    /// where `noise_matched` (asked for before a model sets it in `opts`).
+    pub fn of(opts: &dbt_pipeline::PipelineOptions, noise_matched: bool) -> Self {
+        Self {
+            scatter_removed: opts.descatter.is_some(),
+            linearised: opts.linearise.is_some(),
+            known_path: opts
+                .linearise
+                .is_some_and(|l| l.path != dbt_pipeline::linearise::PathModel::Reference),
+            noise_matched,
+            uncorrected_clinical: opts.scatter_in_input,
+        }
+    }
+
     /// The corrections in words (`none`, `scatter removed`, `linearised`,
     /// `scatter removed + linearised`, each linearisation also `... on the
     /// known path`, each linearisation also `... + noise matched`, or

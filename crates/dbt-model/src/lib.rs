@@ -138,6 +138,38 @@ pub struct SignedModel {
     pub signoff: Signoff,
 }
 
+impl SignedModel {
+    /// The network and what its folder gives the processing besides it
+    /// ([`dbt_pipeline::PipelineOptions::with_model`] takes both).
+    pub fn into_parts(self) -> (Dbtor, dbt_pipeline::ModelSettings) {
+        (
+            self.model,
+            dbt_pipeline::ModelSettings {
+                calibration: self.calibration,
+                beam_calibrations: self.beam_calibrations,
+                intervals: self.intervals,
+            },
+        )
+    }
+}
+
+/// The settings of a model loaded without its sign-off (a candidate under
+/// evaluation): its calibrations for `classify` and `input`
+/// ([`load_calibrations`]: none, logged, where they were fit with another
+/// classification) and its report intervals ([`load_intervals`]).
+pub fn load_settings(
+    model: &Dbtor,
+    classify: &ClassifyOptions,
+    input: InputCorrections,
+) -> Result<dbt_pipeline::ModelSettings, ModelError> {
+    let (calibration, beam_calibrations) = load_calibrations(model, classify, input)?;
+    Ok(dbt_pipeline::ModelSettings {
+        calibration,
+        beam_calibrations,
+        intervals: load_intervals(model, input)?,
+    })
+}
+
 /// Load `dir` as the firmware does: [`verify`] against its sign-off and the
 /// configured digest `pinned`, load the network (which verifies the ONNX
 /// checksums of its manifest), and read the calibration for inputs corrected

@@ -133,7 +133,71 @@ pub fn beam_calibrations(
         .collect()
 }
 
+/// What a model folder gives the processing besides its network: the
+/// glandularity calibration of the loaded precision and inputs, the other
+/// beams' (by the names the calibration file gives them), and the
+/// validation residuals behind the reports' intervals
+/// (`dbt_model::load_settings` reads them).
+#[derive(Debug, Clone, Default)]
+pub struct ModelSettings {
+    /// The calibration for W/Rh, `None` for a model without one.
+    pub calibration: Option<GlandularityCalibration>,
+    /// The other beams' calibrations, by beam name.
+    pub beam_calibrations: Vec<(String, GlandularityCalibration)>,
+    /// The report intervals' residuals, `None` where the model has none.
+    pub intervals: Option<dbt_intervals::IntervalTable>,
+}
+
+/// Noise matching was asked for a model that cannot be matched.
+#[derive(Debug, thiserror::Error)]
+#[error("{asked}: {cause}")]
+pub struct NoiseMatchRefused {
+    /// What asked for it (a configuration key, a command-line option).
+    pub asked: String,
+    /// Why the model cannot be matched.
+    pub cause: crate::noise_match::NoiseMatchError,
+}
+
+/// The noise matching to `model`'s training level where `asked` names what
+/// asked for it (a configuration key, a command-line option), refused
+/// naming it when the model names no photon level; `None` when not asked.
+pub fn matched_noise(
+    asked: Option<&str>,
+    model: &dbt_dbtor::ModelManifest,
+) -> Result<Option<crate::noise_match::NoiseMatch>, NoiseMatchRefused> {
+    asked
+        .map(|asked| {
+            crate::noise_match::NoiseMatch::for_model(model).map_err(|cause| NoiseMatchRefused {
+                asked: asked.to_string(),
+                cause,
+            })
+        })
+        .transpose()
+}
+
 impl PipelineOptions {
+    /// These options with the network `model` and its folder's `settings`
+    /// (calibrations, report intervals), and, where `noise_match` names
+    /// what asked for it (a configuration key, a command-line option), the
+    /// counts' noise matched to the model's training level (a model that
+    /// names no photon level is refused, naming what asked). The one place
+    /// a model becomes processing options: the daemon, replay,
+    /// `dbtor-process` (through `firmware::assembly`), `dbt-eval accuracy`
+    /// and the pipeline benchmark use it.
+    pub fn with_model(
+        mut self,
+        model: std::sync::Arc<dbt_dbtor::Dbtor>,
+        settings: ModelSettings,
+        noise_match: Option<&str>,
+    ) -> Result<Self, NoiseMatchRefused> {
+        self.noise_match = matched_noise(noise_match, model.manifest())?;
+        self.calibration = settings.calibration;
+        self.beam_calibrations = beam_calibrations(&settings.beam_calibrations);
+        self.intervals = settings.intervals.map(std::sync::Arc::new);
+        self.dbtor = Some(model);
+        Ok(self)
+    }
+
     /// The options for an acquisition with the beam `beam`: `calibration`
     /// replaced by the beam's own for another beam than W/Rh where there is
     /// one; refused (naming the beam) when there is none and the options

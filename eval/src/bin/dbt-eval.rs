@@ -764,15 +764,19 @@ fn run_cone_views(args: ConeViewsArgs) -> Result<()> {
         ),
         truth,
     )];
-    let calibration = dbt_model::load_calibration(
-        &m,
-        &dbt_tissue::ClassifyOptions::default(),
-        dbt_model::InputCorrections::default(),
-    )?;
-    let opts = |m: Dbtor| dbt_pipeline::PipelineOptions {
-        dbtor: Some(std::sync::Arc::new(m)),
-        calibration,
-        ..Default::default()
+    // Each model (the fan's, and each system's rebinning fan's) as the
+    // firmware assembles it.
+    let opts = |m: Dbtor| -> Result<dbt_pipeline::PipelineOptions> {
+        let settings = dbt_model::load_settings(
+            &m,
+            &dbt_tissue::ClassifyOptions::default(),
+            dbt_model::InputCorrections::default(),
+        )?;
+        Ok(dbt_pipeline::PipelineOptions::default().with_model(
+            std::sync::Arc::new(m),
+            settings,
+            None,
+        )?)
     };
     let tech = host_sim::Technique::default();
     let root = "1.2.826.0.1.3680043.10.543.3";
@@ -793,7 +797,7 @@ fn run_cone_views(args: ConeViewsArgs) -> Result<()> {
         runs.push((format!("cone beam, {}", s.name), a, model));
     }
     for (name, acq, m) in runs {
-        let res = dbt_pipeline::process(&acq, &opts(m))?;
+        let res = dbt_pipeline::process(&acq, &opts(m)?)?;
         println!(
             "{name}: G reported {:.3} (truth {:.3}), MGD {:.3} mGy",
             res.glandularity,
@@ -1264,36 +1268,37 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
             "mltr" => "mltr".to_string(),
             other => format!("dbtor-{other}"),
         };
-        // The model's calibration, as the firmware loads it.
-        let (calibration, beam_calibrations) = match (&dbtor, no_calibration) {
-            (Some(m), false) => {
-                let (base, beams) = dbt_model::load_calibrations(m, &skin, input)?;
-                (base, dbt_pipeline::beam_calibrations(&beams))
+        // The options as the firmware assembles them
+        // (`PipelineOptions::with_model`): the model's calibrations and
+        // report intervals (none with --no-calibration: the intervals were
+        // fit on calibrated glandularities), the noise matched to its level.
+        let base = dbt_pipeline::PipelineOptions {
+            mltr_iterations: iterations,
+            dose_uncertainty,
+            seed: 1,
+            classify: skin,
+            linearise,
+            descatter,
+            noise_match,
+            scatter_in_input,
+            ..Default::default()
+        };
+        let assembled = match &dbtor {
+            Some(m) => {
+                let settings = if no_calibration {
+                    dbt_pipeline::ModelSettings::default()
+                } else {
+                    dbt_model::load_settings(m, &skin, input)?
+                };
+                base.with_model(m.clone(), settings, noise_match.map(|_| "--noise-match"))?
             }
-            _ => (None, Vec::new()),
+            None => base,
         };
-        // Its report intervals, as the firmware loads them (fit on
-        // calibrated glandularities: none without the calibration).
-        let intervals = match (&dbtor, no_calibration) {
-            (Some(m), false) => dbt_model::load_intervals(m, input)?.map(std::sync::Arc::new),
-            _ => None,
-        };
+        let calibration = assembled.calibration;
         for &slice_step in &steps {
             let opts = dbt_pipeline::PipelineOptions {
-                dbtor: dbtor.clone(),
-                mltr_iterations: iterations,
-                dose_uncertainty,
-                seed: 1,
-                classify: skin,
-                calibration,
-                beam_calibrations: beam_calibrations.clone(),
-                linearise,
-                descatter,
-                noise_match,
                 slice_step,
-                scatter_in_input,
-                density_limits: dbt_pipeline::density_check::LIMITS,
-                intervals: intervals.clone(),
+                ..assembled.clone()
             };
             let label = dbt_pipeline::reconstructor_name(&opts);
             // The calibration this run's beam reads (a beam the model has
@@ -1939,18 +1944,16 @@ fn run_ladder(args: LadderArgs) -> Result<()> {
         .map(|(_, m)| std::sync::Arc::new(m))
         .context("no model loaded")?;
     let classify = dbt_tissue::ClassifyOptions::default();
-    let (calibration, _) =
-        dbt_model::load_calibrations(&m, &classify, dbt_model::InputCorrections::default())?;
+    let settings = dbt_model::load_settings(&m, &classify, dbt_model::InputCorrections::default())?;
     let population = split.population;
     let split = split.resolve(Some(&m))?;
     let g = m.geometry().clone();
     let setup = LadderSetup {
         opts: dbt_pipeline::PipelineOptions {
-            dbtor: Some(m),
-            calibration,
             classify,
             ..Default::default()
-        },
+        }
+        .with_model(m, settings, None)?,
         noise: NoiseLevel::parse(&noise)?,
         mltr_iterations: (mltr_iterations > 0).then_some(mltr_iterations),
         dose_uncertainty: (dose_uncertainty > 0.0).then_some(dose_uncertainty),
@@ -2070,6 +2073,8 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
     let g = m.geometry().clone();
     let noise = NoiseLevel::parse(&noise)?;
     let classify = dbt_tissue::ClassifyOptions::default();
+    // The model without its settings (`PipelineOptions::with_model` is the
+    // product's assembly): this command fits the calibration.
     let opts = dbt_pipeline::PipelineOptions {
         dbtor: Some(m.clone()),
         classify,

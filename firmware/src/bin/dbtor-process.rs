@@ -130,15 +130,7 @@ fn run(cli: Cli) -> Result<()> {
             &fp32_blocks,
             engine,
             &opts.classify,
-            dbt_model::InputCorrections {
-                scatter_removed: opts.descatter.is_some(),
-                linearised: opts.linearise.is_some(),
-                known_path: opts
-                    .linearise
-                    .is_some_and(|l| l.path != dbt_pipeline::linearise::PathModel::Reference),
-                noise_matched: cli.corrections.noise_match,
-                uncorrected_clinical: opts.scatter_in_input,
-            },
+            dbt_model::InputCorrections::of(&opts, cli.corrections.noise_match),
             cli.model_digest.as_deref(),
         )
         .with_context(|| format!("loading the DBToR model {}", dir.display()))?;
