@@ -38,6 +38,9 @@ pub struct Case {
     /// The reported glandularity cross-checked against the physics density
     /// (`dbt_pipeline::density_check`).
     pub density_check: dbt_pipeline::density_check::DensityCheck,
+    /// How well the reconstruction explains its projections
+    /// (`dbt_pipeline::data_fit`).
+    pub data_fit: dbt_pipeline::data_fit::DataFit,
     /// True MGD (phantom labels through the engine), mGy.
     pub mgd_true: f64,
     /// MGD of the classified reconstruction, mGy.
@@ -261,6 +264,7 @@ pub fn run_cases_on(
                 .map_or(f64::NAN, |p| p.central.glandularity),
             physics_density: res.physics_density.clone(),
             density_check: res.density_check.clone(),
+            data_fit: res.data_fit,
             mgd_true: per_kerma * res.kerma_mgy,
             mgd_est: res.mgd_mgy,
             mgd_true_rel_uncertainty: truth_rel,

@@ -53,6 +53,12 @@ pub struct CheckLimits {
     /// air, which neither estimate was validated on (both read such a
     /// breast's periphery as fat, and so agree on a wrong figure).
     pub min_fill: f64,
+    /// The largest excess of the data residual over its noise
+    /// ([`crate::data_fit::DataFit::excess`]) a confirmed density may show:
+    /// beyond it the reconstruction explains its projections less well
+    /// than on the breasts of the network's own world, where its figures
+    /// were validated.
+    pub data_fit_max: f64,
 }
 
 /// The limits one acquisition was checked against: its band's, and the
@@ -65,6 +71,8 @@ pub struct AppliedLimits {
     pub contact_pp: f64,
     /// The smallest fill of the box.
     pub min_fill: f64,
+    /// The largest excess of the data residual over its noise.
+    pub data_fit_max: f64,
     /// The band of the reported glandularity these limits hold in,
     /// fractions `[from, to)` (`to` infinite for the last band).
     pub band: [f64; 2],
@@ -81,6 +89,13 @@ pub struct AppliedLimits {
 /// (0.762), rounded down to two places. `scripts/density-check-table.py
 /// --rule` computes both from the runs; eval/density-check.md gives the
 /// figures, the commands and why the limits are banded.
+///
+/// The data-fit limit is 1.2 times the largest excess of the data residual
+/// over its noise ([`crate::data_fit`]) of the 80 validation breasts of the
+/// network's own world (the procedural population it was trained on,
+/// mono-energetic and clinical physics; largest 0.0274, clinical), rounded
+/// up to the third decimal: `scripts/data-fit-table.py --rule`, figures in
+/// eval/density-check.md, "The reconstruction against its projections".
 pub const LIMITS: CheckLimits = CheckLimits {
     bands: [
         LimitBand {
@@ -100,6 +115,7 @@ pub const LIMITS: CheckLimits = CheckLimits {
         },
     ],
     min_fill: 0.72,
+    data_fit_max: 0.033,
 };
 
 impl Default for CheckLimits {
@@ -109,7 +125,8 @@ impl Default for CheckLimits {
 }
 
 impl CheckLimits {
-    /// The same disagreement limits at every reported glandularity.
+    /// The same disagreement limits at every reported glandularity (the
+    /// product's data-fit limit).
     pub const fn uniform(whole_pp: f64, contact_pp: f64, min_fill: f64) -> Self {
         CheckLimits {
             bands: [
@@ -130,6 +147,7 @@ impl CheckLimits {
                 },
             ],
             min_fill,
+            data_fit_max: LIMITS.data_fit_max,
         }
     }
 
@@ -155,6 +173,7 @@ impl CheckLimits {
             whole_pp: self.bands[k].whole_pp,
             contact_pp: self.bands[k].contact_pp,
             min_fill: self.min_fill,
+            data_fit_max: self.data_fit_max,
             band: [self.bands[k].from_reported, to],
         }
     }
@@ -162,6 +181,12 @@ impl CheckLimits {
     /// Refused unless every disagreement limit is positive and finite, the
     /// bands start at 0 and rise, and the smallest fill is a fraction.
     pub fn validate(&self) -> Result<(), PipelineError> {
+        if !(self.data_fit_max.is_finite() && self.data_fit_max > 0.0) {
+            return Err(PipelineError::Input(format!(
+                "density check limit data_fit_max = {}: must be a positive number",
+                self.data_fit_max
+            )));
+        }
         if !(self.min_fill.is_finite() && (0.0..1.0).contains(&self.min_fill)) {
             return Err(PipelineError::Input(format!(
                 "density check limit min_fill = {}: must be a fraction 0..1",
@@ -218,6 +243,9 @@ pub struct DensityCheck {
     pub contact_difference_pp: Option<f64>,
     /// The limits applied (those of the reported glandularity's band).
     pub limits: AppliedLimits,
+    /// How well the reconstruction explained its projections, where that
+    /// was checked ([`DensityCheck::with_data_fit`]).
+    pub data_fit: Option<crate::data_fit::DataFit>,
     /// Whether the physics confirms the reported density.
     pub confirmed: bool,
     /// Why it does not (empty when confirmed).
@@ -225,6 +253,24 @@ pub struct DensityCheck {
 }
 
 impl DensityCheck {
+    /// The check with how well the reconstruction explained its
+    /// projections: not confirmed where the excess of its residual over the
+    /// noise is beyond the limit (the network then reads a breast unlike
+    /// those its figures were validated on, whatever the physics says).
+    pub fn with_data_fit(mut self, fit: crate::data_fit::DataFit) -> Self {
+        let max = self.limits.data_fit_max;
+        if fit.excess.is_nan() || fit.excess > max {
+            self.reasons.push(format!(
+                "the reconstruction explains its projections less well than on any validated breast of the network's own world \
+                 (residual beyond the noise {:.4}, limit {max:.3}): the network reads a breast unlike those it was trained on",
+                fit.excess
+            ));
+            self.confirmed = false;
+        }
+        self.data_fit = Some(fit);
+        self
+    }
+
     /// What the density report and the status file say of it.
     pub fn report(&self) -> dbt_dicom::DensityCheckReport {
         dbt_dicom::DensityCheckReport {
@@ -381,6 +427,7 @@ pub fn cross_check(
         contact_physics,
         contact_difference_pp,
         limits,
+        data_fit: None,
         confirmed: reasons.is_empty(),
         reasons,
     }
@@ -578,6 +625,69 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert!(e.contains("min_fill = NaN"), "{e}");
+    }
+
+    /// A reconstruction that explains its projections less well than the
+    /// limit is not confirmed, whatever the two densities say, and says
+    /// why with its figure; one at the limit is; an excess that is not a
+    /// number is not. The fit is recorded either way.
+    #[test]
+    fn a_reconstruction_that_does_not_explain_its_data_is_not_confirmed() {
+        let agree = || {
+            cross_check(
+                0.30,
+                Some(0.30),
+                None,
+                50.0,
+                &physics(0.30, 0.30),
+                0.9,
+                LIMITS,
+            )
+        };
+        assert!(agree().confirmed && agree().data_fit.is_none());
+        let fit = |excess: f64| crate::data_fit::DataFit {
+            residual: excess.max(0.01),
+            noise: 0.01,
+            excess,
+            slices: 3,
+        };
+        let at = agree().with_data_fit(fit(LIMITS.data_fit_max));
+        assert!(at.confirmed, "{:?}", at.reasons);
+        assert_eq!(at.data_fit, Some(fit(LIMITS.data_fit_max)));
+        let beyond = agree().with_data_fit(fit(1.5 * LIMITS.data_fit_max));
+        assert!(!beyond.confirmed);
+        assert_eq!(beyond.reasons.len(), 1);
+        assert!(
+            beyond.reasons[0].contains("explains its projections")
+                && beyond.reasons[0].contains(&format!("{:.3}", LIMITS.data_fit_max)),
+            "{:?}",
+            beyond.reasons
+        );
+        assert!(!agree().with_data_fit(fit(f64::NAN)).confirmed);
+        // It adds to the other reasons, never removes one.
+        let both = cross_check(
+            0.60,
+            Some(0.30),
+            None,
+            50.0,
+            &physics(0.30, 0.30),
+            0.9,
+            LIMITS,
+        )
+        .with_data_fit(fit(1.5 * LIMITS.data_fit_max));
+        assert!(
+            !both.confirmed && both.reasons.len() >= 2,
+            "{:?}",
+            both.reasons
+        );
+        let e = CheckLimits {
+            data_fit_max: 0.0,
+            ..LIMITS
+        }
+        .validate()
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("data_fit_max = 0"), "{e}");
     }
 
     /// A breast filling less of its box than any validated one is not

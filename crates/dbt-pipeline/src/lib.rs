@@ -11,6 +11,7 @@
 //!   cone-beam frames);
 //! * [`plausibility`]: the counts against the flat field and the thickness,
 //!   and the reconstructed breast against its tissues and its box;
+//! * [`data_fit`]: how well the reconstruction explains its projections;
 //! * [`density_check`]: the reported density against the physics density
 //!   of the same counts;
 //! * [`process`]: reconstruction, classification, density, dose, reports;
@@ -20,6 +21,7 @@
 
 pub use dbt_intake::acquisition;
 pub use dbt_intake::{ConeFrames, ConeHeader, Layout, NotSlices, SliceHeader, SliceSinograms};
+pub mod data_fit;
 pub mod density_check;
 pub mod descatter;
 pub mod dicom_input;

@@ -243,6 +243,9 @@ pub struct ProcessResult {
     /// The physics-based density of the same counts (issue #48 point 2:
     /// `dbt_physics_density`, no learning), or why none could be made.
     pub physics_density: Result<dbt_physics_density::PhysicsDensity, String>,
+    /// How well the reconstruction explains its projections
+    /// ([`crate::data_fit`]).
+    pub data_fit: crate::data_fit::DataFit,
     /// The reported glandularity cross-checked against the physics density
     /// (issue #48 point 3): unconfirmed, the density report asserts no
     /// composition category.
@@ -870,6 +873,18 @@ fn process_layout<H: ToSinograms>(
         footprint_mm,
         ..
     } = reconstruct_checked(h, &acq.counts, counts_check, opts, progress)?;
+    // How well the reconstructed slices explain their projections (before
+    // a cone-beam stack is resampled: the slices are the rebinned ones).
+    let data_fit = {
+        let _s = tracing::debug_span!("data_fit").entered();
+        crate::data_fit::data_fit(
+            h,
+            &acq.counts,
+            &mu,
+            dims,
+            &reconstructed_slices(acq.counts.len(), opts.slice_step),
+        )?
+    };
     // The volume lateral x vertical x depth, and its depth voxel (a
     // cone-beam stack is resampled to the pixel, a slice-wise one keeps the
     // slices).
@@ -915,6 +930,7 @@ fn process_layout<H: ToSinograms>(
             volume_check.fill,
             opts.density_limits,
         )
+        .with_data_fit(data_fit)
     };
     if density_check.confirmed {
         tracing::info!(check = %density_check.summary(), "density confirmed by the physics");
@@ -1008,6 +1024,7 @@ fn process_layout<H: ToSinograms>(
         calibrated: opts.calibration.is_some(),
         density: dens,
         physics_density,
+        data_fit,
         density_check,
         mgd_mgy,
         model_mgd_mgy: dose_model.mgd_per_kerma * kerma_mgy,
