@@ -34,8 +34,8 @@ done
 [ ${#dirs[@]} -gt 0 ] || { echo "no generated breast"; exit 1; }
 python3 - "${dirs[@]}" <<'PY'
 import json, sys
-print("| breast | thickness (mm) | truth G (%) | reported - truth (pp) | physics - truth (pp) | MGD (%) | fill of the box | density check | 95 % interval holds the truth (G, MGD) |")
-print("|---|---|---|---|---|---|---|---|---|")
+print("| breast | thickness (mm) | truth G (%) | reported - truth (pp) | physics - truth (pp) | MGD (%) | fill of the box | data residual beyond the noise | density check | 95 % interval holds the truth (G, MGD) |")
+print("|---|---|---|---|---|---|---|---|---|---|")
 for arg in sys.argv[1:]:
     label, _, path = arg.partition("=")
     c = json.load(open(f"{path}/accuracy.json"))["reconstructors"][0]["cases"][0]
@@ -43,7 +43,8 @@ for arg in sys.argv[1:]:
     chk = c["density_check"]
     print(f"| {label} | {c['thickness_mm']:.1f} | {100 * c['g_true']:.1f} | {100 * (c['g_reported'] - c['g_true']):+.1f} | "
           f"{100 * (c['g_physics'] - c['g_true']):+.1f} | {100 * (c['mgd_est'] / c['mgd_true'] - 1):+.1f} | "
-          f"{c['plausibility']['volume']['fill']:.3f} | {'confirmed' if chk['confirmed'] else 'NOT confirmed: ' + '; '.join(chk['reasons'])} | "
+          f"{c['plausibility']['volume']['fill']:.3f} | {c['data_fit']['excess']:.4f} | "
+          f"{'confirmed' if chk['confirmed'] else 'NOT confirmed: ' + '; '.join(chk['reasons'])} | "
           f"{holds(c['intervals']['glandularity'], c['g_true'])}, {holds(c['intervals']['mgd'], c['mgd_true'])} |")
 PY
 scripts/density-check-table.py "${dirs[@]}"

@@ -1518,11 +1518,14 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
             .collect::<Vec<_>>()
             .join(", ");
         println!(
-            "density check [{label}]: {unconfirmed} of {} not confirmed by the physics; largest |reported - physics| {whole:.1} pp, over the contact region {contact:.1} pp, the nearest to its band's limit {:.0} % of it (limits, whole/contact pp, by the reported glandularity: {bands}); smallest fill of the box {:.3} (limit {:.2})",
+            "density check [{label}]: {unconfirmed} of {} not confirmed; largest |reported - physics| {whole:.1} pp, over the contact region {contact:.1} pp, the nearest to its band's limit {:.0} % of it (limits, whole/contact pp, by the reported glandularity: {bands}); smallest fill of the box {:.3} (limit {:.2}); largest excess of the data residual over its noise {:.4} (limit {:.3}), {} beyond it",
             cases.len(),
             100.0 * nearest,
             cases.iter().map(|c| c.plausibility.volume.fill).fold(f64::INFINITY, f64::min),
-            l.min_fill
+            l.min_fill,
+            cases.iter().map(|c| c.data_fit.excess).fold(0.0f64, f64::max),
+            l.data_fit_max,
+            cases.iter().filter(|c| c.data_fit.excess > l.data_fit_max).count()
         );
         for c in cases.iter().filter(|c| !c.density_check.confirmed) {
             println!("  {}: {}", c.phantom, c.density_check.reasons.join("; "));
