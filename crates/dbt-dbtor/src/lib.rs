@@ -454,7 +454,7 @@ fn measured_projector(g: &Geometry) -> Result<(Projector, String), DbtorError> {
             .map(|k| (k, format!("{k:?}").to_lowercase()))
             .collect();
         let preferred = dbt_projector::best_kernel_up_to(P::Avx512);
-        dbt_conv::select::select(
+        dbt_conv::select::select_keeping_bits(
             &cands,
             &reference,
             1e-5,
