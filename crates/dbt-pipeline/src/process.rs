@@ -757,19 +757,25 @@ pub trait ToSinograms: RayLayout + Sized {
     ) -> (Vec<f32>, [usize; 3], f64);
 }
 
+/// The counts of `p` checked ([`checked_counts`]) and their defects
+/// corrected in place; the check.
+fn corrected_in_place<H: RayLayout>(
+    p: &mut Projections<H>,
+    scatter_in_counts: bool,
+) -> Result<CountsCheck, PipelineError> {
+    let (counts, check) = checked_counts(&p.header, &p.counts, scatter_in_counts)?;
+    if let std::borrow::Cow::Owned(c) = counts {
+        p.counts = c;
+    }
+    Ok(check)
+}
+
 impl ToSinograms for SliceHeader {
     fn checked_sinograms(
         mut p: SliceSinograms,
         scatter_in_counts: bool,
     ) -> Result<(SliceSinograms, CountsCheck), PipelineError> {
-        let (counts, check) = checked_counts(&p.header, &p.counts, scatter_in_counts)?;
-        let fixed = match counts {
-            std::borrow::Cow::Owned(c) => Some(c),
-            std::borrow::Cow::Borrowed(_) => None,
-        };
-        if let Some(c) = fixed {
-            p.counts = c;
-        }
+        let check = corrected_in_place(&mut p, scatter_in_counts)?;
         Ok((p, check))
     }
 
@@ -791,14 +797,7 @@ impl ToSinograms for ConeHeader {
         mut p: ConeFrames,
         scatter_in_counts: bool,
     ) -> Result<(SliceSinograms, CountsCheck), PipelineError> {
-        let (counts, check) = checked_counts(&p.header, &p.counts, scatter_in_counts)?;
-        let fixed = match counts {
-            std::borrow::Cow::Owned(c) => Some(c),
-            std::borrow::Cow::Borrowed(_) => None,
-        };
-        if let Some(c) = fixed {
-            p.counts = c;
-        }
+        let check = corrected_in_place(&mut p, scatter_in_counts)?;
         Ok((crate::rebin::slice_sinograms(&p)?, check))
     }
 
