@@ -88,8 +88,12 @@ c = r["density_check"]
 pct = lambda g: "none" if g is None else f"{g:.3f}"
 print(f"physics density (no learning, same projections): {pct(c['physics'])}; contact region: network "
       f"{pct(c['contact_network'])}, physics {pct(c['contact_physics'])}; "
-      + ("density CONFIRMED by the physics" if c["confirmed"]
+      + ("density CONFIRMED" if c["confirmed"]
          else "density NOT CONFIRMED, no composition category reported: " + "; ".join(c["reasons"])))
+f = c.get("data_fit")
+if f:
+    print(f"data fit: the reconstruction against its projections, residual {f['residual']:.4f}, "
+          f"{f['excess']:.4f} beyond the noise (limit {c['limits']['data_fit_max']:.3f})")
 st = r.get("stage_seconds") or {}
 if st:
     n = st["slices"]

@@ -284,8 +284,14 @@ impl DensityCheck {
     pub fn summary(&self) -> String {
         let pc = |v: Option<f64>| v.map_or("none".to_string(), |g| format!("{:.1} %", 100.0 * g));
         let pp = |v: Option<f64>| v.map_or("n/a".to_string(), |d| format!("{d:+.1} pp"));
+        let fit = self.data_fit.map_or(String::new(), |f| {
+            format!(
+                "; data residual {:.4} beyond the noise (limit {:.3})",
+                f.excess, self.limits.data_fit_max
+            )
+        });
         format!(
-            "{}: reported {:.1} %, physics {} ({}); contact region network {}, physics {} ({})",
+            "{}: reported {:.1} %, physics {} ({}); contact region network {}, physics {} ({}){fit}",
             if self.confirmed {
                 "confirmed"
             } else {
