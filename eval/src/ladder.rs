@@ -222,44 +222,17 @@ fn pv_sums(mu: &[f32], labels: &[u8], idx: impl Iterator<Item = usize>) -> Parti
 /// reconstructed from: `||P f - g|| / ||g||` over every view and element of
 /// every slice, `P` the acquisition's projector, `f` each slice's image
 /// (the volume's rows within the thickness, air above), `g` the log of the
-/// counts. A reconstruction that fits its data reads the noise's share; a
-/// network far from what it was trained on may not fit (a data-consistency
-/// check needs no truth).
+/// counts: the firmware's [`dbt_pipeline::data_fit`] over every slice. A
+/// reconstruction that fits its data reads the noise's share; a network far
+/// from what it was trained on may not fit (a data-consistency check needs
+/// no truth).
 pub fn data_residual(
     acq: &dbt_pipeline::SliceSinograms,
     mu: &[f32],
     dims: [usize; 3],
 ) -> anyhow::Result<f64> {
-    let h = &acq.header;
-    let g = &h.geometry;
-    let [cols, nv, nd] = dims;
-    anyhow::ensure!(
-        cols == g.image.columns && nv <= g.image.rows && nd == acq.counts.len(),
-        "volume {dims:?} against the acquisition's {} x {} image and {} slices",
-        g.image.columns,
-        g.image.rows,
-        acq.counts.len()
-    );
-    let proj = dbt_projector::Projector::new(g);
-    let rows = g.image.rows;
-    let (mut num, mut den) = (0.0f64, 0.0f64);
-    let mut img = vec![0f32; rows * cols];
-    let mut sino = vec![0f32; g.n_rays()];
-    for d in 0..nd {
-        img.fill(0.0);
-        for v in 0..nv {
-            let r = rows - 1 - v;
-            let src = (d * nv + v) * cols;
-            img[r * cols..(r + 1) * cols].copy_from_slice(&mu[src..src + cols]);
-        }
-        proj.forward(&img, &mut sino)?;
-        let meas = dbt_forward::log_transform(&acq.counts[d], h.flux);
-        for (p, m) in sino.iter().zip(&meas) {
-            num += (*p as f64 - *m as f64).powi(2);
-            den += (*m as f64).powi(2);
-        }
-    }
-    Ok((num / den.max(1e-300)).sqrt())
+    let slices: Vec<usize> = (0..acq.counts.len()).collect();
+    Ok(dbt_pipeline::data_fit::data_fit(&acq.header, &acq.counts, mu, dims, &slices)?.residual)
 }
 
 /// Glandularity by mass of the non-skin breast voxels' mean attenuation

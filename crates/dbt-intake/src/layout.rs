@@ -96,14 +96,6 @@ impl SliceHeader {
     pub fn into_inner(self) -> AcquisitionHeader {
         self.0
     }
-
-    /// Fields a stage of the product may change without changing the
-    /// layout: the settled technique and identity (the header's `system`
-    /// stays empty; set there, it is cleared again).
-    pub fn edit(&mut self, f: impl FnOnce(&mut AcquisitionHeader)) {
-        f(&mut self.0);
-        self.0.system = None;
-    }
 }
 
 impl ConeHeader {
@@ -233,17 +225,13 @@ mod tests {
         assert_eq!(Acquisition::from(c), frames);
     }
 
-    /// Editing a slice header cannot give it a system.
+    /// A header that names a system is no slice header.
     #[test]
-    fn a_slice_header_stays_slices() {
-        let mut h = SliceHeader::try_from(example_header(dbt_geometry::Geometry::paper(), 1, None))
-            .expect("fan");
-        h.edit(|h| {
-            h.kvp = 30.0;
-            h.system = Some(cone());
-        });
-        assert_eq!(h.kvp, 30.0);
-        assert!(h.system.is_none());
+    fn a_slice_header_has_no_system() {
+        assert!(
+            SliceHeader::try_from(example_header(dbt_geometry::Geometry::paper(), 1, None))
+                .is_ok_and(|h| h.system.is_none())
+        );
         assert!(SliceHeader::try_from(example_header(
             dbt_geometry::Geometry::paper(),
             1,

@@ -482,6 +482,18 @@ pub fn correct_counts<'a, H: RayLayout>(
     opts: &PipelineOptions,
 ) -> Result<std::borrow::Cow<'a, Projections<H>>, PipelineError> {
     acq.header.validate()?;
+    if opts.descatter.is_none() && opts.linearise.is_none() {
+        refuse_inconsistent_corrections(opts)?;
+        return Ok(std::borrow::Cow::Borrowed(acq));
+    }
+    let mut a = acq.clone();
+    correct_in_place(&mut a, opts)?;
+    Ok(std::borrow::Cow::Owned(a))
+}
+
+/// Corrections `opts` cannot apply together: counts read with their
+/// scatter and corrected, or noise matched without the linearisation.
+fn refuse_inconsistent_corrections(opts: &PipelineOptions) -> Result<(), PipelineError> {
     if opts.scatter_in_input && (opts.descatter.is_some() || opts.linearise.is_some()) {
         return Err(PipelineError::Input(
             "counts read with their scatter left in (scatter_in_input) cannot also be corrected: \
@@ -495,10 +507,18 @@ pub fn correct_counts<'a, H: RayLayout>(
                 .into(),
         ));
     }
-    if opts.descatter.is_none() && opts.linearise.is_none() {
-        return Ok(std::borrow::Cow::Borrowed(acq));
-    }
-    let mut a = acq.clone();
+    Ok(())
+}
+
+/// [`correct_counts`] of counts the caller owns, in place (the header
+/// already validated).
+fn correct_in_place<H: RayLayout>(
+    a: &mut Projections<H>,
+    opts: &PipelineOptions,
+) -> Result<(), PipelineError> {
+    refuse_inconsistent_corrections(opts)?;
+    // The detector's counts, as read: the noise matching's other input.
+    let raw = opts.noise_match.map(|_| a.counts.clone());
     if let Some(sr) = &opts.descatter {
         let spr = sr
             .apply(&a.header, &mut a.counts)
@@ -512,9 +532,9 @@ pub fn correct_counts<'a, H: RayLayout>(
             .apply(&a.header, &mut a.counts)
             .map_err(|e| PipelineError::Input(e.to_string()))?;
         tracing::debug!(counts = n, "beam hardening linearised");
-        if let (Some(nm), Some(primary)) = (&opts.noise_match, &primary) {
+        if let (Some(nm), Some(raw), Some(primary)) = (&opts.noise_match, &raw, &primary) {
             let r = nm
-                .apply(&a.header, bh, &acq.counts, primary, &mut a.counts)
+                .apply(&a.header, bh, raw, primary, &mut a.counts)
                 .map_err(|e| PipelineError::Input(e.to_string()))?;
             tracing::debug!(
                 variance_per_signal = r.variance_per_signal,
@@ -525,7 +545,7 @@ pub fn correct_counts<'a, H: RayLayout>(
             );
         }
     }
-    Ok(std::borrow::Cow::Owned(a))
+    Ok(())
 }
 
 /// Reconstruct every coronal slice of `acq` with the reconstructor of
@@ -838,7 +858,7 @@ pub fn process_with_progress(
 }
 
 fn process_layout<H: ToSinograms>(
-    acq: Projections<H>,
+    mut acq: Projections<H>,
     opts: &PipelineOptions,
     progress: &mut dyn FnMut(Stage),
 ) -> Result<ProcessResult, PipelineError> {
@@ -850,10 +870,9 @@ fn process_layout<H: ToSinograms>(
         s
     };
     let mut stage_seconds = StageSeconds::default();
-    let acq = match correct_counts(&acq, opts)? {
-        std::borrow::Cow::Owned(a) => a,
-        std::borrow::Cow::Borrowed(_) => acq,
-    };
+    // The header was validated by the caller; the counts are this
+    // acquisition's own copy, corrected where they lie.
+    correct_in_place(&mut acq, opts)?;
     preflight(&acq.header, opts)?;
     let layout = acq.header.clone();
     // The counts last: every cheaper refusal above comes first.
