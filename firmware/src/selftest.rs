@@ -71,12 +71,12 @@ pub fn projector(g: &Geometry) -> Vec<Check> {
         }
     }
     let _ = p.forward(&slab, &mut px);
-    let hh = g.height_mm() / 2.0;
+    let (lo, hi) = (g.support_z_mm(), g.top_z_mm());
     let mut worst = 0.0f64;
     for v in 0..g.n_views() {
         for k in 0..g.n_det() {
             let (s, e) = g.ray_endpoints_mm(v, k);
-            let exact = mu * chord_in_rect(s, e, -half, half, -hh, hh);
+            let exact = mu * chord_in_rect(s, e, -half, half, lo, hi);
             let got = px[v * g.n_det() + k] as f64;
             worst = worst.max((got - exact).abs() / exact.max(mu * g.height_mm()));
         }

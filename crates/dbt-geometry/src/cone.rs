@@ -378,8 +378,11 @@ impl ConeSystem {
     /// reconstruction on `template`'s detector elements and image: the
     /// source arc's radius, the detector at the distance it has at 0
     /// degrees (turning with the source: a virtual detector for a stationary
-    /// one), the system's views. It is `template` itself when the template
-    /// was made for this system (`paper-cone` and the paper's geometries).
+    /// one), the system's views, and the template's image resting on the
+    /// system's support (raised by `image.centre_z_mm` where the support is
+    /// not half the image below the axis: Hologic's pivot, GE's axis). It is
+    /// `template` itself when the template was made for this system
+    /// (`paper-cone` and the paper's geometries).
     pub fn rebinning_fan(
         &self,
         template: &crate::Geometry,
@@ -390,20 +393,45 @@ impl ConeSystem {
                 "a fan geometry's views are evenly spaced: this system's measured angles have no rebinning fan",
             ));
         }
-        let g = crate::Geometry {
+        // The image rests on the support: its centre `rows x pixel / 2`
+        // above it, measured from the axis (0 for the paper's layout).
+        let rows_mm = template.image.rows as f64 * template.image.pixel_mm;
+        let mut image = template.image.clone();
+        image.centre_z_mm = self.support_height_mm + rows_mm / 2.0 - self.axis_height_mm;
+        let mut g = crate::Geometry {
             source_to_center_mm: self.arc_radius_mm,
             source_to_detector_mm: self.arc_radius_mm + self.axis_height_mm,
             views: self.views.clone(),
+            image,
             ..template.clone()
         };
+        // A detector that does not turn with the source is read through a
+        // virtual one that does: as many of the template's elements as
+        // cover the image at every view (the same parity, so that the
+        // central ray keeps its place on an element's centre or edge). A
+        // rotating detector's elements are its own columns.
+        if self.detector_motion != DetectorMotion::Rotating {
+            let pitch = g.detector.pitch_mm;
+            let reach = (0..g.n_views())
+                .flat_map(|v| {
+                    g.image_corners_mm()
+                        .map(|(x, z)| g.project_point(v, x, z).u_mm)
+                })
+                .fold(0.0f64, |m, u| m.max(u.abs()));
+            let need = (2.0 * reach / pitch).ceil() as usize;
+            let mut n = g.detector.elements.max(need);
+            if n % 2 != g.detector.elements % 2 {
+                n += 1;
+            }
+            g.detector.elements = n;
+        }
         g.validate()?;
         Ok(g)
     }
 
     /// The 2-D fan-beam geometry of the plane `y = source_depth_mm` of a
     /// rotating system, with an image of `columns x rows` pixels of
-    /// `pixel_mm` centred across and resting on the support (the image's
-    /// centre must then be on the axis: the paper's layout).
+    /// `pixel_mm` centred across and resting on the support.
     pub fn central_fan(
         &self,
         columns: usize,
@@ -414,16 +442,6 @@ impl ConeSystem {
             return Err(invalid(
                 "detector_motion",
                 "a stationary detector has no rotating fan-beam equivalent",
-            ));
-        }
-        let centre = self.support_height_mm + rows as f64 * pixel_mm / 2.0;
-        if (centre - self.axis_height_mm).abs() > 1e-9 {
-            return Err(invalid(
-                "support_height_mm",
-                format!(
-                    "an image of {rows} rows of {pixel_mm} mm on the support is centred {centre} mm high, not on the axis ({} mm)",
-                    self.axis_height_mm
-                ),
             ));
         }
         let g = crate::Geometry {
@@ -438,6 +456,8 @@ impl ConeSystem {
                 columns,
                 rows,
                 pixel_mm,
+                centre_z_mm: self.support_height_mm + rows as f64 * pixel_mm / 2.0
+                    - self.axis_height_mm,
             },
         };
         g.validate()?;

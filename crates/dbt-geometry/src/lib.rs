@@ -100,6 +100,19 @@ pub struct Image {
     pub rows: usize,
     /// Pixel side in mm.
     pub pixel_mm: f64,
+    /// Height of the image's centre above the rotation centre, mm: 0 (the
+    /// paper's layout, and the default) centres the image on the axis; a
+    /// gantry whose breast support is not `rows x pixel_mm / 2` below its
+    /// rotation axis (Hologic's pivot in the detector plane, GE's axis 18 mm
+    /// above the support) rests its image on the support by this offset
+    /// (issue #51). Absent from the TOML when 0, so that the paper's
+    /// geometries (and their digests) are unchanged.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub centre_z_mm: f64,
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 /// A validated DBT coronal-slice fan-beam geometry.
@@ -187,6 +200,7 @@ impl Geometry {
                 columns: self.image.columns / factor,
                 rows: self.image.rows / factor,
                 pixel_mm: self.image.pixel_mm * factor as f64,
+                centre_z_mm: self.image.centre_z_mm,
             },
         };
         g.validate()?;
@@ -209,11 +223,19 @@ impl Geometry {
         positive("source_to_detector_mm", self.source_to_detector_mm)?;
         positive("detector.pitch_mm", self.detector.pitch_mm)?;
         positive("image.pixel_mm", self.image.pixel_mm)?;
-        if self.source_to_detector_mm <= self.source_to_center_mm {
+        if !self.image.centre_z_mm.is_finite() {
+            return Err(invalid(
+                "image.centre_z_mm",
+                format!("must be a finite number, got {}", self.image.centre_z_mm),
+            ));
+        }
+        // The detector may pass through the rotation centre (Hologic's
+        // pivot lies in the detector's plane), never nearer the source.
+        if self.source_to_detector_mm < self.source_to_center_mm {
             return Err(invalid(
                 "source_to_detector_mm",
                 format!(
-                    "must exceed source_to_center_mm ({} mm), got {} mm",
+                    "must be at least source_to_center_mm ({} mm), got {} mm",
                     self.source_to_center_mm, self.source_to_detector_mm
                 ),
             ));
@@ -401,8 +423,8 @@ impl Geometry {
 
     /// The four image corners `(x, z)` in mm.
     pub fn image_corners_mm(&self) -> [(f64, f64); 4] {
-        let (hw, hh) = (self.width_mm() / 2.0, self.height_mm() / 2.0);
-        [(-hw, -hh), (-hw, hh), (hw, -hh), (hw, hh)]
+        let (hw, lo, hi) = (self.width_mm() / 2.0, self.support_z_mm(), self.top_z_mm());
+        [(-hw, lo), (-hw, hi), (hw, lo), (hw, hi)]
     }
 
     /// Centre `(x, z)` in mm of pixel `(row, col)`.
@@ -410,13 +432,18 @@ impl Geometry {
         let p = self.image.pixel_mm;
         (
             -self.width_mm() / 2.0 + (col as f64 + 0.5) * p,
-            self.height_mm() / 2.0 - (row as f64 + 0.5) * p,
+            self.top_z_mm() - (row as f64 + 0.5) * p,
         )
     }
 
     /// z coordinate (mm) of the breast support: the bottom edge of the image.
     pub fn support_z_mm(&self) -> f64 {
-        -self.height_mm() / 2.0
+        self.image.centre_z_mm - self.height_mm() / 2.0
+    }
+
+    /// z coordinate (mm) of the image's top edge (row 0's upper side).
+    pub fn top_z_mm(&self) -> f64 {
+        self.image.centre_z_mm + self.height_mm() / 2.0
     }
 
     /// Number of image rows, counted from the bottom, whose pixel centres lie

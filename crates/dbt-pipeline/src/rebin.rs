@@ -96,7 +96,7 @@ pub fn check_fan(sys: &ConeSystem, fan: &Geometry) -> Result<(), RebinError> {
 /// reconstruction geometry must satisfy.
 pub fn check_site(sys: &ConeSystem, fan: &Geometry) -> Result<(), RebinError> {
     check_fan(sys, fan)?;
-    let bottom = sys.axis_height_mm - fan.image.rows as f64 * fan.image.pixel_mm / 2.0;
+    let bottom = sys.axis_height_mm + fan.support_z_mm();
     if (bottom - sys.support_height_mm).abs() > 1e-6 {
         return Err(RebinError::Geometry {
             system: sys.name.clone(),

@@ -45,6 +45,7 @@ fn victre() -> (ConeSystem, Geometry) {
             columns: IMG.0,
             rows: IMG.1,
             pixel_mm: IMG.2,
+            centre_z_mm: 0.0,
         },
     };
     fan.validate().unwrap();

@@ -353,7 +353,7 @@ impl RayTable {
         let n = n_det * n_views;
         let p = g.image.pixel_mm;
         let x_min = -g.width_mm() / 2.0;
-        let z_top = g.height_mm() / 2.0;
+        let z_top = g.top_z_mm();
         let mut t = RayTable {
             nx,
             nz,
@@ -500,7 +500,7 @@ impl RayTable {
         let (nx, nz, n_det) = (self.nx, self.nz, self.n_det);
         let p = g.image.pixel_mm;
         let x_min = -g.width_mm() / 2.0;
-        let z_top = g.height_mm() / 2.0;
+        let z_top = g.top_z_mm();
         let d = g.source_to_detector_mm;
         let pitch = g.detector.pitch_mm;
         let h = (n_det as f64 - 1.0) / 2.0;

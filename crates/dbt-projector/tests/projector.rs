@@ -33,6 +33,42 @@ pixel_mm = 0.37
     .unwrap()
 }
 
+/// `g` with its image's centre `dz` mm above the rotation centre.
+fn raised(g: &Geometry, dz: f64) -> Geometry {
+    let mut g = g.clone();
+    g.image.centre_z_mm = dz;
+    g.validate().unwrap();
+    g
+}
+
+/// Hologic's layout (issue #51): the rotation axis in the detector's plane,
+/// the image resting on a support 25 mm above it (0.8 mm pixels, 15 views
+/// over +-7.5 degrees).
+fn pivot_in_detector() -> Geometry {
+    let mut g = Geometry::from_toml_str(
+        r#"
+source_to_center_mm = 700.0
+source_to_detector_mm = 700.0
+[views]
+count = 15
+first_deg = -7.5
+last_deg = 7.5
+[detector]
+elements = 320
+pitch_mm = 0.8
+[image]
+columns = 250
+rows = 75
+pixel_mm = 0.8
+"#,
+    )
+    .unwrap();
+    g.image.centre_z_mm = 25.0 + 30.0;
+    g.validate().unwrap();
+    assert!((g.support_z_mm() - 25.0).abs() < 1e-12);
+    g
+}
+
 /// The paper geometry, binned, the odd one, and the odd one with rays far
 /// sparser than pixels, with rays denser than pixels, and with views out to
 /// 60 degrees (slow rays): the AVX2 adjoint's ways through its run sums.
@@ -45,6 +81,8 @@ fn geometries() -> Vec<(&'static str, Geometry)> {
     let mut wide = odd_geometry();
     (wide.views.first_deg, wide.views.last_deg) = (-60.0, 60.0);
     vec![
+        ("raised", raised(&odd_geometry(), 31.7)),
+        ("pivot in the detector", pivot_in_detector()),
         ("paper", paper.clone()),
         ("binned x4", paper.binned(4).unwrap()),
         ("odd", odd_geometry()),
@@ -236,6 +274,8 @@ fn slab_line_integrals_match_closed_form() {
     for (name, g) in [
         ("paper", Geometry::paper()),
         ("binned x4", Geometry::paper().binned(4).unwrap()),
+        ("raised 25 mm", raised(&Geometry::paper(), 25.0)),
+        ("pivot in the detector", pivot_in_detector()),
     ] {
         let p = Projector::new(&g);
         let half = 80.0;
@@ -250,12 +290,12 @@ fn slab_line_integrals_match_closed_form() {
         }
         let mut sino = vec![0.0f32; p.range_len()];
         p.forward(&img, &mut sino).unwrap();
-        let hh = g.height_mm() / 2.0;
+        let (lo, hi) = (g.support_z_mm(), g.top_z_mm());
         for v in 0..g.n_views() {
             let mut worst = 0.0f64;
             for k in 0..g.n_det() {
                 let (s, e) = g.ray_endpoints_mm(v, k);
-                let exact = mu * chord_in_rect(s, e, -half, half, -hh, hh);
+                let exact = mu * chord_in_rect(s, e, -half, half, lo, hi);
                 let got = sino[v * g.n_det() + k] as f64;
                 let err = (got - exact).abs();
                 // Relative where the ray crosses a real length of slab; absolute
@@ -360,9 +400,15 @@ fn off_centre_ellipse_line_integrals_match_closed_form() {
     for (name, g) in [
         ("paper", Geometry::paper()),
         ("binned x2", Geometry::paper().binned(2).unwrap()),
+        // The image and the ellipse raised together: the same integrals.
+        ("paper raised 25 mm", raised(&Geometry::paper(), 25.0)),
     ] {
         let p = Projector::new(&g);
         let mut sino = vec![0.0f32; p.range_len()];
+        let dz = g.image.centre_z_mm;
+        let ellipse_rho2 = |x: f64, z: f64| ellipse_rho2(x, z - dz);
+        let ellipse_integrals =
+            |s: (f64, f64), e: (f64, f64)| ellipse_integrals((s.0, s.1 - dz), (e.0, e.1 - dz));
         // (a) Smooth profile mu (1 - rho^2)^2 (continuous with its derivative at
         // the boundary): its pixel discretisation error is second order
         // in the mean, so the closed form must hold to 1e-3 norm-wise at every
@@ -423,34 +469,41 @@ fn line_integrals_match_brute_force_integration_of_the_pixel_image() {
     // each ray by dense midpoint sampling in f64 (1e6 samples over ~60 mm: each
     // of the ~150 pixel crossings is misplaced by at most 6e-5 mm, so the
     // sampling error is ~1e-5 relative).
-    let g = Geometry::paper().binned(4).unwrap();
-    let p = Projector::new(&g);
-    let x = random_vec(p.domain_len(), 21);
-    let mut sino = vec![0.0f32; p.range_len()];
-    p.forward(&x, &mut sino).unwrap();
-    let (hw, hh, px) = (g.width_mm() / 2.0, g.height_mm() / 2.0, g.image.pixel_mm);
-    for v in [0, 5, 12, 24] {
-        for k in (0..g.n_det()).step_by(23) {
-            let (s, e) = g.ray_endpoints_mm(v, k);
-            let d = (e.0 - s.0, e.1 - s.1);
-            let (t0, t1) = ((hh - s.1) / d.1, (-hh - s.1) / d.1);
-            let n = 1_000_000;
-            let mut acc = 0.0;
-            for q in 0..n {
-                let t = t0 + (t1 - t0) * (q as f64 + 0.5) / n as f64;
-                let (xx, zz) = (s.0 + t * d.0, s.1 + t * d.1);
-                if xx.abs() < hw {
-                    let j = (((xx + hw) / px).floor() as usize).min(g.nx() - 1);
-                    let i = (((hh - zz) / px).floor() as usize).min(g.nz() - 1);
-                    acc += x[i * g.nx() + j] as f64;
+    for g in [Geometry::paper().binned(4).unwrap(), pivot_in_detector()] {
+        let p = Projector::new(&g);
+        let x = random_vec(p.domain_len(), 21);
+        let mut sino = vec![0.0f32; p.range_len()];
+        p.forward(&x, &mut sino).unwrap();
+        let (hw, lo, hi, px) = (
+            g.width_mm() / 2.0,
+            g.support_z_mm(),
+            g.top_z_mm(),
+            g.image.pixel_mm,
+        );
+        let n = g.n_views();
+        for v in [0, n / 4, n / 2, n - 1] {
+            for k in (0..g.n_det()).step_by(23) {
+                let (s, e) = g.ray_endpoints_mm(v, k);
+                let d = (e.0 - s.0, e.1 - s.1);
+                let (t0, t1) = ((hi - s.1) / d.1, (lo - s.1) / d.1);
+                let n = 1_000_000;
+                let mut acc = 0.0;
+                for q in 0..n {
+                    let t = t0 + (t1 - t0) * (q as f64 + 0.5) / n as f64;
+                    let (xx, zz) = (s.0 + t * d.0, s.1 + t * d.1);
+                    if xx.abs() < hw {
+                        let j = (((xx + hw) / px).floor() as usize).min(g.nx() - 1);
+                        let i = (((hi - zz) / px).floor() as usize).min(g.nz() - 1);
+                        acc += x[i * g.nx() + j] as f64;
+                    }
                 }
+                acc *= (t1 - t0) * (d.0 * d.0 + d.1 * d.1).sqrt() / n as f64;
+                let got = sino[v * g.n_det() + k] as f64;
+                assert!(
+                    (got - acc).abs() <= 1e-4 * acc.max(1.0),
+                    "view {v} element {k}: {got} vs {acc}"
+                );
             }
-            acc *= (t1 - t0) * (d.0 * d.0 + d.1 * d.1).sqrt() / n as f64;
-            let got = sino[v * g.n_det() + k] as f64;
-            assert!(
-                (got - acc).abs() <= 1e-4 * acc.max(1.0),
-                "view {v} element {k}: {got} vs {acc}"
-            );
         }
     }
 }
