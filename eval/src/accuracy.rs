@@ -4,7 +4,7 @@
 //! statistics, for whichever reconstructor the pipeline options select (DBToR
 //! with a model, else MLTR).
 
-use dbt_dose::patient::{dbt_views, mgd_to_uncertainty, Breast, Model};
+use dbt_dose::patient::{mgd_to_uncertainty_on, Breast, Model};
 use dbt_dose::xray::AnodeFilter;
 use dbt_forward::NoiseLevel;
 use dbt_geometry::Geometry;
@@ -236,11 +236,12 @@ pub fn run_cases_on(
                     voxel_mm: vol.voxel_mm(),
                     labels: vol.labels(),
                 };
-                let m = mgd_to_uncertainty(
+                // On the gantry the acquisition was made and dosed on.
+                let m = mgd_to_uncertainty_on(
+                    &res.dose_geometry,
                     &truth,
                     Model::PatientSpecific,
                     &spec,
-                    &dbt_views(),
                     o.dose_uncertainty,
                     200_000,
                     100_000_000,

@@ -77,6 +77,107 @@ pub enum Model {
     Homogeneous,
 }
 
+/// Where a sweep's dose is simulated: the gantry's focal spot at each view,
+/// the detector the field is collimated to (turned by the detector's angle
+/// at that view), and the breast support, in the dose coordinates of this
+/// module (`z = 0` the detector plane at 0 degrees, `x` from the chest wall,
+/// `y` along it). One geometry per gantry (issue #51): the paper's
+/// ([`DoseGeometry::paper`], this module's constants), or a cone-beam
+/// system's own ([`DoseGeometry::of_system`]: Hologic's 15 views over +-7.5
+/// degrees from 700 mm with a tilting detector, GE's 9 over +-12.5 degrees
+/// over a stationary one, ...).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct DoseGeometry {
+    /// The gantry's name (`paper`, or the cone-beam system's).
+    pub name: String,
+    /// The source's distance from the rotation axis, mm.
+    pub arc_radius_mm: f64,
+    /// The rotation axis's height above the detector, mm.
+    pub axis_height_mm: f64,
+    /// The focal spot's distance from the chest wall (dose `x`), mm.
+    pub source_depth_mm: f64,
+    /// The breast support's upper face above the detector, mm.
+    pub support_z_mm: f64,
+    /// The detector (and field) along the chest wall (`y`) and toward the
+    /// nipple (`x`), mm.
+    pub detector_mm: [f64; 2],
+    /// Each view's source angle and detector angle, degrees.
+    pub views: Vec<[f64; 2]>,
+}
+
+impl DoseGeometry {
+    /// The paper's gantry with its 25 views ([`dbt_views`]): source 650 mm
+    /// from the axis, 700 mm from the rotating detector, the support 20 mm
+    /// above it.
+    pub fn paper() -> Self {
+        Self::paper_views(&dbt_views())
+    }
+
+    /// The paper's gantry with the views `views_deg` (a mammogram: `[0]`).
+    pub fn paper_views(views_deg: &[f64]) -> Self {
+        DoseGeometry {
+            name: "paper".into(),
+            arc_radius_mm: SOURCE_TO_AXIS_MM,
+            axis_height_mm: SOURCE_TO_DETECTOR_MM - SOURCE_TO_AXIS_MM,
+            source_depth_mm: 0.0,
+            support_z_mm: SUPPORT_Z_MM,
+            detector_mm: DETECTOR_MM,
+            views: views_deg.iter().map(|&a| [a, a]).collect(),
+        }
+    }
+
+    /// A cone-beam system's gantry: its views (measured angles where it
+    /// gives them), arc, axis, support and detector; the detector turned by
+    /// `k x` the source's angle as the system says (0 stationary, 1
+    /// rotating, Hologic's tilt factor). The source's arc during an
+    /// exposure (`source_blur_deg`) is not simulated: the dose of an arc of
+    /// a few tenths of a degree is that of its middle.
+    pub fn of_system(sys: &dbt_geometry::ConeSystem) -> Self {
+        let p = sys.detector.pitch_mm;
+        DoseGeometry {
+            name: sys.name.clone(),
+            arc_radius_mm: sys.arc_radius_mm,
+            axis_height_mm: sys.axis_height_mm,
+            source_depth_mm: sys.source_depth_mm,
+            support_z_mm: sys.support_height_mm,
+            detector_mm: [
+                sys.detector.columns as f64 * p,
+                sys.detector.rows as f64 * p,
+            ],
+            views: (0..sys.n_views())
+                .map(|v| [sys.angle_deg(v), sys.detector_angle_deg(v)])
+                .collect(),
+        }
+    }
+
+    /// The views' source angles, degrees.
+    pub fn angles_deg(&self) -> Vec<f64> {
+        self.views.iter().map(|v| v[0]).collect()
+    }
+
+    /// The source with the source at `angle_deg` and the detector turned
+    /// by `detector_deg` (both about the axis through (., 0,
+    /// `axis_height_mm`) parallel to x), the field collimated to the
+    /// detector.
+    pub fn source(&self, angle_deg: f64, detector_deg: f64, spectrum: Spectrum) -> PointSource {
+        let (r, h) = (self.arc_radius_mm, self.axis_height_mm);
+        let (s, c) = angle_deg.to_radians().sin_cos();
+        let (sd, cd) = detector_deg.to_radians().sin_cos();
+        PointSource {
+            position: [self.source_depth_mm, r * s, h + r * c],
+            field_centre: [self.detector_mm[1] / 2.0, -h * sd, h - h * cd],
+            field_axes: [[1.0, 0.0, 0.0], [0.0, cd, -sd]],
+            field_half: [self.detector_mm[1] / 2.0, self.detector_mm[0] / 2.0],
+            spectrum,
+        }
+    }
+
+    /// View `v`'s source ([`DoseGeometry::source`]); `None` past the views.
+    pub fn view_source(&self, v: usize, spectrum: Spectrum) -> Option<PointSource> {
+        self.views.get(v).map(|&[a, d]| self.source(a, d, spectrum))
+    }
+}
+
 /// The result of one MGD estimate.
 #[derive(Debug, Clone, Serialize)]
 pub struct MgdResult {
@@ -143,9 +244,15 @@ pub fn glandularity(b: &Breast<'_>) -> (f64, u64) {
     (dbt_materials::glandularity(ng, c[1]).unwrap_or(0.0), ng)
 }
 
-/// The dose scene of a breast.
+/// The dose scene of a breast on the paper's gantry.
 pub fn scene(b: &Breast<'_>, model: Model) -> Result<Scene, DoseError> {
+    scene_on(&DoseGeometry::paper(), b, model)
+}
+
+/// The dose scene of a breast resting on `geom`'s support.
+pub fn scene_on(geom: &DoseGeometry, b: &Breast<'_>, model: Model) -> Result<Scene, DoseError> {
     validate(b)?;
+    let (support_z, detector) = (geom.support_z_mm, geom.detector_mm);
     let els = elements()?;
     let gland = Material::tissue(Tissue::Fibroglandular, els)?;
     let (g, _) = glandularity(b);
@@ -181,11 +288,11 @@ pub fn scene(b: &Breast<'_>, model: Model) -> Result<Scene, DoseError> {
         }
     }
     let t = nv as f64 * h;
-    let half_y = DETECTOR_MM[0] / 2.0;
+    let half_y = detector[0] / 2.0;
     let scene = Scene {
         materials,
         grid: VoxelGrid {
-            origin: [0.0, -(nl as f64) * h / 2.0, SUPPORT_Z_MM],
+            origin: [0.0, -(nl as f64) * h / 2.0, support_z],
             voxel_mm: h,
             dims,
             tally: vec![0; material.len()],
@@ -193,13 +300,13 @@ pub fn scene(b: &Breast<'_>, model: Model) -> Result<Scene, DoseError> {
         },
         boxes: vec![
             HomogeneousBox {
-                min: [0.0, -half_y, SUPPORT_Z_MM + t],
-                max: [DETECTOR_MM[1], half_y, SUPPORT_Z_MM + t + PADDLE_MM],
+                min: [0.0, -half_y, support_z + t],
+                max: [detector[1], half_y, support_z + t + PADDLE_MM],
                 material: PET_M,
             },
             HomogeneousBox {
-                min: [0.0, -half_y, SUPPORT_Z_MM - SUPPORT_MM],
-                max: [DETECTOR_MM[1], half_y, SUPPORT_Z_MM],
+                min: [0.0, -half_y, support_z - SUPPORT_MM],
+                max: [detector[1], half_y, support_z],
                 material: PMMA_M,
             },
             HomogeneousBox {
@@ -214,32 +321,23 @@ pub fn scene(b: &Breast<'_>, model: Model) -> Result<Scene, DoseError> {
         n_tallies: 0,
         summary: Default::default(),
     };
-    if nl as f64 * h > DETECTOR_MM[0] || nd as f64 * h > DETECTOR_MM[1] {
+    if nl as f64 * h > detector[0] || nd as f64 * h > detector[1] {
         return Err(DoseError::Scene(format!(
             "breast {:.0} x {:.0} mm exceeds the detector {:?} mm",
             nl as f64 * h,
             nd as f64 * h,
-            DETECTOR_MM
+            detector
         )));
     }
     scene.validate()?;
     Ok(scene)
 }
 
-/// The source of a view at `angle_deg` (rotation about the axis through
-/// (., 0, 50 mm) parallel to x), collimated to the rotating detector.
+/// The source of a view at `angle_deg` on the paper's gantry (rotation
+/// about the axis through (., 0, 50 mm) parallel to x), collimated to the
+/// rotating detector.
 pub fn view_source(angle_deg: f64, spectrum: Spectrum) -> PointSource {
-    let a = angle_deg.to_radians();
-    let axis_z = SOURCE_TO_DETECTOR_MM - SOURCE_TO_AXIS_MM;
-    let (s, c) = a.sin_cos();
-    let below = SOURCE_TO_DETECTOR_MM - SOURCE_TO_AXIS_MM;
-    PointSource {
-        position: [0.0, SOURCE_TO_AXIS_MM * s, axis_z + SOURCE_TO_AXIS_MM * c],
-        field_centre: [DETECTOR_MM[1] / 2.0, -below * s, axis_z - below * c],
-        field_axes: [[1.0, 0.0, 0.0], [0.0, c, -s]],
-        field_half: [DETECTOR_MM[1] / 2.0, DETECTOR_MM[0] / 2.0],
-        spectrum,
-    }
+    DoseGeometry::paper_views(&[]).source(angle_deg, angle_deg, spectrum)
 }
 
 /// The paper's DBT views: 25 from -24 to 24 degrees every 2 degrees.
@@ -272,8 +370,9 @@ pub fn air_kerma_per_photon(src: &PointSource, q: [f64; 3]) -> Result<f64, DoseE
     Ok(fluence_per_cm2 * per_kev_g * 1e3 * EV_PER_G_TO_MGY)
 }
 
-/// Estimate the MGD of `breast` for the given views, with `photons` photons
-/// in total (equal per view), in `batches` batches per view.
+/// Estimate the MGD of `breast` for the given views of the paper's gantry,
+/// with `photons` photons in total (equal per view), in `batches` batches
+/// per view.
 pub fn mgd(
     breast: &Breast<'_>,
     model: Model,
@@ -283,28 +382,49 @@ pub fn mgd(
     batches: usize,
     seed: u64,
 ) -> Result<MgdResult, DoseError> {
-    if views_deg.is_empty() {
-        return Err(DoseError::Scene("no views".into()));
-    }
-    let sc = scene(breast, model)?;
-    mgd_in(
-        &sc, breast, model, spectrum, views_deg, photons, batches, seed,
+    mgd_on(
+        &DoseGeometry::paper_views(views_deg),
+        breast,
+        model,
+        spectrum,
+        photons,
+        batches,
+        seed,
     )
 }
 
-/// [`mgd`] in a scene already built for `breast` and `model` (views checked).
-#[allow(clippy::too_many_arguments)]
-fn mgd_in(
-    sc: &Scene,
+/// [`mgd`] on the gantry `geom` (its views).
+pub fn mgd_on(
+    geom: &DoseGeometry,
     breast: &Breast<'_>,
     model: Model,
     spectrum: &Spectrum,
-    views_deg: &[f64],
     photons: u64,
     batches: usize,
     seed: u64,
 ) -> Result<MgdResult, DoseError> {
-    let _span = tracing::info_span!("mgd", ?model, views = views_deg.len(), photons).entered();
+    if geom.views.is_empty() {
+        return Err(DoseError::Scene("no views".into()));
+    }
+    let sc = scene_on(geom, breast, model)?;
+    mgd_in(&sc, geom, breast, model, spectrum, photons, batches, seed)
+}
+
+/// [`mgd_on`] in a scene already built for `breast` and `model` (views checked).
+#[allow(clippy::too_many_arguments)]
+fn mgd_in(
+    sc: &Scene,
+    geom: &DoseGeometry,
+    breast: &Breast<'_>,
+    model: Model,
+    spectrum: &Spectrum,
+    photons: u64,
+    batches: usize,
+    seed: u64,
+) -> Result<MgdResult, DoseError> {
+    let n_views = geom.views.len();
+    let _span =
+        tracing::info_span!("mgd", ?model, gantry = %geom.name, views = n_views, photons).entered();
     let t0 = std::time::Instant::now();
     let (g, n_gland) = glandularity(breast);
     let voxel_g = breast.voxel_mm.powi(3) / 1000.0;
@@ -325,13 +445,13 @@ fn mgd_in(
             "the breast has no glandular tissue".into(),
         ));
     }
-    let per_view = (photons / views_deg.len() as u64).max(batches as u64);
+    let per_view = (photons / n_views as u64).max(batches as u64);
     let mut e_gland = 0.0;
-    let mut per_view_e = Vec::with_capacity(views_deg.len());
+    let mut per_view_e = Vec::with_capacity(n_views);
     let mut var = 0.0;
     let mut total = 0u64;
-    for (k, &a) in views_deg.iter().enumerate() {
-        let src = view_source(a, spectrum.clone());
+    for (k, &[a, d]) in geom.views.iter().enumerate() {
+        let src = geom.source(a, d, spectrum.clone());
         let r = run(sc, &src, per_view, batches, seed.wrapping_add(k as u64))?;
         let (m, se) = r.per_photon(|t: &Tallies| t.glandular_kev);
         e_gland += m;
@@ -343,13 +463,15 @@ fn mgd_in(
     let to_mgy = 1e3 * EV_PER_G_TO_MGY / m_gland;
     let mgd = e_gland * to_mgy;
     let t = breast.dims[1] as f64 * breast.voxel_mm;
+    // The incident air kerma of a view at 0 degrees (the source above the
+    // support, the detector flat), times the views.
     let k0 = air_kerma_per_photon(
-        &view_source(0.0, spectrum.clone()),
-        [KERMA_REF_X_MM, 0.0, SUPPORT_Z_MM + t],
-    )? * views_deg.len() as f64;
+        &geom.source(0.0, 0.0, spectrum.clone()),
+        [KERMA_REF_X_MM, 0.0, geom.support_z_mm + t],
+    )? * n_views as f64;
     Ok(MgdResult {
         model,
-        views_deg: views_deg.to_vec(),
+        views_deg: geom.angles_deg(),
         photons: total,
         glandularity: g,
         glandular_mass_g: m_gland,
@@ -364,7 +486,8 @@ fn mgd_in(
 
 /// [`mgd`] with as many photons as a relative statistical uncertainty of
 /// `target` needs (a pilot with `pilot` photons estimates the variance; the
-/// reported result is the final run alone), at most `max_photons`.
+/// reported result is the final run alone), at most `max_photons`, on the
+/// paper's gantry.
 #[allow(clippy::too_many_arguments)]
 pub fn mgd_to_uncertainty(
     breast: &Breast<'_>,
@@ -376,24 +499,39 @@ pub fn mgd_to_uncertainty(
     max_photons: u64,
     seed: u64,
 ) -> Result<MgdResult, DoseError> {
-    if views_deg.is_empty() {
-        return Err(DoseError::Scene("no views".into()));
-    }
-    // One scene serves the pilot and the final run.
-    let sc = scene(breast, model)?;
-    let p = mgd_in(
-        &sc,
+    mgd_to_uncertainty_on(
+        &DoseGeometry::paper_views(views_deg),
         breast,
         model,
         spectrum,
-        views_deg,
+        target,
         pilot,
-        20,
-        seed ^ 0x5EED,
-    )?;
+        max_photons,
+        seed,
+    )
+}
+
+/// [`mgd_to_uncertainty`] on the gantry `geom` (its views).
+#[allow(clippy::too_many_arguments)]
+pub fn mgd_to_uncertainty_on(
+    geom: &DoseGeometry,
+    breast: &Breast<'_>,
+    model: Model,
+    spectrum: &Spectrum,
+    target: f64,
+    pilot: u64,
+    max_photons: u64,
+    seed: u64,
+) -> Result<MgdResult, DoseError> {
+    if geom.views.is_empty() {
+        return Err(DoseError::Scene("no views".into()));
+    }
+    // One scene serves the pilot and the final run.
+    let sc = scene_on(geom, breast, model)?;
+    let p = mgd_in(&sc, geom, breast, model, spectrum, pilot, 20, seed ^ 0x5EED)?;
     let need = (pilot as f64 * (p.mgd_rel_uncertainty / target).powi(2) * 1.15).ceil() as u64;
     let n = need.clamp(pilot, max_photons);
-    let mut r = mgd_in(&sc, breast, model, spectrum, views_deg, n, 20, seed)?;
+    let mut r = mgd_in(&sc, geom, breast, model, spectrum, n, 20, seed)?;
     r.seconds += p.seconds;
     Ok(r)
 }

@@ -142,3 +142,112 @@ fn energy_absorption_matches_nist_for_water() {
         );
     }
 }
+
+/// Every gantry's field is its detector (issue #51): at every view, the
+/// field rectangle's corners, a half element inward, are the centres of the
+/// detector's corner elements as the cone-beam geometry places them
+/// (`ConeSystem::element`: stationary, rotating or tilting), in the dose's
+/// coordinates (dose x = the system's depth y, dose y = its x).
+#[test]
+fn every_gantry_collimates_to_its_detector() {
+    use dbt_dose::patient::DoseGeometry;
+    use dbt_geometry::ConeSystem;
+    let sp = Spectrum::mono(20.0).unwrap();
+    for (name, _) in dbt_geometry::cone::BUILTIN_SYSTEMS {
+        let sys = ConeSystem::builtin(name).unwrap();
+        let g = DoseGeometry::of_system(&sys);
+        assert_eq!(g.views.len(), sys.n_views(), "{name}");
+        let (rows, cols, p) = (
+            sys.detector.rows,
+            sys.detector.columns,
+            sys.detector.pitch_mm,
+        );
+        for v in 0..sys.n_views() {
+            let src = g.view_source(v, sp.clone()).unwrap();
+            let s = sys.source(v);
+            let d = ((src.position[0] - s[1]).powi(2)
+                + (src.position[1] - s[0]).powi(2)
+                + (src.position[2] - s[2]).powi(2))
+            .sqrt();
+            assert!(d < 1e-9, "{name} view {v}: source off by {d} mm");
+            for (row, col, sx, sy) in [
+                (0, 0, 1.0, 1.0),
+                (rows - 1, 0, -1.0, 1.0),
+                (0, cols - 1, 1.0, -1.0),
+                (rows - 1, cols - 1, -1.0, -1.0),
+            ] {
+                // The field's corner toward (row, col), a half pitch inward.
+                let [a, b] = src.field_axes;
+                let (hx, hy) = (src.field_half[0] - p / 2.0, src.field_half[1] - p / 2.0);
+                let q: Vec<f64> = (0..3)
+                    .map(|i| src.field_centre[i] - sx * hx * a[i] - sy * hy * b[i])
+                    .collect();
+                let e = sys.element(v, row, col);
+                let d =
+                    ((q[0] - e[1]).powi(2) + (q[1] - e[0]).powi(2) + (q[2] - e[2]).powi(2)).sqrt();
+                assert!(
+                    d < 1e-6,
+                    "{name} view {v} element ({row}, {col}): {d} mm off"
+                );
+            }
+        }
+    }
+}
+
+/// The paper's dose geometry is the paper's gantry: 25 views, the source
+/// 700 mm above the detector at 0 degrees, and the central ray through the
+/// rotation axis (50 mm above the detector) at every view.
+#[test]
+fn the_paper_gantry() {
+    use dbt_dose::patient::DoseGeometry;
+    let g = DoseGeometry::paper();
+    assert_eq!(g.angles_deg(), dbt_views());
+    let sp = Spectrum::mono(20.0).unwrap();
+    for v in 0..g.views.len() {
+        let s = g.view_source(v, sp.clone()).unwrap();
+        let (p, c) = (s.position, s.field_centre);
+        // The line from the source to the field's centre line (x aside)
+        // passes through (y, z) = (0, 50).
+        let t = (p[2] - 50.0) / (p[2] - c[2]);
+        assert!((p[1] + t * (c[1] - p[1])).abs() < 1e-9, "view {v}");
+        let r = ((p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2)).sqrt();
+        assert!((r - 700.0).abs() < 1e-9, "view {v}: source to detector {r}");
+    }
+}
+
+/// One view straight down from the same height gives the same conversion
+/// factor on Hologic's gantry as on the paper's (both 700 mm from the
+/// detector; the support 25 mm against 20 mm above it moves the breast 5 mm
+/// nearer the source, under 1 % of the factor), and a gantry's own views
+/// are what it simulates.
+#[test]
+fn the_same_view_gives_the_same_dose_on_another_gantry() {
+    use dbt_dose::patient::{mgd_on, DoseGeometry};
+    let (labels, dims) = checker_breast();
+    let b = Breast {
+        dims,
+        voxel_mm: 1.0,
+        labels: &labels,
+    };
+    let spec = paper_spectrum(40.0).unwrap().spectrum.unwrap();
+    let mut hologic =
+        DoseGeometry::of_system(&dbt_geometry::ConeSystem::builtin("hologic-dimensions").unwrap());
+    assert_eq!(hologic.views.len(), 15);
+    hologic.views.retain(|v| v[0] == 0.0);
+    assert_eq!(
+        hologic.views.len(),
+        1,
+        "hologic's middle view is at 0 degrees"
+    );
+    let h = mgd_on(&hologic, &b, Model::Homogeneous, &spec, 2_000_000, 20, 3).unwrap();
+    let p = mgd(&b, Model::Homogeneous, &spec, &[0.0], 2_000_000, 20, 3).unwrap();
+    let diff = h.mgd_per_kerma / p.mgd_per_kerma - 1.0;
+    let se = (h.mgd_rel_uncertainty.powi(2) + p.mgd_rel_uncertainty.powi(2)).sqrt();
+    assert!(
+        diff.abs() < 4.0 * se + 0.01,
+        "hologic {} vs paper {}: {diff} (se {se})",
+        h.mgd_per_kerma,
+        p.mgd_per_kerma
+    );
+    assert_eq!(h.views_deg, vec![0.0]);
+}

@@ -16,7 +16,7 @@ use dbt_dicom::{
     density_report, dose_report, DensityInput, DoseEvent, DoseInput, Equipment, FigureInterval,
     Header, Laterality, ProcedureIntent, Report, UidSource,
 };
-use dbt_dose::patient::{dbt_views, mgd_to_uncertainty, Breast, MgdResult, Model};
+use dbt_dose::patient::{mgd_to_uncertainty_on, Breast, DoseGeometry, MgdResult, Model};
 use dbt_dose::xray::AnodeFilter;
 use dbt_forward::log_transform;
 use dbt_intake::{ConeFrames, ConeHeader, Layout, Projections, SliceHeader, SliceSinograms};
@@ -255,6 +255,9 @@ pub struct ProcessResult {
     pub glandularity: f64,
     /// Whether `glandularity` is calibrated.
     pub calibrated: bool,
+    /// The gantry the dose was simulated on (the acquisition's cone-beam
+    /// system, or the paper's).
+    pub dose_geometry: DoseGeometry,
     /// Patient-specific Monte Carlo MGD.
     pub dose_patient: MgdResult,
     /// Model-breast MGD.
@@ -775,6 +778,11 @@ pub trait ToSinograms: RayLayout + Sized {
         dims: [usize; 3],
         pixel_mm: f64,
     ) -> (Vec<f32>, [usize; 3], f64);
+
+    /// The gantry the dose is simulated on: a cone-beam system's own
+    /// (its views, arc, support, detector and its motion), the paper's for
+    /// slice-wise sinograms.
+    fn dose_geometry(&self) -> DoseGeometry;
 }
 
 /// The counts of `p` checked ([`checked_counts`]) and their defects
@@ -807,6 +815,10 @@ impl ToSinograms for SliceHeader {
     ) -> (Vec<f32>, [usize; 3], f64) {
         (mu, dims, self.slice_spacing_mm)
     }
+
+    fn dose_geometry(&self) -> DoseGeometry {
+        DoseGeometry::paper()
+    }
 }
 
 impl ToSinograms for ConeHeader {
@@ -832,6 +844,10 @@ impl ToSinograms for ConeHeader {
         let (mu, dims) =
             crate::rebin::resample_depth(self.system(), self.thickness_mm, pixel_mm, &mu, dims);
         (mu, dims, pixel_mm)
+    }
+
+    fn dose_geometry(&self) -> DoseGeometry {
+        DoseGeometry::of_system(self.system())
     }
 }
 
@@ -969,13 +985,13 @@ fn process_layout<H: ToSinograms>(
         voxel_mm: g.image.pixel_mm,
         labels: &classification.labels,
     };
-    let views = dbt_views();
+    let gantry = layout.dose_geometry();
     let max = 100_000_000;
-    let dose_patient = mgd_to_uncertainty(
+    let dose_patient = mgd_to_uncertainty_on(
+        &gantry,
         &breast,
         Model::PatientSpecific,
         &spectrum,
-        &views,
         opts.dose_uncertainty,
         200_000,
         max,
@@ -985,11 +1001,11 @@ fn process_layout<H: ToSinograms>(
     // The model breast (the outline and skin of `b`, the interior mixed to
     // its labels' glandularity).
     let model_breast = |b: &Breast, seed: u64| {
-        mgd_to_uncertainty(
+        mgd_to_uncertainty_on(
+            &gantry,
             b,
             Model::Homogeneous,
             &spectrum,
-            &views,
             opts.dose_uncertainty,
             200_000,
             max,
@@ -1050,6 +1066,7 @@ fn process_layout<H: ToSinograms>(
         model_mgd_at_physics_mgy: model_at_physics.map(|m| m.mgd_per_kerma * kerma_mgy),
         kerma_mgy,
         classification,
+        dose_geometry: gantry,
         dose_patient,
         dose_model,
         tube,
