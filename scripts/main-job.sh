@@ -40,6 +40,13 @@
 # (the paper's simulated detector, the shipped model's training world).
 # ANODE_FILTER=W/Al: the exposure's beam (default W/Rh, the paper's): the
 # stream's header carries it, the corrections and the dose use its spectra.
+# SYSTEM=<name> (issue #51): the gantry, a built-in cone-beam system
+# (hologic-dimensions, ge-essential, siemens-inspiration, siemens-victre,
+# paper-cone): acquired on it, received and processed on its rebinning fan of
+# frames.geometry. No DBToR model is trained for any but the configured
+# system, so another is reported by the physics-based density and the model
+# breast's MGD on that gantry's geometry (dbtor-process --physics-only, the
+# daemon's reconstructor = "physics"), each report naming the method.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=out/main-job
@@ -48,6 +55,7 @@ rm -rf "$OUT"
 mkdir -p "$OUT"
 # The shipped configuration is the one place that names the model and the
 # gantry geometry it is paired with.
+WANT_SYSTEM=${SYSTEM:-}
 read -r MODEL PRECISION DIGEST GEOMETRY BINNING SYSTEM < <(python3 -c '
 import pathlib, sys, tomllib
 c = tomllib.load(open(sys.argv[1], "rb"))
@@ -55,13 +63,21 @@ r, f = c["recon"], c["frames"]
 print("models/" + pathlib.PurePosixPath(r["model"]).name, r["precision"], r["model_digest"],
       f["geometry"], f.get("binning", 1), f.get("system", "-"))' firmware/config/dbtor.toml)
 ./target/release/dbtor-diag selftest --binning 1 --model "$MODEL" --precision "${DBTOR_PRECISION:-$PRECISION}"
+METHOD_ARGS=(--model "$MODEL" --model-digest "$DIGEST" --precision "${DBTOR_PRECISION:-$PRECISION}")
+if [ -n "$WANT_SYSTEM" ] && [ "$WANT_SYSTEM" != "$SYSTEM" ]; then
+    echo "SYSTEM=$WANT_SYSTEM: no DBToR model is trained for it (the shipped one is for ${SYSTEM}): physics-only report"
+    SYSTEM=$WANT_SYSTEM
+    METHOD_ARGS=(--physics-only)
+fi
 SYSTEM_ARGS=()
 [ "$SYSTEM" = "-" ] || SYSTEM_ARGS=(--system "$SYSTEM")
 PHYSICS=${PHYSICS:-mono}
 CORRECTIONS=()
 case "$PHYSICS" in
     mono) ;;
-    clinical) CORRECTIONS=(--descatter --csi-um 200 --noise-match) ;;
+    clinical) CORRECTIONS=(--descatter --csi-um 200)
+              # The noise is matched to a model's training level: none without one.
+              [ "${METHOD_ARGS[0]}" = "--physics-only" ] || CORRECTIONS+=(--noise-match) ;;
     *) echo "PHYSICS=$PHYSICS: expected mono or clinical" >&2; exit 2 ;;
 esac
 ./target/release/host-sim acquire --out "$OUT/gantry-acquisition" --index 0 --geometry "$GEOMETRY" --binning "$BINNING" "${SYSTEM_ARGS[@]}" --noise N8 --physics "$PHYSICS" --anode-filter "${ANODE_FILTER:-W/Rh}" 2>/dev/null
@@ -71,7 +87,7 @@ SIM=$!
 ./target/release/dbtor-receive --connect "127.0.0.1:$PORT" --geometry "$GEOMETRY" --binning "$BINNING" "${SYSTEM_ARGS[@]}" --out "$OUT/spool/acquisition-1"
 wait "$SIM"
 ./target/release/dbtor-process "$OUT/spool/acquisition-1" --out "$OUT/reports" \
-    --model "$MODEL" --model-digest "$DIGEST" --precision "${DBTOR_PRECISION:-$PRECISION}" "${CORRECTIONS[@]}" "$@" > "$OUT/summary.json"
+    "${METHOD_ARGS[@]}" "${CORRECTIONS[@]}" "$@" > "$OUT/summary.json"
 python3 - "$OUT/summary.json" "$OUT/gantry-acquisition/acquisition.json" <<'PY' || cat "$OUT/summary.json"
 import json, sys
 d = json.load(open(sys.argv[1]))
@@ -86,10 +102,14 @@ print(f"glandularity: reported {r['glandularity']:.3f} ({'calibrated ' if r['cal
       f"{r['density']['glandularity_partial_volume']:.3f}; phantom truth {t.get('glandularity', float('nan')):.3f}")
 c = r["density_check"]
 pct = lambda g: "none" if g is None else f"{g:.3f}"
-print(f"physics density (no learning, same projections): {pct(c['physics'])}; contact region: network "
-      f"{pct(c['contact_network'])}, physics {pct(c['contact_physics'])}; "
-      + ("density CONFIRMED" if c["confirmed"]
-         else "density NOT CONFIRMED, no composition category reported: " + "; ".join(c["reasons"])))
+if r.get("method") == "physics-only":
+    print(f"method: physics-based density alone (no DBToR model for {r['dose_geometry']['name']}); its own checks "
+          + ("passed" if c["confirmed"] else "NOT PASSED, no composition category reported: " + "; ".join(c["reasons"])))
+else:
+    print(f"physics density (no learning, same projections): {pct(c['physics'])}; contact region: network "
+          f"{pct(c['contact_network'])}, physics {pct(c['contact_physics'])}; "
+          + ("density CONFIRMED" if c["confirmed"]
+             else "density NOT CONFIRMED, no composition category reported: " + "; ".join(c["reasons"])))
 f = c.get("data_fit")
 if f:
     print(f"data fit: the reconstruction against its projections, residual {f['residual']:.4f}, "
@@ -100,7 +120,12 @@ if st:
     print(f"stages: corrections {st['corrections']:.1f} s, reconstruction {st['reconstruction']:.1f} s "
           f"({n} slices, {1e3 * st['reconstruction'] / max(n, 1):.0f} ms each), classification "
           f"{st['classification']:.1f} s, dose {st['dose_patient']:.1f} s (patient) + {st['dose_model']:.1f} s (model breast)")
-print(f"MGD {r['mgd_mgy']:.3f} mGy (+- {100 * r['dose_patient']['mgd_rel_uncertainty']:.2f} %), "
+gantry = r["dose_geometry"]
+print(f"dose on the {gantry['name']} gantry ({len(gantry['views'])} views, "
+      f"{gantry['views'][0][0]:+.1f} to {gantry['views'][-1][0]:+.1f} deg, support {gantry['support_z_mm']:.0f} mm above the detector)")
+print(f"MGD {r['mgd_mgy']:.3f} mGy (+- {100 * r['dose_patient']['mgd_rel_uncertainty']:.2f} %"
+      + (", the model breast's: outline and thickness from the projections, interior at the physics density" if r.get("method") == "physics-only" else "")
+      + "), "
       f"model breast {r['model_mgd_mgy']:.3f} mGy"
       + (f" ({r['model_mgd_at_physics_mgy']:.3f} mGy at the physics density)" if r.get("model_mgd_at_physics_mgy") else "")
       + f", incident air kerma {r['kerma_mgy']:.2f} mGy")

@@ -39,8 +39,8 @@ pub struct Case {
     /// (`dbt_pipeline::density_check`).
     pub density_check: dbt_pipeline::density_check::DensityCheck,
     /// How well the reconstruction explains its projections
-    /// (`dbt_pipeline::data_fit`).
-    pub data_fit: dbt_pipeline::data_fit::DataFit,
+    /// (`dbt_pipeline::data_fit`); none in a physics-only report.
+    pub data_fit: Option<dbt_pipeline::data_fit::DataFit>,
     /// True MGD (phantom labels through the engine), mGy.
     pub mgd_true: f64,
     /// MGD of the classified reconstruction, mGy.

@@ -47,9 +47,13 @@ pub fn pipeline_options(
         slice_step: cfg.recon.slice_step,
         ..PipelineOptions::default()
     };
-    if cfg.recon.reconstructor == Reconstructor::Dbtor {
-        let signed = load_model(cfg, &opts.classify)?;
-        opts = with_model(opts, signed, noise_match_key(cfg))?;
+    match cfg.recon.reconstructor {
+        Reconstructor::Dbtor => {
+            let signed = load_model(cfg, &opts.classify)?;
+            opts = with_model(opts, signed, noise_match_key(cfg))?;
+        }
+        Reconstructor::Physics => opts.method = dbt_dicom::ReportMethod::PhysicsOnly,
+        Reconstructor::Mltr => {}
     }
     Ok(opts)
 }

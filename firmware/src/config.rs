@@ -73,6 +73,10 @@ pub enum Reconstructor {
     Dbtor,
     /// MLTR, the fallback (`recon.mltr_iterations`).
     Mltr,
+    /// No reconstruction, for a gantry without a trained model (issue #51
+    /// point 3): the physics-based density and the model breast's MGD on
+    /// the gantry's geometry, each report naming the method.
+    Physics,
 }
 
 /// Where the projection frames come from.
@@ -871,10 +875,14 @@ impl Config {
                     return Err(bad(
                         "recon.model",
                         format!(
-                            "{} was trained for {}, the gantry (frames.geometry = {:?}, binning {}) is {}",
+                            "{} was trained for {}, the gantry (frames.geometry = {:?}{}, binning {}) is {}: use a model trained for this gantry, or reconstructor = \"physics\" (the physics-based density and the model breast's dose, no model)",
                             m.display(),
                             manifest.geometry.describe(),
                             self.frames.geometry,
+                            self.frames
+                                .system
+                                .as_deref()
+                                .map_or(String::new(), |s| format!(", frames.system = {s:?}")),
                             self.frames.binning,
                             gantry.describe()
                         ),
@@ -908,6 +916,19 @@ impl Config {
             Reconstructor::Mltr => {
                 if self.recon.mltr_iterations == 0 {
                     return Err(bad("recon.mltr_iterations", "must be positive".into()));
+                }
+            }
+            // Nothing is reconstructed: a model named would be silently
+            // unused, so it is refused.
+            Reconstructor::Physics => {
+                if let Some(m) = &self.recon.model {
+                    return Err(bad(
+                        "recon.model",
+                        format!(
+                            "{} is not used with reconstructor = \"physics\" (no reconstruction): remove it, or use reconstructor = \"dbtor\"",
+                            m.display()
+                        ),
+                    ));
                 }
             }
         }
@@ -1007,13 +1028,29 @@ impl Config {
 
     /// The gantry's geometry (`frames.geometry`, binned by `frames.binning`).
     pub fn gantry_geometry(&self, path: &Path) -> Result<Geometry, ConfigError> {
-        dbt_store::load_geometry(&self.frames.geometry, self.frames.binning).map_err(|e| {
-            ConfigError::Invalid {
+        let g =
+            dbt_store::load_geometry(&self.frames.geometry, self.frames.binning).map_err(|e| {
+                ConfigError::Invalid {
+                    path: path.to_path_buf(),
+                    key: "frames.geometry",
+                    reason: e.to_string(),
+                }
+            })?;
+        // A cone-beam system's frames are rebinned to its fan on the
+        // geometry's image and elements (the geometry itself for the
+        // paper's gantry; raised onto the support, its virtual detector
+        // widened, for a vendor's: `ConeSystem::rebinning_fan`).
+        match self.gantry_system(path)? {
+            Some(sys) => sys.rebinning_fan(&g).map_err(|e| ConfigError::Invalid {
                 path: path.to_path_buf(),
-                key: "frames.geometry",
-                reason: e.to_string(),
-            }
-        })
+                key: "frames.system",
+                reason: format!(
+                    "{e} (the system's fan on frames.geometry = {:?})",
+                    self.frames.geometry
+                ),
+            }),
+            None => Ok(g),
+        }
     }
 
     /// The gantry's cone-beam system (`frames.system`, binned by
@@ -1122,6 +1159,12 @@ mod tests {
     }
 
     /// `text` without the lines that set `key`.
+    /// `text` with the physics-only reconstructor and no model.
+    fn physics(text: &str) -> String {
+        without(&without(text, "model"), "precision")
+            .replace("reconstructor = \"dbtor\"", "reconstructor = \"physics\"")
+    }
+
     fn without(text: &str, key: &str) -> String {
         text.lines()
             .filter(|l| !l.starts_with(key))
@@ -1681,14 +1724,35 @@ mod tests {
         assert_eq!(c.gantry(p).unwrap().cone, Some(s));
         let c = example(|t| without(&t, "system")).unwrap();
         assert_eq!(c.gantry_system(p).unwrap(), None);
-        // The stationary system's fan has another source radius and views.
+        // The stationary system's fan has another source radius and views:
+        // the model is not trained for it (and the physics-only report is
+        // offered).
         let e = example(|t| t.replace("\"paper-cone\"", "\"siemens-victre\""))
             .unwrap_err()
             .to_string();
         assert!(
-            e.contains("frames.system") && e.contains("siemens-victre") && e.contains("650"),
+            e.contains("recon.model")
+                && e.contains("siemens-victre")
+                && e.contains("[-25, 25]")
+                && e.contains("reconstructor = \"physics\""),
             "{e}"
         );
+        // Without a model, every built-in system has its fan on the
+        // geometry (Hologic's pivot and GE's axis included).
+        for (name, _) in dbt_geometry::cone::BUILTIN_SYSTEMS {
+            let c =
+                example(|t| physics(&t).replace("\"paper-cone\"", &format!("{name:?}"))).unwrap();
+            let (g, sys) = (
+                c.gantry_geometry(p).unwrap(),
+                c.gantry_system(p).unwrap().unwrap(),
+            );
+            dbt_pipeline::rebin::check_site(&sys, &g).unwrap();
+        }
+        // A model named with the physics-only reconstructor is refused.
+        let e = example(|t| t.replace("reconstructor = \"dbtor\"", "reconstructor = \"physics\""))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("recon.model") && e.contains("not used"), "{e}");
         let e = example(|t| t.replace("\"paper-cone\"", "\"paper-cone-2\""))
             .unwrap_err()
             .to_string();

@@ -96,6 +96,7 @@ fn a_corrupted_dicom_length_is_refused_not_allocated() {
                 confirmed: true,
                 reasons: vec![],
             },
+            method: dbt_dicom::ReportMethod::Reconstruction,
             glandularity_interval: dbt_dicom::FigureInterval {
                 limits: None,
                 basis: "no validation residuals for MLTR".into(),

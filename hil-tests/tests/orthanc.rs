@@ -73,6 +73,7 @@ fn dose(agd: f64) -> DoseInput {
         intent: ProcedureIntent::Diagnostic,
         source_distances_mm: [650.0, 700.0],
         algorithm_version: "model test (manifest sha256:0123abcd), fp32 on the fast engine".into(),
+        method: dbt_dicom::ReportMethod::Reconstruction,
     }
 }
 
@@ -90,6 +91,7 @@ fn density() -> DensityInput {
             confirmed: true,
             reasons: vec![],
         },
+        method: dbt_dicom::ReportMethod::Reconstruction,
         glandularity_interval: dbt_dicom::FigureInterval {
             limits: Some([0.08, 0.17]),
             basis: "95 % prediction interval from 20 validation breasts".into(),

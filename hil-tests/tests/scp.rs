@@ -134,6 +134,7 @@ fn echo_store_and_refusal_with_dcmtk_and_host_sim() {
                 confirmed: true,
                 reasons: vec![],
             },
+            method: dbt_dicom::ReportMethod::Reconstruction,
             glandularity_interval: dbt_dicom::FigureInterval {
                 limits: None,
                 basis: "no validation residuals for MLTR".into(),

@@ -24,7 +24,7 @@ pub use content::{format_ds, Code, FilterMaterial, Item, Rel, ANODE_TUNGSTEN};
 pub use reports::{
     composition_category, composition_code, density_report, dose_report, read_values,
     DensityCheckReport, DensityInput, DoseEvent, DoseInput, Equipment, FigureInterval, Header,
-    Laterality, ProcedureIntent, Report, UidSource,
+    Laterality, ProcedureIntent, Report, ReportMethod, UidSource,
 };
 
 use thiserror::Error;

@@ -178,6 +178,35 @@ impl UidSource {
     }
 }
 
+/// How a report's figures were made (issue #51 point 3), named in both
+/// reports.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ReportMethod {
+    /// A DBToR reconstruction, tissue-classified: the glandularity read
+    /// from it (cross-checked against the physics-based density), the AGD
+    /// patient-specific on it.
+    #[default]
+    Reconstruction,
+    /// No DBToR model is trained for the gantry: the physics-based density
+    /// of the projections is the glandularity (its own consistency checks
+    /// decide the category), and the AGD is the model breast's (the
+    /// breast's outline and thickness from its projections, a homogeneous
+    /// interior at that glandularity under the nominal skin) on the
+    /// gantry's own geometry.
+    PhysicsOnly,
+}
+
+impl ReportMethod {
+    /// The method in a few words, for reports, logs and the status page.
+    pub fn describe(self) -> &'static str {
+        match self {
+            ReportMethod::Reconstruction => "DBToR reconstruction",
+            ReportMethod::PhysicsOnly => "physics-based density (no DBToR model for this gantry)",
+        }
+    }
+}
+
 /// One irradiation event (one projection).
 #[derive(Debug, Clone, PartialEq)]
 pub struct DoseEvent {
@@ -243,6 +272,8 @@ pub struct DoseInput {
     /// What exactly computed the dose (model, manifest SHA-256, precision,
     /// engine, calibration, software): in the report's Comment.
     pub algorithm_version: String,
+    /// How the figures were made.
+    pub method: ReportMethod,
 }
 
 /// Everything the density report says.
@@ -266,6 +297,8 @@ pub struct DensityInput {
     pub check: DensityCheckReport,
     /// The glandularity's 95 % interval, or why none is given.
     pub glandularity_interval: FigureInterval,
+    /// How the figures were made.
+    pub method: ReportMethod,
     /// Content date and time.
     pub content_date: String,
     /// See `content_date`.
@@ -744,17 +777,29 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
             crate::format_ds(m)
         )
     });
-    let method = format!(
-        "Average glandular dose computed patient-specifically by Monte Carlo photon transport \
-         (photoelectric, Rayleigh, Compton; validated against AAPM TG-195 case 3) on the \
-         tissue-classified DBToR reconstruction of this breast; relative statistical \
-         uncertainty {:.2} % (1 s.d., batch method). Model-breast (homogeneous, same \
-         thickness and glandularity) estimate with the same engine: {} mGy.{at_physics} \
-         Computed by: {}.",
-        100.0 * input.relative_uncertainty,
-        crate::format_ds(input.model_agd_mgy),
-        input.algorithm_version
-    );
+    let method = match input.method {
+        ReportMethod::Reconstruction => format!(
+            "Average glandular dose computed patient-specifically by Monte Carlo photon transport \
+             (photoelectric, Rayleigh, Compton; validated against AAPM TG-195 case 3) on the \
+             tissue-classified DBToR reconstruction of this breast; relative statistical \
+             uncertainty {:.2} % (1 s.d., batch method). Model-breast (homogeneous, same \
+             thickness and glandularity) estimate with the same engine: {} mGy.{at_physics} \
+             Computed by: {}.",
+            100.0 * input.relative_uncertainty,
+            crate::format_ds(input.model_agd_mgy),
+            input.algorithm_version
+        ),
+        ReportMethod::PhysicsOnly => format!(
+            "No DBToR model is trained for this gantry: average glandular dose of the model breast \
+             by Monte Carlo photon transport (photoelectric, Rayleigh, Compton; validated against \
+             AAPM TG-195 case 3) on this gantry's geometry: the breast's outline and thickness from \
+             its projections, a homogeneous interior at the physics-based glandularity (see the \
+             density report) under a 1.5 mm skin; not patient-specific. Relative statistical \
+             uncertainty {:.2} % (1 s.d., batch method). Computed by: {}.",
+            100.0 * input.relative_uncertainty,
+            input.algorithm_version
+        ),
+    };
     children.push((
         Rel::Contains,
         Item::Container(
@@ -1241,10 +1286,21 @@ pub fn density_report(input: &DensityInput, uids: &mut UidSource) -> Result<Repo
         Rel::Contains,
         Item::Code(
             private("DCHECK", "Density cross-check"),
-            if chk.confirmed {
-                private("CONFIRMED", "Confirmed by the physics-based density")
-            } else {
-                private("UNCONFIRMED", "Not confirmed by the physics-based density")
+            match (input.method, chk.confirmed) {
+                (ReportMethod::Reconstruction, true) => {
+                    private("CONFIRMED", "Confirmed by the physics-based density")
+                }
+                (ReportMethod::Reconstruction, false) => {
+                    private("UNCONFIRMED", "Not confirmed by the physics-based density")
+                }
+                (ReportMethod::PhysicsOnly, true) => private(
+                    "PHYSONLY",
+                    "Physics-based density alone, its own checks passed",
+                ),
+                (ReportMethod::PhysicsOnly, false) => private(
+                    "PHYSONLYFLAG",
+                    "Physics-based density alone, its own checks not passed",
+                ),
             },
             vec![],
         ),
@@ -1268,12 +1324,19 @@ pub fn density_report(input: &DensityInput, uids: &mut UidSource) -> Result<Repo
             Rel::Contains,
             Item::Text(
                 private("DCHECKWHY", "Why the density is not confirmed"),
-                format!(
-                    "The breast density could not be confirmed and no composition category is \
-                     given. Reported (DBToR) {:.1} %, physics-based {physics}: {}.",
-                    100.0 * input.glandularity,
-                    chk.reasons.join("; ")
-                ),
+                match input.method {
+                    ReportMethod::Reconstruction => format!(
+                        "The breast density could not be confirmed and no composition category is \
+                         given. Reported (DBToR) {:.1} %, physics-based {physics}: {}.",
+                        100.0 * input.glandularity,
+                        chk.reasons.join("; ")
+                    ),
+                    ReportMethod::PhysicsOnly => format!(
+                        "The physics-based density {physics} did not pass its own checks and no \
+                         composition category is given: {}.",
+                        chk.reasons.join("; ")
+                    ),
+                },
             ),
         ));
     }
@@ -1292,12 +1355,20 @@ pub fn density_report(input: &DensityInput, uids: &mut UidSource) -> Result<Repo
         Rel::Contains,
         Item::Text(
             dcm("121106", "Comment"),
-            "Percent Fibroglandular Tissue is the glandularity by mass, G = Ng rho_g / (Ng rho_g + Na rho_a) \
+            match input.method {
+                ReportMethod::Reconstruction => "Percent Fibroglandular Tissue is the glandularity by mass, G = Ng rho_g / (Ng rho_g + Na rho_a) \
              (Hammerstein densities), Cooper's ligaments counted as fibroglandular, skin excluded, from the \
              tissue-classified DBToR reconstruction; the composition category uses the volumetric fraction \
              (thresholds 4.5 / 7.5 / 15.5 %) and is given only where the physics-based density (each ray's \
-             dense-tissue path relative to fat, from the same projections, no learning) confirms the reported one."
-                .into(),
+             dense-tissue path relative to fat, from the same projections, no learning) confirms the reported one.",
+                ReportMethod::PhysicsOnly => "No DBToR model is trained for this gantry: Percent Fibroglandular Tissue is the \
+             physics-based glandularity by mass (each ray's dense-tissue path relative to fat, from the projections \
+             of the central view, no learning; Hammerstein densities, skin excluded), not a reconstruction's; the \
+             composition category uses its volumetric fraction (thresholds 4.5 / 7.5 / 15.5 %) and is given only \
+             where the estimate passed its own checks (the views' agreement, the thickness readout, the breast \
+             inside the detector, the edge model's share).",
+            }
+            .into(),
         ),
     ));
     let root = Item::Container(

@@ -78,6 +78,7 @@ pub fn dose_input() -> DoseInput {
         intent: ProcedureIntent::Diagnostic,
         source_distances_mm: [650.0, 700.0],
         algorithm_version: "model test (manifest sha256:0123abcd), fp32 on the fast engine".into(),
+        method: dbt_dicom::ReportMethod::Reconstruction,
     }
 }
 
@@ -95,6 +96,7 @@ pub fn density_input() -> DensityInput {
             confirmed: true,
             reasons: vec![],
         },
+        method: dbt_dicom::ReportMethod::Reconstruction,
         glandularity_interval: dbt_dicom::FigureInterval {
             limits: Some([0.201, 0.289]),
             basis: "95 % prediction interval from 27 validation breasts (thickness 45-60 mm, \

@@ -261,6 +261,52 @@ pub struct ViewDensity {
     /// plane's), for comparing another estimate over the same tissue.
     #[serde(skip)]
     pub contact: ContactMap,
+    /// The breast's outline as this view's paths give it, ray by ray: the
+    /// model breast of a report without a reconstruction (issue #51 point
+    /// 3).
+    #[serde(skip)]
+    pub outline: Outline,
+}
+
+/// The breast's outline from one view's paths: for each ray (slice,
+/// element), the vertical extent of its path through the breast (skin
+/// included; 0 outside the breast) and the height of that extent's middle
+/// above the support. In contact the extent is the thickness plane's from
+/// the support up; in the rim it is the edge model's chord, about the
+/// plane's mid-height (the hyperellipse is symmetric).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Outline {
+    /// Each element's ray's x at the breast's mid-height, mm.
+    pub x_mid_mm: Vec<f64>,
+    /// Slice spacing (depth), mm.
+    pub slice_mm: f64,
+    /// `[slice * elements + element]`: the path's vertical extent, mm.
+    pub chord_mm: Vec<f32>,
+    /// `[slice * elements + element]`: the extent's middle above the
+    /// support, mm.
+    pub mid_mm: Vec<f32>,
+}
+
+impl Outline {
+    /// The breast's vertical extent `(bottom, top)` above the support at
+    /// `(x_mm, depth_mm)` (the nearest element's ray at mid-height, the
+    /// slice holding the depth); `None` outside the breast, the slices or
+    /// the detector.
+    pub fn extent_at(&self, x_mm: f64, depth_mm: f64) -> Option<(f64, f64)> {
+        let map = ContactMap {
+            x_mid_mm: self.x_mid_mm.clone(),
+            slice_mm: self.slice_mm,
+            mask: Vec::new(),
+        };
+        let k = map.element_at(x_mm)?;
+        if self.slice_mm <= 0.0 || depth_mm.is_nan() || depth_mm < 0.0 {
+            return None;
+        }
+        let i = (depth_mm / self.slice_mm) as usize * self.x_mid_mm.len() + k;
+        let c = f64::from(*self.chord_mm.get(i)?);
+        let m = f64::from(*self.mid_mm.get(i)?);
+        (c > 0.0).then(|| ((m - c / 2.0).max(0.0), m + c / 2.0))
+    }
 }
 
 /// The contact region of one view, ray by ray.
@@ -1003,6 +1049,7 @@ fn view_estimate(
     let (mut fgv_c, mut vi_c) = (0f64, 0f64);
     let (mut contact, mut over) = (0usize, 0usize);
     let mut contact_mask = vec![false; ns * nd];
+    let (mut chord, mut mid) = (vec![0f32; ns * nd], vec![0f32; ns * nd]);
     let (mut t_lo, mut t_hi) = (f64::INFINITY, f64::NEG_INFINITY);
     for i in 0..ns * nd {
         if !inside[i] {
@@ -1032,6 +1079,10 @@ fn view_estimate(
         };
         let skin = skin_model.min(l);
         let li = l - skin;
+        chord[i] = (l / r.sec) as f32;
+        // In contact the path runs from the support up; in the rim about
+        // the plane's mid-height.
+        mid[i] = if p >= 1.0 { l / r.sec / 2.0 } else { t / 2.0 } as f32;
         let h_free = (a_i - mu_s * skin - mu_f * li) / dmu;
         // In the rim the profile is curved and the model was fitted to the
         // smoothed signal: the smoothed signal it is (the raw one reads the
@@ -1116,6 +1167,12 @@ fn view_estimate(
             x_mid_mm: geo.iter().map(|r| r.x_mid).collect(),
             slice_mm: dy,
             mask: contact_mask,
+        },
+        outline: Outline {
+            x_mid_mm: geo.iter().map(|r| r.x_mid).collect(),
+            slice_mm: dy,
+            chord_mm: chord,
+            mid_mm: mid,
         },
     })
 }

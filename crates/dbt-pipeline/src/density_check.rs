@@ -250,6 +250,9 @@ pub struct DensityCheck {
     pub confirmed: bool,
     /// Why it does not (empty when confirmed).
     pub reasons: Vec<String>,
+    /// A physics-only report's check ([`physics_only`]): the estimate's own
+    /// checks, nothing cross-checked.
+    pub physics_only: bool,
 }
 
 impl DensityCheck {
@@ -283,6 +286,14 @@ impl DensityCheck {
     /// One line for logs, the status page and the service CLI.
     pub fn summary(&self) -> String {
         let pc = |v: Option<f64>| v.map_or("none".to_string(), |g| format!("{:.1} %", 100.0 * g));
+        if self.physics_only {
+            return format!(
+                "physics-based density alone (no model for this gantry, nothing to cross-check): {}, its own checks {}; contact region {}",
+                pc(self.physics),
+                if self.confirmed { "passed" } else { "NOT PASSED" },
+                pc(self.contact_physics),
+            );
+        }
         let pp = |v: Option<f64>| v.map_or("n/a".to_string(), |d| format!("{d:+.1} pp"));
         let fit = self.data_fit.map_or(String::new(), |f| {
             format!(
@@ -436,6 +447,34 @@ pub fn cross_check(
         data_fit: None,
         confirmed: reasons.is_empty(),
         reasons,
+        physics_only: false,
+    }
+}
+
+/// The check of a report made by the physics density alone (issue #51
+/// point 3, no model for the gantry): nothing to cross-check against, so
+/// the estimate's own checks decide ([`PhysicsDensity::flags`]: the views'
+/// agreement, the thickness readout, a breast beyond the detector, a
+/// rim-dominated estimate, a figure that is not a number); `limits` are
+/// recorded as applied at the figure, none of them is used.
+pub fn physics_only(physics: &PhysicsDensity, limits: CheckLimits) -> DensityCheck {
+    let g = physics.central.glandularity;
+    let mut reasons = physics.flags.clone();
+    if !(g.is_finite() && (0.0..=1.0).contains(&g)) {
+        reasons.push(format!("the physics density {g} is not a glandularity"));
+    }
+    DensityCheck {
+        reported: g,
+        physics: Some(g).filter(|g| g.is_finite()),
+        difference_pp: None,
+        contact_network: None,
+        contact_physics: Some(physics.central.contact_glandularity).filter(|g| g.is_finite()),
+        contact_difference_pp: None,
+        limits: limits.at(g),
+        data_fit: None,
+        confirmed: reasons.is_empty(),
+        reasons,
+        physics_only: true,
     }
 }
 
@@ -510,6 +549,7 @@ mod tests {
                 },
                 rim: vec![],
                 contact: ContactMap::default(),
+                outline: Default::default(),
             },
             views: vec![],
             spread_pp: 0.0,

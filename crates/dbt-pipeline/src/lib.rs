@@ -15,6 +15,8 @@
 //! * [`density_check`]: the reported density against the physics density
 //!   of the same counts;
 //! * [`process`]: reconstruction, classification, density, dose, reports;
+//! * [`model_breast`]: the model breast of a report without a
+//!   reconstruction, from the physics density's outline;
 //! * [`rebin`]: cone-beam projections as slice-wise fan-beam sinograms;
 //! * [`descatter`], [`linearise`], [`noise_match`]: a polychromatic
 //!   detector's counts corrected to what the network was trained on.
@@ -28,6 +30,7 @@ pub mod dicom_input;
 pub mod error;
 pub mod layout;
 pub mod linearise;
+pub mod model_breast;
 pub mod noise_match;
 pub mod plausibility;
 pub mod process;
@@ -36,6 +39,6 @@ pub mod rebin;
 pub use acquisition::{
     validate_header, Acquisition, AcquisitionHeader, HeaderError, Patient, Study, ACQ_FORMAT,
 };
-pub use dbt_dicom::FigureInterval;
+pub use dbt_dicom::{FigureInterval, ReportMethod};
 pub use plausibility::{CountsCheck, Implausible, VolumeCheck};
 pub use process::*;

@@ -14,7 +14,7 @@ use crate::plausibility::{
 };
 use dbt_dicom::{
     density_report, dose_report, DensityInput, DoseEvent, DoseInput, Equipment, FigureInterval,
-    Header, Laterality, ProcedureIntent, Report, UidSource,
+    Header, Laterality, ProcedureIntent, Report, ReportMethod, UidSource,
 };
 use dbt_dose::patient::{mgd_to_uncertainty_on, Breast, DoseGeometry, MgdResult, Model};
 use dbt_dose::xray::AnodeFilter;
@@ -92,6 +92,11 @@ pub struct PipelineOptions {
     /// W/Rh acquisitions only: they were made on W/Rh validation breasts.
     #[serde(skip)]
     pub intervals: Option<std::sync::Arc<dbt_intervals::IntervalTable>>,
+    /// How the figures are made (issue #51 point 3): a reconstruction (the
+    /// default; DBToR where `dbtor` is set, else MLTR), or, on a gantry for
+    /// which no model is trained, the physics density alone and the model
+    /// breast's dose ([`process_layout`]'s physics-only branch).
+    pub method: ReportMethod,
 }
 
 impl Default for PipelineOptions {
@@ -111,6 +116,7 @@ impl Default for PipelineOptions {
             scatter_in_input: false,
             density_limits: crate::density_check::LIMITS,
             intervals: None,
+            method: ReportMethod::Reconstruction,
         }
     }
 }
@@ -244,8 +250,10 @@ pub struct ProcessResult {
     /// `dbt_physics_density`, no learning), or why none could be made.
     pub physics_density: Result<dbt_physics_density::PhysicsDensity, String>,
     /// How well the reconstruction explains its projections
-    /// ([`crate::data_fit`]).
-    pub data_fit: crate::data_fit::DataFit,
+    /// ([`crate::data_fit`]); `None` without a reconstruction.
+    pub data_fit: Option<crate::data_fit::DataFit>,
+    /// How the figures were made.
+    pub method: ReportMethod,
     /// The reported glandularity cross-checked against the physics density
     /// (issue #48 point 3): unconfirmed, the density report asserts no
     /// composition category.
@@ -258,7 +266,8 @@ pub struct ProcessResult {
     /// The gantry the dose was simulated on (the acquisition's cone-beam
     /// system, or the paper's).
     pub dose_geometry: DoseGeometry,
-    /// Patient-specific Monte Carlo MGD.
+    /// Patient-specific Monte Carlo MGD (the model breast's, the same as
+    /// `dose_model`, in a physics-only report).
     pub dose_patient: MgdResult,
     /// Model-breast MGD.
     pub dose_model: MgdResult,
@@ -374,6 +383,9 @@ pub struct Volume {
 /// model without its support, or any model without its non-negativity) or
 /// `MLTR N iterations`.
 pub fn reconstructor_name(opts: &PipelineOptions) -> String {
+    if opts.method == ReportMethod::PhysicsOnly {
+        return "none: physics-based density (no DBToR model for this gantry)".into();
+    }
     let name = match &opts.dbtor {
         Some(m) => format!(
             "DBToR {} ({}, {}{}{})",
@@ -428,6 +440,12 @@ pub fn reconstructed_slices(n: usize, step: usize) -> Vec<usize> {
 /// iterations.
 pub fn algorithm_version(opts: &PipelineOptions) -> String {
     let software = concat!("dbt-pipeline ", env!("CARGO_PKG_VERSION"));
+    if opts.method == ReportMethod::PhysicsOnly {
+        return format!(
+            "physics-based density (dbt-physics-density {}, the central view), model-breast Monte Carlo dose on the gantry's geometry; no learned model; {software}",
+            env!("CARGO_PKG_VERSION")
+        );
+    }
     let software = if opts.slice_step > 1 {
         format!(
             "every {} coronal slice reconstructed, those between interpolated in depth; {software}",
@@ -898,6 +916,9 @@ fn process_layout<H: ToSinograms>(
     let _span =
         tracing::info_span!("acquisition", patient = %h.patient.id, slices = h.slices).entered();
     stage_seconds.corrections = lap();
+    if opts.method == ReportMethod::PhysicsOnly {
+        return physics_only(&layout, &acq, counts_check, opts, stage_seconds, progress);
+    }
     stage_seconds.slices = reconstructed_slices(acq.counts.len(), opts.slice_step).len();
     let Volume {
         reconstructor,
@@ -1058,7 +1079,8 @@ fn process_layout<H: ToSinograms>(
         calibrated: opts.calibration.is_some(),
         density: dens,
         physics_density,
-        data_fit,
+        data_fit: Some(data_fit),
+        method: ReportMethod::Reconstruction,
         density_check,
         mgd_mgy,
         model_mgd_mgy: dose_model.mgd_per_kerma * kerma_mgy,
@@ -1074,6 +1096,135 @@ fn process_layout<H: ToSinograms>(
         plausibility: Plausibility {
             counts: counts_check,
             volume: volume_check,
+        },
+        stage_seconds,
+    })
+}
+
+/// The report of a gantry for which no model is trained (issue #51 point
+/// 3): the physics density of the checked counts is the glandularity; the
+/// model breast ([`crate::model_breast`]: the central view's outline, the
+/// nominal skin, a homogeneous interior at that glandularity) is dosed on
+/// the gantry's own geometry and its MGD is the one reported; no interval
+/// (none is validated for this method). Refused, naming why, where no
+/// physics density can be made: nothing else would stand behind a figure.
+fn physics_only<H: ToSinograms>(
+    layout: &H,
+    acq: &SliceSinograms,
+    counts_check: CountsCheck,
+    opts: &PipelineOptions,
+    mut stage_seconds: StageSeconds,
+    progress: &mut dyn FnMut(Stage),
+) -> Result<ProcessResult, PipelineError> {
+    let h = &acq.header;
+    let g = &h.geometry;
+    let t0 = std::time::Instant::now();
+    progress(Stage::Classification);
+    let physics = physics_density_checked(h, &acq.counts).map_err(|e| {
+        PipelineError::Input(format!(
+            "no report: the physics-based density, the only method without a model for this gantry, could not be made: {e}"
+        ))
+    })?;
+    let gl = physics.central.glandularity;
+    let density_check = crate::density_check::physics_only(&physics, opts.density_limits);
+    if density_check.confirmed {
+        tracing::info!(
+            glandularity = gl,
+            "physics-only report: the estimate passed its checks"
+        );
+    } else {
+        tracing::warn!(reasons = ?density_check.reasons, "physics-only report: the estimate did not pass its checks");
+    }
+    let model = crate::model_breast::from_outline(
+        &physics.central.outline,
+        g.width_mm(),
+        g.image.pixel_mm,
+        crate::linearise::NOMINAL_SKIN_MM,
+        gl.clamp(0.0, 1.0),
+    )?;
+    // The model breast's attenuation at the 20 keV scale, for the status
+    // page's pictures and the density's volumes.
+    let mu: Vec<f32> = model
+        .labels
+        .iter()
+        .map(|&l| dbt_materials::Tissue::from_label(l).map_or(0.0, |t| t.mu_per_mm()))
+        .collect();
+    let dens = density(&mu, &model.labels, model.voxel_mm);
+    let classification = Classification {
+        labels: model.labels.clone(),
+        centres: [
+            f64::from(dbt_materials::Tissue::Adipose.mu_per_mm()),
+            f64::from(dbt_materials::Tissue::Fibroglandular.mu_per_mm()),
+        ],
+        seed_mean: f64::from(dbt_materials::Tissue::Skin.mu_per_mm()),
+        iterations: 0,
+    };
+    stage_seconds.classification = t0.elapsed().as_secs_f64();
+    progress(Stage::Dose);
+    let t1 = std::time::Instant::now();
+    let tube = dbt_dose::xray::technique_spectrum(h.anode_filter, h.kvp, h.thickness_mm)?;
+    let spectrum = tube
+        .spectrum
+        .clone()
+        .ok_or_else(|| PipelineError::Input("no spectrum".into()))?;
+    let gantry = layout.dose_geometry();
+    let dose = mgd_to_uncertainty_on(
+        &gantry,
+        &model.breast(),
+        Model::Homogeneous,
+        &spectrum,
+        opts.dose_uncertainty,
+        200_000,
+        100_000_000,
+        opts.seed + 1,
+    )?;
+    stage_seconds.dose_model = t1.elapsed().as_secs_f64();
+    let kerma_mgy = h.mas_total * h.tube_output_mgy_per_mas;
+    let mgd_mgy = dose.mgd_per_kerma * kerma_mgy;
+    let none = |what: &str| {
+        FigureInterval {
+        limits: None,
+        basis: format!(
+            "a physics-only report (no DBToR model for this gantry): its {what} has no validation residuals to rest an interval on"
+        ),
+    }
+    };
+    tracing::info!(
+        glandularity = gl,
+        mgd_mgy,
+        gantry = %gantry.name,
+        "acquisition reported by the physics density alone"
+    );
+    Ok(ProcessResult {
+        reconstructor: reconstructor_name(opts),
+        algorithm_version: algorithm_version(opts),
+        dims: model.dims,
+        voxel_mm: model.voxel_mm,
+        mu,
+        glandularity: gl,
+        calibrated: false,
+        density: dens,
+        physics_density: Ok(physics),
+        data_fit: None,
+        method: ReportMethod::PhysicsOnly,
+        density_check,
+        mgd_mgy,
+        model_mgd_mgy: mgd_mgy,
+        intervals: ReportIntervals {
+            glandularity: none("glandularity"),
+            mgd: none("MGD"),
+        },
+        model_mgd_at_physics_mgy: None,
+        kerma_mgy,
+        classification,
+        dose_geometry: gantry,
+        dose_patient: dose.clone(),
+        dose_model: dose,
+        tube,
+        flags: counts_check.flag().into_iter().collect(),
+        plausibility: Plausibility {
+            counts: counts_check,
+            volume: VolumeCheck::default(),
         },
         stage_seconds,
     })
@@ -1245,6 +1396,7 @@ pub fn reports(
             intent: ProcedureIntent::Diagnostic,
             source_distances_mm: [g.source_to_center_mm, g.source_to_detector_mm],
             algorithm_version: res.algorithm_version.clone(),
+            method: res.method,
         },
         uids,
     )?;
@@ -1261,6 +1413,7 @@ pub fn reports(
             model_version: res.algorithm_version.clone(),
             check: res.density_check.report(),
             glandularity_interval: res.intervals.glandularity.clone(),
+            method: res.method,
             content_date: content_date.into(),
             content_time: content_time.into(),
         },

@@ -501,7 +501,9 @@ struct AccuracyArgs {
     #[arg(long)]
     no_calibration: bool,
     /// Reconstructors to compare on the same acquisitions (comma
-    /// separated: mltr, fp32, int8, mixed; default: fp32 with --model, else mltr).
+    /// separated: mltr, fp32, int8, mixed, physics (no reconstruction: the
+    /// physics-only report of a gantry without a model); default: fp32 with
+    /// --model, else mltr).
     #[arg(long)]
     reconstructors: Option<String>,
     /// Slice steps to run each reconstructor with (comma separated; 2:
@@ -1250,7 +1252,7 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
     let mut recs: Vec<(String, String, dbt_pipeline::PipelineOptions)> = Vec::new();
     for r in list.split(',').map(str::trim).filter(|r| !r.is_empty()) {
         let dbtor = match r {
-            "mltr" => None,
+            "mltr" | "physics" => None,
             "fp32" | "int8" | "mixed" => {
                 anyhow::ensure!(model.is_some(), "--reconstructors {r} needs --model");
                 let m = load_models(model.as_deref(), r, &runtime)?
@@ -1261,11 +1263,11 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
                 Some(std::sync::Arc::new(m))
             }
             other => {
-                anyhow::bail!("unknown reconstructor {other:?} (mltr, fp32, int8, mixed)")
+                anyhow::bail!("unknown reconstructor {other:?} (mltr, fp32, int8, mixed, physics)")
             }
         };
         let tag = match r {
-            "mltr" => "mltr".to_string(),
+            "mltr" | "physics" => r.to_string(),
             other => format!("dbtor-{other}"),
         };
         // The options as the firmware assembles them
@@ -1281,6 +1283,11 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
             descatter,
             noise_match,
             scatter_in_input,
+            method: if r == "physics" {
+                dbt_pipeline::ReportMethod::PhysicsOnly
+            } else {
+                dbt_pipeline::ReportMethod::Reconstruction
+            },
             ..Default::default()
         };
         let assembled = match &dbtor {
@@ -1523,9 +1530,9 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
             100.0 * nearest,
             cases.iter().map(|c| c.plausibility.volume.fill).fold(f64::INFINITY, f64::min),
             l.min_fill,
-            cases.iter().map(|c| c.data_fit.excess).fold(0.0f64, f64::max),
+            cases.iter().filter_map(|c| c.data_fit).map(|f| f.excess).fold(0.0f64, f64::max),
             l.data_fit_max,
-            cases.iter().filter(|c| c.data_fit.excess > l.data_fit_max).count()
+            cases.iter().filter_map(|c| c.data_fit).filter(|f| f.excess > l.data_fit_max).count()
         );
         for c in cases.iter().filter(|c| !c.density_check.confirmed) {
             println!("  {}: {}", c.phantom, c.density_check.reasons.join("; "));

@@ -12,7 +12,10 @@
 //! checked against its sign-off first (and against `--model-digest
 //! sha256:...`, the configuration's `recon.model_digest`, when given), then
 //! the network's checksums. Without it, by MLTR (`--iterations`, default
-//! 100). The reports' content date and time are the clock's (UTC).
+//! 100). With `--physics-only` (a gantry without a trained model), nothing
+//! is reconstructed: the physics-based density is reported and the model
+//! breast's MGD, each report naming the method. The reports' content date
+//! and time are the clock's (UTC).
 
 use anyhow::{Context, Result};
 use clap::Parser;
@@ -59,6 +62,12 @@ struct Cli {
     /// interpolated in depth (the daemon's `recon.slice_step`; 1 to 8).
     #[arg(long, default_value_t = 1, value_parser = slice_step)]
     slice_step: usize,
+    /// No reconstruction (a gantry without a trained model, issue #51): the
+    /// physics-based density is the glandularity and the MGD the model
+    /// breast's on the gantry's geometry (the daemon's `reconstructor =
+    /// "physics"`).
+    #[arg(long, conflicts_with_all = ["model", "iterations", "slice_step"])]
+    physics_only: bool,
 }
 
 /// A slice step the firmware takes (`dbtor_firmware::config::SLICE_STEPS`).
@@ -104,6 +113,11 @@ fn run(cli: Cli) -> Result<()> {
         linearise: cli.corrections.linearise().context("--csi-um")?,
         descatter: cli.corrections.descatter()?,
         slice_step: cli.slice_step,
+        method: if cli.physics_only {
+            dbt_dicom::ReportMethod::PhysicsOnly
+        } else {
+            dbt_dicom::ReportMethod::Reconstruction
+        },
         ..PipelineOptions::default()
     };
     let dbt_cli::ModelArgs {

@@ -72,6 +72,12 @@ fn connect(addr: &str, timeout: Duration) -> Result<TcpStream> {
 fn run(cli: Cli) -> Result<bool> {
     let geom = cli.geometry.load()?;
     let system = cli.geometry.load_system(cli.system.as_deref())?;
+    // A cone-beam system's frames are rebinned to its fan on the geometry
+    // (as the daemon's configuration and host-sim make it).
+    let geom = match &system {
+        Some(s) => s.rebinning_fan(&geom)?,
+        None => geom,
+    };
     if let Some(s) = &system {
         dbt_pipeline::rebin::check_site(s, &geom).with_context(|| {
             format!(
