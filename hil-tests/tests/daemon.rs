@@ -773,6 +773,85 @@ fn clinical_physics_is_reported_after_both_corrections() {
     }
 }
 
+/// A vendor's gantry without a trained model (issue #51 point 3): test
+/// phantom 1 acquired on Hologic's gantry (tilting detector, the pivot in
+/// its plane, 15 views over +-7.5 degrees; clinical physics), streamed and
+/// registered like any other; the daemon configured with that system and
+/// `reconstructor = "physics"` reports it without a reconstruction: the
+/// physics density within 4 pp of the truth, no fault, both SRs naming the
+/// method and read back, the dose on Hologic's 15 views; the entry replays
+/// to its report.
+#[test]
+fn a_vendor_gantry_without_a_model_is_reported_by_the_physics() {
+    let dir = tempfile::tempdir().unwrap();
+    let shipped = shipped_model();
+    let system = "hologic-dimensions";
+    let acq = hil_tests::acquire_args(
+        dir.path(),
+        "acq",
+        1,
+        &shipped.2,
+        Some(system),
+        &["--physics", "clinical"],
+    );
+    let thickness = thickness_of(&acq);
+    let truth = {
+        let h: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(acq.join("acquisition.json")).unwrap()).unwrap();
+        h["truth"]["glandularity"].as_f64().unwrap()
+    };
+    let g = gantry(&acq, thickness);
+    let cfg = write_config(
+        dir.path(),
+        &format!(
+            "transport = \"tcp\"\naddress = \"{}\"\ngeometry = {:?}\nsystem = {system:?}",
+            g.frames, shipped.2
+        ),
+        &format!(
+            "transport = \"tcp\"\naddress = \"{}\"\ntimeout_ms = 500\nattempts = 3\nthickness_tolerance_mm = 1.0",
+            g.registers
+        ),
+        "reconstructor = \"physics\"\nbeam_hardening = \"csi\"\nscatter = \"kernel\"",
+    );
+    let st = once(&cfg);
+    let s = status(dir.path());
+    assert!(st.success(), "{st:?} {s}");
+    assert_eq!(s["processed"], 1, "{s}");
+    assert!(s["faults"].as_array().unwrap().is_empty(), "{s}");
+    let reported = s["recent"][0]["glandularity_reported"].as_f64().unwrap();
+    assert!(
+        (reported - truth).abs() < 0.04,
+        "reported {reported}, truth {truth}"
+    );
+    // Both reports name the method and read back.
+    let reports: Vec<PathBuf> = std::fs::read_dir(dir.path().join("output"))
+        .unwrap()
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "dcm"))
+        .collect();
+    assert_eq!(reports.len(), 2, "{reports:?}");
+    for r in &reports {
+        let bytes = std::fs::read(r).unwrap();
+        assert!(
+            String::from_utf8_lossy(&bytes).contains("No DBToR model is trained for this gantry"),
+            "{}",
+            r.display()
+        );
+        let out = Command::new(workspace_bin("dbtor-diag"))
+            .arg("report")
+            .arg(r)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    let done = entries(&dir.path().join("spool/done"));
+    replay_reproduces_the_report(&cfg, &dir.path().join("spool/done").join(&done[0]));
+}
+
 /// A W/Al exposure end to end (issue #27): the clinical physics of a
 /// tungsten beam through 0.7 mm aluminium at its automatic exposure's kV
 /// (`host-sim acquire --anode-filter W/Al`), the stream's header and the

@@ -793,8 +793,9 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
             "No DBToR model is trained for this gantry: average glandular dose of the model breast \
              by Monte Carlo photon transport (photoelectric, Rayleigh, Compton; validated against \
              AAPM TG-195 case 3) on this gantry's geometry: the breast's outline and thickness from \
-             its projections, a homogeneous interior at the physics-based glandularity (see the \
-             density report) under a 1.5 mm skin; not patient-specific. Relative statistical \
+             its projections, its interior at the physics-based glandularity (see the density \
+             report) under a 1.5 mm skin, the glandular tissue placed as stated below; not \
+             patient-specific. Relative statistical \
              uncertainty {:.2} % (1 s.d., batch method). Computed by: {}.",
             100.0 * input.relative_uncertainty,
             input.algorithm_version

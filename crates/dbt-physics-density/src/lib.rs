@@ -285,6 +285,10 @@ pub struct Outline {
     /// `[slice * elements + element]`: the extent's middle above the
     /// support, mm.
     pub mid_mm: Vec<f32>,
+    /// `[slice * elements + element]`: the dense share of the ray's
+    /// interior path (its dense path over its path less the skin, clipped
+    /// to `[0, 1]`; noisy ray by ray, unbiased only in the sum).
+    pub dense_share: Vec<f32>,
 }
 
 impl Outline {
@@ -1050,6 +1054,7 @@ fn view_estimate(
     let (mut contact, mut over) = (0usize, 0usize);
     let mut contact_mask = vec![false; ns * nd];
     let (mut chord, mut mid) = (vec![0f32; ns * nd], vec![0f32; ns * nd]);
+    let mut dense_share = vec![0f32; ns * nd];
     let (mut t_lo, mut t_hi) = (f64::INFINITY, f64::NEG_INFINITY);
     for i in 0..ns * nd {
         if !inside[i] {
@@ -1091,6 +1096,11 @@ fn view_estimate(
             h_free
         } else {
             (a[i] - mu_s * skin - mu_f * li) / dmu
+        };
+        dense_share[i] = if li > 0.0 {
+            (h / li).clamp(0.0, 1.0) as f32
+        } else {
+            0.0
         };
         if p >= 1.0 {
             contact += 1;
@@ -1173,6 +1183,7 @@ fn view_estimate(
             slice_mm: dy,
             chord_mm: chord,
             mid_mm: mid,
+            dense_share,
         },
     })
 }

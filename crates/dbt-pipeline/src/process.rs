@@ -97,6 +97,9 @@ pub struct PipelineOptions {
     /// which no model is trained, the physics density alone and the model
     /// breast's dose ([`process_layout`]'s physics-only branch).
     pub method: ReportMethod,
+    /// Where a physics-only report's model breast holds its glandular
+    /// tissue ([`crate::model_breast::Placement`]).
+    pub physics_breast: crate::model_breast::Placement,
 }
 
 impl Default for PipelineOptions {
@@ -117,6 +120,7 @@ impl Default for PipelineOptions {
             density_limits: crate::density_check::LIMITS,
             intervals: None,
             method: ReportMethod::Reconstruction,
+            physics_breast: crate::model_breast::Placement::CentralColumns,
         }
     }
 }
@@ -384,7 +388,13 @@ pub struct Volume {
 /// `MLTR N iterations`.
 pub fn reconstructor_name(opts: &PipelineOptions) -> String {
     if opts.method == ReportMethod::PhysicsOnly {
-        return "none: physics-based density (no DBToR model for this gantry)".into();
+        return format!(
+            "none: physics-based density (no DBToR model for this gantry; model breast {})",
+            match opts.physics_breast {
+                crate::model_breast::Placement::Homogeneous => "homogeneous",
+                crate::model_breast::Placement::CentralColumns => "central columns",
+            }
+        );
     }
     let name = match &opts.dbtor {
         Some(m) => format!(
@@ -442,8 +452,13 @@ pub fn algorithm_version(opts: &PipelineOptions) -> String {
     let software = concat!("dbt-pipeline ", env!("CARGO_PKG_VERSION"));
     if opts.method == ReportMethod::PhysicsOnly {
         return format!(
-            "physics-based density (dbt-physics-density {}, the central view), model-breast Monte Carlo dose on the gantry's geometry; no learned model; {software}",
-            env!("CARGO_PKG_VERSION")
+            "physics-based density (dbt-physics-density {}, the central view), model-breast Monte Carlo dose on the gantry's geometry (glandular tissue {}); no learned model; {software}",
+            env!("CARGO_PKG_VERSION"),
+            match opts.physics_breast {
+                crate::model_breast::Placement::Homogeneous => "mixed homogeneously",
+                crate::model_breast::Placement::CentralColumns =>
+                    "in each column's middle, by its ray's dense share",
+            }
         );
     }
     let software = if opts.slice_step > 1 {
@@ -1141,6 +1156,7 @@ fn physics_only<H: ToSinograms>(
         g.image.pixel_mm,
         crate::linearise::NOMINAL_SKIN_MM,
         gl.clamp(0.0, 1.0),
+        opts.physics_breast,
     )?;
     // The model breast's attenuation at the 20 keV scale, for the status
     // page's pictures and the density's volumes.
@@ -1171,7 +1187,7 @@ fn physics_only<H: ToSinograms>(
     let dose = mgd_to_uncertainty_on(
         &gantry,
         &model.breast(),
-        Model::Homogeneous,
+        opts.physics_breast.dose_model(),
         &spectrum,
         opts.dose_uncertainty,
         200_000,

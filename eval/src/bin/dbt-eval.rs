@@ -502,8 +502,10 @@ struct AccuracyArgs {
     no_calibration: bool,
     /// Reconstructors to compare on the same acquisitions (comma
     /// separated: mltr, fp32, int8, mixed, physics (no reconstruction: the
-    /// physics-only report of a gantry without a model); default: fp32 with
-    /// --model, else mltr).
+    /// physics-only report of a gantry without a model, its model breast
+    /// as shipped; physics-homogeneous, physics-columns: with either
+    /// placement of its glandular tissue); default: fp32 with --model, else
+    /// mltr).
     #[arg(long)]
     reconstructors: Option<String>,
     /// Slice steps to run each reconstructor with (comma separated; 2:
@@ -1252,7 +1254,7 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
     let mut recs: Vec<(String, String, dbt_pipeline::PipelineOptions)> = Vec::new();
     for r in list.split(',').map(str::trim).filter(|r| !r.is_empty()) {
         let dbtor = match r {
-            "mltr" | "physics" => None,
+            "mltr" | "physics" | "physics-homogeneous" | "physics-columns" => None,
             "fp32" | "int8" | "mixed" => {
                 anyhow::ensure!(model.is_some(), "--reconstructors {r} needs --model");
                 let m = load_models(model.as_deref(), r, &runtime)?
@@ -1263,11 +1265,11 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
                 Some(std::sync::Arc::new(m))
             }
             other => {
-                anyhow::bail!("unknown reconstructor {other:?} (mltr, fp32, int8, mixed, physics)")
+                anyhow::bail!("unknown reconstructor {other:?} (mltr, fp32, int8, mixed, physics, physics-homogeneous, physics-columns)")
             }
         };
         let tag = match r {
-            "mltr" | "physics" => r.to_string(),
+            "mltr" | "physics" | "physics-homogeneous" | "physics-columns" => r.to_string(),
             other => format!("dbtor-{other}"),
         };
         // The options as the firmware assembles them
@@ -1283,10 +1285,15 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
             descatter,
             noise_match,
             scatter_in_input,
-            method: if r == "physics" {
+            method: if r.starts_with("physics") {
                 dbt_pipeline::ReportMethod::PhysicsOnly
             } else {
                 dbt_pipeline::ReportMethod::Reconstruction
+            },
+            physics_breast: match r {
+                "physics-homogeneous" => dbt_pipeline::model_breast::Placement::Homogeneous,
+                "physics-columns" => dbt_pipeline::model_breast::Placement::CentralColumns,
+                _ => dbt_pipeline::PipelineOptions::default().physics_breast,
             },
             ..Default::default()
         };
