@@ -115,7 +115,10 @@ if f:
     print(f"data fit: the reconstruction against its projections, residual {f['residual']:.4f}, "
           f"{f['excess']:.4f} beyond the noise (limit {c['limits']['data_fit_max']:.3f})")
 st = r.get("stage_seconds") or {}
-if st:
+if st and r.get("method") == "physics-only":
+    print(f"stages: corrections {st['corrections']:.1f} s, physics density and model breast "
+          f"{st['classification']:.1f} s, dose {st['dose_model']:.1f} s (model breast); nothing reconstructed")
+elif st:
     n = st["slices"]
     print(f"stages: corrections {st['corrections']:.1f} s, reconstruction {st['reconstruction']:.1f} s "
           f"({n} slices, {1e3 * st['reconstruction'] / max(n, 1):.0f} ms each), classification "

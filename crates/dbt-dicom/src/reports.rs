@@ -190,7 +190,8 @@ pub enum ReportMethod {
     Reconstruction,
     /// No DBToR model is trained for the gantry: the physics-based density
     /// of the projections is the glandularity (its own consistency checks
-    /// decide the category), and the AGD is the model breast's (the
+    /// stated; no composition category: nothing cross-checks it), and the
+    /// AGD is the model breast's (the
     /// breast's outline and thickness from its projections, a homogeneous
     /// interior at that glandularity under the nominal skin) on the
     /// gantry's own geometry.
@@ -1306,7 +1307,30 @@ pub fn density_report(input: &DensityInput, uids: &mut UidSource) -> Result<Repo
             vec![],
         ),
     ));
-    if chk.confirmed {
+    if input.method == ReportMethod::PhysicsOnly {
+        // No category from the physics density alone: nothing cross-checks
+        // it, and on realistic breasts it is not known to place a breast in
+        // its category reliably (eval/vendor-gantries.md).
+        let checks = if chk.confirmed {
+            String::new()
+        } else {
+            format!(
+                " Its own checks were not passed: {}.",
+                chk.reasons.join("; ")
+            )
+        };
+        children.push((
+            Rel::Contains,
+            Item::Text(
+                private("NOCATWHY", "Why no composition category is given"),
+                format!(
+                    "No DBToR model is trained for this gantry: the physics-based density alone, with no \
+                     reconstruction to cross-check it, is not validated to the precision a composition \
+                     category needs, and none is given.{checks}"
+                ),
+            ),
+        ));
+    } else if chk.confirmed {
         children.push((
             Rel::Contains,
             Item::Code(
@@ -1364,10 +1388,9 @@ pub fn density_report(input: &DensityInput, uids: &mut UidSource) -> Result<Repo
              dense-tissue path relative to fat, from the same projections, no learning) confirms the reported one.",
                 ReportMethod::PhysicsOnly => "No DBToR model is trained for this gantry: Percent Fibroglandular Tissue is the \
              physics-based glandularity by mass (each ray's dense-tissue path relative to fat, from the projections \
-             of the central view, no learning; Hammerstein densities, skin excluded), not a reconstruction's; the \
-             composition category uses its volumetric fraction (thresholds 4.5 / 7.5 / 15.5 %) and is given only \
-             where the estimate passed its own checks (the views' agreement, the thickness readout, the breast \
-             inside the detector, the edge model's share).",
+             of the central view, no learning; Hammerstein densities, skin excluded), not a reconstruction's; \
+             its own checks (the views' agreement, the thickness readout, the breast inside the detector, the \
+             edge model's share) are stated; no composition category is given.",
             }
             .into(),
         ),

@@ -44,7 +44,7 @@ pub enum Placement {
     /// ([`dbt_dose::patient::Model::PatientSpecific`]). The product's
     /// choice, made on the validation split (eval/vendor-gantries.md: the
     /// worst 95 % limit of the MGD's error over the vendors' gantries and
-    /// both populations 30 % against the homogeneous breast's 57 %).
+    /// both populations 30 % against the homogeneous breast's 59 %).
     #[default]
     CentralColumns,
 }
