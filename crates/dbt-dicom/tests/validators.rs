@@ -134,6 +134,44 @@ pub fn unconfirmed_dose_input() -> DoseInput {
     }
 }
 
+/// A physics-only density report (issue #51 point 3: no model for the
+/// gantry), its estimate's own checks not passed.
+pub fn physics_only_density_input() -> DensityInput {
+    DensityInput {
+        glandularity: 0.41,
+        fibroglandular_cm3: 80.0,
+        reconstructor: "none: physics-based density (no DBToR model for this gantry; model breast central columns)".into(),
+        check: dbt_dicom::DensityCheckReport {
+            physics_glandularity: Some(0.41),
+            confirmed: false,
+            reasons: vec!["physics density: the views disagree by 6.4 pp".into()],
+        },
+        glandularity_interval: physics_only_interval(),
+        method: dbt_dicom::ReportMethod::PhysicsOnly,
+        ..density_input()
+    }
+}
+
+/// Its dose report: the model breast's AGD on the gantry's geometry.
+pub fn physics_only_dose_input() -> DoseInput {
+    DoseInput {
+        model_agd_mgy: 1.44,
+        accumulated_agd_mgy: 1.44,
+        agd_interval: physics_only_interval(),
+        method: dbt_dicom::ReportMethod::PhysicsOnly,
+        ..dose_input()
+    }
+}
+
+/// What a physics-only report says of its intervals.
+pub fn physics_only_interval() -> dbt_dicom::FigureInterval {
+    dbt_dicom::FigureInterval {
+        limits: None,
+        basis: "a physics-only report (no DBToR model for this gantry): no validation residuals"
+            .into(),
+    }
+}
+
 /// What an unconfirmed density's reports say of their intervals.
 pub fn unconfirmed_interval() -> dbt_dicom::FigureInterval {
     dbt_dicom::FigureInterval {
@@ -207,6 +245,54 @@ fn an_unconfirmed_density_report_has_no_category_and_says_why() {
         .unwrap()
         .to_string();
     assert!(e.contains("check.physics_glandularity"), "{e}");
+}
+
+/// A physics-only report (issue #51 point 3) names its method in both
+/// SRs, gives the physics-based figure, no composition category, and why;
+/// its dose comment says the AGD is the model breast's on the gantry.
+#[test]
+fn a_physics_only_report_names_its_method_and_gives_no_category() {
+    let mut uids = UidSource::new("1.2.826.0.1.3680043.10.543", 45).unwrap();
+    let values = |r: dbt_dicom::Report| read_values(&r.to_bytes().unwrap()).unwrap().1;
+    let get =
+        |v: &[(String, String)], k: &str| v.iter().find(|(n, _)| n == k).map(|(_, s)| s.clone());
+    let d = values(density_report(&physics_only_density_input(), &mut uids).unwrap());
+    assert_eq!(get(&d, "Breast composition"), None, "{d:?}");
+    assert!(get(&d, "Density cross-check")
+        .unwrap()
+        .contains("Physics-based density alone"));
+    let why = get(&d, "Why no composition category is given").unwrap();
+    assert!(
+        why.contains("No DBToR model") && why.contains("views disagree"),
+        "{why}"
+    );
+    assert!(get(&d, "Algorithm Name")
+        .unwrap()
+        .contains("physics-based density"));
+    let m = values(dose_report(&physics_only_dose_input(), &mut uids).unwrap());
+    let comment = get(&m, "Comment").unwrap();
+    assert!(
+        comment.contains("No DBToR model is trained for this gantry")
+            && comment.contains("not patient-specific"),
+        "{comment}"
+    );
+    // The same inputs as a reconstruction's report keep its category.
+    let d = values(
+        density_report(
+            &DensityInput {
+                check: dbt_dicom::DensityCheckReport {
+                    confirmed: true,
+                    reasons: vec![],
+                    physics_glandularity: Some(0.41),
+                },
+                method: dbt_dicom::ReportMethod::Reconstruction,
+                ..physics_only_density_input()
+            },
+            &mut uids,
+        )
+        .unwrap(),
+    );
+    assert!(get(&d, "Breast composition").is_some(), "{d:?}");
 }
 
 /// Both figures carry their 95 % interval and what it rests on; a report
@@ -331,11 +417,16 @@ fn reports_pass_dciodvfy_and_dsrdump_and_broken_ones_do_not() {
     // density.
     let dose_unconfirmed = dose_report(&unconfirmed_dose_input(), &mut uids).unwrap();
     let dens_unconfirmed = density_report(&unconfirmed_density_input(), &mut uids).unwrap();
+    // A physics-only pair (issue #51 point 3).
+    let dose_physics = dose_report(&physics_only_dose_input(), &mut uids).unwrap();
+    let dens_physics = density_report(&physics_only_density_input(), &mut uids).unwrap();
     for (name, r) in [
         ("dose.dcm", &dose),
         ("density.dcm", &dens),
         ("dose-unconfirmed.dcm", &dose_unconfirmed),
         ("density-unconfirmed.dcm", &dens_unconfirmed),
+        ("dose-physics.dcm", &dose_physics),
+        ("density-physics.dcm", &dens_physics),
     ] {
         if let Ok(d) = std::env::var("DBT_DICOM_KEEP") {
             std::fs::write(Path::new(&d).join(name), r.to_bytes().unwrap()).unwrap();
@@ -540,7 +631,11 @@ fn dose_report_passes_pixelmed_sr_validation() {
         jar.is_file(),
         "PixelMed not found: apt-get install libpixelmed-java (.ci/run installs it)"
     );
-    for input in [dose_input(), unconfirmed_dose_input()] {
+    for input in [
+        dose_input(),
+        unconfirmed_dose_input(),
+        physics_only_dose_input(),
+    ] {
         pixelmed_validates_dose(jar, &input);
     }
 }
@@ -557,9 +652,13 @@ fn density_reports_pass_pixelmed_sr_validation() {
     );
     let dir = tempfile::tempdir().unwrap();
     let mut uids = UidSource::new("1.2.826.0.1.3680043.10.543", 44).unwrap();
-    for (i, input) in [density_input(), unconfirmed_density_input()]
-        .iter()
-        .enumerate()
+    for (i, input) in [
+        density_input(),
+        unconfirmed_density_input(),
+        physics_only_density_input(),
+    ]
+    .iter()
+    .enumerate()
     {
         let p = dir.path().join(format!("density-{i}.dcm"));
         std::fs::write(
