@@ -1472,7 +1472,23 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
     write_json(&out.join("accuracy.json"), &json)?;
     // What the firmware's plausibility checks measured (none refused,
     // or the run would have stopped naming the case).
-    for ((label, _, _), cases) in recs.iter().zip(&cases) {
+    for ((label, _, opts), cases) in recs.iter().zip(&cases) {
+        if opts.method == dbt_pipeline::ReportMethod::PhysicsOnly {
+            // Nothing reconstructed: no volume to check, no cross-check.
+            let flagged: Vec<&Case> = cases
+                .iter()
+                .filter(|c| !c.density_check.confirmed)
+                .collect();
+            println!(
+                "physics-only [{label}]: {} of {} estimates flagged by their own checks",
+                flagged.len(),
+                cases.len()
+            );
+            for c in flagged {
+                println!("  {}: {}", c.phantom, c.density_check.reasons.join("; "));
+            }
+            continue;
+        }
         let range = |f: &dyn Fn(&Case) -> f64| {
             cases
                 .iter()
@@ -1494,7 +1510,10 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
     // The cross-check against the physics density (issue #48 point 3):
     // how many reports would assert no category, and the disagreements the
     // limits are set from (eval/density-check.md).
-    for ((label, _, _), cases) in recs.iter().zip(&cases) {
+    for ((label, _, opts), cases) in recs.iter().zip(&cases) {
+        if opts.method == dbt_pipeline::ReportMethod::PhysicsOnly {
+            continue;
+        }
         let unconfirmed = cases.iter().filter(|c| !c.density_check.confirmed).count();
         let most = |f: &dyn Fn(&Case) -> Option<f64>| {
             cases
