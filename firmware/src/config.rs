@@ -1158,13 +1158,13 @@ mod tests {
         Config::load(&p)
     }
 
-    /// `text` without the lines that set `key`.
     /// `text` with the physics-only reconstructor and no model.
     fn physics(text: &str) -> String {
         without(&without(text, "model"), "precision")
             .replace("reconstructor = \"dbtor\"", "reconstructor = \"physics\"")
     }
 
+    /// `text` without the lines that set `key`.
     fn without(text: &str, key: &str) -> String {
         text.lines()
             .filter(|l| !l.starts_with(key))

@@ -779,8 +779,9 @@ fn clinical_physics_is_reported_after_both_corrections() {
 /// registered like any other; the daemon configured with that system and
 /// `reconstructor = "physics"` reports it without a reconstruction: the
 /// physics density within 4 pp of the truth, no fault, both SRs naming the
-/// method and read back, the dose on Hologic's 15 views; the entry replays
-/// to its report.
+/// method and read back by `dbtor-diag report`, the dose SR with an
+/// irradiation event per view of Hologic's 15; the entry replays to its
+/// report.
 #[test]
 fn a_vendor_gantry_without_a_model_is_reported_by_the_physics() {
     let dir = tempfile::tempdir().unwrap();
@@ -847,6 +848,10 @@ fn a_vendor_gantry_without_a_model_is_reported_by_the_physics() {
             "{}",
             String::from_utf8_lossy(&out.stderr)
         );
+        if r.to_string_lossy().ends_with("dose-sr.dcm") {
+            let events = bytes.windows(6).filter(|w| w == b"113769").count();
+            assert_eq!(events, 15, "one irradiation event per view");
+        }
     }
     let done = entries(&dir.path().join("spool/done"));
     replay_reproduces_the_report(&cfg, &dir.path().join("spool/done").join(&done[0]));

@@ -7,7 +7,9 @@
 //! a DICOM-only daemon configured with that system and no model
 //! (`reconstructor = "physics"`): every sweep is grouped, placed by angle on
 //! the system, reported by the physics density within 4 pp of the truth,
-//! dosed on the system's own views, and both SRs are written. The vendors'
+//! and both SRs are written, the dose SR with an irradiation event for each
+//! of the system's views (15, 9 and 25; that the dose is simulated on the
+//! system's own geometry: host-sim/tests/vendor_gantries.rs). The vendors'
 //! private layouts (GE's angle tags, Hologic's container) are not here.
 
 use hil_tests::{free_port, wait_for_status, workspace_bin};
@@ -15,7 +17,17 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-fn report_on(system: &str, dir: &Path) {
+/// Kills the daemon however the test ends.
+struct Daemon(std::process::Child);
+
+impl Drop for Daemon {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn report_on(system: &str, views: usize, dir: &Path) {
     let acq = hil_tests::acquire_with(dir, "acq", 1, "paper-tall", Some(system));
     let h: serde_json::Value =
         serde_json::from_slice(&std::fs::read(acq.join("acquisition.json")).unwrap()).unwrap();
@@ -61,12 +73,14 @@ flat_field_counts = {flux}
         ),
     )
     .unwrap();
-    let mut daemon = Command::new(workspace_bin("dbtor-daemon"))
-        .arg("--config")
-        .arg(&cfg)
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
+    let daemon = Daemon(
+        Command::new(workspace_bin("dbtor-daemon"))
+            .arg("--config")
+            .arg(&cfg)
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
     let limit = Duration::from_secs(240);
     wait_for_status(dir, "the daemon", limit, |s| s["state"] == "waiting");
     let out = Command::new(workspace_bin("host-sim"))
@@ -83,8 +97,7 @@ flat_field_counts = {flux}
     let s = wait_for_status(dir, "the report", limit, |s| {
         s["processed"] == 1 || !s["faults"].as_array().is_none_or(|f| f.is_empty())
     });
-    let _ = daemon.kill();
-    let _ = daemon.wait();
+    drop(daemon);
     assert_eq!(s["processed"], 1, "{system}: {s}");
     assert!(s["faults"].as_array().unwrap().is_empty(), "{system}: {s}");
     let g = s["recent"][0]["glandularity_reported"].as_f64().unwrap();
@@ -108,18 +121,32 @@ flat_field_counts = {flux}
             .contains("physics-based density"),
         "{system}: {r}"
     );
-    let reports = std::fs::read_dir(dir.join("output"))
+    let reports: Vec<std::path::PathBuf> = std::fs::read_dir(dir.join("output"))
         .unwrap()
         .flatten()
-        .filter(|e| e.file_name().to_string_lossy().ends_with(".dcm"))
-        .count();
-    assert_eq!(reports, 2, "{system}");
+        .map(|e| e.path())
+        .filter(|p| p.to_string_lossy().ends_with(".dcm"))
+        .collect();
+    assert_eq!(reports.len(), 2, "{system}");
+    // One irradiation event (its Irradiation Event UID, code 113769) per
+    // view of the system's sweep.
+    let dose = reports
+        .iter()
+        .find(|p| p.to_string_lossy().ends_with("dose-sr.dcm"))
+        .unwrap();
+    let bytes = std::fs::read(dose).unwrap();
+    let events = bytes.windows(6).filter(|w| w == b"113769").count();
+    assert_eq!(events, views, "{system}");
 }
 
 #[test]
 fn each_vendors_per_view_sweep_is_reported_through_the_dicom_input() {
-    for system in ["hologic-dimensions", "ge-essential", "siemens-inspiration"] {
+    for (system, views) in [
+        ("hologic-dimensions", 15),
+        ("ge-essential", 9),
+        ("siemens-inspiration", 25),
+    ] {
         let dir = tempfile::tempdir().unwrap();
-        report_on(system, dir.path());
+        report_on(system, views, dir.path());
     }
 }

@@ -4,7 +4,7 @@
 //! above the support, Siemens's) goes through the firmware's processing
 //! without a model: the physics-based density is reported, the model
 //! breast is dosed on that gantry's own geometry, and both DICOM reports
-//! name the method and read back.
+//! name the method.
 
 use dbt_forward::NoiseLevel;
 use dbt_geometry::{ConeSystem, Geometry};
@@ -72,7 +72,6 @@ fn every_vendor_gantry_is_reported_without_a_model() {
         let sys = ConeSystem::builtin(system).unwrap();
         assert_eq!(res.dose_geometry.name, system);
         assert_eq!(res.dose_patient.views_deg.len(), sys.n_views());
-        assert_eq!(res.mgd_mgy, res.model_mgd_mgy);
         assert!(res.mgd_mgy > 0.0 && res.intervals.mgd.limits.is_none());
         // The model breast holds the physics' breast volume (its outline),
         // to the voxel's share of the surface.

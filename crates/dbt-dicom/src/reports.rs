@@ -192,9 +192,9 @@ pub enum ReportMethod {
     /// of the projections is the glandularity (its own consistency checks
     /// stated; no composition category: nothing cross-checks it), and the
     /// AGD is the model breast's (the
-    /// breast's outline and thickness from its projections, a homogeneous
-    /// interior at that glandularity under the nominal skin) on the
-    /// gantry's own geometry.
+    /// breast's outline and thickness from its projections, an interior at
+    /// that glandularity under the nominal skin) on the gantry's own
+    /// geometry.
     PhysicsOnly,
 }
 

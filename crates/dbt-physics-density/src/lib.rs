@@ -291,28 +291,6 @@ pub struct Outline {
     pub dense_share: Vec<f32>,
 }
 
-impl Outline {
-    /// The breast's vertical extent `(bottom, top)` above the support at
-    /// `(x_mm, depth_mm)` (the nearest element's ray at mid-height, the
-    /// slice holding the depth); `None` outside the breast, the slices or
-    /// the detector.
-    pub fn extent_at(&self, x_mm: f64, depth_mm: f64) -> Option<(f64, f64)> {
-        let map = ContactMap {
-            x_mid_mm: self.x_mid_mm.clone(),
-            slice_mm: self.slice_mm,
-            mask: Vec::new(),
-        };
-        let k = map.element_at(x_mm)?;
-        if self.slice_mm <= 0.0 || depth_mm.is_nan() || depth_mm < 0.0 {
-            return None;
-        }
-        let i = (depth_mm / self.slice_mm) as usize * self.x_mid_mm.len() + k;
-        let c = f64::from(*self.chord_mm.get(i)?);
-        let m = f64::from(*self.mid_mm.get(i)?);
-        (c > 0.0).then(|| ((m - c / 2.0).max(0.0), m + c / 2.0))
-    }
-}
-
 /// The contact region of one view, ray by ray.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct ContactMap {

@@ -4,8 +4,8 @@
 //! ([`dbt_physics_density::Outline`]: each ray's path through the breast,
 //! the thickness plane in contact, the fitted edge profile in the rim), a
 //! skin shell of the nominal thickness, and an interior of the physics
-//! density's glandularity, mixed homogeneously by the dose engine
-//! ([`dbt_dose::patient::Model::Homogeneous`]).
+//! density's glandularity, its glandular tissue placed as [`Placement`]
+//! says (the product's: in each column's middle by its ray's dense share).
 //!
 //! # Choices
 //! - The outline, not Dance's semi-cylinder: the same conversion-factor
@@ -113,6 +113,7 @@ pub fn from_outline(
     if nd == 0
         || !outline.chord_mm.len().is_multiple_of(nd)
         || outline.mid_mm.len() != outline.chord_mm.len()
+        || outline.dense_share.len() != outline.chord_mm.len()
     {
         return Err(bad(format!(
             "an outline of {} chords, {} middles and {} dense shares for {nd} elements",
@@ -239,7 +240,17 @@ fn central_columns(
                 .collect();
             if !rows.is_empty() {
                 n += rows.len();
-                cols.push((c, d, rows, share(c, d).clamp(0.0, 1.0)));
+                // A share that is not a number is none; every column keeps
+                // a vanishing one, so that a glandularity the shared
+                // columns cannot hold is spread over the others rather
+                // than missed.
+                let f = share(c, d);
+                let f = if f.is_finite() {
+                    f.clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+                cols.push((c, d, rows, f.max(1e-9)));
             }
         }
     }
@@ -254,7 +265,7 @@ fn central_columns(
             .sum()
     };
     let (mut lo, mut hi) = (0.0f64, 1.0f64);
-    while total(hi) < want && hi < 1e6 {
+    while total(hi) < want && hi < 1e12 {
         hi *= 2.0;
     }
     for _ in 0..60 {
@@ -385,6 +396,22 @@ mod tests {
         assert!((0..nz).all(|v| at(60, v, 30) != gland));
     }
 
+    /// Shares that hold too little (none at all), or are not numbers, still
+    /// give the glandularity asked for, spread over the columns.
+    #[test]
+    fn central_columns_meet_the_glandularity_whatever_the_shares() {
+        let mut o = box_outline();
+        o.dense_share.iter_mut().for_each(|f| *f = 0.0);
+        let m = from_outline(&o, 200.0, 1.0, 1.5, 0.001, Placement::CentralColumns).unwrap();
+        let (g, n) = dbt_dose::patient::glandularity(&m.breast());
+        assert!(n > 0 && (g - 0.001).abs() < 2e-4, "{g} ({n} voxels)");
+        let mut o = box_outline();
+        o.dense_share.iter_mut().for_each(|f| *f = f32::NAN);
+        let m = from_outline(&o, 200.0, 1.0, 1.5, 0.3, Placement::CentralColumns).unwrap();
+        let (g, _) = dbt_dose::patient::glandularity(&m.breast());
+        assert!((g - 0.3).abs() < 2e-3, "{g}");
+    }
+
     #[test]
     fn an_empty_or_malformed_outline_is_refused_by_name() {
         let mut o = box_outline();
@@ -399,6 +426,12 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("chords"), "{e}");
+        let mut o = box_outline();
+        o.dense_share.pop();
+        let e = from_outline(&o, 200.0, 1.0, 1.5, 0.3, Placement::CentralColumns)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("dense shares"), "{e}");
         let e = from_outline(&box_outline(), 200.0, 1.0, 1.5, 1.3, Placement::Homogeneous)
             .unwrap_err()
             .to_string();

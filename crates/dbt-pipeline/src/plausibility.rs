@@ -451,16 +451,19 @@ pub struct VolumeCheck {
 }
 
 /// The footprint of each slice on the view nearest 0 degrees: the lateral
-/// extent, mm at the isocentre, between the outermost elements whose line
-/// integral exceeds its noise (`NOISE_Z / sqrt(counts)`).
+/// extent, mm at the image's centre (the isocentre in the paper's layout;
+/// a raised image's own centre, `image.centre_z_mm`), between the outermost
+/// elements whose line integral exceeds its noise (`NOISE_Z /
+/// sqrt(counts)`).
 pub fn footprint_mm(h: &AcquisitionHeader, counts: &[Vec<f32>]) -> Vec<f64> {
     let g = &h.geometry;
     let nd = g.n_det();
     let v0 = (0..g.n_views())
         .min_by(|&a, &b| g.angle_deg(a).abs().total_cmp(&g.angle_deg(b).abs()))
         .unwrap_or(0);
-    // Detector pitch at the isocentre (the image centre).
-    let pitch = g.detector.pitch_mm * g.source_to_center_mm / g.source_to_detector_mm;
+    // Detector pitch at the image's centre (the isocentre unless raised).
+    let pitch = g.detector.pitch_mm * (g.source_to_center_mm - g.image.centre_z_mm)
+        / g.source_to_detector_mm;
     counts
         .iter()
         .map(|s| {

@@ -452,8 +452,7 @@ pub fn algorithm_version(opts: &PipelineOptions) -> String {
     let software = concat!("dbt-pipeline ", env!("CARGO_PKG_VERSION"));
     if opts.method == ReportMethod::PhysicsOnly {
         return format!(
-            "physics-based density (dbt-physics-density {}, the central view), model-breast Monte Carlo dose on the gantry's geometry (glandular tissue {}); no learned model; {software}",
-            env!("CARGO_PKG_VERSION"),
+            "physics-based density (the central view), model-breast Monte Carlo dose on the gantry's geometry (glandular tissue {}); no learned model; {software}",
             match opts.physics_breast {
                 crate::model_breast::Placement::Homogeneous => "mixed homogeneously",
                 crate::model_breast::Placement::CentralColumns =>
@@ -1116,10 +1115,16 @@ fn process_layout<H: ToSinograms>(
     })
 }
 
+/// The least glandularity a physics-only report's model breast is dosed at
+/// (its MGD's limit for a breast read without glandular tissue: the dose
+/// per glandular mass of a vanishing share).
+pub const PHYSICS_ONLY_MIN_GLANDULARITY: f64 = 0.001;
+
 /// The report of a gantry for which no model is trained (issue #51 point
 /// 3): the physics density of the checked counts is the glandularity; the
 /// model breast ([`crate::model_breast`]: the central view's outline, the
-/// nominal skin, a homogeneous interior at that glandularity) is dosed on
+/// nominal skin, an interior at that glandularity placed as
+/// [`PipelineOptions::physics_breast`] says) is dosed on
 /// the gantry's own geometry and its MGD is the one reported; no interval
 /// (none is validated for this method). Refused, naming why, where no
 /// physics density can be made: nothing else would stand behind a figure.
@@ -1150,12 +1155,26 @@ fn physics_only<H: ToSinograms>(
     } else {
         tracing::warn!(reasons = ?density_check.reasons, "physics-only report: the estimate did not pass its checks");
     }
+    // A breast read with no glandular tissue has no glandular dose to
+    // average: its MGD is the limit as the glandularity goes to 0, dosed
+    // at the floor and said so.
+    let mut flags = counts_check.flag().into_iter().collect::<Vec<_>>();
+    let dosed_at = if gl.is_finite() && gl >= PHYSICS_ONLY_MIN_GLANDULARITY {
+        gl.min(1.0)
+    } else {
+        flags.push(format!(
+            "the physics density reads {:.2} % glandular: the model breast is dosed at {:.1} % (the MGD's limit for a breast without glandular tissue)",
+            100.0 * gl,
+            100.0 * PHYSICS_ONLY_MIN_GLANDULARITY
+        ));
+        PHYSICS_ONLY_MIN_GLANDULARITY
+    };
     let model = crate::model_breast::from_outline(
         &physics.central.outline,
         g.width_mm(),
         g.image.pixel_mm,
         crate::linearise::NOMINAL_SKIN_MM,
-        gl.clamp(0.0, 1.0),
+        dosed_at,
         opts.physics_breast,
     )?;
     // The model breast's attenuation at the 20 keV scale, for the status
@@ -1237,7 +1256,7 @@ fn physics_only<H: ToSinograms>(
         dose_patient: dose.clone(),
         dose_model: dose,
         tube,
-        flags: counts_check.flag().into_iter().collect(),
+        flags,
         plausibility: Plausibility {
             counts: counts_check,
             volume: VolumeCheck::default(),

@@ -69,9 +69,11 @@ pixel_mm = 0.8
     g
 }
 
-/// The paper geometry, binned, the odd one, and the odd one with rays far
-/// sparser than pixels, with rays denser than pixels, and with views out to
-/// 60 degrees (slow rays): the AVX2 adjoint's ways through its run sums.
+/// An image raised above the rotation axis, Hologic's layout (the pivot in
+/// the detector), the paper geometry, binned, the odd one, and the odd one
+/// with rays far sparser than pixels, with rays denser than pixels, and with
+/// views out to 60 degrees (slow rays): the AVX2 adjoint's ways through its
+/// run sums.
 fn geometries() -> Vec<(&'static str, Geometry)> {
     let paper = Geometry::paper();
     let mut sparse = odd_geometry();
