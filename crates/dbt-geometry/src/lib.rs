@@ -459,8 +459,16 @@ impl Geometry {
 
     /// A short human-readable description, e.g. for benchmark tables.
     pub fn describe(&self) -> String {
+        let raised = if self.image.centre_z_mm != 0.0 {
+            format!(
+                ", the image centred {} mm above the axis (source {} / {} mm)",
+                self.image.centre_z_mm, self.source_to_center_mm, self.source_to_detector_mm
+            )
+        } else {
+            String::new()
+        };
         format!(
-            "{}x{} px of {} mm, {} views over [{}, {}] deg, {} elements of {} mm",
+            "{}x{} px of {} mm, {} views over [{}, {}] deg, {} elements of {} mm{raised}",
             self.image.columns,
             self.image.rows,
             self.image.pixel_mm,
@@ -662,6 +670,10 @@ mod tests {
         let mut g = Geometry::paper();
         g.image.centre_z_mm = 20.0;
         g.validate().unwrap();
+        assert!(g
+            .describe()
+            .ends_with("the image centred 20 mm above the axis (source 650 / 700 mm)"));
+        assert!(!Geometry::paper().describe().contains("above the axis"));
         assert!((g.support_z_mm() + 10.0).abs() < 1e-12);
         assert!((g.top_z_mm() - 50.0).abs() < 1e-12);
         assert!((g.pixel_center_mm(299, 0).1 - (-10.0 + 0.1)).abs() < 1e-9);
