@@ -291,6 +291,14 @@ pub struct Outline {
     pub dense_share: Vec<f32>,
 }
 
+impl Outline {
+    /// The element whose ray passes nearest `x_mm` at the breast's
+    /// mid-height; `None` beyond the detector ([`nearest_element`]).
+    pub fn element_at(&self, x_mm: f64) -> Option<usize> {
+        nearest_element(&self.x_mid_mm, x_mm)
+    }
+}
+
 /// The contact region of one view, ray by ray.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct ContactMap {
@@ -314,38 +322,9 @@ impl ContactMap {
     }
 
     /// The element whose ray passes nearest `x_mm` at the breast's
-    /// mid-height; `None` beyond the detector (half a pitch past its ends).
+    /// mid-height; `None` beyond the detector ([`nearest_element`]).
     pub fn element_at(&self, x_mm: f64) -> Option<usize> {
-        let nd = self.x_mid_mm.len();
-        if nd == 0 {
-            return None;
-        }
-        let (first, last) = (self.x_mid_mm[0], self.x_mid_mm[nd - 1]);
-        let (lo, hi) = (first.min(last), first.max(last));
-        let pitch = (hi - lo) / (nd - 1).max(1) as f64;
-        if x_mm.is_nan() || x_mm < lo - pitch / 2.0 || x_mm > hi + pitch / 2.0 {
-            return None;
-        }
-        // The rays' x is monotonic in the element.
-        let k = match self.x_mid_mm.binary_search_by(|x| {
-            if first <= last {
-                x.total_cmp(&x_mm)
-            } else {
-                x_mm.total_cmp(x)
-            }
-        }) {
-            Ok(k) => k,
-            Err(0) => 0,
-            Err(k) if k >= nd => nd - 1,
-            Err(k) => {
-                if (self.x_mid_mm[k] - x_mm).abs() < (self.x_mid_mm[k - 1] - x_mm).abs() {
-                    k
-                } else {
-                    k - 1
-                }
-            }
-        };
-        Some(k)
+        nearest_element(&self.x_mid_mm, x_mm)
     }
 
     /// Whether element `k`'s ray in the slice holding `depth_mm` is in the
@@ -358,6 +337,43 @@ impl ContactMap {
         let s = (depth_mm / self.slice_mm) as usize;
         self.mask.get(s * nd + k).copied().unwrap_or(false)
     }
+}
+
+/// The element whose ray passes nearest `x_mm`, of rays crossing the
+/// breast's mid-height at `x_mid_mm` (monotonic in the element, either
+/// way); `None` for no rays, a NaN, or beyond the detector (half a pitch
+/// past its ends). One rule for the contact map and the outline.
+pub fn nearest_element(x_mid_mm: &[f64], x_mm: f64) -> Option<usize> {
+    let nd = x_mid_mm.len();
+    if nd == 0 {
+        return None;
+    }
+    let (first, last) = (x_mid_mm[0], x_mid_mm[nd - 1]);
+    let (lo, hi) = (first.min(last), first.max(last));
+    let pitch = (hi - lo) / (nd - 1).max(1) as f64;
+    if x_mm.is_nan() || x_mm < lo - pitch / 2.0 || x_mm > hi + pitch / 2.0 {
+        return None;
+    }
+    // The rays' x is monotonic in the element.
+    let k = match x_mid_mm.binary_search_by(|x| {
+        if first <= last {
+            x.total_cmp(&x_mm)
+        } else {
+            x_mm.total_cmp(x)
+        }
+    }) {
+        Ok(k) => k,
+        Err(0) => 0,
+        Err(k) if k >= nd => nd - 1,
+        Err(k) => {
+            if (x_mid_mm[k] - x_mm).abs() < (x_mid_mm[k - 1] - x_mm).abs() {
+                k
+            } else {
+                k - 1
+            }
+        }
+    };
+    Some(k)
 }
 
 /// The physics density of an acquisition.

@@ -487,6 +487,51 @@ fn the_contact_map_finds_the_nearest_ray() {
     assert!(!ContactMap::default().contains(0.0, 0.0));
 }
 
+/// The outline and the contact map find a position's ray by one rule
+/// (`nearest_element`): the same element for every position, inside,
+/// between, at and beyond the detector's ends, either way round.
+#[test]
+fn the_outline_and_the_contact_map_find_the_same_ray() {
+    for reversed in [false, true] {
+        let mut x: Vec<f64> = (0..7).map(|k| -12.0 + 4.0 * k as f64).collect();
+        if reversed {
+            x.reverse();
+        }
+        let m = ContactMap {
+            x_mid_mm: x.clone(),
+            slice_mm: 1.0,
+            mask: vec![true; 7],
+        };
+        let o = Outline {
+            x_mid_mm: x,
+            slice_mm: 1.0,
+            ..Outline::default()
+        };
+        for i in -80..=80 {
+            let xm = f64::from(i) * 0.2;
+            assert_eq!(o.element_at(xm), m.element_at(xm), "x {xm} mm");
+            let want = (-14.0..=14.0).contains(&xm).then(|| {
+                let k = ((xm + 12.0) / 4.0).round().clamp(0.0, 6.0) as usize;
+                if reversed {
+                    6 - k
+                } else {
+                    k
+                }
+            });
+            // Half way (to rounding) the rule may pick either neighbour.
+            let halfway = (((xm + 12.0) / 4.0).fract().abs() - 0.5).abs() < 1e-9;
+            if !halfway {
+                assert_eq!(o.element_at(xm), want, "x {xm} mm, reversed {reversed}");
+            }
+        }
+        assert_eq!(o.element_at(f64::NAN), None);
+    }
+    assert_eq!(Outline::default().element_at(0.0), None);
+    // One ray: no pitch, so only its own position finds it.
+    assert_eq!(nearest_element(&[3.0], 3.0), Some(0));
+    assert_eq!(nearest_element(&[3.0], 3.1), None);
+}
+
 /// A breast that tapers over a rim wider than half its thickness (an
 /// elliptical edge 40 mm wide on a 40 mm breast): the first plane, fitted
 /// half the thickness and 5 mm from the skin line, meets the thinner rim;

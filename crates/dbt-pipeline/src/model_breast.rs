@@ -23,7 +23,7 @@
 
 use crate::error::PipelineError;
 use dbt_materials::Tissue;
-use dbt_physics_density::{ContactMap, Outline};
+use dbt_physics_density::Outline;
 
 /// Where the model breast's glandular tissue lies.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -133,19 +133,13 @@ pub fn from_outline(
     let nx = (width_mm / voxel_mm).round().max(1.0) as usize;
     let nz = (top / voxel_mm).ceil() as usize;
     let ny = ((ns as f64 * outline.slice_mm) / voxel_mm).ceil() as usize;
-    // Each lateral position's element, once.
-    let map = ContactMap {
-        x_mid_mm: outline.x_mid_mm.clone(),
-        slice_mm: outline.slice_mm,
-        mask: Vec::new(),
-    };
     let x_of = |c: f64| -width_mm / 2.0 + (c + 0.5) * voxel_mm;
     // The breast's extent (bottom, top) at lateral position x, depth y.
     let extent = |x: f64, y: f64| -> Option<(f64, f64)> {
         if y < 0.0 {
             return None;
         }
-        let k = map.element_at(x)?;
+        let k = outline.element_at(x)?;
         let s = (y / outline.slice_mm) as usize;
         if s >= ns {
             return None;
@@ -197,7 +191,7 @@ pub fn from_outline(
             let share = |c: usize, d: usize| -> f64 {
                 let x = x_of(c as f64);
                 let y = (d as f64 + 0.5) * voxel_mm;
-                let (Some(k), s) = (map.element_at(x), (y / outline.slice_mm) as usize) else {
+                let (Some(k), s) = (outline.element_at(x), (y / outline.slice_mm) as usize) else {
                     return 0.0;
                 };
                 outline

@@ -1008,13 +1008,7 @@ fn process_layout<H: ToSinograms>(
     }
     stage_seconds.classification = lap();
     progress(Stage::Dose);
-    // The exposure's spectrum from the kV received (the one place the
-    // technique becomes a spectrum: dbt_dose::xray::technique_spectrum).
-    let tube = dbt_dose::xray::technique_spectrum(h.anode_filter, h.kvp, h.thickness_mm)?;
-    let spectrum = tube
-        .spectrum
-        .clone()
-        .ok_or_else(|| PipelineError::Input("no spectrum".into()))?;
+    let (tube, spectrum) = exposure_spectrum(h)?;
     let breast = Breast {
         dims,
         voxel_mm: g.image.pixel_mm,
@@ -1128,6 +1122,23 @@ pub const PHYSICS_ONLY_MIN_GLANDULARITY: f64 = 0.001;
 /// the gantry's own geometry and its MGD is the one reported; no interval
 /// (none is validated for this method). Refused, naming why, where no
 /// physics density can be made: nothing else would stand behind a figure.
+/// The exposure's spectrum from the technique received, for both reports
+/// (the one place the technique becomes a spectrum:
+/// [`dbt_dose::xray::technique_spectrum`]): the tube's description and its
+/// photons.
+fn exposure_spectrum(
+    h: &AcquisitionHeader,
+) -> Result<(dbt_dose::xray::TubeSpectrum, dbt_dose::spectrum::Spectrum), PipelineError> {
+    let tube = dbt_dose::xray::technique_spectrum(h.anode_filter, h.kvp, h.thickness_mm)?;
+    let spectrum = tube.spectrum.clone().ok_or_else(|| {
+        PipelineError::Input(format!(
+            "the technique {} at {} kV for {} mm gave no photon spectrum to dose with",
+            h.anode_filter, h.kvp, h.thickness_mm
+        ))
+    })?;
+    Ok((tube, spectrum))
+}
+
 fn physics_only<H: ToSinograms>(
     layout: &H,
     acq: &SliceSinograms,
@@ -1197,11 +1208,7 @@ fn physics_only<H: ToSinograms>(
     stage_seconds.classification = t0.elapsed().as_secs_f64();
     progress(Stage::Dose);
     let t1 = std::time::Instant::now();
-    let tube = dbt_dose::xray::technique_spectrum(h.anode_filter, h.kvp, h.thickness_mm)?;
-    let spectrum = tube
-        .spectrum
-        .clone()
-        .ok_or_else(|| PipelineError::Input("no spectrum".into()))?;
+    let (tube, spectrum) = exposure_spectrum(h)?;
     let gantry = layout.dose_geometry();
     let dose = mgd_to_uncertainty_on(
         &gantry,
