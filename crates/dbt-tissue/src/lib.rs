@@ -19,7 +19,10 @@
 //!    blurred skin's inner layer, a mix of skin and fat, is otherwise read
 //!    as fibroglandular right under the entrance surface, where it weighs
 //!    most in the dose. Measured with `dbt-eval classification` (see
-//!    eval/README.md).
+//!    eval/README.md). A model whose skin blurs deeper may add a
+//!    subcutaneous fat band under the shell
+//!    ([`ClassifyOptions::fat_band_mm`]): adipose whatever its values, and
+//!    left out of the fit below.
 //! 3. **Adipose vs fibroglandular** by fuzzy c-means (Bezdek 1981) with two
 //!    classes and fuzziness 2.0 on the skin-free breast; a voxel takes the
 //!    class of its larger membership.
@@ -58,6 +61,9 @@ pub enum TissueError {
     /// A calibration cannot be fit.
     #[error("glandularity calibration: {0}")]
     Calibration(String),
+    /// Options that cannot classify.
+    #[error("classification options: {0}")]
+    Options(String),
     /// No breast voxel found.
     #[error("no breast tissue in the volume (no value above {0} /mm)")]
     Empty(f32),
@@ -77,6 +83,21 @@ pub struct ClassifyOptions {
     pub skin_max_mm: Option<f64>,
     /// How voxels join the skin within the depth bound.
     pub skin_rule: SkinRule,
+    /// A subcutaneous fat band: breast voxels deeper than the skin's bound
+    /// but within this many mm beneath it are adipose, whatever their value
+    /// (`None`, the default: no band). For a network whose reconstruction
+    /// blurs the skin into the layer under it, which fuzzy c-means then
+    /// reads as gland right under the entrance surface, where it weighs most
+    /// in the dose (training/runs/dbtor-x4w/BAR.md, "Where the patient MGD
+    /// goes wrong"); unlike a deeper skin shell it adds no skin, whose
+    /// attenuation would shield the gland beneath it in the Monte Carlo.
+    /// Anatomically the layer under the skin is the subcutaneous
+    /// (premammary) fat. Needs a skin bound; a rule of a model, chosen on
+    /// its validation breasts (`dbt-eval classification --skin
+    /// shell:1.6+fat:MM`). Absent from the JSON when `None` (calibration
+    /// files written before it read the same).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fat_band_mm: Option<f64>,
 }
 
 /// How the skin region is grown.
@@ -108,6 +129,7 @@ impl Default for ClassifyOptions {
             tol: 1e-7,
             skin_max_mm: Some(SKIN_MAX_MM),
             skin_rule: SkinRule::Shell,
+            fat_band_mm: None,
         }
     }
 }
@@ -128,6 +150,15 @@ impl ClassifyOptions {
         match self.skin_max_mm {
             Some(mm) => ((mm / voxel_mm).round() as usize).max(1),
             None => usize::MAX,
+        }
+    }
+
+    /// The fat band's depth in voxel layers below the skin's bound:
+    /// `round(fat_band_mm / voxel_mm)` (0 without a band or a skin bound).
+    pub fn fat_band_layers(&self, voxel_mm: f64) -> usize {
+        match (self.skin_max_mm, self.fat_band_mm) {
+            (Some(_), Some(mm)) if mm > 0.0 => (mm / voxel_mm).round() as usize,
+            _ => 0,
         }
     }
 }
@@ -183,6 +214,14 @@ pub fn classify(
     if !(voxel_mm.is_finite() && voxel_mm > 0.0) {
         return Err(TissueError::Voxel(voxel_mm));
     }
+    if let Some(b) = opts.fat_band_mm {
+        if !(b.is_finite() && b >= 0.0) || opts.skin_max_mm.is_none() {
+            return Err(TissueError::Options(format!(
+                "a fat band of {b} mm (needs a finite depth >= 0 and a skin bound; skin bound {:?})",
+                opts.skin_max_mm
+            )));
+        }
+    }
     let _span = tracing::debug_span!("classify", ?dims).entered();
     let air_cut = 0.5 * Tissue::Adipose.mu_per_mm();
     // The per-voxel passes run on rayon's pool, each collected in voxel
@@ -208,12 +247,16 @@ pub fn classify(
     // Depth below the outer edge in voxel layers (seeds: 1), by breadth-first
     // search through the breast, where the skin's depth is bounded.
     let max_layers = opts.skin_max_layers(voxel_mm);
+    let band_layers = opts.fat_band_layers(voxel_mm);
+    let mut fat_band = Vec::new();
     let depth_ok: Vec<bool> = if max_layers == usize::MAX {
         vec![true; mu.len()]
     } else {
         // u16 depths (a quarter of u32's memory): the search stops at
-        // `max_layers`, far below u16::MAX for any skin bound in voxels.
+        // `max_layers` (and the fat band's), far below u16::MAX for any
+        // skin bound in voxels.
         let cap = max_layers.min(u16::MAX as usize - 1) as u16;
+        let search = (max_layers + band_layers).min(u16::MAX as usize - 1) as u16;
         let mut depth = vec![u16::MAX; mu.len()];
         let mut queue = std::collections::VecDeque::with_capacity(seeds.len());
         for &i in &seeds {
@@ -221,7 +264,7 @@ pub fn classify(
             queue.push_back(i);
         }
         while let Some(i) = queue.pop_front() {
-            if depth[i] >= cap {
+            if depth[i] >= search {
                 continue;
             }
             for (n, _) in neighbours(i, dims) {
@@ -232,6 +275,9 @@ pub fn classify(
                     }
                 }
             }
+        }
+        if band_layers > 0 {
+            fat_band = depth.par_iter().map(|&d| d > cap && d <= search).collect();
         }
         depth.par_iter().map(|&d| d <= cap).collect()
     };
@@ -267,7 +313,9 @@ pub fn classify(
     // Counted per chunk, then each chunk's values written to its own part
     // of the vector: in voxel order, in parallel, without a second copy.
     const PART: usize = 1 << 16;
-    let keep = |i: usize| breast[i] && !skin[i];
+    // The fat band's values are the blurred skin's, not evidence of either
+    // class: left out of the fit as the skin is.
+    let keep = |i: usize| breast[i] && !skin[i] && !fat_band.get(i).copied().unwrap_or(false);
     let counts: Vec<usize> = (0..mu.len().div_ceil(PART))
         .into_par_iter()
         .map(|c| {
@@ -299,6 +347,8 @@ pub fn classify(
                 Tissue::Air.label()
             } else if skin[i] {
                 Tissue::Skin.label()
+            } else if fat_band.get(i).copied().unwrap_or(false) {
+                Tissue::Adipose.label()
             } else if (mu[i] as f64) >= mid {
                 // With two classes and one feature, the larger membership
                 // switches exactly at the midpoint of the centres.
@@ -1017,6 +1067,93 @@ mod tests {
                 .unwrap()
                 .labels
         );
+    }
+
+    /// The fat band: the layers under the skin's shell, as deep as the band,
+    /// are adipose whatever their value and left out of the fit; the skin
+    /// and everything deeper are as without the band; a band needs a skin
+    /// bound and a depth >= 0.
+    #[test]
+    fn the_fat_band_is_adipose_under_the_skin_and_nothing_else() {
+        let dims = [20, 12, 10];
+        let (mu, truth) = slab(dims, 2);
+        let shell = ClassifyOptions::default();
+        let band = ClassifyOptions {
+            fat_band_mm: Some(1.6),
+            ..shell
+        };
+        assert_eq!(band.fat_band_layers(0.8), 2);
+        assert_eq!(shell.fat_band_layers(0.8), 0);
+        let plain = classify(&mu, dims, 0.8, &shell).unwrap();
+        let c = classify(&mu, dims, 0.8, &band).unwrap();
+        let [nx, ny, _] = dims;
+        let mut in_band = 0;
+        for (i, &l) in c.labels.iter().enumerate() {
+            let (x, y, z) = (i % nx, (i / nx) % ny, i / (nx * ny));
+            if mu[i] == 0.0 {
+                assert_eq!(l, 0);
+                continue;
+            }
+            // Layers below the outer faces, as in the shell's test.
+            let depth = 1 + (x - 2).min(17 - x).min(y).min(9 - y).min(7 - z);
+            match depth {
+                1..=2 => assert_eq!(l, 2, "skin at {x},{y},{z}"),
+                3..=4 => {
+                    assert_eq!(l, 1, "band at {x},{y},{z}");
+                    in_band += usize::from(truth[i] == 3);
+                }
+                _ => assert_eq!(
+                    l == 3,
+                    mu[i] as f64 >= split_point(c.centres),
+                    "deeper at {x},{y},{z}"
+                ),
+            }
+        }
+        assert!(in_band > 0, "the slab puts gland in the band");
+        // The deeper voxels keep their classes (the fit's centres are those
+        // of the deeper voxels, one population each here).
+        let deep_gland = |labels: &[u8]| {
+            (0..labels.len())
+                .filter(|&i| {
+                    let (x, y, z) = (i % nx, (i / nx) % ny, i / (nx * ny));
+                    mu[i] != 0.0 && 1 + (x - 2).min(17 - x).min(y).min(9 - y).min(7 - z) > 4
+                })
+                .filter(|&i| labels[i] == 3)
+                .count()
+        };
+        assert_eq!(deep_gland(&c.labels), deep_gland(&plain.labels));
+        // A band of 0 mm is no band.
+        let zero = ClassifyOptions {
+            fat_band_mm: Some(0.0),
+            ..shell
+        };
+        assert_eq!(classify(&mu, dims, 0.8, &zero).unwrap(), plain);
+        for bad in [
+            ClassifyOptions {
+                fat_band_mm: Some(-0.8),
+                ..shell
+            },
+            ClassifyOptions {
+                fat_band_mm: Some(f64::NAN),
+                ..shell
+            },
+            ClassifyOptions {
+                fat_band_mm: Some(0.8),
+                ..ClassifyOptions::paper()
+            },
+        ] {
+            assert!(
+                matches!(classify(&mu, dims, 0.8, &bad), Err(TissueError::Options(_))),
+                "{bad:?}"
+            );
+        }
+        // The JSON of a rule without a band is the one written before bands
+        // existed, and reads back.
+        let j = serde_json::to_string(&shell).unwrap();
+        assert!(!j.contains("fat_band"), "{j}");
+        assert_eq!(serde_json::from_str::<ClassifyOptions>(&j).unwrap(), shell);
+        let j = serde_json::to_string(&band).unwrap();
+        assert_eq!(serde_json::from_str::<ClassifyOptions>(&j).unwrap(), band);
     }
 
     /// The fit recovers an exact line, and refuses what cannot be fit.

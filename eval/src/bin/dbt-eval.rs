@@ -546,7 +546,9 @@ struct ClassificationArgs {
     /// Skin variants to compare, comma separated: `none` (the paper's
     /// unbounded growth), a depth bound in mm (`2.4`: growth through
     /// voxels >= the seed mean, at most that deep), or `shell:MM` (every
-    /// voxel within the bound).
+    /// voxel within the bound); a bounded rule may add a subcutaneous fat
+    /// band, `+fat:MM` (`shell:1.6+fat:0.8`:
+    /// `dbt_tissue::ClassifyOptions::fat_band_mm`).
     #[arg(long, default_value = "none,1.6,2.4,3.2,shell:1.6,shell:2.4")]
     skin: String,
     /// Also the patient-specific MGD of each variant against the
@@ -636,6 +638,11 @@ struct CalibrateArgs {
     /// compressed thickness (`dbt_tissue::GlandularityCalibration::fit_with_thickness`).
     #[arg(long)]
     thickness_term: bool,
+    /// The skin rule to fit under (as `classification --skin`; default:
+    /// the firmware's). The file records it; a file of another rule is
+    /// started afresh.
+    #[arg(long)]
+    skin: Option<String>,
     #[command(flatten)]
     runtime: Runtime,
 }
@@ -687,9 +694,28 @@ struct PictureArgs {
     model: Option<PathBuf>,
 }
 
-/// A skin variant of `dbt-eval classification`: `none`, `MM` or `shell:MM`.
+/// A skin variant of `dbt-eval classification`: `none`, `MM` or
+/// `shell:MM`, a bounded one with `+fat:MM` after it.
 fn parse_skin_variant(v: &str) -> Result<dbt_tissue::ClassifyOptions> {
     use dbt_tissue::{ClassifyOptions, SkinRule};
+    let (skin, fat_band_mm) = match v.split_once("+fat:") {
+        Some((skin, mm)) => (
+            skin,
+            Some(
+                mm.parse::<f64>()
+                    .ok()
+                    .filter(|x| x.is_finite() && *x > 0.0)
+                    .with_context(|| {
+                        format!("--skin: {v:?}: the fat band {mm:?} is not a positive number of mm")
+                    })?,
+            ),
+        ),
+        None => (v, None),
+    };
+    if fat_band_mm.is_some() && skin == "none" {
+        bail!("--skin: {v:?}: a fat band needs a skin bound (`MM` or `shell:MM` before `+fat:`)");
+    }
+    let v = skin;
     let (rule, mm) = match v.strip_prefix("shell:") {
         Some(mm) => (SkinRule::Shell, mm),
         None => (SkinRule::Grow, v),
@@ -708,16 +734,21 @@ fn parse_skin_variant(v: &str) -> Result<dbt_tissue::ClassifyOptions> {
     Ok(ClassifyOptions {
         skin_max_mm: bound,
         skin_rule: rule,
+        fat_band_mm,
         ..ClassifyOptions::default()
     })
 }
 
 /// The table name of a skin variant.
 fn skin_variant_name(o: &dbt_tissue::ClassifyOptions) -> String {
-    match (o.skin_rule, o.skin_max_mm) {
+    let skin = match (o.skin_rule, o.skin_max_mm) {
         (_, None) => "grow, unbounded (paper)".into(),
         (dbt_tissue::SkinRule::Grow, Some(mm)) => format!("grow, <= {mm} mm"),
         (dbt_tissue::SkinRule::Shell, Some(mm)) => format!("shell {mm} mm"),
+    };
+    match o.fat_band_mm {
+        Some(mm) if o.skin_max_mm.is_some() => format!("{skin} + fat band {mm} mm"),
+        _ => skin,
     }
 }
 
@@ -2080,6 +2111,7 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
         out,
         carry_from,
         thickness_term,
+        skin,
         runtime,
     } = args;
     use dbt_model::{CalibrationFile, CALIBRATION_FILE};
@@ -2108,7 +2140,10 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
     .resolve(Some(&m))?;
     let g = m.geometry().clone();
     let noise = NoiseLevel::parse(&noise)?;
-    let classify = dbt_tissue::ClassifyOptions::default();
+    let classify = match skin {
+        Some(v) => parse_skin_variant(&v)?,
+        None => dbt_tissue::ClassifyOptions::default(),
+    };
     // The model without its settings (`PipelineOptions::with_model` is the
     // product's assembly): this command fits the calibration.
     let opts = dbt_pipeline::PipelineOptions {
@@ -2603,4 +2638,45 @@ fn run_paired(args: PairedArgs) -> Result<()> {
         write_json(&out, &json)?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dbt_tissue::{ClassifyOptions, SkinRule};
+
+    /// Every skin variant's spelling reads as the rule it names, the fat
+    /// band only under a bounded skin, and a bad one is refused naming it.
+    #[test]
+    fn skin_variants_parse_and_name_themselves() {
+        let d = ClassifyOptions::default();
+        assert_eq!(parse_skin_variant("shell:1.6").unwrap(), d);
+        assert_eq!(skin_variant_name(&d), "shell 1.6 mm");
+        let band = parse_skin_variant("shell:1.6+fat:0.8").unwrap();
+        assert_eq!(
+            band,
+            ClassifyOptions {
+                fat_band_mm: Some(0.8),
+                ..d
+            }
+        );
+        assert_eq!(skin_variant_name(&band), "shell 1.6 mm + fat band 0.8 mm");
+        let grow = parse_skin_variant("2.4+fat:1.6").unwrap();
+        assert_eq!(
+            (grow.skin_rule, grow.skin_max_mm, grow.fat_band_mm),
+            (SkinRule::Grow, Some(2.4), Some(1.6))
+        );
+        assert_eq!(parse_skin_variant("none").unwrap().skin_max_mm, None);
+        for bad in [
+            "none+fat:0.8",
+            "shell:1.6+fat:0",
+            "shell:1.6+fat:-1",
+            "shell:1.6+fat:x",
+            "shell:0",
+            "fat:0.8",
+        ] {
+            let e = parse_skin_variant(bad).unwrap_err().to_string();
+            assert!(e.contains(bad), "{bad}: {e}");
+        }
+    }
 }
