@@ -23,6 +23,9 @@
 #                   the shipped dbtor-x4t3qa's (about 20 min on 2 cores)
 #   PHANTOMS        validation breasts per row (10, the bars')
 #   CALIBRATION     validation breasts the calibration is fitted on (16)
+#   SKIN            the skin rule, as `dbt-eval classification --skin`
+#                   spells it (default: the firmware's); the calibrations
+#                   and every row use it
 #   CACHE           the trainer's cache (~/.cache/dbtor)
 #   SKIP_EXPORT=1   reuse OUT/model (a second pass, e.g. int8 after fp32)
 #
@@ -38,6 +41,9 @@ GPTQ=${GPTQ:-0}
 PHANTOMS=${PHANTOMS:-10}
 CALIBRATION=${CALIBRATION:-16}
 CACHE=${CACHE:-$HOME/.cache/dbtor}
+SKIN=${SKIN:-}
+skin=()
+[ -n "$SKIN" ] && skin=(--skin "$SKIN")
 EVAL=${EVAL:-target/release/dbt-eval}
 [ -f "training/runs/$RUN/BAR.md" ] || { echo "no training/runs/$RUN/BAR.md: write the bar before evaluating" >&2; exit 2; }
 ckpt="$CACHE/runs/$RUN/checkpoint.pt"
@@ -49,10 +55,11 @@ model="$OUT/model"
 mkdir -p "$OUT"
 t0=$SECONDS
 log() { echo "[shipping-bar $((SECONDS - t0)) s] $*" | tee -a "$OUT/bar.log" >&2; }
+log "skin rule: ${SKIN:-the firmware default}"
 log "run $RUN, checkpoint $(python3 -c 'import torch,sys; print(torch.load(sys.argv[1], map_location="cpu", weights_only=False).get("iteration", "?"))' "$ckpt" 2>/dev/null || echo '?'), train seed $seed, reconstructors $RECONSTRUCTORS, GPTQ $GPTQ"
 log "CPU: $(lscpu | sed -n 's/^Model name: *//p'), $(nproc) CPUs"
 if [ "${SKIP_EXPORT:-0}" != 1 ]; then
-    rm -rf "$model"
+    rm -rf "$model" "$OUT/calibrated.txt"
     gptq=()
     [ "$GPTQ" -gt 0 ] && gptq=(--gptq "$GPTQ" --gptq-asymmetric)
     (cd training && python3 -m dbtor.export --run "$CACHE/runs/$RUN" --data "$data" --out "$model" \
@@ -62,18 +69,23 @@ fi
 # Each precision calibrated on the anatomical validation breasts (mono; the
 # clinical row's corrected inputs fall back to it, as the firmware's do:
 # dbt_model::calibration::pick_calibration), unless the folder has it.
+# (calibrated.txt lists the precisions and skin rules fitted into this
+# folder's calibration file; a fit under another rule starts it afresh.)
+touch "$OUT/calibrated.txt"
+grep -q "^skin ${SKIN:-default}\$" "$OUT/calibrated.txt" || : > "$OUT/calibrated.txt"
 for p in ${RECONSTRUCTORS//,/ }; do
-    if python3 -c 'import json,sys; sys.exit(0 if sys.argv[2] in json.load(open(sys.argv[1]))["calibrations"] else 1)' \
-        "$model/glandularity-calibration.json" "$p" 2> /dev/null; then
+    if grep -qx "$p" "$OUT/calibrated.txt" && [ -f "$model/glandularity-calibration.json" ]; then
         log "$p: calibrated already"
         continue
     fi
     "$EVAL" calibrate --model "$model" --precision "$p" --population anatomical \
-        --phantoms "$CALIBRATION" --train-seed "$seed" >> "$OUT/bar.log" 2>&1
+        --phantoms "$CALIBRATION" --train-seed "$seed" "${skin[@]}" >> "$OUT/bar.log" 2>&1
+    grep -q "^skin " "$OUT/calibrated.txt" || echo "skin ${SKIN:-default}" >> "$OUT/calibrated.txt"
+    echo "$p" >> "$OUT/calibrated.txt"
     log "$p: calibrated on $CALIBRATION anatomical validation breasts"
 done
 common=(--split validation --train-seed "$seed" --phantoms "$PHANTOMS" --model "$model"
-    --dose-uncertainty 0.05 --reconstructors "$RECONSTRUCTORS")
+    --dose-uncertainty 0.05 --reconstructors "$RECONSTRUCTORS" "${skin[@]}")
 row() {
     local name=$1
     shift
