@@ -172,6 +172,19 @@ grep -q '^| smoke-slot |' "$tmp/slot/LEDGER.md" || { echo "smoke test: no ledger
 $PY -m dbtor.state show "$tmp/slot/state.dbts" > "$tmp/slot-state.json"
 grep -q '"iteration": 4' "$tmp/slot-state.json" \
     || { echo "smoke test: the GPU slot's state is not at iteration 4"; exit 1; }
+# A U-Net run (issue #49 point 5) continued by the same command: the FBP of
+# its level, its input, added to the regenerated dataset before the first
+# segment hashes it.
+$PY -m dbtor.continue_run new smoke-unet --runs "$tmp/runs" \
+    --dataset "--slices 1500 --test-phantoms 0 --levels N8 --binning 4" \
+    --train "--model unet --level N8 --iters 2 --batch 2 --val-every 2 --log-every 1"
+"${cont[@]}" --run smoke-unet --no-compile > "$tmp/unet.log" 2>&1 \
+    || { echo "smoke test: the U-Net run"; cat "$tmp/unet.log"; exit 1; }
+grep -q "^adding the FBP" "$tmp/unet.log" && grep -q "stopped at iteration 2 of 2" "$tmp/unet.log" \
+    || { echo "smoke test: the U-Net run did not add its FBP or did not finish"; cat "$tmp/unet.log"; exit 1; }
+ds=$(ls -d "$tmp"/cache/datasets/smoke-unet-0-*)
+[ -s "$ds/train/fbp-N8.f32" ] && [ -s "$ds/validation/fbp-N8.f32" ] \
+    || { echo "smoke test: the U-Net run's dataset has no FBP"; exit 1; }
 # Quantisation-aware fine-tuning (2 iterations) and an export of its int8
 # blocks beside the first run's fp32 ones.
 $PY -m dbtor.train --data "$tmp/ds" --out "$tmp/qat-run" --init "$tmp/run" --qat --qat-calibration 2 \

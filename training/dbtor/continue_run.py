@@ -122,6 +122,39 @@ def make_dataset(a, entry, out, threads, child):
     print(f"dataset made in {time.time() - t:.0f} s", flush=True)
 
 
+def unet_level(recipe):
+    """The noise level a U-Net run learns from (its `--level`, N8 by
+    default), or None for a run of another model."""
+    t = shlex.split(recipe["train"])
+    if "unet" not in [t[i + 1] for i, x in enumerate(t[:-1]) if x == "--model"]:
+        return None
+    return next((t[i + 1] for i, x in enumerate(t[:-1]) if x == "--level"), "N8")
+
+
+def add_fbp(a, entry, d, level, threads, child):
+    """A U-Net run's input: the FBP of `level`'s sinograms added to the
+    dataset `d` (`host-sim fbp`, the same generator commit), once; made
+    before the first segment hashes the dataset, so every segment's
+    dataset (regenerated on any machine) holds it too."""
+    with open(os.path.join(d, "manifest.json")) as f:
+        splits = json.load(f)["splits"]
+    # Registered in the manifest split by split, after its file is whole.
+    if all(any(x["name"] == f"fbp-{level}" for x in sp["arrays"]) for sp in splits):
+        return
+    binary = host_sim_binary(a, entry["generator_commit"], threads)
+    cmd = [binary, "fbp", "--data", d, "--level", level]
+    print(f"adding the FBP: {shlex.join(cmd)}", flush=True)
+    t = time.time()
+    env = dict(os.environ, RAYON_NUM_THREADS=str(threads))
+    p = subprocess.Popen(cmd, env=env, cwd=REPO, stderr=subprocess.DEVNULL if a.quiet else None)
+    child["p"] = p
+    rc = p.wait()
+    child["p"] = None
+    if rc:
+        sys.exit(f"host-sim fbp failed (exit {rc}) on {d}")
+    print(f"FBP added in {time.time() - t:.0f} s", flush=True)
+
+
 def parse_until(s):
     """HH:MM (UTC, today or tomorrow) or an ISO date-time; a Unix time."""
     now = datetime.datetime.now(datetime.timezone.utc)
@@ -260,6 +293,8 @@ def main(argv=None):
         d = os.path.join(cache, "datasets", dataset_key(name, k, entry))
         if not os.path.exists(os.path.join(d, "manifest.json")):
             make_dataset(a, entry, d, threads, child)
+        if unet_level(recipe):
+            add_fbp(a, entry, d, unet_level(recipe), threads, child)
         data.append(d)
     init = []
     if not os.path.exists(state) and recipe.get("init"):
