@@ -101,6 +101,18 @@ def host_sim_binary(a, commit, threads):
     return binary
 
 
+def run_host_sim(a, cmd, threads, child):
+    """Run host-sim's `cmd` on `threads` threads (stderr hidden with
+    --quiet), as the child a signal stops; its exit status and seconds."""
+    t = time.time()
+    env = dict(os.environ, RAYON_NUM_THREADS=str(threads))
+    p = subprocess.Popen(cmd, env=env, cwd=REPO, stderr=subprocess.DEVNULL if a.quiet else None)
+    child["p"] = p
+    rc = p.wait()
+    child["p"] = None
+    return rc, time.time() - t
+
+
 def make_dataset(a, entry, out, threads, child):
     """Generate one dataset of the recipe into `out` (through out.partial)."""
     binary = host_sim_binary(a, entry["generator_commit"], threads)
@@ -109,17 +121,12 @@ def make_dataset(a, entry, out, threads, child):
     os.makedirs(os.path.dirname(out), exist_ok=True)
     cmd = [binary, "dataset", "--out", part, *shlex.split(entry["args"])]
     print(f"generating {out}: {shlex.join(cmd)}", flush=True)
-    t = time.time()
-    env = dict(os.environ, RAYON_NUM_THREADS=str(threads))
-    p = subprocess.Popen(cmd, env=env, cwd=REPO, stderr=subprocess.DEVNULL if a.quiet else None)
-    child["p"] = p
-    rc = p.wait()
-    child["p"] = None
+    rc, secs = run_host_sim(a, cmd, threads, child)
     if rc:
         shutil.rmtree(part, ignore_errors=True)
         sys.exit(f"host-sim dataset failed (exit {rc})")
     os.replace(part, out)
-    print(f"dataset made in {time.time() - t:.0f} s", flush=True)
+    print(f"dataset made in {secs:.0f} s", flush=True)
 
 
 def unet_level(recipe):
@@ -144,15 +151,10 @@ def add_fbp(a, entry, d, level, threads, child):
     binary = host_sim_binary(a, entry["generator_commit"], threads)
     cmd = [binary, "fbp", "--data", d, "--level", level]
     print(f"adding the FBP: {shlex.join(cmd)}", flush=True)
-    t = time.time()
-    env = dict(os.environ, RAYON_NUM_THREADS=str(threads))
-    p = subprocess.Popen(cmd, env=env, cwd=REPO, stderr=subprocess.DEVNULL if a.quiet else None)
-    child["p"] = p
-    rc = p.wait()
-    child["p"] = None
+    rc, secs = run_host_sim(a, cmd, threads, child)
     if rc:
         sys.exit(f"host-sim fbp failed (exit {rc}) on {d}")
-    print(f"FBP added in {time.time() - t:.0f} s", flush=True)
+    print(f"FBP added in {secs:.0f} s", flush=True)
 
 
 def parse_until(s):
