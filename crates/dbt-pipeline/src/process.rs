@@ -1114,14 +1114,6 @@ fn process_layout<H: ToSinograms>(
 /// per glandular mass of a vanishing share).
 pub const PHYSICS_ONLY_MIN_GLANDULARITY: f64 = 0.001;
 
-/// The report of a gantry for which no model is trained (issue #51 point
-/// 3): the physics density of the checked counts is the glandularity; the
-/// model breast ([`crate::model_breast`]: the central view's outline, the
-/// nominal skin, an interior at that glandularity placed as
-/// [`PipelineOptions::physics_breast`] says) is dosed on
-/// the gantry's own geometry and its MGD is the one reported; no interval
-/// (none is validated for this method). Refused, naming why, where no
-/// physics density can be made: nothing else would stand behind a figure.
 /// The exposure's spectrum from the technique received, for both reports
 /// (the one place the technique becomes a spectrum:
 /// [`dbt_dose::xray::technique_spectrum`]): the tube's description and its
@@ -1139,6 +1131,14 @@ fn exposure_spectrum(
     Ok((tube, spectrum))
 }
 
+/// The report of a gantry for which no model is trained (issue #51 point
+/// 3): the physics density of the checked counts is the glandularity; the
+/// model breast ([`crate::model_breast`]: the central view's outline, the
+/// nominal skin, an interior at that glandularity placed as
+/// [`PipelineOptions::physics_breast`] says) is dosed on
+/// the gantry's own geometry and its MGD is the one reported; no interval
+/// (none is validated for this method). Refused, naming why, where no
+/// physics density can be made: nothing else would stand behind a figure.
 fn physics_only<H: ToSinograms>(
     layout: &H,
     acq: &SliceSinograms,
