@@ -314,8 +314,9 @@ pub fn classify(
     // of the vector: in voxel order, in parallel, without a second copy.
     const PART: usize = 1 << 16;
     // The fat band's values are the blurred skin's, not evidence of either
-    // class: left out of the fit as the skin is.
-    let keep = |i: usize| breast[i] && !skin[i] && !fat_band.get(i).copied().unwrap_or(false);
+    // class: left out of the fit as the skin is (empty without a band).
+    let in_band = |i: usize| fat_band.get(i).copied().unwrap_or(false);
+    let keep = |i: usize| breast[i] && !skin[i] && !in_band(i);
     let counts: Vec<usize> = (0..mu.len().div_ceil(PART))
         .into_par_iter()
         .map(|c| {
@@ -347,7 +348,7 @@ pub fn classify(
                 Tissue::Air.label()
             } else if skin[i] {
                 Tissue::Skin.label()
-            } else if fat_band.get(i).copied().unwrap_or(false) {
+            } else if in_band(i) {
                 Tissue::Adipose.label()
             } else if (mu[i] as f64) >= mid {
                 // With two classes and one feature, the larger membership
@@ -927,6 +928,17 @@ mod tests {
 
     /// A box of breast inside air: 1-voxel skin shell (except the chest wall),
     /// interior split into an adipose half and a glandular half.
+    /// Voxel `i`'s coordinates and its depth in layers below the outer
+    /// faces of `slab(dims, margin)` (the outer layer 1; the chest wall,
+    /// z = 0, is no outer face); for voxels inside the slab only (outside
+    /// it the subtraction underflows).
+    fn slab_depth(i: usize, [nx, ny, nz]: [usize; 3], margin: usize) -> ([usize; 3], usize) {
+        let (x, y, z) = (i % nx, (i / nx) % ny, i / (nx * ny));
+        let (xl, yl, zl) = (nx - margin - 1, ny - margin - 1, nz - margin - 1);
+        let d = 1 + (x - margin).min(xl - x).min(y).min(yl - y).min(zl - z);
+        ([x, y, z], d)
+    }
+
     fn slab(dims: [usize; 3], margin: usize) -> (Vec<f32>, Vec<u8>) {
         let [nx, ny, nz] = dims;
         let mut mu = vec![0f32; nx * ny * nz];
@@ -1039,16 +1051,14 @@ mod tests {
             ..ClassifyOptions::default()
         };
         let c = classify(&mu, dims, 0.8, &o).unwrap();
-        let [nx, ny, _] = dims;
         for (i, &l) in c.labels.iter().enumerate() {
-            let (x, y, z) = (i % nx, (i / nx) % ny, i / (nx * ny));
             if mu[i] == 0.0 {
                 assert_eq!(l, 0);
                 continue;
             }
             // Depth in layers below the outer faces (x: 2..=17, y: 0..=9,
             // z: ..=7; the chest wall z = 0 is not an outer face).
-            let depth = 1 + (x - 2).min(17 - x).min(y).min(9 - y).min(7 - z);
+            let ([x, y, z], depth) = slab_depth(i, dims, 2);
             assert_eq!(
                 l == 2,
                 depth <= 2,
@@ -1086,16 +1096,14 @@ mod tests {
         assert_eq!(shell.fat_band_layers(0.8), 0);
         let plain = classify(&mu, dims, 0.8, &shell).unwrap();
         let c = classify(&mu, dims, 0.8, &band).unwrap();
-        let [nx, ny, _] = dims;
         let mut in_band = 0;
         for (i, &l) in c.labels.iter().enumerate() {
-            let (x, y, z) = (i % nx, (i / nx) % ny, i / (nx * ny));
             if mu[i] == 0.0 {
                 assert_eq!(l, 0);
                 continue;
             }
             // Layers below the outer faces, as in the shell's test.
-            let depth = 1 + (x - 2).min(17 - x).min(y).min(9 - y).min(7 - z);
+            let ([x, y, z], depth) = slab_depth(i, dims, 2);
             match depth {
                 1..=2 => assert_eq!(l, 2, "skin at {x},{y},{z}"),
                 3..=4 => {
@@ -1114,11 +1122,7 @@ mod tests {
         // of the deeper voxels, one population each here).
         let deep_gland = |labels: &[u8]| {
             (0..labels.len())
-                .filter(|&i| {
-                    let (x, y, z) = (i % nx, (i / nx) % ny, i / (nx * ny));
-                    mu[i] != 0.0 && 1 + (x - 2).min(17 - x).min(y).min(9 - y).min(7 - z) > 4
-                })
-                .filter(|&i| labels[i] == 3)
+                .filter(|&i| mu[i] != 0.0 && slab_depth(i, dims, 2).1 > 4 && labels[i] == 3)
                 .count()
         };
         assert_eq!(deep_gland(&c.labels), deep_gland(&plain.labels));
