@@ -698,38 +698,29 @@ struct PictureArgs {
 /// `shell:MM`, a bounded one with `+fat:MM` after it.
 fn parse_skin_variant(v: &str) -> Result<dbt_tissue::ClassifyOptions> {
     use dbt_tissue::{ClassifyOptions, SkinRule};
+    // A finite positive number of mm, or None.
+    let positive_mm = |mm: &str| mm.parse::<f64>().ok().filter(|x| x.is_finite() && *x > 0.0);
     let (skin, fat_band_mm) = match v.split_once("+fat:") {
         Some((skin, mm)) => (
             skin,
-            Some(
-                mm.parse::<f64>()
-                    .ok()
-                    .filter(|x| x.is_finite() && *x > 0.0)
-                    .with_context(|| {
-                        format!("--skin: {v:?}: the fat band {mm:?} is not a positive number of mm")
-                    })?,
-            ),
+            Some(positive_mm(mm).with_context(|| {
+                format!("--skin: {v:?}: the fat band {mm:?} is not a positive number of mm")
+            })?),
         ),
         None => (v, None),
     };
     if fat_band_mm.is_some() && skin == "none" {
         bail!("--skin: {v:?}: a fat band needs a skin bound (`MM` or `shell:MM` before `+fat:`)");
     }
-    let v = skin;
-    let (rule, mm) = match v.strip_prefix("shell:") {
+    let (rule, mm) = match skin.strip_prefix("shell:") {
         Some(mm) => (SkinRule::Shell, mm),
-        None => (SkinRule::Grow, v),
+        None => (SkinRule::Grow, skin),
     };
     let bound = match mm {
         "none" if rule == SkinRule::Grow => None,
-        mm => Some(
-            mm.parse::<f64>()
-                .ok()
-                .filter(|x| x.is_finite() && *x > 0.0)
-                .with_context(|| {
-                    format!("--skin: {v:?} is not `none`, a positive number of mm, or `shell:MM`")
-                })?,
-        ),
+        mm => Some(positive_mm(mm).with_context(|| {
+            format!("--skin: {skin:?} is not `none`, a positive number of mm, or `shell:MM`")
+        })?),
     };
     Ok(ClassifyOptions {
         skin_max_mm: bound,
