@@ -59,29 +59,21 @@ log "skin rule: ${SKIN:-the firmware default}"
 log "run $RUN, checkpoint $(python3 -c 'import torch,sys; print(torch.load(sys.argv[1], map_location="cpu", weights_only=False).get("iteration", "?"))' "$ckpt" 2>/dev/null || echo '?'), train seed $seed, reconstructors $RECONSTRUCTORS, GPTQ $GPTQ"
 log "CPU: $(lscpu | sed -n 's/^Model name: *//p'), $(nproc) CPUs"
 if [ "${SKIP_EXPORT:-0}" != 1 ]; then
-    rm -rf "$model" "$OUT/calibrated.txt"
+    rm -rf "$model"
     gptq=()
     [ "$GPTQ" -gt 0 ] && gptq=(--gptq "$GPTQ" --gptq-asymmetric)
     (cd training && python3 -m dbtor.export --run "$CACHE/runs/$RUN" --data "$data" --out "$model" \
         --name "$RUN-n8" --calibration 16 --fixtures 2 "${gptq[@]}") >> "$OUT/bar.log" 2>&1
     log "exported $model"
 fi
-# Each precision calibrated on the anatomical validation breasts (mono; the
-# clinical row's corrected inputs fall back to it, as the firmware's do:
-# dbt_model::calibration::pick_calibration), unless the folder has it.
-# (calibrated.txt lists the precisions and skin rules fitted into this
-# folder's calibration file; a fit under another rule starts it afresh.)
-touch "$OUT/calibrated.txt"
-grep -q "^skin ${SKIN:-default}\$" "$OUT/calibrated.txt" || : > "$OUT/calibrated.txt"
+# Each precision calibrated on the anatomical validation breasts under the
+# rule (mono; the clinical row's corrected inputs fall back to it, as the
+# firmware's do: dbt_model::calibration::pick_calibration). A fit under
+# another rule than the file's starts the file afresh, so every precision
+# the rows read is fitted here, under this rule.
 for p in ${RECONSTRUCTORS//,/ }; do
-    if grep -qx "$p" "$OUT/calibrated.txt" && [ -f "$model/glandularity-calibration.json" ]; then
-        log "$p: calibrated already"
-        continue
-    fi
     "$EVAL" calibrate --model "$model" --precision "$p" --population anatomical \
         --phantoms "$CALIBRATION" --train-seed "$seed" "${skin[@]}" >> "$OUT/bar.log" 2>&1
-    grep -q "^skin " "$OUT/calibrated.txt" || echo "skin ${SKIN:-default}" >> "$OUT/calibrated.txt"
-    echo "$p" >> "$OUT/calibrated.txt"
     log "$p: calibrated on $CALIBRATION anatomical validation breasts"
 done
 common=(--split validation --train-seed "$seed" --phantoms "$PHANTOMS" --model "$model"

@@ -291,12 +291,13 @@ def main(argv=None):
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)}
     data = []
+    fbp_level = unet_level(recipe)
     for k, entry in enumerate(recipe["datasets"]):
         d = os.path.join(cache, "datasets", dataset_key(name, k, entry))
         if not os.path.exists(os.path.join(d, "manifest.json")):
             make_dataset(a, entry, d, threads, child)
-        if unet_level(recipe):
-            add_fbp(a, entry, d, unet_level(recipe), threads, child)
+        if fbp_level:
+            add_fbp(a, entry, d, fbp_level, threads, child)
         data.append(d)
     init = []
     if not os.path.exists(state) and recipe.get("init"):
