@@ -32,7 +32,12 @@ class Block(nn.Module):
         )
 
     def forward(self, state, aux):
-        return state + self.net(torch.cat([state, aux], dim=1))
+        x = torch.cat([state, aux], dim=1)
+        if state.is_contiguous(memory_format=torch.channels_last) and state.shape[1] > 1:
+            # channels-last in, channels-last through the convolutions (the
+            # concatenation of a 1-channel aux may have fallen back to NCHW)
+            x = x.contiguous(memory_format=torch.channels_last)
+        return state + self.net(x)
 
 
 class PrimalDual(nn.Module):
@@ -41,6 +46,10 @@ class PrimalDual(nn.Module):
     def __init__(self, op, blocks=10, use_mask=True):
         super().__init__()
         self.op = op
+        # channels_last(): the state tensors and convolutions in NHWC (the
+        # layout oneDNN runs on AMX and AVX-512 BF16); a layout only, the
+        # arithmetic and the state_dict are the same
+        self.memory_format = torch.contiguous_format
         self.use_mask = use_mask
         self.n_blocks = blocks
         extra = 1 if use_mask else 0
@@ -51,8 +60,8 @@ class PrimalDual(nn.Module):
         """g: [B,1,V,D] normalised sinogram; m: [B,1,H,W] mask (0/1).
         Returns f[0] in units of x_scale, [B,1,H,W]."""
         b = g.shape[0]
-        h = g.new_zeros(b, STATE, *self.op.sino_shape)
-        f = g.new_zeros(b, STATE, *self.op.image_shape)
+        h = g.new_zeros(b, STATE, *self.op.sino_shape).contiguous(memory_format=self.memory_format)
+        f = g.new_zeros(b, STATE, *self.op.image_shape).contiguous(memory_format=self.memory_format)
         pm = self.op.forward(m) if self.use_mask else None
         for i in range(self.n_blocks):
             pf = self.op.forward(f[:, 1:2])
@@ -62,3 +71,9 @@ class PrimalDual(nn.Module):
             aux = torch.cat([bh, m], 1) if self.use_mask else bh
             f = self.primal[i](f, aux)
         return f[:, 0:1]
+
+    def channels_last(self):
+        """The network in channels-last layout (weights and state); returns
+        self."""
+        self.memory_format = torch.channels_last
+        return self.to(memory_format=torch.channels_last)

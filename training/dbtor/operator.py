@@ -50,12 +50,16 @@ class Operator:
         return _Backproject.apply(sino, self)
 
 
+# The sparse products' label in torch.profiler's events (bench_step --profile).
+PROFILE_LABEL = "dbtor.projector"
+
+
 def _mm(a, x, out_shape):
     # Always in float32: the sparse product has no bfloat16 kernel, and under
     # --precision bf16 (train.py) only the convolutions run in bfloat16.
     b = x.shape[0]
     flat = x.reshape(b, -1).t().float().contiguous()
-    with torch.autocast(flat.device.type, enabled=False):
+    with torch.autocast(flat.device.type, enabled=False), torch.profiler.record_function(PROFILE_LABEL):
         y = torch.sparse.mm(a, flat).t().contiguous()
     return y.reshape(b, 1, *out_shape)
 
