@@ -196,6 +196,15 @@ struct Variant {
     note: String,
 }
 
+/// A row's engine, loaded and warmed up, waiting for its timed slices.
+struct Loaded {
+    name: String,
+    d: Dbtor,
+    load_s: f64,
+    engine: Engine,
+    precision: Precision,
+}
+
 fn role_median(d: &Dbtor, profs: &[SliceProfile], role: Role) -> f64 {
     let ks: Vec<usize> = d
         .manifest()
@@ -243,6 +252,7 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
         .collect();
     let mut variants: Vec<Variant> = Vec::new();
     let mut outputs: Vec<(String, Vec<f32>)> = Vec::new();
+    let mut loaded: Vec<Loaded> = Vec::new();
     let mut flops = None;
     let mut fast_projector_ms = f64::NAN;
     // The fast engine with each kernel level this CPU runs, fastest first
@@ -370,45 +380,6 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
             flops = d.block_flops().map(|v| v.iter().sum::<f64>());
         }
         let (first, _) = d.profile_slice(&sino, thickness)?; // warm-up
-        let mut profs = Vec::new();
-        for k in 0..a.reps {
-            eprint!("\r  {name}: slice {}/{}   ", k + 1, a.reps);
-            profs.push(d.profile_slice(&sino, thickness)?.1);
-        }
-        eprintln!();
-        let slice_ms = median(profs.iter().map(|p| p.total_ms).collect());
-        let projector_ms = median(profs.iter().map(|p| p.projector_ms).collect());
-        // The peers' slices add the projector of the best kernel (the first
-        // fast fp32 variant), not of a forced slower one.
-        if engine == Engine::Fast && precision == Precision::Fp32 && fast_projector_ms.is_nan() {
-            fast_projector_ms = projector_ms;
-        }
-        variants.push(Variant {
-            name: name.clone(),
-            slice_ms,
-            dual_ms: role_median(&d, &profs, Role::Dual),
-            primal_ms: role_median(&d, &profs, Role::Primal),
-            projector_ms,
-            ops: flops.unwrap_or(f64::NAN),
-            load_s,
-            buffers_mb: (engine == Engine::Fast).then(|| d.slice_buffer_bytes() as f64 / 1e6),
-            note: match (d.kernel(), fp32_blocks.len()) {
-                (Some(k), 0) => {
-                    let (wg, all) = d.winograd_convolutions();
-                    let wg = if wg > 0 {
-                        format!("; Winograd F(3x3,3x3) on {wg} of {all} convolutions (fewer multiply-adds than the floor's count)")
-                    } else {
-                        String::new()
-                    };
-                    format!("kernel {k}, projector {}{wg}", d.projector_kernel().name())
-                }
-                (Some(k), n) => format!(
-                    "kernels {k}, projector {}; {n} blocks fp32 (rate and floor as fp32)",
-                    d.projector_kernel().name()
-                ),
-                (None, _) => format!("projector {}", d.projector_kernel().name()),
-            },
-        });
         if toggled && precision == Precision::Fp32 {
             // The row before is the same kernel's direct convolution.
             if let Some((dn, dout)) = outputs.last() {
@@ -436,7 +407,64 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
                 eprintln!("  {name}: bit for bit {wn}'s output");
             }
         }
-        outputs.push((name, first));
+        outputs.push((name.clone(), first));
+        loaded.push(Loaded {
+            name,
+            d,
+            load_s,
+            engine,
+            precision,
+        });
+    }
+    // Every row's repetitions interleaved (one slice of each row in turn,
+    // `reps` rounds): a machine whose speed drifts during the run (another
+    // tenant, the clock) moves every row alike, so rows of the same run
+    // compare (issue #52's "within 5 % of the fastest").
+    let mut profs: Vec<Vec<SliceProfile>> = vec![Vec::with_capacity(a.reps); loaded.len()];
+    for k in 0..a.reps {
+        eprint!("\r  round {}/{} of {} rows   ", k + 1, a.reps, loaded.len());
+        for (l, p) in loaded.iter().zip(profs.iter_mut()) {
+            p.push(l.d.profile_slice(&sino, thickness)?.1);
+        }
+    }
+    eprintln!();
+    for (l, profs) in loaded.iter().zip(&profs) {
+        let (name, d, load_s, engine, precision) =
+            (l.name.clone(), &l.d, l.load_s, l.engine, l.precision);
+        let fp32_blocks_len = d.fp32_blocks().len();
+        let slice_ms = median(profs.iter().map(|p| p.total_ms).collect());
+        let projector_ms = median(profs.iter().map(|p| p.projector_ms).collect());
+        // The peers' slices add the projector of the best kernel (the first
+        // fast fp32 variant), not of a forced slower one.
+        if engine == Engine::Fast && precision == Precision::Fp32 && fast_projector_ms.is_nan() {
+            fast_projector_ms = projector_ms;
+        }
+        variants.push(Variant {
+            name: name.clone(),
+            slice_ms,
+            dual_ms: role_median(d, profs, Role::Dual),
+            primal_ms: role_median(d, profs, Role::Primal),
+            projector_ms,
+            ops: flops.unwrap_or(f64::NAN),
+            load_s,
+            buffers_mb: (engine == Engine::Fast).then(|| d.slice_buffer_bytes() as f64 / 1e6),
+            note: match (d.kernel(), fp32_blocks_len) {
+                (Some(k), 0) => {
+                    let (wg, all) = d.winograd_convolutions();
+                    let wg = if wg > 0 {
+                        format!("; Winograd F(3x3,3x3) on {wg} of {all} convolutions (fewer multiply-adds than the floor's count)")
+                    } else {
+                        String::new()
+                    };
+                    format!("kernel {k}, projector {}{wg}", d.projector_kernel().name())
+                }
+                (Some(k), n) => format!(
+                    "kernels {k}, projector {}; {n} blocks fp32 (rate and floor as fp32)",
+                    d.projector_kernel().name()
+                ),
+                (None, _) => format!("projector {}", d.projector_kernel().name()),
+            },
+        });
     }
     if a.peers {
         for precision in ["fp32", "int8"] {
