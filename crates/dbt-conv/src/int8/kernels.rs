@@ -193,7 +193,6 @@ pub(super) unsafe fn epilogue_bytes_avx512<const QO: bool>(
             _mm512_set1_ps(qo.scale),
             _mm512_set1_ps(qo.zero_point as f32),
         );
-        let za = _mm512_set1_ps(qa.zero_point as f32);
         let (io, ia) = (
             _mm512_set1_ps(1.0 / qo.scale),
             _mm512_set1_ps(1.0 / qa.scale),
@@ -203,17 +202,23 @@ pub(super) unsafe fn epilogue_bytes_avx512<const QO: bool>(
             _mm512_set1_ps(127.0),
             _mm512_setzero_ps(),
         );
-        let off = _mm512_set1_epi32(128);
+        let zb = _mm512_set1_epi32(qa.zero_point as i32 + 128);
+        let big = _mm512_set1_ps(1.0e9);
         assert!(tile.len().is_multiple_of(gw) && (x + tile.len() / gw) * p.ocp <= out.len());
-        for (px, t) in tile.chunks_exact(gw).enumerate() {
-            let o = out[(x + px) * p.ocp + g0..].as_mut_ptr();
-            for jv in (0..gw).step_by(L) {
-                let c = g0 + jv;
+        // 16 channels at a time, their constants held over the tile's
+        // pixels (the same operations per value as pixel by pixel)
+        for jv in (0..gw).step_by(L) {
+            let c = g0 + jv;
+            let corr = _mm512_loadu_si512(p.corr.as_ptr().add(c) as *const __m512i);
+            let scale = _mm512_loadu_ps(p.scale.as_ptr().add(c));
+            let bias = _mm512_loadu_ps(p.bias.as_ptr().add(c));
+            let slope = _mm512_loadu_ps(p.slope.as_ptr().add(c));
+            for (px, t) in tile.chunks_exact(gw).enumerate() {
+                let o = out.as_mut_ptr().add((x + px) * p.ocp + c);
                 let acc = _mm512_loadu_si512(t.as_ptr().add(jv) as *const __m512i);
-                let corr = _mm512_loadu_si512(p.corr.as_ptr().add(c) as *const __m512i);
                 let v = _mm512_cvtepi32_ps(_mm512_sub_epi32(acc, corr));
-                let v = _mm512_mul_ps(v, _mm512_loadu_ps(p.scale.as_ptr().add(c)));
-                let mut v = _mm512_add_ps(v, _mm512_loadu_ps(p.bias.as_ptr().add(c)));
+                let v = _mm512_mul_ps(v, scale);
+                let mut v = _mm512_add_ps(v, bias);
                 if QO {
                     // Q/DQ of the convolution's output
                     let q = _mm512_roundscale_ps::<{ _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC }>(
@@ -224,14 +229,17 @@ pub(super) unsafe fn epilogue_bytes_avx512<const QO: bool>(
                 }
                 // PReLU
                 let neg = _mm512_cmp_ps_mask::<_CMP_LT_OQ>(v, zero);
-                let v = _mm512_mask_mul_ps(v, neg, v, _mm512_loadu_ps(p.slope.as_ptr().add(c)));
-                // Q of the activation, stored as q + 128
-                let q = _mm512_roundscale_ps::<{ _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC }>(
-                    _mm512_mul_ps(v, ia),
-                );
-                let q = _mm512_min_ps(_mm512_max_ps(_mm512_add_ps(q, za), lo), hi);
-                let b = _mm512_add_epi32(_mm512_cvtps_epi32(q), off);
-                _mm_storeu_si128(o.add(jv) as *mut __m128i, _mm512_cvtepi32_epi8(b));
+                let v = _mm512_mask_mul_ps(v, neg, v, slope);
+                // Q of the activation, stored as q + 128: rounded to
+                // nearest even by the conversion (MXCSR's default, as
+                // `roundscale` rounds), the zero point and 128 added as
+                // integers, clamped to 0..=255 by `max` and the unsigned
+                // saturating narrowing: the float clamp's bytes for every
+                // finite value (`big` keeps the conversion in range)
+                let q = _mm512_min_ps(_mm512_mul_ps(v, ia), big);
+                let b = _mm512_add_epi32(_mm512_cvtps_epi32(q), zb);
+                let b = _mm512_max_epi32(b, _mm512_setzero_si512());
+                _mm_storeu_si128(o as *mut __m128i, _mm512_cvtusepi32_epi8(b));
             }
         }
     }
@@ -368,8 +376,14 @@ pub(super) unsafe fn epilogue_floats_avx2(
     epilogue_floats_impl(p, x, g0, tile, out)
 }
 
+/// [`epilogue_floats_impl`] 16 channels at a time, their constants held
+/// over the tile's pixels: the same operations per value (multiply then
+/// add, no fusion; the output's Q/DQ with the scale's reciprocal), so the
+/// portable epilogue's bits.
+///
 /// # Safety
-/// AVX-512F and BW (the body is safe code, compiled with them enabled).
+/// AVX-512F and BW; `tile` and `out` hold the tile's pixels for the channel
+/// group `g0`.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512bw")]
 pub(super) unsafe fn epilogue_floats_avx512(
@@ -379,7 +393,74 @@ pub(super) unsafe fn epilogue_floats_avx512(
     tile: &[i32],
     out: &mut [f32],
 ) {
-    epilogue_floats_impl(p, x, g0, tile, out)
+    match p.q_out {
+        // SAFETY: the contract.
+        Some(q) => unsafe { epilogue_floats_avx512_q::<true>(p, q, x, g0, tile, out) },
+        // SAFETY: as above (the parameters unused).
+        None => unsafe {
+            epilogue_floats_avx512_q::<false>(
+                p,
+                QuantParams {
+                    scale: 1.0,
+                    zero_point: 0,
+                },
+                x,
+                g0,
+                tile,
+                out,
+            )
+        },
+    }
+}
+
+/// [`epilogue_floats_avx512`] with the output's Q/DQ by `qo` (`QO`) or
+/// without.
+///
+/// # Safety
+/// As [`epilogue_floats_avx512`].
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512bw")]
+unsafe fn epilogue_floats_avx512_q<const QO: bool>(
+    p: &PackedI8,
+    qo: QuantParams,
+    x: usize,
+    g0: usize,
+    tile: &[i32],
+    out: &mut [f32],
+) {
+    // SAFETY: AVX-512F/BW per the contract; the assert bounds every tile
+    // pixel's group in `tile` and `out`, and the per-channel vectors hold
+    // all `ocp` channels, 16-lane groups from `g0`.
+    unsafe {
+        use std::arch::x86_64::*;
+        let gw = group_width(p.ocp, g0);
+        let (so, zo, io) = (
+            _mm512_set1_ps(qo.scale),
+            _mm512_set1_ps(qo.zero_point as f32),
+            _mm512_set1_ps(1.0 / qo.scale),
+        );
+        let (lo, hi) = (_mm512_set1_ps(-128.0), _mm512_set1_ps(127.0));
+        assert!(tile.len().is_multiple_of(gw) && (x + tile.len() / gw) * p.ocp <= out.len());
+        for jv in (0..gw).step_by(L) {
+            let c = g0 + jv;
+            let corr = _mm512_loadu_si512(p.corr.as_ptr().add(c) as *const __m512i);
+            let scale = _mm512_loadu_ps(p.scale.as_ptr().add(c));
+            let bias = _mm512_loadu_ps(p.bias.as_ptr().add(c));
+            for (px, t) in tile.chunks_exact(gw).enumerate() {
+                let acc = _mm512_loadu_si512(t.as_ptr().add(jv) as *const __m512i);
+                let v = _mm512_cvtepi32_ps(_mm512_sub_epi32(acc, corr));
+                let mut v = _mm512_add_ps(_mm512_mul_ps(v, scale), bias);
+                if QO {
+                    let q = _mm512_roundscale_ps::<{ _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC }>(
+                        _mm512_mul_ps(v, io),
+                    );
+                    let q = _mm512_min_ps(_mm512_max_ps(_mm512_add_ps(q, zo), lo), hi);
+                    v = _mm512_mul_ps(_mm512_sub_ps(q, zo), so);
+                }
+                _mm512_storeu_ps(out.as_mut_ptr().add((x + px) * p.ocp + c), v);
+            }
+        }
+    }
 }
 
 #[inline(always)]
@@ -848,5 +929,99 @@ unsafe fn pass_avxvnni<const NP: usize>(
             dbt_isa::ymm::storeu_si256(o as *mut __m256i, a0[p]);
             dbt_isa::ymm::storeu_si256(o.add(8) as *mut __m256i, a1[p]);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The AVX-512 epilogues give the portable ones' bytes and floats on
+    /// sums over the whole i32 range (both saturations of the byte, every
+    /// rounding), with and without the output's Q/DQ, negative and
+    /// positive zero points, 64- and 16-channel groups.
+    #[test]
+    fn avx512_epilogues_match_portable_over_the_whole_range() {
+        if !dbt_isa::kernel_test_runs("int8 avx512 epilogue", &["avx512f", "avx512bw"]) {
+            return;
+        }
+        let mut state = 0x9E37_79B9_7F4A_7C15u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        let mut saturated = (false, false);
+        for (out_ch, q_out, zp, scale) in [
+            (64, None, -7, 0.5f32),
+            (64, Some((0.7f32, 3i8)), 11, 1e-3),
+            (16, None, 20, 37.0),
+            (20, Some((0.01, -20)), -128, 1e-6),
+        ] {
+            let l = Int8Conv {
+                in_ch: 8,
+                out_ch,
+                weight: (0..out_ch * 8 * 9).map(|_| next() as i8).collect(),
+                weight_scale: (0..out_ch).map(|k| 0.5 + k as f32 * 0.1).collect(),
+                bias: (0..out_ch).map(|k| k as f32 * 3.5 - 40.0).collect(),
+                prelu: Some((0..out_ch).map(|k| 0.25 * k as f32 - 2.0).collect()),
+                q_out: q_out.map(|(scale, zero_point)| QuantParams { scale, zero_point }),
+                q_act: None,
+            };
+            let p = pack(
+                &l,
+                QuantParams {
+                    scale,
+                    zero_point: 5,
+                },
+                false,
+            );
+            let qa = QuantParams {
+                scale: 0.37,
+                zero_point: zp,
+            };
+            let g0 = 0;
+            let gw = group_width(p.ocp, g0);
+            let np = 24;
+            let tile: Vec<i32> = (0..np * gw)
+                .map(|k| match k % 7 {
+                    0 => i32::MAX - (next() % 5) as i32,
+                    1 => i32::MIN + (next() % 5) as i32,
+                    2 => (next() % 600) as i32 - 300,
+                    _ => next() as i32 >> (next() % 31),
+                })
+                .collect();
+            let (mut want, mut got) = (vec![0u8; np * p.ocp], vec![0u8; np * p.ocp]);
+            epilogue_bytes_impl(&p, qa, 0, g0, &tile, &mut want);
+            // SAFETY: AVX-512F/BW present (checked above).
+            unsafe {
+                if p.q_out.is_some() {
+                    epilogue_bytes_avx512::<true>(&p, qa, 0, g0, &tile, &mut got)
+                } else {
+                    epilogue_bytes_avx512::<false>(&p, qa, 0, g0, &tile, &mut got)
+                }
+            }
+            assert_eq!(
+                got, want,
+                "bytes, {out_ch} channels, {q_out:?}, zero point {zp}"
+            );
+            saturated.0 |= want.contains(&0);
+            saturated.1 |= want.contains(&255);
+            let (mut want, mut got) = (vec![0f32; np * p.ocp], vec![0f32; np * p.ocp]);
+            epilogue_floats_impl(&p, 0, g0, &tile, &mut want);
+            // SAFETY: as above.
+            unsafe { epilogue_floats_avx512(&p, 0, g0, &tile, &mut got) };
+            let same = got
+                .iter()
+                .zip(&want)
+                .all(|(a, b)| a.to_bits() == b.to_bits());
+            assert!(same, "floats, {out_ch} channels, {q_out:?}");
+        }
+        assert_eq!(
+            saturated,
+            (true, true),
+            "both of the byte's saturations reached"
+        );
     }
 }
