@@ -6,32 +6,73 @@
 //! channels-last buffer) of `cin4` bytes (their channels), and each weight
 //! tile `B` is the tap's packed weights (`PackedI8::w`, `[tap][cin4 / 4][ocp][4]`:
 //! `cin4 / 4` rows of 16 output channels x 4 bytes, exactly AMX's layout of
-//! the right-hand operand, `ocp * 4` bytes apart); nine `tdpbusd` per
-//! 16-channel block accumulate the sums of the direct kernel, exactly. Up to
-//! four 16-channel blocks (`ocp <= 64`) and `cin4 <= 64`; other layers, and
-//! the last `w % 16` pixels of a row, run the AVX-512 VNNI tile.
+//! the right-hand operand, `ocp * 4` bytes apart). Thin inputs (`3 * cin4 <=
+//! 64`, the blocks' first convolutions) whose pixels are `cin4` bytes apart
+//! take a kernel row's three taps in one product: a tile row of `3 * cin4`
+//! bytes from a pixel holds it and its two right neighbours, against
+//! `PackedI8::w_rows` (three products instead of nine). The four sum tiles
+//! are shared by [`blocking`]: two 16-pixel blocks by two 16-channel blocks
+//! for 32 or 64 channels, with two `A` and two `B` tiles (AMX does not rename
+//! tiles: alternating lets a load proceed while a product reads the other).
+//! The products accumulate the direct kernel's sums exactly. Up to 64 input
+//! bytes and four 16-channel blocks (`ocp <= 64`); other layers, and the
+//! last `w % 16` pixels of a row, run the AVX-512 VNNI tile.
 //!
 //! Linux gives a process AMX's tile data only on request
 //! (`arch_prctl(ARCH_REQ_XCOMP_PERM, XFEATURE_XTILEDATA)`); [`available`]
 //! asks once. Each worker thread loads the tile configuration before its
 //! products and releases the tiles after.
 //!
-//! **Not run on AMX hardware yet** (no session's CPU has had it): the
-//! kernel is reached only when asked for (`DBTOR_KERNEL=amx`), never by the
-//! default dispatch, and an [`super::Int8Block`] on it first checks a
-//! convolution against the portable kernel ([`self_check`]) and refuses AMX
-//! (naming the difference) if they differ. Its tests run where the CPU has
-//! AMX-INT8 (`DBTOR_REQUIRE_ISA=amx_int8` makes them compulsory). On every
-//! CPU, the kernel's own code (addresses, tile configuration, operand
-//! layouts, epilogue) runs on an emulation of the six AMX instructions it
-//! uses, as Intel's reference defines them, with every byte accessed checked
-//! against its buffers (`tests::Emulated`), and gives the portable kernel's
-//! sums: what is left unproven is the hardware, not the kernel's use of it.
+//! The kernel is a candidate of the measured choice (`crate::select`) where
+//! the CPU has AMX-INT8 and the OS grants the tiles; `DBTOR_KERNEL=amx`
+//! forces it. An [`super::Int8Block`] on it first checks a convolution
+//! against the portable kernel ([`self_check`]) and refuses AMX (naming the
+//! difference) if they differ. Its hardware test runs where the CPU has
+//! AMX-INT8 (`DBTOR_REQUIRE_ISA=amx_int8` makes it compulsory; it ran on an
+//! Intel Xeon with AMX). On every CPU, the kernel's own code (addresses,
+//! tile configuration, operand layouts, epilogue) runs on an emulation of
+//! the six AMX instructions it uses, as Intel's reference defines them,
+//! with every byte accessed checked against its buffers (`tests::Emulated`),
+//! and gives the portable kernel's sums.
 
 use super::*;
 
 /// Pixels per tile (the rows of `A` and `C`).
 const MT: usize = 16;
+
+/// The first of the two pixel tiles `A` (tmm4, tmm5) and of the two weight
+/// tiles `B` (tmm6, tmm7); the sums `C` are tmm0-tmm3.
+const A0: usize = 4;
+const B0: usize = 6;
+
+/// Most 16-pixel blocks one pass holds.
+const PB_MAX: usize = 4;
+
+/// How the four sum tiles are shared for a layer of `nq` 16-channel
+/// blocks: (16-pixel blocks, channel blocks) per pass. Each tap's pixel
+/// tile is loaded once per pass and used for every channel block, each
+/// weight tile (while two fit) for every pixel block; AMX does not rename
+/// tiles, so alternating between two A and two B tiles lets a load proceed
+/// while the previous product still reads the other. One block of 64
+/// channels takes two passes of 2 x 2: four tile loads per four products,
+/// where one pass of 1 x 4 takes five.
+fn blocking(nq: usize) -> (usize, usize) {
+    match nq {
+        1 => (4, 1),
+        2 | 4 => (2, 2),
+        _ => (1, nq),
+    }
+}
+
+/// The start of the epilogue group holding channel `c` (groups of
+/// [`group_width`] from 0).
+fn group_start(ocp: usize, c: usize) -> usize {
+    let mut g0 = 0;
+    while g0 + group_width(ocp, g0) <= c {
+        g0 += group_width(ocp, g0);
+    }
+    g0
+}
 
 /// Whether a layer runs on the AMX tiles (else its direct AVX-512 tile).
 pub(super) fn eligible(p: &PackedI8) -> bool {
@@ -85,8 +126,8 @@ fn request_tiles() -> bool {
 }
 
 /// The 64-byte tile configuration (palette 1): tiles 0-3 the sums `C`
-/// (16 rows of 16 i32), tile 4 the pixels `A` (16 rows of `cin4` bytes),
-/// tile 5 the weights `B` (`cin4 / 4` rows of 64 bytes).
+/// (16 rows of 16 i32), tiles 4 and 5 the pixels `A` (16 rows of `cin4`
+/// bytes), tiles 6 and 7 the weights `B` (`cin4 / 4` rows of 64 bytes).
 #[repr(C, align(64))]
 struct TileConfig {
     palette: u8,
@@ -108,7 +149,9 @@ const _: () = {
 };
 
 impl TileConfig {
-    fn new(cin4: usize) -> Self {
+    /// Products over `k` bytes: `A` is 16 rows of `k` bytes, `B` `k / 4`
+    /// rows of 64.
+    fn new(k: usize) -> Self {
         let mut c = Self {
             palette: 1,
             start_row: 0,
@@ -120,10 +163,14 @@ impl TileConfig {
             c.colsb[t] = 64;
             c.rows[t] = MT as u8;
         }
-        c.colsb[4] = cin4 as u16;
-        c.rows[4] = MT as u8;
-        c.colsb[5] = 64;
-        c.rows[5] = (cin4 / 4) as u8;
+        for t in 4..6 {
+            c.colsb[t] = k as u16;
+            c.rows[t] = MT as u8;
+        }
+        for t in 6..8 {
+            c.colsb[t] = 64;
+            c.rows[t] = (k / 4) as u8;
+        }
         c
     }
 }
@@ -149,8 +196,9 @@ pub(super) fn row(
     thread_local! {
         static SUMS: std::cell::RefCell<Vec<i32>> = const { std::cell::RefCell::new(Vec::new()) };
     }
-    // 16 pixels x ocp sums, group by group in the epilogue's layout
-    crate::with_scratch(&SUMS, MT * ocp, |sums| {
+    // up to 4 x 16 pixels x ocp sums, block by block, group by group in
+    // the epilogue's layout
+    crate::with_scratch(&SUMS, MT * PB_MAX * ocp, |sums| {
         // SAFETY: AMX-TILE/INT8 available and granted (the caller's
         // contract), AVX-512 VNNI with them (`available`).
         unsafe {
@@ -171,7 +219,7 @@ pub(super) fn row(
 }
 
 /// The tile operations of [`row_in`]: sums in `tmm0..tmm3`, the pixels `A`
-/// in `tmm4`, the weights `B` in `tmm5`. [`Hardware`] runs the AMX
+/// in `tmm4` and `tmm5`, the weights `B` in `tmm6` and `tmm7`. [`Hardware`] runs the AMX
 /// instructions; the tests' emulation (`tests::Emulated`) follows their
 /// definitions in Intel's Architecture Instruction Set Extensions
 /// Programming Reference (chapter 3, "Intel AMX Instruction Set
@@ -181,10 +229,11 @@ trait TileOps {
     unsafe fn configure(&mut self, cfg: &TileConfig);
     /// `tilezero tmm{q}`, `q < 4`.
     unsafe fn zero(&mut self, q: usize);
-    /// `tileloadd tmm4 / tmm5, [base + stride * row]`.
+    /// `tileloadd tmm{t}, [base + stride * row]`, `4 <= t < 8`.
     unsafe fn load(&mut self, tmm: usize, base: *const u8, stride: usize);
-    /// `tdpbusd tmm{q}, tmm4, tmm5`: sums `q` += pixels (u8) x weights (s8).
-    unsafe fn dot(&mut self, q: usize);
+    /// `tdpbusd tmm{q}, tmm{a}, tmm{b}`: sums `q` (< 4) += pixels `a` (4 or
+    /// 5, u8) x weights `b` (6 or 7, s8).
+    unsafe fn dot(&mut self, q: usize, a: usize, b: usize);
     /// `tilestored [c + stride * row], tmm{q}`.
     unsafe fn store(&mut self, q: usize, c: *mut i32, stride: usize);
     /// `tilerelease`.
@@ -216,50 +265,88 @@ unsafe fn row_in<T: TileOps>(
     sums: &mut [i32],
 ) {
     let (cin4, ocp) = (p.cin4, p.ocp);
-    assert!(sums.len() >= MT * ocp);
-    let cfg = TileConfig::new(cin4);
-    let (g4, nq) = (cin4 / 4, ocp / L);
+    let nq = ocp / L;
+    let (pb, qb) = blocking(nq);
+    assert!(sums.len() >= MT * pb * ocp);
+    // The products: nine taps of `cin4` bytes, or, where the pixels are
+    // `cin4` bytes apart and the row's three taps fit a tile row, three
+    // kernel rows of `3 * cin4` bytes (a tile row starting at a pixel holds
+    // it and its two right neighbours). `(k, taps, weights)`: bytes per
+    // product, the products per output and their weights.
+    let (k, ntaps, wts): (usize, usize, &[i8]) = match p.w_rows.as_deref() {
+        Some(wr) if cs == cin4 => (3 * cin4, 3, wr),
+        _ => (cin4, 9, &p.w),
+    };
+    let tap_offset = |t: usize| {
+        if ntaps == 3 {
+            t * rs
+        } else {
+            (t / 3) * rs + (t % 3) * cs
+        }
+    };
+    let cfg = TileConfig::new(k);
     // SAFETY: the tile operations may run (the contract); the configuration
     // is a valid palette-1 one (tiles of at most 16 rows and 64 bytes);
-    // every tile load reads 16 pixels x cin4 bytes, `cs` bytes apart, of
-    // padded rows r..r + 3 and columns x..x + 18 <= w + 2 (inside `inp`,
-    // asserted by `row`), or cin4 / 4 rows of 64 bytes of one tap's weights
-    // for 16 channels from 16 q (inside `p.w`); every store writes 16 rows
-    // of 64 bytes inside `sums`.
+    // every pixel tile load reads 16 rows of `k` bytes, `cs` bytes apart,
+    // from padded rows r..r + 3 and columns x..x + 16 * np + 2 <= w + 2
+    // (nine taps: each row `cin4 <= cs` bytes of one pixel; three: `3 *
+    // cs` bytes, the pixel and its two right neighbours), inside `inp`
+    // (asserted by `row`); every weight tile load `k / 4` rows of 64 bytes
+    // of one product's weights for 16 channels from 16 q (inside `wts`,
+    // `ntaps * k * ocp` bytes); every store writes 16 rows of 64 bytes
+    // inside the first `16 * np * ocp` sums.
     unsafe {
         tiles.configure(&cfg);
         let mut x = 0;
         while x + MT <= w {
-            for q in 0..nq {
-                tiles.zero(q);
+            // `np` blocks of 16 pixels from x (fewer at the row's end)
+            let np = ((w - x) / MT).min(pb);
+            let mut q0 = 0;
+            while q0 < nq {
+                let nqp = qb.min(nq - q0);
+                for k in 0..np * nqp {
+                    tiles.zero(k);
+                }
+                for t in 0..ntaps {
+                    let tap = r * rs + x * cs + tap_offset(t);
+                    for i in 0..np {
+                        let a = A0 + i % 2;
+                        tiles.load(a, inp.as_ptr().add(tap + i * MT * cs), cs);
+                        for j in 0..nqp {
+                            let b = B0 + j % 2;
+                            // the weights stay in B while they fit (two
+                            // blocks), else each is loaded for its product
+                            if i == 0 || nqp > 2 {
+                                let wq = wts.as_ptr().add((t * (k / 4) * ocp + (q0 + j) * L) * 4);
+                                tiles.load(b, wq as *const u8, ocp * 4);
+                            }
+                            tiles.dot(i * nqp + j, a, b);
+                        }
+                    }
+                }
+                // sums of pixel block i, channel block q: the epilogue's
+                // layout of block i (`MT * ocp` sums, group by group)
+                for i in 0..np {
+                    for j in 0..nqp {
+                        let q = q0 + j;
+                        let g0 = group_start(ocp, q * L);
+                        let gw = group_width(ocp, g0);
+                        let c = sums.as_mut_ptr().add(i * MT * ocp + MT * g0 + (q * L - g0));
+                        tiles.store(i * nqp + j, c, gw * 4);
+                    }
+                }
+                q0 += nqp;
             }
-            for t in 0..9 {
-                let a = inp
-                    .as_ptr()
-                    .add(r * rs + x * cs + (t / 3) * rs + (t % 3) * cs);
-                tiles.load(4, a, cs);
-                for q in 0..nq {
-                    let b = p.w.as_ptr().add((t * g4 * ocp + q * L) * 4);
-                    tiles.load(5, b as *const u8, ocp * 4);
-                    tiles.dot(q);
+            for i in 0..np {
+                let block = &sums[i * MT * ocp..(i + 1) * MT * ocp];
+                let mut g0 = 0;
+                while g0 < ocp {
+                    let gw = group_width(ocp, g0);
+                    dst(0, x + i * MT, g0, &block[MT * g0..MT * (g0 + gw)]);
+                    g0 += gw;
                 }
             }
-            let mut g0 = 0;
-            while g0 < ocp {
-                let gw = group_width(ocp, g0);
-                for q in g0 / L..(g0 + gw) / L {
-                    let c = sums.as_mut_ptr().add(MT * g0 + (q * L - g0));
-                    tiles.store(q, c, gw * 4);
-                }
-                g0 += gw;
-            }
-            let mut g0 = 0;
-            while g0 < ocp {
-                let gw = group_width(ocp, g0);
-                dst(0, x, g0, &sums[MT * g0..MT * (g0 + gw)]);
-                g0 += gw;
-            }
-            x += MT;
+            x += np * MT;
         }
         tiles.release();
         // The row's last pixels: the AVX-512 VNNI tile (`rest`).
@@ -297,6 +384,7 @@ unsafe fn row_in<T: TileOps>(
 
 #[cfg(target_arch = "x86_64")]
 impl TileOps for Hardware {
+    #[inline(always)]
     unsafe fn configure(&mut self, cfg: &TileConfig) {
         // SAFETY: AMX-TILE (the contract of `row_in`); a 64-byte palette-1
         // configuration.
@@ -305,6 +393,7 @@ impl TileOps for Hardware {
         }
     }
 
+    #[inline(always)]
     unsafe fn zero(&mut self, q: usize) {
         // SAFETY: AMX-TILE configured, `q < 4`.
         unsafe {
@@ -318,37 +407,61 @@ impl TileOps for Hardware {
         }
     }
 
+    #[inline(always)]
     unsafe fn load(&mut self, tmm: usize, base: *const u8, stride: usize) {
+        macro_rules! load {
+            ($t:literal) => {
+                std::arch::asm!(concat!("tileloadd tmm", $t, ", [{a} + {s} * 1]"), a = in(reg) base,
+                                s = in(reg) stride, options(nostack, readonly))
+            };
+        }
         // SAFETY: AMX-TILE configured; the rows inside their buffer (the
         // caller's).
         unsafe {
             match tmm {
-                4 => {
-                    std::arch::asm!("tileloadd tmm4, [{a} + {s} * 1]", a = in(reg) base, s = in(reg) stride,
-                                     options(nostack, readonly))
-                }
-                5 => {
-                    std::arch::asm!("tileloadd tmm5, [{a} + {s} * 1]", a = in(reg) base, s = in(reg) stride,
-                                     options(nostack, readonly))
-                }
-                _ => unreachable!("tile {tmm}: the operands are tmm4 and tmm5"),
+                4 => load!(4),
+                5 => load!(5),
+                6 => load!(6),
+                7 => load!(7),
+                _ => unreachable!("tile {tmm}: the operands are tmm4-tmm7"),
             }
         }
     }
 
-    unsafe fn dot(&mut self, q: usize) {
-        // SAFETY: AMX-INT8 configured, `q < 4`.
+    #[inline(always)]
+    unsafe fn dot(&mut self, q: usize, a: usize, b: usize) {
+        macro_rules! dot {
+            ($q:literal, $a:literal, $b:literal) => {
+                std::arch::asm!(
+                    concat!("tdpbusd tmm", $q, ", tmm", $a, ", tmm", $b),
+                    options(nostack, nomem)
+                )
+            };
+        }
+        macro_rules! dots {
+            ($q:literal) => {
+                match (a, b) {
+                    (4, 6) => dot!($q, 4, 6),
+                    (4, 7) => dot!($q, 4, 7),
+                    (5, 6) => dot!($q, 5, 6),
+                    (5, 7) => dot!($q, 5, 7),
+                    _ => unreachable!("tiles {a}, {b}: A is tmm4 or tmm5, B tmm6 or tmm7"),
+                }
+            };
+        }
+        // SAFETY: AMX-INT8 configured, `q < 4`, A and B operand tiles.
         unsafe {
             match q {
-                0 => std::arch::asm!("tdpbusd tmm0, tmm4, tmm5", options(nostack, nomem)),
-                1 => std::arch::asm!("tdpbusd tmm1, tmm4, tmm5", options(nostack, nomem)),
-                2 => std::arch::asm!("tdpbusd tmm2, tmm4, tmm5", options(nostack, nomem)),
-                3 => std::arch::asm!("tdpbusd tmm3, tmm4, tmm5", options(nostack, nomem)),
+                0 => dots!(0),
+                1 => dots!(1),
+                2 => dots!(2),
+                3 => dots!(3),
                 _ => unreachable!("tile {q}: the sums are tmm0-tmm3"),
             }
         }
     }
 
+    #[inline(always)]
     unsafe fn store(&mut self, q: usize, c: *mut i32, stride: usize) {
         // SAFETY: AMX-TILE configured, `q < 4`, `c` valid for 16 rows of 64
         // bytes `stride` bytes apart (the caller's).
@@ -371,6 +484,7 @@ impl TileOps for Hardware {
         }
     }
 
+    #[inline(always)]
     unsafe fn release(&mut self) {
         // SAFETY: AMX-TILE.
         unsafe { std::arch::asm!("tilerelease", options(nostack)) }
@@ -559,7 +673,7 @@ mod tests {
         }
 
         unsafe fn load(&mut self, tmm: usize, base: *const u8, stride: usize) {
-            assert!(self.configured && (tmm == 4 || tmm == 5));
+            assert!(self.configured && (4..8).contains(&tmm));
             let (rows, colsb) = self.shape[tmm];
             assert!(rows > 0, "tile {tmm} not configured");
             self.tiles[tmm] = [0; 16 * 64];
@@ -572,9 +686,13 @@ mod tests {
             }
         }
 
-        unsafe fn dot(&mut self, q: usize) {
-            assert!(self.configured && q < 4);
-            let ((cr, cc), (ar, ac), (br, bc)) = (self.shape[q], self.shape[4], self.shape[5]);
+        unsafe fn dot(&mut self, q: usize, a: usize, b: usize) {
+            assert!(self.configured && q < 4 && (4..8).contains(&a) && (4..8).contains(&b));
+            assert!(
+                q != a && q != b && a != b,
+                "tdpbusd tmm{q}, tmm{a}, tmm{b}: #UD"
+            );
+            let ((cr, cc), (ar, ac), (br, bc)) = (self.shape[q], self.shape[a], self.shape[b]);
             // TDPBUSD's #UD conditions on the shapes.
             assert!(cc % 4 == 0 && ac % 4 == 0, "column bytes {cc}, {ac}");
             assert_eq!(cr, ar, "rows of C and A");
@@ -584,9 +702,9 @@ mod tests {
                 for n in 0..cc / 4 {
                     let mut acc = i32::from_le_bytes(self.dword(q, m, n));
                     for k in 0..ac / 4 {
-                        let (a, b) = (self.dword(4, m, k), self.dword(5, k, n));
+                        let (x, y) = (self.dword(a, m, k), self.dword(b, k, n));
                         for i in 0..4 {
-                            acc = acc.wrapping_add(i32::from(a[i]) * i32::from(b[i] as i8));
+                            acc = acc.wrapping_add(i32::from(x[i]) * i32::from(y[i] as i8));
                         }
                     }
                     self.tiles[q][m * 64 + 4 * n..m * 64 + 4 * n + 4]
@@ -625,27 +743,40 @@ mod tests {
     /// kernel's sums on every eligible shape tried: 3 to 64 input channels,
     /// some not a multiple of 4 (3, 5, 30), 16 to 64 outputs (one to four C
     /// tiles, epilogue groups of 64 and 16), a channel stride wider than the
-    /// channels, widths below, at and past the 16-pixel tile (the rest on the
-    /// portable tile, which gives the AVX-512 VNNI tile's bits). This checks
+    /// channels, widths below, at and past the 16-pixel tile and past every
+    /// blocking's pass of up to four (the rest on the portable tile, which
+    /// gives the AVX-512 VNNI tile's bits). This checks
     /// the kernel's use of the instructions, not the instructions on a CPU
     /// (`amx_int8_matches_portable`, where AMX is present).
     #[test]
     fn the_amx_kernel_on_emulated_tiles_matches_portable() {
         let mut next = xorshift(0x2545_F491_4F6C_DD1D);
-        let mut dots = 0;
-        for (cin, out_ch) in [(5, 16), (8, 32), (30, 48), (48, 48), (64, 64), (3, 64)] {
+        let (mut dots, mut row_products) = (0, 0);
+        for (cin, out_ch) in [
+            (5, 16),
+            (8, 32),
+            (30, 48),
+            (48, 48),
+            (64, 64),
+            (3, 64),
+            (7, 64),
+        ] {
             let p = random_conv(cin, out_ch, &mut next);
             assert!(eligible(&p), "{cin} -> {out_ch}");
-            for w in [5, 16, 37, 48] {
-                let cs = p.cin4 + 4;
+            let ws = [5, 16, 37, 48, 80, 101];
+            for (w, cs) in ws.iter().flat_map(|&w| [(w, p.cin4), (w, p.cin4 + 4)]) {
                 let rs = (w + 2) * cs;
                 let inp: Vec<u8> = (0..3 * rs).map(|_| next() as u8).collect();
                 let want = sums(Kernel::Portable, &p, &inp, rs, cs, w);
                 let mut got = vec![0i32; w * p.ocp];
-                let mut scratch = vec![0i32; MT * p.ocp];
+                let mut scratch = vec![0i32; MT * PB_MAX * p.ocp];
                 let (a, b, c) = (span(&inp), span(&p.w), span(&scratch));
-                let mut tiles =
-                    Emulated::new(vec![(a.0, a.1, false), (b.0, b.1, false), (c.0, c.1, true)]);
+                let mut buffers = vec![(a.0, a.1, false), (b.0, b.1, false), (c.0, c.1, true)];
+                if let Some(wr) = p.w_rows.as_deref() {
+                    let d = span(wr);
+                    buffers.push((d.0, d.1, false));
+                }
+                let mut tiles = Emulated::new(buffers);
                 let ocp = p.ocp;
                 let mut put = |_: usize, x: usize, g0: usize, tile: &[i32]| {
                     let gw = group_width(ocp, g0);
@@ -671,19 +802,30 @@ mod tests {
                     );
                 }
                 assert!(!tiles.configured, "tiles not released");
-                assert_eq!(tiles.dots, (w / MT) * 9 * (p.ocp / L), "tdpbusd count");
+                let taps = if p.w_rows.is_some() && cs == p.cin4 {
+                    3
+                } else {
+                    9
+                };
+                assert_eq!(tiles.dots, (w / MT) * taps * (p.ocp / L), "tdpbusd count");
                 dots += tiles.dots;
+                if taps == 3 {
+                    row_products += tiles.dots;
+                }
                 let first = want.iter().zip(&got).position(|(a, b)| a != b);
-                assert_eq!(first, None, "{cin} -> {out_ch} channels, width {w}");
+                assert_eq!(
+                    first, None,
+                    "{cin} -> {out_ch} channels, width {w}, stride {cs}"
+                );
             }
         }
-        assert!(dots > 0);
+        assert!(dots > 0 && row_products > 0);
     }
 
     /// Where the CPU has AMX-INT8: the OS grants the tiles, the self-check
     /// passes, and blocks on AMX give the portable kernel's bits (every
-    /// convolution eligible: 8 and 32 input bytes, 16 and 32 outputs; widths
-    /// below, at and past a 16-pixel tile).
+    /// convolution eligible: 8 to 64 input bytes, 16 to 64 outputs; widths
+    /// below, at and past a 16-pixel tile and past a pass of several).
     #[test]
     fn amx_int8_matches_portable() {
         if !dbt_isa::kernel_test_runs("int8 amx", &["amx_tile", "amx_int8", "avx512vnni"]) {
@@ -694,7 +836,7 @@ mod tests {
             "the CPU has AMX-INT8 but the OS did not grant the tile data"
         );
         self_check().unwrap();
-        for (w, hidden) in [(5, 32), (16, 32), (37, 16), (40, 32)] {
+        for (w, hidden) in [(5, 32), (16, 32), (37, 16), (40, 32), (101, 64), (83, 16)] {
             let b = crate::int8::tests::random_int8(5, 3, hidden, w as u64);
             let state = crate::testutil::random_vec(5 * 3 * w, 1);
             let aux = crate::testutil::random_vec(3 * 3 * w, 2);

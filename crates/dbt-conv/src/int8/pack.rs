@@ -74,6 +74,13 @@ pub(super) struct PackedI8 {
     /// (`[pos][cin4 / 2][ocp][2]`, [`super::winograd`]), where it was asked
     /// for and pays ([`super::winograd::eligible`]).
     pub(super) wino: Option<Aligned<i16>>,
+    /// For thin inputs (`3 * cin4 <= 64`), the weights of each kernel row
+    /// with its three taps side by side, `[dy][3 * cin4 / 4][ocp][4]` (byte
+    /// `dx * cin4 + c` of a row's 4-byte groups): the AMX kernel's operand
+    /// where the input's pixels are `cin4` bytes apart, so that one tile
+    /// row of `3 * cin4` bytes holds a pixel's three horizontal taps
+    /// ([`super::amx`]; three products per 16 pixels instead of nine).
+    pub(super) w_rows: Option<Aligned<i8>>,
     /// `sx * sw[o]`, 0 on padded lanes.
     pub(super) scale: Vec<f32>,
     /// `(128 + zx) * sum qw[o]`.
@@ -129,6 +136,7 @@ pub(super) fn pack(l: &Int8Conv, q_in: QuantParams, winograd: bool) -> PackedI8 
         wino: (winograd && super::winograd::eligible(cin4))
             .then(|| Aligned::from_slice(&super::winograd::transform_weights(&w16, cin4, ocp))),
         w16: Aligned::from_slice(&w16),
+        w_rows: (3 * cin4 <= 64).then(|| Aligned::from_slice(&rows_of_taps(&w, cin4, ocp))),
         scale,
         corr,
         bias,
@@ -136,4 +144,24 @@ pub(super) fn pack(l: &Int8Conv, q_in: QuantParams, winograd: bool) -> PackedI8 
         q_out: l.q_out,
         q_in,
     }
+}
+
+/// `w` (`[tap][cin4 / 4][ocp][4]`) as `[dy][3 * cin4 / 4][ocp][4]`, the
+/// three taps of kernel row `dy` side by side: byte `j = dx * cin4 + c` of
+/// the row's `3 * cin4` holds tap `(dy, dx)`'s weight of input channel `c`
+/// ([`PackedI8::w_rows`]).
+pub(super) fn rows_of_taps(w: &[i8], cin4: usize, ocp: usize) -> Vec<i8> {
+    let k = 3 * cin4;
+    let mut r = vec![0i8; 3 * k * ocp];
+    for dy in 0..3 {
+        for j in 0..k {
+            let (dx, c) = (j / cin4, j % cin4);
+            let t = dy * 3 + dx;
+            for o in 0..ocp {
+                r[((dy * (k / 4) + j / 4) * ocp + o) * 4 + j % 4] =
+                    w[((t * (cin4 / 4) + c / 4) * ocp + o) * 4 + c % 4];
+            }
+        }
+    }
+    r
 }
