@@ -3,7 +3,9 @@
 //! (the PyPI peer, `bench/peers/ort_blocks.py`, blocks only), and the fast
 //! path fp32 and int8, at the paper's full geometry and at the model's own,
 //! with per-block and per-slice medians, GFLOP/s, ratios, the distance to
-//! this CPU's measured peak (the physical floor) and the slice buffers.
+//! this CPU's measured peak (the physical floor: register-only FMA and VNNI
+//! loops, and AMX-INT8's `tdpbusd` for the AMX rows where the CPU has it)
+//! and the slice buffers. The rows' slices are timed in interleaved rounds.
 //!
 //! ```text
 //! cargo run --release -p dbt-bench --bin dbtor-bench -- [--model DIR] [--reps N]
@@ -102,9 +104,30 @@ fn parse_blocks(s: &str) -> Result<Blocks, String> {
     Ok(Blocks(dbt_dbtor::parse_block_list(s)))
 }
 
-/// Peak rate of this CPU on 2 threads: fp32 FMA (GFLOP/s) and int8 VNNI
-/// (GOP/s), from register-only loops (no memory traffic).
-fn measured_peaks() -> (f64, f64) {
+/// Peak rates of this CPU on 2 threads: fp32 FMA (GFLOP/s), int8 VNNI and
+/// AMX-INT8 (GOP/s; NaN where the AMX kernel does not run), from
+/// register-only loops (no memory traffic).
+fn measured_peaks() -> (f64, f64, f64) {
+    let (fma, vnni) = measured_vector_peaks();
+    let amx = if Kernel::amx_available() {
+        let _ = dbt_conv::amx_peak_ops(100_000);
+        let per_thread: Vec<f64> = std::thread::scope(|s| {
+            let h: Vec<_> = (0..2)
+                .map(|_| s.spawn(|| dbt_conv::amx_peak_ops(2_000_000).unwrap_or(f64::NAN)))
+                .collect();
+            h.into_iter()
+                .map(|h| h.join().unwrap_or(f64::NAN))
+                .collect()
+        });
+        per_thread.iter().sum::<f64>() / 1e9
+    } else {
+        f64::NAN
+    };
+    (fma, vnni, amx)
+}
+
+/// [`measured_peaks`]' FMA and VNNI loops.
+fn measured_vector_peaks() -> (f64, f64) {
     #[cfg(target_arch = "x86_64")]
     {
         if std::arch::is_x86_feature_detected!("avx512vnni")
@@ -227,7 +250,7 @@ fn rms(a: &[f32], b: &[f32]) -> f64 {
     dbt_metrics::mse(a, b).sqrt()
 }
 
-fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Result<Value> {
+fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64, f64)) -> Result<Value> {
     let (rows, cols, views, det) = (g.image.rows, g.image.columns, g.n_views(), g.n_det());
     println!("\n== {label}: image {cols} x {rows}, sinogram {views} x {det} ==");
     // A realistic input: the line integrals of a 50 mm breast of soft tissue
@@ -536,7 +559,12 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64)) -> Res
     let mut rows_json = Vec::new();
     for v in &variants {
         let int8 = v.name.contains("int8");
-        let peak = if int8 { peaks.1 } else { peaks.0 };
+        // the AMX rows against the tiles' peak, other int8 rows against VNNI's
+        let peak = match (int8, v.note.starts_with("kernel amx")) {
+            (true, true) => peaks.2,
+            (true, false) => peaks.1,
+            (false, _) => peaks.0,
+        };
         let rate = v.ops / ((v.slice_ms - v.projector_ms) * 1e-3) / 1e9;
         let floor_ms = v.ops / (peak * 1e9) * 1e3;
         let x_floor = v.slice_ms / floor_ms;
@@ -641,8 +669,8 @@ fn main() -> Result<()> {
     let peaks = measured_peaks();
     println!("cpu: {}", dbt_cli::cpu_summary());
     println!(
-        "measured peak on 2 threads: fp32 FMA {:.1} GFLOP/s, int8 VNNI {:.1} GOP/s",
-        peaks.0, peaks.1
+        "measured peak on 2 threads: fp32 FMA {:.1} GFLOP/s, int8 VNNI {:.1} GOP/s, int8 AMX {:.1} GOP/s",
+        peaks.0, peaks.1, peaks.2
     );
     let mut out = Map::new();
     out.insert("model".into(), json!(a.model));
@@ -651,6 +679,7 @@ fn main() -> Result<()> {
     out.insert("threads".into(), json!(rayon::current_num_threads()));
     out.insert("peak_fp32_gflops".into(), json!(peaks.0));
     out.insert("peak_int8_gops".into(), json!(peaks.1));
+    out.insert("peak_amx_int8_gops".into(), json!(peaks.2));
     if a.geometry != Where::Model {
         let paper = Geometry::paper();
         let v = bench_geometry(&a, "paper geometry", &paper, peaks)?;

@@ -523,6 +523,34 @@ pub(super) fn self_check() -> Result<(), String> {
         .clone()
 }
 
+/// [`super::amx_peak_ops`] (callers: [`available`] was true): four
+/// independent sums, each `tdpbusd` 16 x 16 x 64 multiply-adds, from tiles
+/// loaded once.
+#[cfg(target_arch = "x86_64")]
+pub(super) fn peak_ops(iterations: usize) -> f64 {
+    let cfg = TileConfig::new(64);
+    let ones = [1u8; 64 * MT];
+    let mut hw = Hardware;
+    let t = std::time::Instant::now();
+    // SAFETY: AMX available and granted (the caller's); the operand tiles
+    // are loaded from `ones` (16 rows of 64 bytes each).
+    unsafe {
+        hw.configure(&cfg);
+        for tmm in A0..B0 + 2 {
+            hw.load(tmm, ones.as_ptr(), 64);
+        }
+        for _ in 0..iterations {
+            hw.dot(0, 4, 6);
+            hw.dot(1, 4, 7);
+            hw.dot(2, 5, 6);
+            hw.dot(3, 5, 7);
+        }
+        hw.release();
+    }
+    let s = t.elapsed().as_secs_f64().max(1e-9);
+    iterations as f64 * 4.0 * (MT * 16 * 64) as f64 * 2.0 / s
+}
+
 /// A xorshift64 generator (the self-check's and the tests' random bytes).
 fn xorshift(mut state: u64) -> impl FnMut() -> u64 {
     move || {

@@ -56,6 +56,22 @@ pub(crate) fn amx_available() -> bool {
     amx::available()
 }
 
+/// This thread's AMX-INT8 peak (int8 operations per second, two per
+/// multiply-add) from `iterations` of four register-only `tdpbusd` (16 x 16
+/// sums over 64 bytes each, no tile loads): the floor the benchmarks
+/// compare the AMX kernel with. `None` where the AMX kernel does not run.
+pub fn amx_peak_ops(iterations: usize) -> Option<f64> {
+    #[cfg(target_arch = "x86_64")]
+    {
+        amx::available().then(|| amx::peak_ops(iterations))
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let _ = iterations;
+        None
+    }
+}
+
 use kernels::*;
 use pack::*;
 pub use quant::QuantParams;
