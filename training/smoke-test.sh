@@ -206,14 +206,22 @@ cd ..
 ./target/release/dbtor-diag model "$tmp/gptqa-model" --sign-off
 # The LPD baseline (no mask): trained, exported and checked the same way.
 cd training
+# (with the loss weighted near the breast's surface, recorded in the
+# manifest's options; a resume that asks for another weight is refused)
 $PY -m dbtor.train --data "$tmp/ds" --out "$tmp/lpd-run" --model lpd --iters 2 --batch 2 --blocks 2 \
-    --val-every 2 --log-every 1 --precision bf16
+    --val-every 2 --log-every 1 --precision bf16 --edge-weight 4 --edge-px 2
+if $PY -m dbtor.train --data "$tmp/ds" --out "$tmp/lpd-run" --model lpd --iters 2 --batch 2 --blocks 2 \
+    --precision bf16 --edge-weight 2 --edge-px 2 2> "$tmp/edge.log"; then
+    echo "smoke test: a resume with another --edge-weight was accepted"; exit 1
+fi
+grep -q "edge_weight" "$tmp/edge.log" || { echo "smoke test: the refused resume does not name edge_weight"; cat "$tmp/edge.log"; exit 1; }
 # (exported with onnxruntime's plain int8 graph, the other form the runtime reads)
 $PY -m dbtor.export --run "$tmp/lpd-run" --data "$tmp/ds" --out "$tmp/lpd" --calibration 2 --fixtures 1 \
     --equalise 0 --int8-form plain
 cd ..
 grep -q '"kind": "lpd"' "$tmp/lpd/manifest.json" || { echo "smoke test: the LPD export is not kind lpd"; exit 1; }
 grep -q '"precision": "bf16"' "$tmp/lpd/manifest.json" || { echo "smoke test: the LPD manifest does not record bf16 training"; exit 1; }
+grep -q '"edge_weight": 4.0' "$tmp/lpd/manifest.json" || { echo "smoke test: the LPD manifest does not record the edge weight"; exit 1; }
 grep -q '"form": "plain"' "$tmp/lpd/manifest.json" || { echo "smoke test: the LPD int8 form is not plain"; exit 1; }
 ./target/release/dbtor-diag model "$tmp/lpd" --sign-off
 # Fine-tuning on the taller geometry (paper-tall.toml, 100 rows at x4): --init

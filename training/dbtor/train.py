@@ -69,7 +69,10 @@ from .model import PrimalDual
 from .operator import Operator
 from .unet import UNet
 
-FIXED = ("model", "level", "iters", "batch", "blocks", "seed", "lr", "precision", "qat")
+FIXED = ("model", "level", "iters", "batch", "blocks", "seed", "lr", "precision", "qat",
+         "edge_weight", "edge_px")
+# What a checkpoint made before an option existed was trained with.
+OPTION_DEFAULTS = {"precision": "fp32", "qat": False, "edge_weight": 1.0, "edge_px": 0}
 
 
 def tensors(batch, stats):
@@ -88,13 +91,30 @@ def compile_convolutions(net):
             m.compile(dynamic=False)
 
 
-def loss_of(net, g, m, x, precision):
-    """The training loss (mean squared error); with precision "bf16" the
-    forward pass runs under autocast on the inputs' device (CPU or CUDA) and
-    the loss in float32."""
+def edge_band(m, px):
+    """The pixels of the mask `m` ([B,1,H,W], 0/1) within `px` pixels of its
+    edge (the breast's surface: skin under both paddles and at the
+    outline): the mask less its erosion by a (2 px + 1)-square."""
+    outside = 1.0 - m
+    near_outside = torch.nn.functional.max_pool2d(outside, 2 * px + 1, stride=1, padding=px)
+    return m * near_outside
+
+
+def loss_of(net, g, m, x, precision, edge_weight=1.0, edge_px=0):
+    """The training loss: the mean squared error, or with `edge_weight` > 1
+    and `edge_px` > 0 its weighted mean, the pixels of the breast within
+    `edge_px` of its surface weighted `edge_weight` (--edge-weight,
+    --edge-px: the skin and the tissue under it, where the dose is
+    deposited first, issue #49). With precision "bf16" the forward pass
+    runs under autocast on the inputs' device (CPU or CUDA) and the loss in
+    float32."""
     with torch.autocast(g.device.type, dtype=torch.bfloat16, enabled=precision == "bf16"):
         z = net(g, m)
-    return torch.mean((z.float() - x) ** 2)
+    e = (z.float() - x) ** 2
+    if edge_weight == 1.0 or edge_px <= 0:
+        return torch.mean(e)
+    w = 1.0 + (edge_weight - 1.0) * edge_band(m, edge_px)
+    return torch.sum(w * e) / torch.sum(w)
 
 
 def pick_device(name, local_rank=0):
@@ -205,6 +225,9 @@ def main(argv=None):
     ap.add_argument("--blocks", type=int, default=10)
     ap.add_argument("--lr", type=float, default=1e-4)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--edge-weight", type=float, default=1.0,
+                    help="weight of the loss on the breast's pixels within --edge-px of its surface (1: plain MSE)")
+    ap.add_argument("--edge-px", type=int, default=0, help="width of that band, pixels")
     ap.add_argument("--max-minutes", type=float, default=None, help="stop (with a checkpoint) after this long")
     ap.add_argument("--stop-at", type=int, default=None, help="stop (with a checkpoint) at this iteration")
     ap.add_argument("--log-every", type=int, default=50)
@@ -343,8 +366,8 @@ def main(argv=None):
     elif os.path.exists(ckpt_path):
         ck = torch.load(ckpt_path, weights_only=False, map_location=device)
     if ck is not None:
-        # Runs made before --precision and --qat existed were float32 without QAT.
-        if {"precision": "fp32", "qat": False, **ck["options"]} != opts:
+        # Runs made before an option existed were trained as OPTION_DEFAULTS says.
+        if {**OPTION_DEFAULTS, **ck["options"]} != opts:
             src = a.state if state_header is not None else ckpt_path
             sys.exit(f"{src}: made with {ck['options']}, asked for {opts}; use another --out")
         net.load_state_dict(ck["model"])
@@ -477,7 +500,7 @@ def main(argv=None):
         # run does not depend on the number of processes.
         idx = rng.choice(train.n, size=a.batch, replace=False)[rank * share:(rank + 1) * share]
         g, m, x = (t.to(device, non_blocking=True) for t in tensors(train.batch(idx), stats))
-        loss = loss_of(model, g, m, x, a.precision)
+        loss = loss_of(model, g, m, x, a.precision, a.edge_weight, a.edge_px)
         adam.zero_grad(set_to_none=True)
         loss.backward()  # DistributedDataParallel averages the gradients over the ranks
         adam.step()
