@@ -162,6 +162,43 @@ pub(super) fn epilogue_bytes(
     }
 }
 
+/// The AVX-512 epilogues' common start, 16 channels: the sums less the
+/// zero-point correction, times the scale, plus the bias (multiply then
+/// add, no fusion); with `QO` the output's Q/DQ by `(1 / scale, zero
+/// point, scale)` of `q_out`. The portable epilogue's operations.
+///
+/// # Safety
+/// AVX-512F.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[inline]
+unsafe fn dequantized_avx512<const QO: bool>(
+    acc: std::arch::x86_64::__m512i,
+    corr: std::arch::x86_64::__m512i,
+    scale: std::arch::x86_64::__m512,
+    bias: std::arch::x86_64::__m512,
+    (io, zo, so): (
+        std::arch::x86_64::__m512,
+        std::arch::x86_64::__m512,
+        std::arch::x86_64::__m512,
+    ),
+) -> std::arch::x86_64::__m512 {
+    use std::arch::x86_64::*;
+    let v = _mm512_cvtepi32_ps(_mm512_sub_epi32(acc, corr));
+    let v = _mm512_add_ps(_mm512_mul_ps(v, scale), bias);
+    if !QO {
+        return v;
+    }
+    let q = _mm512_roundscale_ps::<{ _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC }>(
+        _mm512_mul_ps(v, io),
+    );
+    let q = _mm512_min_ps(
+        _mm512_max_ps(_mm512_add_ps(q, zo), _mm512_set1_ps(-128.0)),
+        _mm512_set1_ps(127.0),
+    );
+    _mm512_mul_ps(_mm512_sub_ps(q, zo), so)
+}
+
 /// The same arithmetic, 16 channels at a time, operation for operation
 /// (multiply then add, no fusion; multiplication by the scale's reciprocal),
 /// so that it gives the portable epilogue's bits. `QO`: the convolution's
@@ -197,11 +234,7 @@ pub(super) unsafe fn epilogue_bytes_avx512<const QO: bool>(
             _mm512_set1_ps(1.0 / qo.scale),
             _mm512_set1_ps(1.0 / qa.scale),
         );
-        let (lo, hi, zero) = (
-            _mm512_set1_ps(-128.0),
-            _mm512_set1_ps(127.0),
-            _mm512_setzero_ps(),
-        );
+        let zero = _mm512_setzero_ps();
         let zb = _mm512_set1_epi32(qa.zero_point as i32 + 128);
         let big = _mm512_set1_ps(1.0e9);
         assert!(tile.len().is_multiple_of(gw) && (x + tile.len() / gw) * p.ocp <= out.len());
@@ -216,17 +249,7 @@ pub(super) unsafe fn epilogue_bytes_avx512<const QO: bool>(
             for (px, t) in tile.chunks_exact(gw).enumerate() {
                 let o = out.as_mut_ptr().add((x + px) * p.ocp + c);
                 let acc = _mm512_loadu_si512(t.as_ptr().add(jv) as *const __m512i);
-                let v = _mm512_cvtepi32_ps(_mm512_sub_epi32(acc, corr));
-                let v = _mm512_mul_ps(v, scale);
-                let mut v = _mm512_add_ps(v, bias);
-                if QO {
-                    // Q/DQ of the convolution's output
-                    let q = _mm512_roundscale_ps::<{ _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC }>(
-                        _mm512_mul_ps(v, io),
-                    );
-                    let q = _mm512_min_ps(_mm512_max_ps(_mm512_add_ps(q, zo), lo), hi);
-                    v = _mm512_mul_ps(_mm512_sub_ps(q, zo), so);
-                }
+                let v = dequantized_avx512::<QO>(acc, corr, scale, bias, (io, zo, so));
                 // PReLU
                 let neg = _mm512_cmp_ps_mask::<_CMP_LT_OQ>(v, zero);
                 let v = _mm512_mask_mul_ps(v, neg, v, slope);
@@ -439,7 +462,6 @@ unsafe fn epilogue_floats_avx512_q<const QO: bool>(
             _mm512_set1_ps(qo.zero_point as f32),
             _mm512_set1_ps(1.0 / qo.scale),
         );
-        let (lo, hi) = (_mm512_set1_ps(-128.0), _mm512_set1_ps(127.0));
         assert!(tile.len().is_multiple_of(gw) && (x + tile.len() / gw) * p.ocp <= out.len());
         for jv in (0..gw).step_by(L) {
             let c = g0 + jv;
@@ -448,15 +470,7 @@ unsafe fn epilogue_floats_avx512_q<const QO: bool>(
             let bias = _mm512_loadu_ps(p.bias.as_ptr().add(c));
             for (px, t) in tile.chunks_exact(gw).enumerate() {
                 let acc = _mm512_loadu_si512(t.as_ptr().add(jv) as *const __m512i);
-                let v = _mm512_cvtepi32_ps(_mm512_sub_epi32(acc, corr));
-                let mut v = _mm512_add_ps(_mm512_mul_ps(v, scale), bias);
-                if QO {
-                    let q = _mm512_roundscale_ps::<{ _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC }>(
-                        _mm512_mul_ps(v, io),
-                    );
-                    let q = _mm512_min_ps(_mm512_max_ps(_mm512_add_ps(q, zo), lo), hi);
-                    v = _mm512_mul_ps(_mm512_sub_ps(q, zo), so);
-                }
+                let v = dequantized_avx512::<QO>(acc, corr, scale, bias, (io, zo, so));
                 _mm512_storeu_ps(out.as_mut_ptr().add((x + px) * p.ocp + c), v);
             }
         }
