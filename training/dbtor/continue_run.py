@@ -57,6 +57,27 @@ def git(*args, check=True):
     return r.stdout.strip()
 
 
+def committed_state(src):
+    """The bytes of the run state a recipe's init names (`git` commit,
+    `run_state` path): from git history, or, where there is none (a GPU
+    slot's bare copy of the working tree), the working tree's file when its
+    SHA-256 is the recipe's (`sha256`, recorded by `new`)."""
+    r = subprocess.run(["git", "-C", REPO, "show", f"{src['git']}:{src['run_state']}"], capture_output=True)
+    if r.returncode == 0:
+        return r.stdout
+    here = os.path.join(REPO, src["run_state"])
+    if src.get("sha256") and os.path.exists(here):
+        with open(here, "rb") as f:
+            data = f.read()
+        if hashlib.sha256(data).hexdigest() == src["sha256"]:
+            return data
+        sys.exit(f"the recipe's init: {src['run_state']} here is not the state committed at {src['git'][:12]} "
+                 f"(SHA-256 {hashlib.sha256(data).hexdigest()[:16]}..., the recipe's {src['sha256'][:16]}...), "
+                 f"and git cannot show that one: {r.stderr.decode().strip()}")
+    sys.exit(f"the recipe's init: git show {src['git'][:12]}:{src['run_state']} failed "
+             f"({r.stderr.decode().strip()}) and no copy of it with the recipe's SHA-256 is here")
+
+
 def cache_dir(a):
     return os.path.abspath(a.cache or os.environ.get("DBTOR_CACHE") or os.path.expanduser("~/.cache/dbtor"))
 
@@ -207,6 +228,13 @@ def cmd_new(argv):
     if a.init_run:
         c, _, run = a.init_run.partition(":")
         init = {"git": git("rev-parse", c), "run_state": f"training/runs/{run}/state.dbts"}
+        blob = subprocess.run(["git", "-C", REPO, "show", f"{init['git']}:{init['run_state']}"],
+                              capture_output=True)
+        if blob.returncode:
+            sys.exit(f"--init-run {a.init_run}: {blob.stderr.decode().strip()}")
+        # its SHA-256: a machine without git history (a GPU slot's) takes
+        # the working tree's file where it is that state
+        init["sha256"] = hashlib.sha256(blob.stdout).hexdigest()
     elif a.init_git:
         c, _, p = a.init_git.partition(":")
         init = {"git": git("rev-parse", c), "path": p}
@@ -308,8 +336,7 @@ def main(argv=None):
             dest = os.path.join(cache, "init", src["git"][:12] + "-" + os.path.basename(
                 os.path.dirname(src["run_state"])))
             if not os.path.exists(os.path.join(dest, "checkpoint.pt")):
-                blob = subprocess.run(["git", "-C", REPO, "show", f"{src['git']}:{src['run_state']}"],
-                                      capture_output=True, check=True).stdout
+                blob = committed_state(src)
                 os.makedirs(os.path.dirname(dest), exist_ok=True)
                 packed = dest + ".dbts"
                 with open(packed, "wb") as f:
