@@ -19,6 +19,15 @@ report() {
 trap report EXIT
 stage "cargo fmt --check" cargo fmt --all --check
 stage "cargo clippy" cargo clippy --workspace --all-targets --locked -- -D warnings
+# Every binary, once, in the tests' own profile (optimised, debug assertions
+# on): the process tests (hil-tests: cli, daemon, stream, ...) and the
+# training smoke test run these instead of building their own, and cargo
+# test reuses every crate of this build (crates/workspace-hack keeps the
+# features the same; hil-tests/tests/architecture.rs checks it). Issue #52
+# point 7: before, the tests built a release copy of the workspace piecemeal,
+# the cli test an unoptimised third, and the smoke test a fourth selection.
+stage "cargo build (binaries)" cargo build --profile test --locked --workspace --bins
+export DBTOR_BIN_DIR="$PWD/target/debug"
 stage "cargo test" cargo test --workspace --locked
 # The trainer: a few iterations on a small dataset, resumed, exported, and the
 # export checked by the firmware's runtime (needs training/requirements.txt).

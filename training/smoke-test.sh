@@ -18,14 +18,23 @@
 # cache, the compact state saved, restored on "another machine", a segment
 # stopped by SIGTERM, the ledger's lines, a changed dataset refused).
 # Needs training/requirements.txt installed and
-# the release binaries (host-sim, dbtor-diag).
+# the release binaries (host-sim, dbtor-diag, dbt-eval): built here, or taken
+# from DBTOR_BIN_DIR where scripts/test-all.sh built every binary once.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
-cargo build --release --locked -q -p host-sim -p dbtor-firmware -p dbt-eval
-./target/release/host-sim dataset --out "$tmp/ds" --slices 1500 --test-phantoms 0 --levels N8 --binning 4 2>/dev/null
+if [ -n "${DBTOR_BIN_DIR:-}" ]; then
+    BIN=$(cd "$DBTOR_BIN_DIR" && pwd)
+    for b in host-sim dbtor-diag dbt-eval; do
+        [ -x "$BIN/$b" ] || { echo "smoke test: DBTOR_BIN_DIR=$DBTOR_BIN_DIR has no $b" >&2; exit 1; }
+    done
+else
+    cargo build --release --locked -q -p host-sim -p dbtor-firmware -p dbt-eval
+    BIN=$PWD/target/release
+fi
+"$BIN"/host-sim dataset --out "$tmp/ds" --slices 1500 --test-phantoms 0 --levels N8 --binning 4 2>/dev/null
 cd training
 common=(--data "$tmp/ds" --out "$tmp/run" --iters 4 --batch 2 --blocks 2 --val-every 2 --log-every 1)
 $PY -m dbtor.train "${common[@]}" --stop-at 2
@@ -118,7 +127,7 @@ grep -q "fp32/dual00.onnx does not match its SHA-256" "$tmp/tampered.log" || { e
 # restored from the compact state and stopped by SIGTERM, a third to the end;
 # the state's round trip (weights exact); a changed dataset file refused by name.
 cont=($PY -m dbtor.continue_run --runs "$tmp/runs" --cache "$tmp/cache" --ledger "$tmp/ledger.md" --threads 2
-      --host-sim ../target/release/host-sim --quiet)
+      --host-sim "$BIN/host-sim" --quiet)
 $PY -m dbtor.continue_run new smoke --runs "$tmp/runs" --current --init "$tmp/model" \
     --dataset "--slices 1500 --test-phantoms 0 --levels N8 --binning 4" \
     --dataset "--slices 1500 --test-phantoms 0 --levels N8 --binning 4 --seed 7" \
@@ -161,7 +170,7 @@ $PY -m dbtor.continue_run new smoke-slot --runs "$tmp/runs" --init "$tmp/model" 
 # iterations long before; a tight one made the check depend on the machine's
 # load (a loaded 2-core machine stopped at 3 with 120 s).
 (cd .. && OUT="$tmp/slot" DEVICE=cpu BUDGET_S=600 RUNS="$tmp/runs" RUN=smoke-slot CACHE="$tmp/cache" \
-    HOST_SIM=target/release/host-sim LEDGER="$tmp/ledger.md" PYTHON="$PY" ./scripts/gpu-slot.sh)
+    HOST_SIM="$BIN/host-sim" LEDGER="$tmp/ledger.md" PYTHON="$PY" ./scripts/gpu-slot.sh)
 for f in state.dbts curve.csv LEDGER.md slot.log; do
     [ -s "$tmp/slot/$f" ] || { echo "smoke test: the GPU slot did not bring back $f"; exit 1; }
 done
@@ -200,10 +209,10 @@ grep -q '"int8_run"' "$tmp/qat-model/manifest.json" || { echo "smoke test: the m
 cmp "$tmp/model/fp32/dual00.onnx" "$tmp/qat-model/fp32/dual00.onnx" || { echo "smoke test: --int8-run changed the fp32 blocks"; exit 1; }
 $PY -m dbtor.qat --model "$tmp/qat-model" --run "$tmp/qat-run" --data "$tmp/ds" --calibration 2 --slices 1
 cd ..
-./target/release/dbtor-diag model "$tmp/model" --sign-off
-./target/release/dbtor-diag model "$tmp/qat-model" --sign-off
-./target/release/dbtor-diag model "$tmp/gptq-model" --sign-off
-./target/release/dbtor-diag model "$tmp/gptqa-model" --sign-off
+"$BIN"/dbtor-diag model "$tmp/model" --sign-off
+"$BIN"/dbtor-diag model "$tmp/qat-model" --sign-off
+"$BIN"/dbtor-diag model "$tmp/gptq-model" --sign-off
+"$BIN"/dbtor-diag model "$tmp/gptqa-model" --sign-off
 # The LPD baseline (no mask): trained, exported and checked the same way.
 cd training
 # (with the loss weighted near the breast's surface, recorded in the
@@ -223,11 +232,11 @@ grep -q '"kind": "lpd"' "$tmp/lpd/manifest.json" || { echo "smoke test: the LPD 
 grep -q '"precision": "bf16"' "$tmp/lpd/manifest.json" || { echo "smoke test: the LPD manifest does not record bf16 training"; exit 1; }
 grep -q '"edge_weight": 4.0' "$tmp/lpd/manifest.json" || { echo "smoke test: the LPD manifest does not record the edge weight"; exit 1; }
 grep -q '"form": "plain"' "$tmp/lpd/manifest.json" || { echo "smoke test: the LPD int8 form is not plain"; exit 1; }
-./target/release/dbtor-diag model "$tmp/lpd" --sign-off
+"$BIN"/dbtor-diag model "$tmp/lpd" --sign-off
 # Fine-tuning on the taller geometry (paper-tall.toml, 100 rows at x4): --init
 # from the DBToR run, 2 iterations, exported with the tall geometry and checked;
 # --init from a run of another kind is refused.
-./target/release/host-sim dataset --out "$tmp/ds-tall" --slices 1500 --test-phantoms 0 --levels N8 \
+"$BIN"/host-sim dataset --out "$tmp/ds-tall" --slices 1500 --test-phantoms 0 --levels N8 \
     --binning 4 --geometry crates/dbt-geometry/geometry/paper-tall.toml 2>/dev/null
 cd training
 $PY -m dbtor.train --data "$tmp/ds-tall" --out "$tmp/tall-run" --init "$tmp/run" --iters 2 --batch 2 \
@@ -245,16 +254,16 @@ cd ..
 grep -q '"form": "float-residual"' "$tmp/tall/manifest.json" || { echo "smoke test: the tall int8 form is not float-residual"; exit 1; }
 grep -q '"rows": 100' "$tmp/tall/manifest.json" || { echo "smoke test: the tall export lost its geometry"; exit 1; }
 grep -q '"init"' "$tmp/tall/manifest.json" || { echo "smoke test: the manifest does not record --init"; exit 1; }
-./target/release/dbtor-diag model "$tmp/tall" --sign-off
+"$BIN"/dbtor-diag model "$tmp/tall" --sign-off
 # The U-Net baseline on FBP: the FBP array, 2 iterations, export (the exporter
 # checks onnxruntime against PyTorch), and one evaluation slice through the
 # Rust runtime (tract).
-./target/release/host-sim fbp --data "$tmp/ds" --level N8
+"$BIN"/host-sim fbp --data "$tmp/ds" --level N8
 cd training
 $PY -m dbtor.train --data "$tmp/ds" --out "$tmp/unet-run" --model unet --iters 2 --batch 2 --val-every 2 --log-every 1
 $PY -m dbtor.export_unet --run "$tmp/unet-run" --data "$tmp/ds" --out "$tmp/unet" --fixtures 1
 cd ..
-./target/release/dbt-eval baselines --unet "$tmp/unet" --phantoms 1 --slices 1 --levels N8 --iterations 2 \
+"$BIN"/dbt-eval baselines --unet "$tmp/unet" --phantoms 1 --slices 1 --levels N8 --iterations 2 \
     --json "$tmp/unet-eval.json" > "$tmp/unet-eval.txt"
 grep -q "| U-Net | N8 |" "$tmp/unet-eval.txt" || { echo "smoke test: no U-Net row"; exit 1; }
 echo "training smoke test passed"

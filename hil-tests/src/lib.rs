@@ -46,21 +46,58 @@ pub fn wait_exit(
     }
 }
 
-/// A workspace binary (`host-sim`, or one of the firmware's), (re)built first
-/// in release mode: `cargo test` does not rebuild other packages' binaries,
-/// and a stale one would test old code; release, because the processes run
-/// real reconstructions and Monte Carlo (the unoptimised build is 20x slower)
+/// The environment variable naming a folder of prebuilt workspace binaries:
+/// `scripts/test-all.sh` builds them all once before `cargo test` (`cargo
+/// build --profile test --workspace --bins`: the tests' own profile,
+/// optimised with debug assertions on, sharing every crate with cargo
+/// test's build) and sets it, so that no test builds (issue #52 point 7:
+/// CI's time). Unset, each test builds the release binary it runs.
+pub const BIN_DIR_ENV: &str = "DBTOR_BIN_DIR";
+
+/// The folder of prebuilt binaries [`BIN_DIR_ENV`] names, if set (an empty
+/// value counts as unset). Panics, naming it, when it is not a folder.
+pub fn prebuilt_bin_dir() -> Option<std::path::PathBuf> {
+    let d = std::env::var_os(BIN_DIR_ENV).filter(|v| !v.is_empty())?;
+    let d = std::path::PathBuf::from(d);
+    assert!(
+        d.is_dir(),
+        "{BIN_DIR_ENV}={} is not a folder (it names the prebuilt workspace binaries)",
+        d.display()
+    );
+    Some(d)
+}
+
+/// The release folder beside this test executable's
+/// (`target/debug/deps/x-HASH` -> `target/release`).
+pub fn release_dir() -> std::path::PathBuf {
+    let exe = std::env::current_exe().expect("test executable path");
+    exe.parent()
+        .and_then(|d| d.parent())
+        .and_then(|d| d.parent())
+        .expect("target folder")
+        .join("release")
+}
+
+/// A workspace binary (`host-sim`, or one of the firmware's), optimised:
+/// from [`BIN_DIR_ENV`]'s folder when set (`scripts/test-all.sh` built
+/// every binary there just before the tests), else its release build,
+/// (re)built first:
+/// `cargo test` does not rebuild other packages' binaries, and a stale one
+/// would test old code. Release, because the processes run real
+/// reconstructions and Monte Carlo (the unoptimised build is 20x slower)
 /// and it is the build that ships (the main job and the smoke test build it
 /// too). A no-op when fresh (cargo does not hold the build lock while tests
 /// run).
 pub fn workspace_bin(name: &str) -> std::path::PathBuf {
-    let exe = std::env::current_exe().expect("test executable path");
-    let dir = exe
-        .parent()
-        .and_then(|d| d.parent())
-        .and_then(|d| d.parent())
-        .expect("target folder")
-        .join("release");
+    if let Some(d) = prebuilt_bin_dir() {
+        let exe = d.join(name);
+        assert!(
+            exe.is_file(),
+            "{BIN_DIR_ENV}={}: no `{name}` there (cargo build --profile test --workspace --bins makes it)",
+            d.display()
+        );
+        return exe;
+    }
     let pkg = if name == "host-sim" {
         "host-sim"
     } else {
@@ -71,7 +108,7 @@ pub fn workspace_bin(name: &str) -> std::path::PathBuf {
     c.args(["build", "-q", "--release", "-p", pkg, "--bin", name]);
     let ok = c.status().map(|s| s.success()).unwrap_or(false);
     assert!(ok, "building {name}");
-    dir.join(name)
+    release_dir().join(name)
 }
 
 /// `host-sim acquire` of test phantom `index` (N = 8, binned x4) into `dir/acq`.

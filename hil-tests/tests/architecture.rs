@@ -176,15 +176,16 @@ fn pure_crates_reach_no_adapter_and_no_edge_crate() {
         .filter(|(id, _)| id.starts_with("path+file://"))
         .map(|(_, n)| n.clone())
         .collect();
+    // workspace-hack has no code: it only unifies features (its test below).
     let classified: BTreeSet<String> = PURE
         .iter()
         .chain(ADAPTERS)
-        .chain(["dbt-dbtor"].iter())
+        .chain(["dbt-dbtor", "workspace-hack"].iter())
         .map(|s| s.to_string())
         .collect();
     assert_eq!(
         members, classified,
-        "every workspace crate is pure, an adapter or dbt-dbtor (hil-tests/tests/architecture.rs)"
+        "every workspace crate is pure, an adapter, dbt-dbtor or workspace-hack (hil-tests/tests/architecture.rs)"
     );
 
     let mut violations = Vec::new();
@@ -408,5 +409,66 @@ fn no_stage_of_the_pipeline_asks_for_the_layout() {
     assert_eq!(
         field_reads_of_system("match &h.system { } h.system() s.system_name x.system;"),
         2
+    );
+}
+
+/// Each crate's features in the workspace's resolve, as `cargo tree` prints
+/// them: `name version` -> the feature list, for the normal and build
+/// dependencies and, with `dev`, the tests' dev-dependencies too.
+fn features(dev: bool) -> BTreeMap<String, String> {
+    let edges = if dev {
+        "normal,build,dev"
+    } else {
+        "normal,build"
+    };
+    let out = Command::new(env!("CARGO"))
+        .args(["tree", "--workspace", "--locked", "--prefix", "none"])
+        .args(["-e", edges, "-f", "{p}|{f}"])
+        .current_dir(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
+        .output()
+        .expect("cargo tree");
+    assert!(
+        out.status.success(),
+        "cargo tree: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .filter_map(|l| {
+            let (p, f) = l.trim_end_matches(" (*)").split_once('|')?;
+            // `name vX.Y.Z (path)` -> `name vX.Y.Z`
+            let p: Vec<&str> = p.split_whitespace().take(2).collect();
+            Some((p.join(" "), f.to_string()))
+        })
+        .collect()
+}
+
+/// The binaries (`cargo build --workspace --bins`, what `scripts/test-all.sh`
+/// builds once for the process tests) and the tests (`cargo test
+/// --workspace`) compile every crate they share with the same features, so
+/// that cargo builds it once for both (issue #52 point 7). A dev-dependency
+/// that turns on more features of a shared crate breaks this: give
+/// `crates/workspace-hack` that crate with those features.
+#[test]
+fn build_and_test_features_agree() {
+    let build = features(false);
+    let test = features(true);
+    assert!(
+        build.keys().any(|k| k.starts_with("tract-core ")),
+        "cargo tree's output not understood: {:?}",
+        build.keys().take(5).collect::<Vec<_>>()
+    );
+    let differ: Vec<String> = build
+        .iter()
+        .filter_map(|(p, f)| {
+            let t = test.get(p)?;
+            (t != f).then(|| format!("{p}: binaries [{f}], tests [{t}]"))
+        })
+        .collect();
+    assert!(
+        differ.is_empty(),
+        "crates built with other features for the tests than for the binaries \
+         (add them to crates/workspace-hack/Cargo.toml):\n{}",
+        differ.join("\n")
     );
 }

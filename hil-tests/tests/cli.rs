@@ -30,19 +30,30 @@ fn binaries() -> Vec<(String, String)> {
     bins
 }
 
-/// The debug build of every binary (built here: `cargo test` does not build
-/// other packages' binaries).
+/// Every binary: the prebuilt folder (`hil_tests::BIN_DIR_ENV`, set by
+/// `scripts/test-all.sh`), else their release build, made here (`cargo
+/// test` does not build other packages' binaries): the build the other
+/// process tests run, so that no other copy of the workspace is built for
+/// this test.
 fn built() -> PathBuf {
+    if let Some(d) = hil_tests::prebuilt_bin_dir() {
+        return d;
+    }
     let root = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
     let st = Command::new(env!("CARGO"))
-        .args(["build", "-q", "--locked", "--workspace", "--bins"])
+        .args([
+            "build",
+            "-q",
+            "--release",
+            "--locked",
+            "--workspace",
+            "--bins",
+        ])
         .current_dir(root)
         .status()
         .expect("cargo build");
     assert!(st.success(), "building the binaries");
-    let exe = std::env::current_exe().unwrap();
-    // target/debug/deps/cli-HASH -> target/debug
-    exe.parent().unwrap().parent().unwrap().to_path_buf()
+    hil_tests::release_dir()
 }
 
 #[test]
@@ -52,6 +63,7 @@ fn every_binary_has_help_and_refuses_a_misspelt_option() {
     let dir = built();
     for (pkg, bin) in &bins {
         let exe = dir.join(bin);
+        assert!(exe.is_file(), "{pkg}/{bin}: no binary {}", exe.display());
         let help = Command::new(&exe).arg("--help").output().unwrap();
         let text = String::from_utf8_lossy(&help.stdout);
         assert!(

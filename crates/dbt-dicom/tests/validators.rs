@@ -631,10 +631,19 @@ fn dose_report_passes_pixelmed_sr_validation() {
         jar.is_file(),
         "PixelMed not found: apt-get install libpixelmed-java (.ci/run installs it)"
     );
+    // The full 25-event sweep once; the unconfirmed and physics-only
+    // reports differ from it above the events (their intervals, the model
+    // breast at the physics density, the method), so they are validated on
+    // a 3-event sweep: PixelMed's templates take about 30 s a 25-event
+    // report on a 2-core CI machine (issue #52 point 7).
+    let three_events = |mut d: DoseInput| {
+        d.events.truncate(3);
+        d
+    };
     for input in [
         dose_input(),
-        unconfirmed_dose_input(),
-        physics_only_dose_input(),
+        three_events(unconfirmed_dose_input()),
+        three_events(physics_only_dose_input()),
     ] {
         pixelmed_validates_dose(jar, &input);
     }
