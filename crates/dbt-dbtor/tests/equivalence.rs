@@ -60,19 +60,41 @@ fn lpd_matches_pytorch_and_onnxruntime() {
 /// and `models/dbtor-x4t3` (its fp32 source). The models dbtor-x4t3 was
 /// fine-tuned from, and the anatomical dbtor-x4a and dbtor-x4b (paper-104,
 /// never shipped), are retired from the tree (models/README.md).
+///
+/// dbtor-x4t3's fp32 blocks are dbtor-x4t3qa's, file for file (asserted
+/// from the manifests' SHA-256), so its fp32 path is checked once, on
+/// dbtor-x4t3qa (each fp32 check of these models takes seconds a fixture
+/// on a 2-core CI machine); the two int8 sets differ and both are checked.
 #[test]
 fn tall_models_match_pytorch_and_onnxruntime() {
-    for (name, rows) in [("dbtor-x4t3qa", 100), ("dbtor-x4t3", 100)] {
-        let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../models")
-            .join(name);
-        for p in [Precision::Fp32, Precision::Int8] {
+    let models = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models");
+    let shipped = ModelManifest::load(&models.join("dbtor-x4t3qa")).unwrap();
+    let source = ModelManifest::load(&models.join("dbtor-x4t3")).unwrap();
+    let fp32 = |m: &ModelManifest| -> Vec<(String, String)> {
+        m.sha256
+            .iter()
+            .filter(|(f, _)| f.starts_with("fp32/"))
+            .map(|(f, h)| (f.clone(), h.clone()))
+            .collect()
+    };
+    assert!(!fp32(&shipped).is_empty());
+    assert_eq!(
+        fp32(&shipped),
+        fp32(&source),
+        "dbtor-x4t3qa's fp32 blocks are dbtor-x4t3's"
+    );
+    for (name, precisions) in [
+        ("dbtor-x4t3qa", &[Precision::Fp32, Precision::Int8][..]),
+        ("dbtor-x4t3", &[Precision::Int8][..]),
+    ] {
+        let dir = models.join(name);
+        for &p in precisions {
             for e in [Engine::Fast, Engine::Tract] {
                 check_dir(&dir, p, e);
             }
         }
         let m = ModelManifest::load(&dir).unwrap();
-        assert_eq!((m.kind.as_str(), m.geometry.image.rows), ("dbtor", rows));
+        assert_eq!((m.kind.as_str(), m.geometry.image.rows), ("dbtor", 100));
     }
 }
 
