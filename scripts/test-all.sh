@@ -23,9 +23,8 @@ stage "cargo clippy" cargo clippy --workspace --all-targets --locked -- -D warni
 # on): the process tests (hil-tests: cli, daemon, stream, ...) and the
 # training smoke test run these instead of building their own, and cargo
 # test reuses every crate of this build (crates/workspace-hack keeps the
-# features the same; hil-tests/tests/architecture.rs checks it). Issue #52
-# point 7: before, the tests built a release copy of the workspace piecemeal,
-# the cli test an unoptimised third, and the smoke test a fourth selection.
+# features the same; hil-tests/tests/architecture.rs checks it): one build
+# of the workspace in all (issue #52 point 7, CI's time).
 stage "cargo build (binaries)" cargo build --profile test --locked --workspace --bins
 export DBTOR_BIN_DIR="$PWD/target/debug"
 stage "cargo test" cargo test --workspace --locked

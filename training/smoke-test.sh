@@ -18,8 +18,8 @@
 # cache, the compact state saved, restored on "another machine", a segment
 # stopped by SIGTERM, the ledger's lines, a changed dataset refused).
 # Needs training/requirements.txt installed and
-# the release binaries (host-sim, dbtor-diag, dbt-eval): built here, or taken
-# from DBTOR_BIN_DIR where scripts/test-all.sh built every binary once.
+# the binaries host-sim, dbtor-diag and dbt-eval: from DBTOR_BIN_DIR where
+# scripts/test-all.sh built every binary once, else their release build, made here.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}

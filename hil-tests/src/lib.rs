@@ -81,13 +81,11 @@ pub fn release_dir() -> std::path::PathBuf {
 /// A workspace binary (`host-sim`, or one of the firmware's), optimised:
 /// from [`BIN_DIR_ENV`]'s folder when set (`scripts/test-all.sh` built
 /// every binary there just before the tests), else its release build,
-/// (re)built first:
-/// `cargo test` does not rebuild other packages' binaries, and a stale one
-/// would test old code. Release, because the processes run real
-/// reconstructions and Monte Carlo (the unoptimised build is 20x slower)
-/// and it is the build that ships (the main job and the smoke test build it
-/// too). A no-op when fresh (cargo does not hold the build lock while tests
-/// run).
+/// (re)built first: `cargo test` does not rebuild other packages'
+/// binaries, and a stale one would test old code. Optimised, because the
+/// processes run real reconstructions and Monte Carlo (the unoptimised
+/// build is 20x slower). The build is a no-op when fresh (cargo does not
+/// hold the build lock while tests run).
 pub fn workspace_bin(name: &str) -> std::path::PathBuf {
     if let Some(d) = prebuilt_bin_dir() {
         let exe = d.join(name);
