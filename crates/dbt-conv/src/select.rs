@@ -99,15 +99,32 @@ pub fn select<C: Clone + PartialEq>(
     preferred: Option<&C>,
     mut run: impl FnMut(&C) -> Result<Vec<f32>, ConvError>,
 ) -> Result<Selection<C>, ConvError> {
+    select_measured(candidates, reference, tolerance, reps, preferred, |c| {
+        let t0 = Instant::now();
+        let out = run(c);
+        (out, t0.elapsed().as_secs_f64() * 1e3)
+    })
+}
+
+/// [`select`]'s rule on runs that report their own time in ms (`measure`
+/// returns a run's output and its duration): the wall clock in [`select`],
+/// a given duration in the rule's tests, which must not depend on how busy
+/// the machine is.
+fn select_measured<C: Clone + PartialEq>(
+    candidates: &[(C, String)],
+    reference: &[f32],
+    tolerance: f64,
+    reps: usize,
+    preferred: Option<&C>,
+    mut measure: impl FnMut(&C) -> (Result<Vec<f32>, ConvError>, f64),
+) -> Result<Selection<C>, ConvError> {
     let mut timings = Vec::with_capacity(candidates.len());
     for (c, label) in candidates {
         let mut times = Vec::with_capacity(reps.max(1));
         let mut dev = 0.0f64;
         // One warm-up run (its output is checked too), then the timed ones.
         for k in 0..=reps.max(1) {
-            let t0 = Instant::now();
-            let out = run(c);
-            let dt = t0.elapsed().as_secs_f64() * 1e3;
+            let (out, dt) = measure(c);
             match out {
                 Ok(o) => dev = dev.max(deviation(&o, reference)),
                 Err(_) => dev = f64::INFINITY,
@@ -388,7 +405,9 @@ mod tests {
 
     /// The rule: the fastest candidate that agrees; a faster one that
     /// disagrees (a deliberately broken kernel) or fails is never chosen
-    /// and is named as refused.
+    /// and is named as refused. The runs report given durations
+    /// (`select_measured`), so the rule's outcome cannot depend on how busy
+    /// the machine is; the wall clock's path is the next test's.
     #[test]
     fn a_kernel_that_disagrees_is_never_chosen() {
         let reference = vec![1.0f32, -2.0, 3.0];
@@ -400,19 +419,16 @@ mod tests {
             c("broken"),
             c("failing"),
         ];
-        let delay = |ms: u64| std::thread::sleep(std::time::Duration::from_millis(ms));
-        let sel = select(&cands, &reference, 0.0, 3, None, |name| {
+        let off_by_a_bit = || vec![1.0, -2.0, f32::from_bits(3.0f32.to_bits() + 1)];
+        let sel = select_measured(&cands, &reference, 0.0, 3, None, |name| {
             match name.as_str() {
-                "portable" => delay(12),
-                "slow" => delay(8),
-                "fast" => delay(3),
+                "portable" => (Ok(reference.clone()), 12.0),
+                "slow" => (Ok(reference.clone()), 8.0),
+                "fast" => (Ok(reference.clone()), 3.0),
                 // Fastest of all, and wrong in one value's last bit.
-                "broken" => {
-                    return Ok(vec![1.0, -2.0, f32::from_bits(3.0f32.to_bits() + 1)]);
-                }
-                _ => return Err(ConvError::Shape("no such kernel here".into())),
+                "broken" => (Ok(off_by_a_bit()), 0.5),
+                _ => (Err(ConvError::Shape("no such kernel here".into())), 0.1),
             }
-            Ok(reference.clone())
         })
         .unwrap();
         assert_eq!(sel.chosen, "fast");
@@ -432,44 +448,91 @@ mod tests {
         assert!(d.contains("fast") && d.contains("(chosen)"), "{d}");
         assert!(d.contains("broken") && d.contains("refused"), "{d}");
         // A tolerance admits the broken one (fp32's rule), and then it wins.
-        let lax = select(&cands[..4], &reference, 1e-6, 1, None, |name| {
+        let lax = select_measured(&cands[..4], &reference, 1e-6, 1, None, |name| {
             if name == "broken" {
-                Ok(vec![1.0, -2.0, f32::from_bits(3.0f32.to_bits() + 1)])
+                (Ok(off_by_a_bit()), 0.5)
             } else {
-                delay(2);
-                Ok(reference.clone())
+                (Ok(reference.clone()), 2.0)
             }
         })
         .unwrap();
         assert_eq!(lax.chosen, "broken");
         // None agrees: refused, naming each.
-        let e = select(&cands[3..4], &reference, 0.0, 1, None, |_| Ok(vec![0.0; 3]))
-            .unwrap_err()
-            .to_string();
+        let e = select_measured(&cands[3..4], &reference, 0.0, 1, None, |_| {
+            (Ok(vec![0.0; 3]), 1.0)
+        })
+        .unwrap_err()
+        .to_string();
         assert!(e.contains("broken deviation"), "{e}");
+        // The median of the timed runs decides, the warm-up run not at all:
+        // one slow outlier among three does not move a candidate.
+        let mut calls = std::collections::HashMap::<String, usize>::new();
+        let outlier = select_measured(
+            &[c("steady"), c("jumpy")],
+            &reference,
+            0.0,
+            3,
+            None,
+            |name| {
+                let k = calls.entry(name.clone()).or_default();
+                *k += 1;
+                let ms = match (name.as_str(), *k) {
+                    ("steady", _) => 10.0,
+                    // warm-up 100 ms, then 5, 50, 5: median 5
+                    ("jumpy", 1) => 100.0,
+                    ("jumpy", 3) => 50.0,
+                    _ => 5.0,
+                };
+                (Ok(reference.clone()), ms)
+            },
+        )
+        .unwrap();
+        assert_eq!(outlier.chosen, "jumpy", "{}", outlier.describe());
         // A preferred candidate within 5 % of the fastest is kept; one far
         // slower, or one that disagrees, is not.
         let timed = |name: &String| {
-            delay(match name.as_str() {
-                "portable" => 20,
-                "slow" => 12,
-                _ => 10,
-            });
+            let ms = match name.as_str() {
+                "portable" => 20.0,
+                "slow" => 12.0,
+                "fast2" => 10.4,
+                _ => 10.0,
+            };
             if name == "broken" {
-                Ok(vec![0.0; 3])
+                (Ok(vec![0.0; 3]), ms)
             } else {
-                Ok(reference.clone())
+                (Ok(reference.clone()), ms)
             }
         };
         let near = [c("fast"), c("fast2")];
-        let kept = select(&near, &reference, 0.0, 3, Some(&"fast2".to_string()), timed).unwrap();
+        let kept =
+            select_measured(&near, &reference, 0.0, 3, Some(&"fast2".to_string()), timed).unwrap();
         assert_eq!(kept.chosen, "fast2", "{}", kept.describe());
         let far = [c("slow"), c("fast")];
-        let sel = select(&far, &reference, 0.0, 3, Some(&"slow".to_string()), timed).unwrap();
+        let sel =
+            select_measured(&far, &reference, 0.0, 3, Some(&"slow".to_string()), timed).unwrap();
         assert_eq!(sel.chosen, "fast", "{}", sel.describe());
         let bad = [c("broken"), c("slow")];
-        let sel = select(&bad, &reference, 0.0, 1, Some(&"broken".to_string()), timed).unwrap();
+        let sel =
+            select_measured(&bad, &reference, 0.0, 1, Some(&"broken".to_string()), timed).unwrap();
         assert_eq!(sel.chosen, "slow");
+    }
+
+    /// `select` times the runs by the wall clock: of two that agree, one
+    /// sleeping 1 ms and one 40 ms, the first is chosen (a margin that a
+    /// loaded 2-core machine's late wake-ups, a few ms, do not close).
+    #[test]
+    fn select_times_by_the_wall_clock() {
+        let reference = vec![1.0f32];
+        let c = |n: &str| (n.to_string(), n.to_string());
+        let sel = select(&[c("slow"), c("fast")], &reference, 0.0, 3, None, |name| {
+            let ms = if name == "fast" { 1 } else { 40 };
+            std::thread::sleep(std::time::Duration::from_millis(ms));
+            Ok(reference.clone())
+        })
+        .unwrap();
+        assert_eq!(sel.chosen, "fast", "{}", sel.describe());
+        let slow = sel.timings.iter().find(|t| t.candidate == "slow").unwrap();
+        assert!(slow.median_ms >= 40.0, "{}", sel.describe());
     }
 
     /// On this CPU every int8 configuration agrees with the portable kernel
