@@ -10,8 +10,8 @@
 #
 #   ./scripts/test-binaries-time.sh [> table.md]
 #
-# A binary that fails is listed with its exit status; the script then exits
-# 1. Needs jq and GNU time (/usr/bin/time).
+# A binary that fails is listed with its exit status and its output is
+# shown on stderr; the script then exits 1. Needs jq and GNU time (/usr/bin/time).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 command -v jq >/dev/null || { echo "test-binaries-time: needs jq" >&2; exit 1; }
@@ -21,7 +21,7 @@ export DBTOR_BIN_DIR="${DBTOR_BIN_DIR:-$PWD/target/debug}"
 list=$(mktemp)
 out=$(mktemp)
 rows=$(mktemp)
-trap 'rm -f "$list" "$out" "$rows"' EXIT
+trap 'rm -f "$list" "$out" "$out.time" "$rows"' EXIT
 cargo test --workspace --locked --no-run --message-format=json 2>/dev/null \
     | jq -r 'select(.reason == "compiler-artifact" and .executable != null and .profile.test == true)
              | "\(.manifest_path)\t\(.executable)\t\(.target.name)"' > "$list"
@@ -32,10 +32,13 @@ while IFS=$'\t' read -r manifest exe name; do
     rc=0
     (cd "$dir" && /usr/bin/time -f "%e %U %S" -o "$out.time" "$exe" > "$out" 2>&1) || rc=$?
     read -r wall user sys < <(tail -n 1 "$out.time")
-    [ "$rc" = 0 ] || failed=1
+    if [ "$rc" != 0 ]; then
+        failed=1
+        echo "test-binaries-time: $name ($dir) exited with $rc:" >&2
+        cat "$out" >&2
+    fi
     printf '%s\t%s\t%s\t%s\t%s\t%s\n' "$wall" "$user" "$sys" "$rc" "$name" "${dir#"$PWD"/}" >> "$rows"
 done < "$list"
-rm -f "$out.time"
 echo "Test binaries run alone on $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2- | sed 's/^ //'), $cores CPUs, at $(git rev-parse --short HEAD)"
 echo
 echo "| test binary | package folder | wall s | user + sys s | cores busy | exit |"
@@ -45,5 +48,5 @@ sort -t$'\t' -k1 -g -r "$rows" | awk -F'\t' -v n="$cores" '{
     printf "| %s | %s | %.1f | %.1f | %.2f of %d | %s |\n", $5, $6, $1, cpu, busy, n, $4 }'
 awk -F'\t' -v n="$cores" '{ w += $1; c += $2 + $3; k++ } END {
     printf "\n%d binaries: %.0f s wall, %.0f s of CPU; the cores were %.0f %% busy (%.0f core-s idle)\n",
-        k, w, c, 100 * c / (n * w), n * w - c }' "$rows"
+        k, w, c, (w > 0) ? 100 * c / (n * w) : 0, n * w - c }' "$rows"
 exit "$failed"
