@@ -31,11 +31,13 @@
 # Output: out/main-job/ (summary.json, reports/*.dcm). Options for step 3 can
 # be given as arguments, e.g. --pacs ORTHANC@127.0.0.1:4242.
 # PHYSICS=clinical (issue #27): the gantry's exposure is polychromatic (W/Rh),
-# recorded by an energy-integrating CsI detector with scatter and no grid
+# recorded by an energy-integrating detector (the system's converter: CsI, or
+# a-Se for Hologic and Siemens) with scatter and no grid
 # (host-sim acquire --physics clinical); dbtor-process then removes the
 # scatter, linearises the beam hardening and matches the noise to the
-# model's training level (--descatter --csi-um 200 --noise-match: the
-# daemon's [recon] scatter = "kernel", beam_hardening = "csi",
+# model's training level (--descatter --csi-um 200 --noise-match, or
+# --a-se-um for a system with an a-Se detector: the daemon's [recon]
+# scatter = "kernel", beam_hardening = "csi" or "a-se",
 # noise_match = "training-level"). Default mono
 # (the paper's simulated detector, the shipped model's training world).
 # ANODE_FILTER=W/Al: the exposure's beam (default W/Rh, the paper's): the
@@ -72,15 +74,25 @@ fi
 SYSTEM_ARGS=()
 [ "$SYSTEM" = "-" ] || SYSTEM_ARGS=(--system "$SYSTEM")
 PHYSICS=${PHYSICS:-mono}
-CORRECTIONS=()
 case "$PHYSICS" in
-    mono) ;;
-    clinical) CORRECTIONS=(--descatter --csi-um 200)
-              # The noise is matched to a model's training level: none without one.
-              [ "${METHOD_ARGS[0]}" = "--physics-only" ] || CORRECTIONS+=(--noise-match) ;;
+    mono|clinical) ;;
     *) echo "PHYSICS=$PHYSICS: expected mono or clinical" >&2; exit 2 ;;
 esac
 ./target/release/host-sim acquire --out "$OUT/gantry-acquisition" --index 0 --geometry "$GEOMETRY" --binning "$BINNING" "${SYSTEM_ARGS[@]}" --noise N8 --physics "$PHYSICS" --anode-filter "${ANODE_FILTER:-W/Rh}" 2>/dev/null
+CORRECTIONS=()
+if [ "$PHYSICS" = clinical ]; then
+    # The linearisation is for the gantry's detector: the converter its
+    # system states (a-Se for Hologic and Siemens), else 200 um of CsI.
+    CONVERTER=$(python3 -c '
+import json, sys
+s = json.load(open(sys.argv[1])).get("system") or {}
+c = s.get("detector", {}).get("converter") or {"material": "CsI", "thickness_um": 200.0}
+print("--a-se-um" if c["material"] == "a-Se" else "--csi-um", c["thickness_um"])' "$OUT/gantry-acquisition/acquisition.json")
+    read -r CONVERTER_FLAG CONVERTER_UM <<< "$CONVERTER"
+    CORRECTIONS=(--descatter "$CONVERTER_FLAG" "$CONVERTER_UM")
+    # The noise is matched to a model's training level: none without one.
+    [ "${METHOD_ARGS[0]}" = "--physics-only" ] || CORRECTIONS+=(--noise-match)
+fi
 PORT=$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
 ./target/release/host-sim stream --acq "$OUT/gantry-acquisition" --listen "127.0.0.1:$PORT" 2>/dev/null &
 SIM=$!

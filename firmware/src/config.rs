@@ -213,14 +213,18 @@ pub struct ReconConfig {
     #[serde(default = "default_unc")]
     pub dose_uncertainty: f64,
     /// The detector's physics (issue #27): `off` (counts taken as
-    /// mono-energetic: the paper's simulated photon-counting detector) or
-    /// `csi` (an energy-integrating CsI flat panel: the beam hardening
-    /// linearised before the reconstruction, `dbt_pipeline::linearise`).
+    /// mono-energetic: the paper's simulated photon-counting detector),
+    /// `csi` (an energy-integrating CsI flat panel) or `a-se` (an a-Se
+    /// direct-conversion panel: Hologic, Siemens, Fujifilm): the beam
+    /// hardening linearised before the reconstruction for that converter
+    /// (`dbt_pipeline::linearise`). With a cone-beam system whose file
+    /// states its converter, another is refused naming both.
     #[serde(default)]
     pub beam_hardening: BeamHardeningMode,
-    /// The CsI scintillator's thickness, um (with `beam_hardening = "csi"`).
-    #[serde(default = "default_csi_um")]
-    pub csi_um: f64,
+    /// The converter layer's thickness, um (with `beam_hardening` `csi` or
+    /// `a-se`; `csi_um` is read as this key too).
+    #[serde(default = "default_converter_um", alias = "csi_um")]
+    pub converter_um: f64,
     /// Noise matching (issue #27, `dbt_pipeline::noise_match`): `off`, or
     /// `training-level` (the corrected counts brought to the noise of the
     /// DBToR model's training level; with `beam_hardening = "csi"`,
@@ -272,9 +276,23 @@ pub enum BeamHardeningMode {
     Off,
     /// Linearised for a CsI energy-integrating detector.
     Csi,
+    /// Linearised for an a-Se direct-conversion detector.
+    #[serde(rename = "a-se")]
+    ASe,
 }
 
-fn default_csi_um() -> f64 {
+impl BeamHardeningMode {
+    /// The converter material linearised for (`None`: off).
+    pub fn material(self) -> Option<dbt_materials::ConverterMaterial> {
+        match self {
+            BeamHardeningMode::Off => None,
+            BeamHardeningMode::Csi => Some(dbt_materials::ConverterMaterial::CsI),
+            BeamHardeningMode::ASe => Some(dbt_materials::ConverterMaterial::ASe),
+        }
+    }
+}
+
+fn default_converter_um() -> f64 {
     200.0
 }
 
@@ -841,17 +859,43 @@ impl Config {
                 "must be in (0, 20) mm".into(),
             ));
         }
-        if let Err(e) = dbt_pipeline::linearise::BeamHardening::csi(self.recon.csi_um) {
-            return Err(bad("recon.csi_um", e.to_string()));
+        let converter = dbt_materials::Converter {
+            material: self.recon.beam_hardening.material().unwrap_or_default(),
+            thickness_um: self.recon.converter_um,
+        };
+        if let Err(e) = converter.validate() {
+            return Err(bad("recon.converter_um", e.to_string()));
+        }
+        if let (Some(m), Some(sys)) = (
+            self.recon.beam_hardening.material(),
+            self.gantry_system(path)?,
+        ) {
+            if let Some(stated) = sys.detector.converter {
+                if stated
+                    != (dbt_materials::Converter {
+                        material: m,
+                        ..converter
+                    })
+                {
+                    return Err(bad(
+                        "recon.beam_hardening",
+                        format!(
+                            "linearises for {} um of {m}, but frames.system {} has {stated} \
+                             (set beam_hardening and converter_um to its converter)",
+                            self.recon.converter_um, sys.name
+                        ),
+                    ));
+                }
+            }
         }
         if self.recon.noise_match == NoiseMatchMode::TrainingLevel
-            && (self.recon.beam_hardening != BeamHardeningMode::Csi
+            && (self.recon.beam_hardening == BeamHardeningMode::Off
                 || self.recon.scatter != ScatterMode::Kernel
                 || self.recon.reconstructor != Reconstructor::Dbtor)
         {
             return Err(bad(
                 "recon.noise_match",
-                "\"training-level\" matches corrected counts to a DBToR model's training noise, as measured with both corrections: it needs beam_hardening = \"csi\", scatter = \"kernel\" and reconstructor = \"dbtor\"".into(),
+                "\"training-level\" matches corrected counts to a DBToR model's training noise, as measured with both corrections: it needs beam_hardening = \"csi\" or \"a-se\", scatter = \"kernel\" and reconstructor = \"dbtor\"".into(),
             ));
         }
         match self.recon.reconstructor {
@@ -1087,12 +1131,12 @@ impl Config {
 
     /// The beam-hardening correction the configuration asks for, if any.
     pub fn linearise(&self) -> Option<dbt_pipeline::linearise::BeamHardening> {
-        (self.recon.beam_hardening == BeamHardeningMode::Csi).then(|| {
+        self.recon.beam_hardening.material().map(|material| {
             dbt_pipeline::linearise::BeamHardening {
-                detector: dbt_forward::clinical::Detector {
-                    csi_um: self.recon.csi_um,
-                    ..Default::default()
-                },
+                detector: dbt_forward::clinical::Detector::with(dbt_materials::Converter {
+                    material,
+                    thickness_um: self.recon.converter_um,
+                }),
                 path: dbt_pipeline::linearise::PathModel::Reference,
             }
         })
@@ -1104,7 +1148,7 @@ impl Config {
     pub fn input_corrections(&self) -> dbt_model::InputCorrections {
         dbt_model::InputCorrections {
             scatter_removed: self.recon.scatter == ScatterMode::Kernel,
-            linearised: self.recon.beam_hardening == BeamHardeningMode::Csi,
+            linearised: self.recon.beam_hardening != BeamHardeningMode::Off,
             noise_matched: self.recon.noise_match == NoiseMatchMode::TrainingLevel,
             ..Default::default()
         }
@@ -1597,11 +1641,26 @@ mod tests {
         assert_eq!(c.linearise(), None);
         let c =
             example(|t| t.replace("beam_hardening = \"off\"", "beam_hardening = \"csi\"")).unwrap();
-        assert_eq!(c.linearise().unwrap().detector.csi_um, 200.0);
-        let e = example(|t| t.replace("csi_um = 200.0", "csi_um = 5.0"))
+        assert_eq!(
+            c.linearise().unwrap().detector.converter,
+            dbt_materials::Converter::default()
+        );
+        let e = example(|t| t.replace("converter_um = 200.0", "converter_um = 5.0"))
             .unwrap_err()
             .to_string();
-        assert!(e.contains("recon.csi_um") && e.contains("5 um"), "{e}");
+        assert!(
+            e.contains("recon.converter_um") && e.contains("5 um"),
+            "{e}"
+        );
+        // The key's former name still reads.
+        let c = example(|t| {
+            t.replace("beam_hardening = \"off\"", "beam_hardening = \"a-se\"")
+                .replace("converter_um = 200.0", "csi_um = 250.0")
+        })
+        .unwrap();
+        let d = c.linearise().unwrap().detector.converter;
+        assert_eq!(d.material, dbt_materials::ConverterMaterial::ASe);
+        assert_eq!(d.thickness_um, 250.0);
         let e = example(|t| t.replace("beam_hardening = \"off\"", "beam_hardening = \"selenium\""))
             .unwrap_err()
             .to_string();
@@ -1710,6 +1769,40 @@ mod tests {
                 .to_string();
             assert!(e.contains("recon.slice_step") && e.contains(bad), "{e}");
         }
+    }
+
+    /// With a cone-beam system that states its converter, the
+    /// linearisation must be for that one: Hologic's a-Se taken, CsI (or
+    /// a-Se of another thickness) refused naming the key, the system and
+    /// both converters; the paper's system states none, so CsI stays.
+    #[test]
+    fn the_linearisation_is_for_the_system_s_converter() {
+        let on = |name: &str, mode: &str, um: &str| {
+            example(|t| {
+                physics(&t)
+                    .replace("\"paper-cone\"", &format!("{name:?}"))
+                    .replace(
+                        "beam_hardening = \"off\"",
+                        &format!("beam_hardening = {mode:?}"),
+                    )
+                    .replace("converter_um = 200.0", &format!("converter_um = {um}"))
+            })
+        };
+        let c = on("hologic-dimensions", "a-se", "200.0").unwrap();
+        let d = c.linearise().unwrap().detector.converter;
+        assert_eq!(d.material, dbt_materials::ConverterMaterial::ASe);
+        for (mode, um) in [("csi", "200.0"), ("a-se", "250.0")] {
+            let e = on("hologic-dimensions", mode, um).unwrap_err().to_string();
+            assert!(
+                e.contains("recon.beam_hardening")
+                    && e.contains("hologic-dimensions")
+                    && e.contains("200 um a-Se"),
+                "{e}"
+            );
+        }
+        assert!(on("ge-essential", "a-se", "200.0").is_err());
+        assert!(on("ge-essential", "csi", "200.0").is_ok());
+        assert!(on("paper-cone", "csi", "150.0").is_ok());
     }
 
     /// The cone-beam system: the shipped one, none (the slice-wise stream),

@@ -775,8 +775,9 @@ fn clinical_physics_is_reported_after_both_corrections() {
 
 /// A vendor's gantry without a trained model (issue #51 point 3): test
 /// phantom 1 acquired on Hologic's gantry (tilting detector, the pivot in
-/// its plane, 15 views over +-7.5 degrees; clinical physics), streamed and
-/// registered like any other; the daemon configured with that system and
+/// its plane, 15 views over +-7.5 degrees; clinical physics on its a-Se
+/// detector), streamed and registered like any other; the daemon
+/// configured with that system, `beam_hardening = "a-se"` and
 /// `reconstructor = "physics"` reports it without a reconstruction: the
 /// physics density within 4 pp of the truth, no fault, both SRs naming the
 /// method and read back by `dbtor-diag report`, the dose SR with an
@@ -812,7 +813,7 @@ fn a_vendor_gantry_without_a_model_is_reported_by_the_physics() {
             "transport = \"tcp\"\naddress = \"{}\"\ntimeout_ms = 500\nattempts = 3\nthickness_tolerance_mm = 1.0",
             g.registers
         ),
-        "reconstructor = \"physics\"\nbeam_hardening = \"csi\"\nscatter = \"kernel\"",
+        "reconstructor = \"physics\"\nbeam_hardening = \"a-se\"\nscatter = \"kernel\"",
     );
     let st = once(&cfg);
     let s = status(dir.path());

@@ -128,8 +128,9 @@ pub enum Physics {
     #[default]
     Mono,
     /// A polychromatic beam (the spectrum of the acquisition's kV,
-    /// `dbt_dose::xray::technique_spectrum`: the one the dose uses), an energy-integrating CsI
-    /// detector, quantum and electronic noise
+    /// `dbt_dose::xray::technique_spectrum`: the one the dose uses), an energy-integrating
+    /// detector (200 um of CsI, or the converter a cone-beam system's file states:
+    /// [`Physics::on_system`]), quantum and electronic noise
     /// (`dbt_forward::clinical`): the noise level's photons reach each
     /// element without the breast (an N8-equivalent dose at N8), and its
     /// flat field reads that many ADU; with `scatter`, each view's scatter
@@ -160,6 +161,30 @@ impl Physics {
             other => Err(SimError::Options(format!(
                 "physics {other:?}: expected mono, clinical or clinical-primary"
             ))),
+        }
+    }
+
+    /// The clinical model's detector (`None` for the mono model).
+    pub fn detector(&self) -> Option<dbt_forward::clinical::Detector> {
+        match self {
+            Physics::Mono => None,
+            Physics::Clinical { detector, .. } => Some(*detector),
+        }
+    }
+
+    /// The same physics on `system`'s detector: the clinical model's
+    /// converter becomes the one the system's file states
+    /// (`[detector.converter]`: a-Se for Hologic and Siemens), else stays.
+    pub fn on_system(self, system: &dbt_geometry::ConeSystem) -> Self {
+        match self {
+            Physics::Clinical { detector, scatter } => Physics::Clinical {
+                detector: dbt_forward::clinical::Detector {
+                    converter: system.detector.converter.unwrap_or(detector.converter),
+                    ..detector
+                },
+                scatter,
+            },
+            Physics::Mono => Physics::Mono,
         }
     }
 
@@ -390,6 +415,9 @@ pub fn simulate_acquisition_with(
     file.header.flux = model.flat_adu();
     if let Some(t) = file.header.truth.as_mut() {
         t["physics"] = physics.name().into();
+        if let Some(d) = physics.detector() {
+            t["detector"] = d.converter.to_string().into();
+        }
     }
     file.counts = counts;
     Ok(file)
@@ -533,6 +561,8 @@ pub fn simulate_cone_acquisition_with(
     patient_id: &str,
     uid_root: &str,
 ) -> Result<AcqFile, SimError> {
+    // The system's own detector, where its file states the converter.
+    let physics = physics.on_system(system);
     let _span =
         tracing::info_span!("cone_acquisition", patient_id, system = %system.name, physics = physics.name()).entered();
     let (cols, rows) = (geom.image.columns, geom.image.rows);
@@ -636,8 +666,9 @@ pub fn simulate_cone_acquisition_with(
     file.header.system = Some(system.clone());
     file.header.slices = drows;
     file.header.flux = flux;
-    if let (Physics::Clinical { .. }, Some(t)) = (physics, file.header.truth.as_mut()) {
+    if let (Physics::Clinical { detector, .. }, Some(t)) = (physics, file.header.truth.as_mut()) {
         t["physics"] = physics.name().into();
+        t["detector"] = detector.converter.to_string().into();
     }
     file.counts = counts.chunks(views * dcols).map(<[f32]>::to_vec).collect();
     Ok(file)

@@ -99,7 +99,8 @@ struct AcquireArgs {
     system: Option<String>,
     /// The physics (issue #27): `mono` (the paper's: one energy, photon
     /// counting), `clinical` (the Table 3 spectrum for the thickness, an
-    /// energy-integrating CsI detector, quantum and electronic noise at the
+    /// energy-integrating detector: 200 um of CsI, or the converter the
+    /// `--system` states, a-Se for Hologic and Siemens; quantum and electronic noise at the
     /// noise level's photons per element, and each view's scatter without a
     /// grid: dbt-scatter's kernels fitted to the Monte Carlo engine) or
     /// `clinical-primary` (the same without scatter).

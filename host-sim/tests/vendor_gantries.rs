@@ -108,3 +108,65 @@ fn every_vendor_gantry_is_reported_without_a_model() {
         );
     }
 }
+
+/// Issue #51 point 1 (the detector's conversion): a clinical acquisition
+/// on Hologic's gantry is simulated on the a-Se detector its file states
+/// (the header's truth names it), whatever detector the physics was given;
+/// the firmware's processing refuses a CsI linearisation of it, naming both
+/// converters and the system, and with the a-Se linearisation reports the
+/// physics density within the 4 pp of the test above.
+#[test]
+fn a_selenium_gantry_is_simulated_and_linearised_as_selenium() {
+    use dbt_materials::{Converter, ConverterMaterial};
+    let template = Geometry::builtin("paper-tall").unwrap().binned(4).unwrap();
+    let sys = ConeSystem::builtin("hologic-dimensions")
+        .unwrap()
+        .binned(4)
+        .unwrap();
+    let fan = sys.rebinning_fan(&template).unwrap();
+    let vol = PopulationKind::Procedural
+        .draw(&template, Population::TEST_SEED, 2)
+        .generate()
+        .unwrap();
+    let a = host_sim::simulate_cone_acquisition_with(
+        &vol,
+        &fan,
+        &sys,
+        NoiseLevel::Poisson(8),
+        host_sim::Physics::parse("clinical-primary").unwrap(),
+        5,
+        host_sim::Technique::default(),
+        28.0,
+        "VENDOR",
+        "1.2.826.0.1.3680043.10.543.3",
+    )
+    .unwrap();
+    let truth = a.header.truth.as_ref().unwrap();
+    assert_eq!(truth["detector"], "200 um a-Se");
+    let acq = dbt_pipeline::acquisition::Acquisition {
+        header: a.header.clone(),
+        counts: a.counts,
+    };
+    let opts = |material| PipelineOptions {
+        dose_uncertainty: 0.05,
+        method: ReportMethod::PhysicsOnly,
+        linearise: Some(
+            dbt_pipeline::linearise::BeamHardening::for_converter(
+                Converter::new(material, 200.0).unwrap(),
+            )
+            .unwrap(),
+        ),
+        ..Default::default()
+    };
+    let e = process(&acq, &opts(ConverterMaterial::CsI))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("200 um CsI") && e.contains("hologic-dimensions has 200 um a-Se"),
+        "{e}"
+    );
+    let res = process(&acq, &opts(ConverterMaterial::ASe)).unwrap();
+    let d = 100.0 * (res.glandularity - vol.glandularity().unwrap());
+    eprintln!("hologic-dimensions, clinical-primary on a-Se: physics density {d:+.2} pp");
+    assert!(d.abs() < 4.0, "{d:+.1} pp");
+}

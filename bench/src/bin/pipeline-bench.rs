@@ -100,7 +100,7 @@ fn main() -> Result<()> {
     let acq = dbt_store::acquisition::read_acquisition(&a.acquisition)
         .with_context(|| format!("reading {}", a.acquisition.display()))?;
     let base = PipelineOptions {
-        linearise: a.corrections.linearise().context("--csi-um")?,
+        linearise: a.corrections.linearise().context("--csi-um / --a-se-um")?,
         descatter: a.corrections.descatter()?,
         slice_step: a.slice_step,
         ..PipelineOptions::default()

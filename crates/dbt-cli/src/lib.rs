@@ -68,35 +68,52 @@ pub struct ModelArgs {
 /// before the reconstruction, as the daemon's `recon.scatter` and
 /// `recon.beam_hardening` configure them.
 #[derive(Debug, Clone, clap::Args)]
+#[command(group(clap::ArgGroup::new("linearised").args(["csi_um", "a_se_um"])))]
 pub struct CorrectionArgs {
-    /// Linearise the beam hardening of an energy-integrating CsI detector
-    /// this many um thick (the daemon's `recon.beam_hardening = "csi"`,
-    /// `csi_um`); without it the counts are taken as mono-energetic.
+    /// Linearise the beam hardening of an energy-integrating CsI flat
+    /// panel this many um thick (the daemon's `recon.beam_hardening =
+    /// "csi"`, `converter_um`); without it or `--a-se-um` the counts are
+    /// taken as mono-energetic.
     #[arg(long)]
     pub csi_um: Option<f64>,
+    /// Linearise the beam hardening of an a-Se (direct-conversion) flat
+    /// panel this many um thick (the daemon's `recon.beam_hardening =
+    /// "a-se"`, `converter_um`: Hologic, Siemens, Fujifilm).
+    #[arg(long)]
+    pub a_se_um: Option<f64>,
     /// Remove the scatter with the shipped kernel model before the
     /// linearisation (the daemon's `recon.scatter = "kernel"`).
     #[arg(long)]
     pub descatter: bool,
     /// Match the linearised counts' noise to the DBToR model's training
     /// level (the daemon's `recon.noise_match = "training-level"`); with
-    /// `--csi-um` and a model.
-    #[arg(long, requires = "csi_um")]
+    /// `--csi-um` or `--a-se-um` and a model.
+    #[arg(long, requires = "linearised")]
     pub noise_match: bool,
 }
 
 impl CorrectionArgs {
-    /// The beam-hardening linearisation asked for (a CsI thickness outside
-    /// `dbt_pipeline::linearise::CSI_UM` refused, naming it).
+    /// The beam-hardening linearisation asked for (a converter thickness
+    /// outside `dbt_materials::CONVERTER_UM` refused, naming it).
     pub fn linearise(
         &self,
     ) -> Result<
         Option<dbt_pipeline::linearise::BeamHardening>,
         dbt_pipeline::linearise::LineariseError,
     > {
-        self.csi_um
-            .map(dbt_pipeline::linearise::BeamHardening::csi)
-            .transpose()
+        use dbt_materials::{Converter, ConverterMaterial};
+        let converter = match (self.csi_um, self.a_se_um) {
+            (Some(um), _) => Converter {
+                material: ConverterMaterial::CsI,
+                thickness_um: um,
+            },
+            (None, Some(um)) => Converter {
+                material: ConverterMaterial::ASe,
+                thickness_um: um,
+            },
+            (None, None) => return Ok(None),
+        };
+        dbt_pipeline::linearise::BeamHardening::for_converter(converter).map(Some)
     }
 
     /// The scatter removal asked for.

@@ -13,6 +13,7 @@
 //!   of air; reproducible batches with independent random streams.
 //! * [`tg195`]: AAPM TG-195 case 3, the reference this engine must reproduce.
 
+pub mod detector;
 pub mod material;
 pub mod patient;
 pub mod physics;

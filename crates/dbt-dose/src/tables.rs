@@ -6,6 +6,7 @@ use crate::DoseError;
 const ELEMENTS_CSV: &str = include_str!("../data/elements.csv");
 const XS_CSV: &str = include_str!("../data/xs.csv");
 const FF_CSV: &str = include_str!("../data/ff.csv");
+const KSHELL_CSV: &str = include_str!("../data/kshell.csv");
 
 /// First energy of the cross-section grid, keV.
 pub const E_MIN: f64 = 1.0;
@@ -103,6 +104,94 @@ fn parse_elements() -> Result<Vec<Element>, DoseError> {
     Ok(out)
 }
 
+/// One group of an element's K fluorescence lines (`Ka`: KL2 + KL3; `Kb`:
+/// KM2, KM3, KN2, KN3).
+#[derive(Debug, Clone, PartialEq)]
+pub struct KLines {
+    /// `Ka` or `Kb`.
+    pub group: String,
+    /// Mean energy, weighted by the lines' radiative rates, keV.
+    pub energy_kev: f64,
+    /// Share of K-shell vacancies that emit one of these lines (the
+    /// fluorescence yield times the lines' radiative rates).
+    pub share: f64,
+}
+
+/// The K shell of a detector converter's element (xraylib 4.3.0:
+/// `data/kshell.csv`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct KShell {
+    /// Atomic number.
+    pub z: u8,
+    /// K-edge energy, keV.
+    pub edge_kev: f64,
+    /// Jump ratio of the photoelectric cross section at the edge: above
+    /// it, `1 - 1 / jump` of photoelectric absorptions are in the K shell.
+    pub jump: f64,
+    /// Its fluorescence line groups.
+    pub lines: Vec<KLines>,
+}
+
+impl KShell {
+    /// The share of photoelectric absorptions at `e_kev` that leave a K
+    /// vacancy: `1 - 1/jump` above the edge, 0 below.
+    pub fn k_share(&self, e_kev: f64) -> f64 {
+        if e_kev > self.edge_kev {
+            1.0 - 1.0 / self.jump
+        } else {
+            0.0
+        }
+    }
+}
+
+/// The K shell of element `z` where the tables hold it (the converters'
+/// Se, I and Cs), `None` otherwise.
+pub fn kshell(z: u8) -> Result<Option<&'static KShell>, DoseError> {
+    static TABLE: std::sync::OnceLock<Result<Vec<KShell>, String>> = std::sync::OnceLock::new();
+    let all = TABLE
+        .get_or_init(|| parse_kshell().map_err(|e| e.to_string()))
+        .as_deref()
+        .map_err(|e| DoseError::Table(e.clone()))?;
+    Ok(all.iter().find(|k| k.z == z))
+}
+
+fn parse_kshell() -> Result<Vec<KShell>, DoseError> {
+    let mut out: Vec<KShell> = Vec::new();
+    for r in rows(KSHELL_CSV) {
+        if r.len() != 6 {
+            return Err(DoseError::Table(format!("kshell.csv row {r:?}")));
+        }
+        let z = num(r[0], "kshell.csv Z")? as u8;
+        let lines = KLines {
+            group: r[3].trim().to_string(),
+            energy_kev: num(r[4], "kshell.csv line energy")?,
+            share: num(r[5], "kshell.csv share")?,
+        };
+        if !(lines.energy_kev > 0.0 && (0.0..=1.0).contains(&lines.share)) {
+            return Err(DoseError::Table(format!("kshell.csv row {r:?}")));
+        }
+        match out.iter_mut().find(|k| k.z == z) {
+            Some(k) => k.lines.push(lines),
+            None => out.push(KShell {
+                z,
+                edge_kev: num(r[1], "kshell.csv edge")?,
+                jump: num(r[2], "kshell.csv jump")?,
+                lines: vec![lines],
+            }),
+        }
+    }
+    for k in &out {
+        let total: f64 = k.lines.iter().map(|l| l.share).sum();
+        if !(k.jump > 1.0 && total <= 1.0 && k.lines.iter().all(|l| l.energy_kev < k.edge_kev)) {
+            return Err(DoseError::Table(format!(
+                "kshell.csv: Z {} inconsistent",
+                k.z
+            )));
+        }
+    }
+    Ok(out)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -120,5 +209,27 @@ mod tests {
         // F(0) = Z, S(large x) -> Z.
         assert!((o.ff[0] - 8.0).abs() < 1e-6);
         assert!((o.sf.last().unwrap() - 8.0).abs() < 0.01);
+    }
+
+    /// Selenium's K shell as xraylib 4.3.0 gives it and the VICTRE MC-GPU
+    /// input states it (`DIDSR/VICTRE_MCGPU`,
+    /// `MC-GPU_v1.5b_scattered_phantom_mammo+DBT.in`: K-edge 12658 eV,
+    /// K-fluorescence 11223 eV, yield 0.596): edge within 1 eV, the Ka
+    /// group's mean energy within 20 eV of its KL3 line, the whole K
+    /// yield within 0.01; no selenium line above its own edge.
+    #[test]
+    fn selenium_k_shell_matches_the_victre_detector() {
+        let se = kshell(34).unwrap().unwrap();
+        assert!((se.edge_kev - 12.658).abs() < 0.001, "{}", se.edge_kev);
+        let ka = se.lines.iter().find(|l| l.group == "Ka").unwrap();
+        assert!((ka.energy_kev - 11.223).abs() < 0.02, "{}", ka.energy_kev);
+        let total: f64 = se.lines.iter().map(|l| l.share).sum();
+        assert!((total - 0.596).abs() < 0.01, "{total}");
+        assert_eq!(se.k_share(12.0), 0.0);
+        assert!((se.k_share(20.0) - (1.0 - 1.0 / se.jump)).abs() < 1e-12);
+        assert!(kshell(8).unwrap().is_none());
+        for z in [53, 55] {
+            assert!(kshell(z).unwrap().is_some(), "Z {z}");
+        }
     }
 }

@@ -72,6 +72,11 @@ pub struct Detector2d {
     pub rows: usize,
     /// Element pitch, mm.
     pub pitch_mm: f64,
+    /// Its x-ray converter (`[detector.converter]`: `material` "CsI" or
+    /// "a-Se", `thickness_um`), where the system's file states it; absent:
+    /// [`dbt_materials::Converter::default`] (200 um of CsI).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub converter: Option<dbt_materials::Converter>,
 }
 
 /// A validated cone-beam DBT system.
@@ -135,6 +140,12 @@ impl ConeSystem {
             .map(|(_, t)| Self::from_toml_str(t).expect("embedded system is valid"))
     }
 
+    /// The detector's converter: the one the system states, else 200 um of
+    /// CsI ([`dbt_materials::Converter::default`]).
+    pub fn converter(&self) -> dbt_materials::Converter {
+        self.detector.converter.unwrap_or_default()
+    }
+
     /// Elements `factor` times larger on each side (same detector area).
     pub fn binned(&self, factor: usize) -> Result<Self, GeometryError> {
         if factor == 0 {
@@ -146,6 +157,7 @@ impl ConeSystem {
                 columns: d.columns / factor,
                 rows: d.rows / factor,
                 pitch_mm: d.pitch_mm * factor as f64,
+                converter: d.converter,
             },
             ..self.clone()
         };
@@ -166,6 +178,10 @@ impl ConeSystem {
             }
         };
         positive("arc_radius_mm", self.arc_radius_mm)?;
+        if let Some(c) = &self.detector.converter {
+            c.validate()
+                .map_err(|e| invalid("detector.converter", e.to_string()))?;
+        }
         // The axis may lie in the detector's plane (Hologic's pivot), not
         // below it.
         if !(self.axis_height_mm.is_finite() && self.axis_height_mm >= 0.0) {
@@ -483,6 +499,41 @@ mod tests {
         assert!((g.source(12)[2] - 650.0).abs() < 1e-9);
         assert!((g.angle_deg(1) - g.angle_deg(0) - 50.0 / 24.0).abs() < 1e-12);
         assert!(ConeSystem::builtin("nonesuch").is_none());
+    }
+
+    /// Each built-in system's converter is what its file cites: a-Se for
+    /// Hologic and Siemens (direct conversion), CsI for GE; the paper's
+    /// (stated nowhere) 200 um of CsI; binning keeps it; a converter that
+    /// cannot be is refused naming the field and the value.
+    #[test]
+    fn each_system_states_its_converter() {
+        use dbt_materials::ConverterMaterial::{ASe, CsI};
+        for (name, material) in [
+            ("paper-cone", CsI),
+            ("siemens-victre", ASe),
+            ("hologic-dimensions", ASe),
+            ("ge-essential", CsI),
+            ("siemens-inspiration", ASe),
+        ] {
+            let s = ConeSystem::builtin(name).unwrap();
+            assert_eq!(s.converter().material, material, "{name}");
+            assert_eq!(s.converter().thickness_um, 200.0, "{name}");
+            assert_eq!(s.binned(4).unwrap().converter(), s.converter(), "{name}");
+        }
+        assert!(ConeSystem::builtin("paper-cone")
+            .unwrap()
+            .detector
+            .converter
+            .is_none());
+        let t = SIEMENS_VICTRE_TOML.replace("thickness_um = 200.0", "thickness_um = 0.2");
+        let e = ConeSystem::from_toml_str(&t).unwrap_err().to_string();
+        assert!(
+            e.contains("detector.converter") && e.contains("0.2 um"),
+            "{e}"
+        );
+        let t = SIEMENS_VICTRE_TOML.replace("\"a-Se\"", "\"GOS\"");
+        let e = ConeSystem::from_toml_str(&t).unwrap_err().to_string();
+        assert!(e.contains("GOS"), "{e}");
     }
 
     /// A rotating detector stays at the same distance from the source and

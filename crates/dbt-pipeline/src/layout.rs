@@ -65,6 +65,10 @@ pub trait RayLayout: std::ops::Deref<Target = AcquisitionHeader> + Clone + Sync 
     /// views' angles.
     fn stack(&self) -> StackLayout;
 
+    /// The cone-beam system the counts come from, where the header names
+    /// one.
+    fn cone_system(&self) -> Option<&dbt_geometry::ConeSystem>;
+
     /// `sec a` of every ray (its path through a slab over the slab's
     /// thickness).
     fn ray_secants(&self) -> PerRay;
@@ -103,6 +107,10 @@ impl RayLayout for SliceHeader {
         StackLayout::fan(&self.geometry, self.slices, self.slice_spacing_mm)
     }
 
+    fn cone_system(&self) -> Option<&dbt_geometry::ConeSystem> {
+        self.system.as_ref()
+    }
+
     fn ray_secants(&self) -> PerRay {
         let g = &self.geometry;
         PerRay::Shared(
@@ -129,6 +137,10 @@ impl RayLayout for ConeHeader {
 
     fn stack(&self) -> StackLayout {
         StackLayout::cone(self.system())
+    }
+
+    fn cone_system(&self) -> Option<&dbt_geometry::ConeSystem> {
+        Some(self.system())
     }
 
     fn ray_secants(&self) -> PerRay {

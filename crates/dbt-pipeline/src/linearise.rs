@@ -46,16 +46,17 @@
 use crate::layout::RayLayout;
 use dbt_dose::xray::AnodeFilter;
 use dbt_forward::clinical::{ClinicalPhysics, Detector};
-use dbt_materials::Tissue;
+use dbt_materials::{Converter, ConverterError, ConverterMaterial, Tissue};
 use rayon::prelude::*;
 use thiserror::Error;
 
 /// Why the linearisation cannot be made.
 #[derive(Debug, Error, PartialEq)]
 pub enum LineariseError {
-    /// A CsI layer's thickness outside [`CSI_UM`] (or not a number).
-    #[error("{0} um: a CsI layer is {lo}-{hi} um thick", lo = CSI_UM.start(), hi = CSI_UM.end())]
-    CsiThickness(f64),
+    /// A converter layer's thickness outside
+    /// [`dbt_materials::CONVERTER_UM`] (or not a number).
+    #[error(transparent)]
+    Converter(#[from] ConverterError),
     /// A skin thickness outside [`SKIN_MM`] (or not a number).
     #[error("{0} mm: the known-path linearisation takes a skin {lo}-{hi} mm thick", lo = SKIN_MM.start(), hi = SKIN_MM.end())]
     SkinThickness(f64),
@@ -74,10 +75,6 @@ pub enum LineariseError {
 const L_MAX_MM: f64 = 300.0;
 /// Table step, mm.
 const L_STEP_MM: f64 = 0.5;
-
-/// The CsI scintillator thicknesses the correction accepts, um (DBT flat
-/// panels carry 150-250 um; the bounds refuse a value in another unit).
-pub const CSI_UM: std::ops::RangeInclusive<f64> = 50.0..=1000.0;
 
 /// The skin thicknesses the known-path linearisation accepts, mm.
 pub const SKIN_MM: std::ops::RangeInclusive<f64> = 0.0..=4.0;
@@ -127,17 +124,22 @@ pub struct Linearisation {
 
 impl BeamHardening {
     /// The correction for a CsI flat panel `csi_um` thick (the detector's
-    /// other properties at their defaults); a thickness outside [`CSI_UM`]
-    /// is refused, naming it.
+    /// other properties at their defaults); a thickness outside
+    /// [`dbt_materials::CONVERTER_UM`] is refused, naming it.
     pub fn csi(csi_um: f64) -> Result<Self, LineariseError> {
-        if !(csi_um.is_finite() && CSI_UM.contains(&csi_um)) {
-            return Err(LineariseError::CsiThickness(csi_um));
-        }
+        Self::for_converter(Converter {
+            material: ConverterMaterial::CsI,
+            thickness_um: csi_um,
+        })
+    }
+
+    /// The correction for a flat panel with `converter` (CsI or a-Se; the
+    /// detector's other properties at their defaults); a thickness outside
+    /// [`dbt_materials::CONVERTER_UM`] is refused, naming it.
+    pub fn for_converter(converter: Converter) -> Result<Self, LineariseError> {
+        converter.validate()?;
         Ok(Self {
-            detector: Detector {
-                csi_um,
-                ..Default::default()
-            },
+            detector: Detector::with(converter),
             path: PathModel::Reference,
         })
     }
@@ -430,18 +432,31 @@ mod tests {
         }
     }
 
-    /// A CsI panel's thickness within [`CSI_UM`] gives that detector (the
-    /// rest at its defaults); one outside, or not a number, is refused
-    /// naming it.
+    /// A CsI panel's thickness within [`dbt_materials::CONVERTER_UM`]
+    /// gives that detector (the rest at its defaults); one outside, or not
+    /// a number, is refused naming it; an a-Se panel likewise.
     #[test]
     fn a_csi_thickness_is_checked() {
         assert_eq!(BeamHardening::csi(200.0).unwrap(), bh());
-        assert_eq!(BeamHardening::csi(50.0).unwrap().detector.csi_um, 50.0);
+        assert_eq!(
+            BeamHardening::csi(50.0)
+                .unwrap()
+                .detector
+                .converter
+                .thickness_um,
+            50.0
+        );
         for bad in [5.0, 1000.5, f64::NAN, f64::INFINITY] {
             let e = BeamHardening::csi(bad).unwrap_err();
-            assert!(matches!(e, LineariseError::CsiThickness(_)), "{e}");
+            assert!(matches!(e, LineariseError::Converter(_)), "{e}");
             assert!(e.to_string().contains("50-1000 um"), "{e}");
         }
+        let a_se = Converter {
+            material: ConverterMaterial::ASe,
+            thickness_um: 2.0,
+        };
+        let e = BeamHardening::for_converter(a_se).unwrap_err().to_string();
+        assert!(e.starts_with("2 um of a-Se"), "{e}");
         assert!(BeamHardening::csi(5.0)
             .unwrap_err()
             .to_string()
@@ -480,6 +495,39 @@ mod tests {
         }
         // The W/Rh table is the paper's Table 3 spectrum's.
         assert_eq!(beams()[0].1, 29.0);
+    }
+
+    /// An a-Se detector's correction is exact for its own signal (the
+    /// reference tissue through any path, either beam), and the converter
+    /// matters: the CsI correction applied to an a-Se panel's signal reads
+    /// 80 mm of reference tissue 1-4 % short (what a site configured with
+    /// the wrong converter would get; the firmware refuses a converter
+    /// other than its cone-beam system's).
+    #[test]
+    fn an_a_se_panel_is_linearised_exactly_with_its_own_table() {
+        let a_se = Converter::new(ConverterMaterial::ASe, 200.0).unwrap();
+        let b = BeamHardening::for_converter(a_se).unwrap();
+        for (af, kv, s) in beams() {
+            let t = b.table(af, kv, 50.0).unwrap();
+            let wrong = bh().table(af, kv, 50.0).unwrap();
+            let m = ClinicalPhysics::new(&s, 1.0, &Detector::with(a_se), 1.0).unwrap();
+            for l in [0.0, 3.3, 25.0, 50.0, 77.7, 140.0] {
+                let p = -m.expected([l / 2.0, l / 2.0, 0.0]).0.ln();
+                let want = l * (0.0512 + 0.0798) / 2.0;
+                assert!(
+                    (t.mono(p) - want).abs() < 1e-4,
+                    "{af} {l} mm: {}",
+                    t.mono(p)
+                );
+            }
+            let p = -m.expected([40.0, 40.0, 0.0]).0.ln();
+            let off = wrong.mono(p) / (80.0 * (0.0512 + 0.0798) / 2.0) - 1.0;
+            eprintln!(
+                "{af}: the CsI table on an a-Se signal, 80 mm: {:+.2} %",
+                100.0 * off
+            );
+            assert!(off < -0.01 && off > -0.04, "{af}: {off}");
+        }
     }
 
     /// Another tissue: all fat or all dense tissue of a 50 mm breast. W/Rh

@@ -1383,6 +1383,15 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
             Some(s.binned(factor)?)
         }
     };
+    // The linearisation is for the system's detector: the converter its
+    // file states (a-Se for Hologic and Siemens), as the acquisition's.
+    if let Some(s) = &system {
+        for (_, _, o) in recs.iter_mut() {
+            if let Some(bh) = o.linearise.as_mut() {
+                bh.detector.converter = s.converter();
+            }
+        }
+    }
     // A system whose rebinning fan is not the model's geometry (another
     // source radius or other views: `siemens-victre`): the model's blocks
     // run with that fan's operator, an evaluation the firmware does not

@@ -110,7 +110,10 @@ fn run(cli: Cli) -> Result<()> {
     let mut opts = PipelineOptions {
         mltr_iterations: cli.iterations,
         dose_uncertainty: cli.dose_uncertainty,
-        linearise: cli.corrections.linearise().context("--csi-um")?,
+        linearise: cli
+            .corrections
+            .linearise()
+            .context("--csi-um / --a-se-um")?,
         descatter: cli.corrections.descatter()?,
         slice_step: cli.slice_step,
         method: if cli.physics_only {
