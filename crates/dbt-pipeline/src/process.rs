@@ -443,13 +443,37 @@ pub fn reconstructed_slices(n: usize, step: usize) -> Vec<usize> {
     v
 }
 
+/// The corrections made to the counts before everything else, as the
+/// Algorithm Version states them (`None`: the counts as received): the
+/// scatter removal, the beam-hardening linearisation with the detector it
+/// was computed for, the noise matching.
+fn corrections_clause(opts: &PipelineOptions) -> Option<String> {
+    let mut parts = Vec::new();
+    if opts.descatter.is_some() {
+        parts.push("scatter removed (the shipped kernel model)".to_string());
+    }
+    if let Some(bh) = &opts.linearise {
+        parts.push(format!(
+            "beam hardening linearised for {}",
+            bh.detector.converter
+        ));
+    }
+    if opts.noise_match.is_some() {
+        parts.push("noise matched to the model's training level".to_string());
+    }
+    (!parts.is_empty()).then(|| format!("counts corrected: {}", parts.join(", ")))
+}
+
 /// What exactly produced a result, for the reports' Algorithm Version: the
 /// model's name and the SHA-256 of its manifest (which pins every ONNX
 /// file by its own SHA-256), the precision and engine, the glandularity
 /// calibration in use, and this software's version; for MLTR, its
 /// iterations.
 pub fn algorithm_version(opts: &PipelineOptions) -> String {
-    let software = concat!("dbt-pipeline ", env!("CARGO_PKG_VERSION"));
+    let software = match corrections_clause(opts) {
+        Some(c) => format!("{c}; dbt-pipeline {}", env!("CARGO_PKG_VERSION")),
+        None => concat!("dbt-pipeline ", env!("CARGO_PKG_VERSION")).to_string(),
+    };
     if opts.method == ReportMethod::PhysicsOnly {
         return format!(
             "physics-based density (the central view), model-breast Monte Carlo dose on the gantry's geometry (glandular tissue {}); no learned model; {software}",
@@ -466,7 +490,7 @@ pub fn algorithm_version(opts: &PipelineOptions) -> String {
             ordinal(opts.slice_step)
         )
     } else {
-        software.to_string()
+        software
     };
     let calibration = match &opts.calibration {
         Some(c) if c.per_mm != 0.0 => format!(
@@ -1640,5 +1664,33 @@ mod interval_tests {
             nan.mgd.basis
         );
         assert!(nan.glandularity.limits.is_some());
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The Algorithm Version names the corrections and the detector the
+    /// linearisation was computed for (a physicist reading the report can
+    /// tell a-Se from CsI); none where the counts were taken as received.
+    #[test]
+    fn the_algorithm_version_names_the_corrections() {
+        let plain = PipelineOptions {
+            method: ReportMethod::PhysicsOnly,
+            ..Default::default()
+        };
+        assert!(!algorithm_version(&plain).contains("corrected"));
+        let a_se =
+            dbt_materials::Converter::new(dbt_materials::ConverterMaterial::ASe, 200.0).unwrap();
+        let opts = PipelineOptions {
+            linearise: Some(crate::linearise::BeamHardening::for_converter(a_se).unwrap()),
+            ..plain
+        };
+        let v = algorithm_version(&opts);
+        assert!(
+            v.contains("counts corrected: beam hardening linearised for 200 um a-Se; dbt-pipeline"),
+            "{v}"
+        );
     }
 }
