@@ -859,34 +859,36 @@ impl Config {
                 "must be in (0, 20) mm".into(),
             ));
         }
-        let converter = dbt_materials::Converter {
-            material: self.recon.beam_hardening.material().unwrap_or_default(),
-            thickness_um: self.recon.converter_um,
-        };
-        if let Err(e) = converter.validate() {
-            return Err(bad("recon.converter_um", e.to_string()));
-        }
-        if let (Some(m), Some(sys)) = (
-            self.recon.beam_hardening.material(),
-            self.gantry_system(path)?,
-        ) {
-            if let Some(stated) = sys.detector.converter {
-                if stated
-                    != (dbt_materials::Converter {
-                        material: m,
-                        ..converter
-                    })
-                {
+        if let Some(material) = self.recon.beam_hardening.material() {
+            let converter = dbt_materials::Converter {
+                material,
+                thickness_um: self.recon.converter_um,
+            };
+            if let Err(e) = converter.validate() {
+                return Err(bad("recon.converter_um", e.to_string()));
+            }
+            // The system's converter: its file's, else 200 um of CsI.
+            if let Some(sys) = self.gantry_system(path)? {
+                if sys.converter() != converter {
                     return Err(bad(
                         "recon.beam_hardening",
                         format!(
-                            "linearises for {} um of {m}, but frames.system {} has {stated} \
+                            "linearises for {converter}, but frames.system {} has {} \
                              (set beam_hardening and converter_um to its converter)",
-                            self.recon.converter_um, sys.name
+                            sys.name,
+                            sys.converter()
                         ),
                     ));
                 }
             }
+        } else if !(self.recon.converter_um.is_finite() && self.recon.converter_um > 0.0) {
+            return Err(bad(
+                "recon.converter_um",
+                format!(
+                    "{} um must be a positive number (read only with beam_hardening \"csi\" or \"a-se\")",
+                    self.recon.converter_um
+                ),
+            ));
         }
         if self.recon.noise_match == NoiseMatchMode::TrainingLevel
             && (self.recon.beam_hardening == BeamHardeningMode::Off
@@ -1150,6 +1152,7 @@ impl Config {
             scatter_removed: self.recon.scatter == ScatterMode::Kernel,
             linearised: self.recon.beam_hardening != BeamHardeningMode::Off,
             noise_matched: self.recon.noise_match == NoiseMatchMode::TrainingLevel,
+            a_se_detector: self.recon.beam_hardening == BeamHardeningMode::ASe,
             ..Default::default()
         }
     }
@@ -1645,9 +1648,12 @@ mod tests {
             c.linearise().unwrap().detector.converter,
             dbt_materials::Converter::default()
         );
-        let e = example(|t| t.replace("converter_um = 200.0", "converter_um = 5.0"))
-            .unwrap_err()
-            .to_string();
+        let e = example(|t| {
+            t.replace("beam_hardening = \"off\"", "beam_hardening = \"csi\"")
+                .replace("converter_um = 200.0", "converter_um = 5.0")
+        })
+        .unwrap_err()
+        .to_string();
         assert!(
             e.contains("recon.converter_um") && e.contains("5 um"),
             "{e}"
@@ -1771,10 +1777,10 @@ mod tests {
         }
     }
 
-    /// With a cone-beam system that states its converter, the
-    /// linearisation must be for that one: Hologic's a-Se taken, CsI (or
-    /// a-Se of another thickness) refused naming the key, the system and
-    /// both converters; the paper's system states none, so CsI stays.
+    /// With a cone-beam system, the linearisation must be for its
+    /// converter (its file's, else 200 um of CsI): Hologic's a-Se taken,
+    /// CsI (or a-Se of another thickness) refused naming the key, the
+    /// system and both converters.
     #[test]
     fn the_linearisation_is_for_the_system_s_converter() {
         let on = |name: &str, mode: &str, um: &str| {
@@ -1802,7 +1808,10 @@ mod tests {
         }
         assert!(on("ge-essential", "a-se", "200.0").is_err());
         assert!(on("ge-essential", "csi", "200.0").is_ok());
-        assert!(on("paper-cone", "csi", "150.0").is_ok());
+        // The paper's system states none: 200 um of CsI, as simulated.
+        assert!(on("paper-cone", "csi", "200.0").is_ok());
+        assert!(on("paper-cone", "csi", "150.0").is_err());
+        assert!(on("paper-cone", "a-se", "200.0").is_err());
     }
 
     /// The cone-beam system: the shipped one, none (the slice-wise stream),

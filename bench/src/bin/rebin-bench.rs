@@ -125,10 +125,9 @@ fn main() -> Result<()> {
             [fan.image.columns, nz, slices],
         );
     });
-    let bh = dbt_pipeline::linearise::BeamHardening {
-        detector: Default::default(),
-        path: dbt_pipeline::linearise::PathModel::Reference,
-    };
+    // The system's own detector (a-Se for siemens-victre): another is
+    // refused before any work.
+    let bh = dbt_pipeline::linearise::BeamHardening::for_converter(sys.converter())?;
     let linearise_ms = median_ms(1, a.reps, || {
         let mut f = frames.clone();
         let _ = bh.apply(&header, &mut f);

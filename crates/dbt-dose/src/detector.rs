@@ -36,7 +36,10 @@
 //! the reabsorbed fluorescence's lateral spread (a blur: 15 % of the MTF at
 //! an 85 um element's Nyquist frequency, Zhao et al.) is not modelled, as
 //! no detector blur is. For CsI the model changes nothing below iodine's K
-//! edge (33.17 keV): every tube voltage of our beams (27-33 kV).
+//! edge (33.17 keV): every tube voltage of our automatic exposures (27-33
+//! kV); an exposure at 34 kV or more (the intake takes 20-49) loses
+//! iodine's and caesium's lines too. Normal incidence: an oblique ray's
+//! longer path through the layer (up to 10 % at 25 degrees) is neglected.
 //!
 //! Data: the converter's attenuation from the compiled-in xraylib tables
 //! ([`crate::tables`]), the K shells from `data/kshell.csv` (xraylib 4.3.0:

@@ -184,8 +184,12 @@ fn parse_kshell() -> Result<Vec<KShell>, DoseError> {
         let total: f64 = k.lines.iter().map(|l| l.share).sum();
         if !(k.jump > 1.0 && total <= 1.0 && k.lines.iter().all(|l| l.energy_kev < k.edge_kev)) {
             return Err(DoseError::Table(format!(
-                "kshell.csv: Z {} inconsistent",
-                k.z
+                "kshell.csv: Z {}: jump ratio {} (must exceed 1), line shares summing to {total} \
+                 (at most 1), line energies {:?} keV (each below the edge, {} keV)",
+                k.z,
+                k.jump,
+                k.lines.iter().map(|l| l.energy_kev).collect::<Vec<_>>(),
+                k.edge_kev
             )));
         }
     }

@@ -29,13 +29,18 @@
 //! Noise: each energy's detected photons are Poisson, so the signal's
 //! variance is `g^2 sum_E N_E m2(E) exp(-...)` with `m2` the mean squared
 //! energy kept per incident photon (compound Poisson, drawn as a normal of
-//! that variance: every element holds thousands of photons; the escape's
-//! spread of deposited energies is the Swank factor in it); electronic
-//! noise adds a normal of standard deviation `electronic_photons` photons
-//! of the spectrum's mean detected energy (our choice, 4: a CsI flat
-//! panel's read noise is about 2 x-ray photons' signal per 0.1 mm pixel,
-//! and a binned element sums several pixels' noise; a negligible term at
-//! mammographic signals).
+//! that variance: every element holds thousands of photons; the spread of
+//! deposited energies the K escape makes is in it, the part of the Swank
+//! factor this model has: the conversion stage's own fluctuation, CsI's
+//! light or a-Se's charge per keV, is not modelled); electronic noise adds
+//! a normal of standard deviation `electronic_photons` photons of the
+//! spectrum's mean detected energy (our choice, 4: a CsI flat panel's read
+//! noise is about 2 x-ray photons' signal per 0.1 mm pixel, and a binned
+//! element sums several pixels' noise; a negligible term at mammographic
+//! signals; the same 4 for a-Se, our choice: VICTRE models 5200 electrons
+//! per 85 um pixel, about 13 photons of 20 keV at its 50 eV per
+//! electron-hole pair, still small beside the thousands of photons an
+//! element holds).
 
 use crate::AcquisitionError;
 use dbt_dose::detector::ConverterModel;
@@ -144,7 +149,13 @@ impl ClinicalPhysics {
         let raw_flat: f64 = m1.iter().sum();
         let n_det: f64 = detected.iter().sum();
         if !(raw_flat > 0.0 && n_det > 0.0) {
-            return Err(bad("the detector absorbs no photon of this spectrum"));
+            return Err(bad(format!(
+                "{} absorbs no photon of this spectrum ({} energies, {}-{} keV)",
+                detector.converter,
+                spectrum.energies.len(),
+                spectrum.energies.first().copied().unwrap_or(0.0),
+                spectrum.energies.last().copied().unwrap_or(0.0)
+            )));
         }
         let gain = flat_adu / raw_flat;
         // Electronic noise: photons of the mean detected energy.

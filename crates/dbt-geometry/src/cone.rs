@@ -531,6 +531,12 @@ mod tests {
             e.contains("detector.converter") && e.contains("0.2 um"),
             "{e}"
         );
+        // The firmware's spelling reads too.
+        let t = SIEMENS_VICTRE_TOML.replace("\"a-Se\"", "\"a-se\"");
+        assert_eq!(
+            ConeSystem::from_toml_str(&t).unwrap().converter().material,
+            ASe
+        );
         let t = SIEMENS_VICTRE_TOML.replace("\"a-Se\"", "\"GOS\"");
         let e = ConeSystem::from_toml_str(&t).unwrap_err().to_string();
         assert!(e.contains("GOS"), "{e}");

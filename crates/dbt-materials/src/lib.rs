@@ -150,11 +150,11 @@ pub enum ConverterMaterial {
     /// Caesium iodide scintillator on amorphous silicon (indirect
     /// conversion: GE).
     #[default]
-    #[serde(rename = "CsI")]
+    #[serde(rename = "CsI", alias = "csi", alias = "CSI")]
     CsI,
     /// Amorphous selenium photoconductor (direct conversion: Hologic,
     /// Siemens, Fujifilm).
-    #[serde(rename = "a-Se")]
+    #[serde(rename = "a-Se", alias = "a-se", alias = "A-SE", alias = "a-SE")]
     ASe,
 }
 

@@ -138,6 +138,11 @@ pub struct InputCorrections {
     /// ... and the noise matched to the training level's
     /// (`dbt_pipeline::noise_match`); with `linearised` only.
     pub noise_matched: bool,
+    /// ... for an a-Se detector (`dbt_materials::ConverterMaterial::ASe`)
+    /// rather than CsI: its linearised counts read 1.6-3.4 % otherwise
+    /// than CsI's would (`dbt_pipeline::linearise`), so a calibration fit
+    /// on CsI's is not theirs; with `linearised` only.
+    pub a_se_detector: bool,
     /// Neither, on purpose: a polychromatic detector's counts with their
     /// scatter, read by a network trained on such acquisitions (issue
     /// #27's other design; `dbt_pipeline::PipelineOptions::scatter_in_input`).
@@ -155,6 +160,9 @@ impl InputCorrections {
                 .linearise
                 .is_some_and(|l| l.path != dbt_pipeline::linearise::PathModel::Reference),
             noise_matched,
+            a_se_detector: opts.linearise.is_some_and(|l| {
+                l.detector.converter.material == dbt_materials::ConverterMaterial::ASe
+            }),
             uncorrected_clinical: opts.scatter_in_input,
         }
     }
@@ -166,12 +174,16 @@ impl InputCorrections {
     /// which takes precedence: whose callers refuse it together with a
     /// correction).
     pub fn describe(&self) -> String {
-        let base = self.describe_corrections();
-        if self.noise_matched && self.linearised && !self.uncorrected_clinical {
-            format!("{base} + noise matched")
-        } else {
-            base.to_string()
+        let mut out = self.describe_corrections().to_string();
+        if self.linearised && !self.uncorrected_clinical {
+            if self.a_se_detector {
+                out.push_str(" for a-Se");
+            }
+            if self.noise_matched {
+                out.push_str(" + noise matched");
+            }
         }
+        out
     }
 
     fn describe_corrections(&self) -> &'static str {
@@ -432,6 +444,16 @@ mod tests {
         assert!(pick_beam_calibrations(&f, "mixed", corrected).is_empty());
         // The known path's inputs are others: they never read the one
         // reference's calibrations (only the plain one, with a warning).
+        // An a-Se detector's linearised inputs are others too.
+        let a_se = InputCorrections {
+            a_se_detector: true,
+            ..corrected
+        };
+        assert_eq!(
+            a_se.key("int8"),
+            "int8 | scatter removed + linearised for a-Se"
+        );
+        assert_ne!(a_se.key("int8"), corrected.key("int8"));
         let known = InputCorrections {
             known_path: true,
             ..corrected

@@ -65,8 +65,8 @@ pub trait RayLayout: std::ops::Deref<Target = AcquisitionHeader> + Clone + Sync 
     /// views' angles.
     fn stack(&self) -> StackLayout;
 
-    /// The cone-beam system the counts come from, where the header names
-    /// one.
+    /// The cone-beam system whose frames the counts are (`None` for
+    /// slice sinograms).
     fn cone_system(&self) -> Option<&dbt_geometry::ConeSystem>;
 
     /// `sec a` of every ray (its path through a slab over the slab's
@@ -108,7 +108,9 @@ impl RayLayout for SliceHeader {
     }
 
     fn cone_system(&self) -> Option<&dbt_geometry::ConeSystem> {
-        self.system.as_ref()
+        // Slice sinograms come from no cone-beam system (`into_layout`
+        // takes the system into the cone-beam layout).
+        None
     }
 
     fn ray_secants(&self) -> PerRay {

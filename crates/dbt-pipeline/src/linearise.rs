@@ -57,6 +57,21 @@ pub enum LineariseError {
     /// [`dbt_materials::CONVERTER_UM`] (or not a number).
     #[error(transparent)]
     Converter(#[from] ConverterError),
+    /// The correction is for another converter than the acquisition's
+    /// cone-beam system has (its file's, else 200 um of CsI).
+    #[error(
+        "the beam-hardening linearisation is for a detector of {configured} but the \
+         acquisition's system {system} has {has}: linearise for its converter \
+         (recon.beam_hardening and converter_um; dbtor-process --csi-um / --a-se-um)"
+    )]
+    OtherConverter {
+        /// The converter the correction was computed for.
+        configured: Converter,
+        /// The system's name.
+        system: String,
+        /// The system's converter.
+        has: Converter,
+    },
     /// A skin thickness outside [`SKIN_MM`] (or not a number).
     #[error("{0} mm: the known-path linearisation takes a skin {lo}-{hi} mm thick", lo = SKIN_MM.start(), hi = SKIN_MM.end())]
     SkinThickness(f64),
@@ -200,6 +215,24 @@ impl BeamHardening {
         })
     }
 
+    /// Refuse counts from a cone-beam system whose converter (its file's,
+    /// else 200 um of CsI: [`dbt_geometry::ConeSystem::converter`]) is not
+    /// this correction's, naming both: the CsI correction of an a-Se
+    /// panel's signal reads 80 mm of tissue 1.6-3.4 % short, several
+    /// points of glandularity, with nothing else to show it.
+    pub fn check_converter<H: RayLayout>(&self, h: &H) -> Result<(), LineariseError> {
+        match h.cone_system() {
+            Some(sys) if sys.converter() != self.detector.converter => {
+                Err(LineariseError::OtherConverter {
+                    configured: self.detector.converter,
+                    system: sys.name.clone(),
+                    has: sys.converter(),
+                })
+            }
+            _ => Ok(()),
+        }
+    }
+
     /// Linearise an acquisition's counts in place (`counts[row][view *
     /// cols + element]`: coronal slices' sinograms, or a cone-beam
     /// detector's frames; flat field `h.flux`; the header already
@@ -211,6 +244,7 @@ impl BeamHardening {
         h: &H,
         counts: &mut [Vec<f32>],
     ) -> Result<usize, LineariseError> {
+        self.check_converter(h)?;
         if let PathModel::Known { skin_mm } = self.path {
             return self.apply_on_known_path(h, counts, skin_mm);
         }

@@ -424,6 +424,9 @@ impl PhysicsArgs {
                 linearised: self.linearise,
                 known_path: self.known_path,
                 noise_matched: self.noise_match.is_some(),
+                // Set from the system's converter below, with the
+                // linearisation's detector.
+                a_se_detector: false,
                 uncorrected_clinical: self.uncorrected,
             },
             scatter_in_input: self.uncorrected,
@@ -1250,9 +1253,18 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
         descatter,
         noise_match,
         scatter_in_input,
-        input,
+        mut input,
         beam,
     } = physics.resolve()?;
+    // A system's own converter (a-Se for Hologic and Siemens) is what the
+    // linearisation is computed for (below): its calibration key says so.
+    if let (Some(name), true) = (&system, input.linearised) {
+        input.a_se_detector = dbt_store::load_system(name, 1)
+            .with_context(|| format!("--system {name}"))?
+            .converter()
+            .material
+            == dbt_materials::ConverterMaterial::ASe;
+    }
     let skin = match skin {
         Some(v) => parse_skin_variant(&v)?,
         None => dbt_tissue::ClassifyOptions::default(),
@@ -1487,6 +1499,7 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
         "system": system.as_ref().map(|s| s.name.clone()),
         "physics": physics.name(),
         "linearised": linearise.is_some(),
+        "detector": if input.a_se_detector { "a-Se" } else { "CsI" },
         "linearised_on_known_path": linearise.is_some_and(|l| l.path != dbt_pipeline::linearise::PathModel::Reference),
         "noise_matched_to_photons": noise_match.map(|n| n.target_photons),
         "descattered": descatter.is_some(),
@@ -1664,6 +1677,7 @@ fn run_intervals(args: IntervalsArgs) -> Result<()> {
             linearised: flag("linearised"),
             known_path: flag("linearised_on_known_path"),
             noise_matched: !j["noise_matched_to_photons"].is_null(),
+            a_se_detector: j["detector"].as_str() == Some("a-Se"),
             uncorrected_clinical: flag("uncorrected_input"),
         };
         if let Some(first) = input {
