@@ -173,13 +173,14 @@ impl Physics {
     }
 
     /// The same physics on `system`'s detector: the clinical model's
-    /// converter becomes the one the system's file states
-    /// (`[detector.converter]`: a-Se for Hologic and Siemens), else stays.
+    /// converter becomes the system's (`ConeSystem::converter`: its file's
+    /// `[detector.converter]`, a-Se for Hologic and Siemens, else 200 um of
+    /// CsI), the one the firmware's linearisation checks against.
     pub fn on_system(self, system: &dbt_geometry::ConeSystem) -> Self {
         match self {
             Physics::Clinical { detector, scatter } => Physics::Clinical {
                 detector: dbt_forward::clinical::Detector {
-                    converter: system.detector.converter.unwrap_or(detector.converter),
+                    converter: system.converter(),
                     ..detector
                 },
                 scatter,

@@ -569,29 +569,6 @@ fn refuse_inconsistent_corrections(opts: &PipelineOptions) -> Result<(), Pipelin
     Ok(())
 }
 
-/// A linearisation for a converter other than the one the acquisition's
-/// cone-beam system states (its `[detector.converter]`): refused, naming
-/// both. The wrong converter's correction reads tissue 1.6-3.4 % short
-/// over 80 mm (`dbt_pipeline::linearise`'s a-Se test), several points of
-/// glandularity, with nothing else to show it.
-fn refuse_another_converter<H: RayLayout>(
-    header: &H,
-    opts: &PipelineOptions,
-) -> Result<(), PipelineError> {
-    let (Some(bh), Some(sys)) = (&opts.linearise, header.cone_system()) else {
-        return Ok(());
-    };
-    match sys.detector.converter {
-        Some(c) if c != bh.detector.converter => Err(PipelineError::Input(format!(
-            "the beam-hardening linearisation is for a detector of {} but the acquisition's \
-             system {} has {}: linearise for its converter (recon.beam_hardening and \
-             converter_um; dbtor-process --csi-um / --a-se-um)",
-            bh.detector.converter, sys.name, c
-        ))),
-        _ => Ok(()),
-    }
-}
-
 /// [`correct_counts`] of counts the caller owns, in place (the header
 /// already validated).
 fn correct_in_place<H: RayLayout>(
@@ -599,7 +576,12 @@ fn correct_in_place<H: RayLayout>(
     opts: &PipelineOptions,
 ) -> Result<(), PipelineError> {
     refuse_inconsistent_corrections(opts)?;
-    refuse_another_converter(&a.header, opts)?;
+    // A linearisation for another detector than the system's, refused
+    // before any correction is made.
+    if let Some(bh) = &opts.linearise {
+        bh.check_converter(&a.header)
+            .map_err(|e| PipelineError::Input(e.to_string()))?;
+    }
     // The detector's counts, as read: the noise matching's other input.
     let raw = opts.noise_match.map(|_| a.counts.clone());
     if let Some(sr) = &opts.descatter {
