@@ -351,10 +351,13 @@ pub struct ReportConfig {
     /// refused rather than dosed with the W/Rh output.
     #[serde(default)]
     pub tube_output_w_al_mgy_per_mas: Option<TubeOutput>,
+    /// The same for the W/Ag beam; absent, W/Ag exposures are refused.
+    #[serde(default)]
+    pub tube_output_w_ag_mgy_per_mas: Option<TubeOutput>,
     /// The beam of an acquisition whose input does not state it (a DICOM
     /// object without Filter Material; a stream header without
     /// `anode_filter` where no Modbus register 6 is read): `"W/Rh"` (the
-    /// default, the paper's), `"W/Al"`, or `"refuse"` for a site whose
+    /// default, the paper's), `"W/Al"`, `"W/Ag"`, or `"refuse"` for a site whose
     /// gantry uses more than one beam: such an acquisition is then a
     /// `technique` fault, never dosed with a beam taken for granted.
     #[serde(default = "default_unstated_beam")]
@@ -379,6 +382,16 @@ impl ReportConfig {
         match beam {
             dbt_dose::xray::AnodeFilter::WRh => Some(&self.tube_output_mgy_per_mas),
             dbt_dose::xray::AnodeFilter::WAl => self.tube_output_w_al_mgy_per_mas.as_ref(),
+            dbt_dose::xray::AnodeFilter::WAg => self.tube_output_w_ag_mgy_per_mas.as_ref(),
+        }
+    }
+
+    /// The configuration key of `beam`'s tube output.
+    pub fn tube_output_key(beam: dbt_dose::xray::AnodeFilter) -> &'static str {
+        match beam {
+            dbt_dose::xray::AnodeFilter::WRh => "report.tube_output_mgy_per_mas",
+            dbt_dose::xray::AnodeFilter::WAl => "report.tube_output_w_al_mgy_per_mas",
+            dbt_dose::xray::AnodeFilter::WAg => "report.tube_output_w_ag_mgy_per_mas",
         }
     }
 }
@@ -578,7 +591,7 @@ impl Config {
             thickness_tolerance_mm: (self.modbus.transport != ModbusTransport::Off)
                 .then_some(self.modbus.thickness_tolerance_mm),
             unstated_beam: self.report.unstated_beam(),
-            tube_outputs: [AnodeFilter::WRh, AnodeFilter::WAl]
+            tube_outputs: AnodeFilter::ALL
                 .into_iter()
                 .filter_map(|b| self.report.tube_output(b).map(|t| (b, t.clone())))
                 .collect(),
@@ -1000,18 +1013,9 @@ impl Config {
         // The acquisition header's limit: a configuration every acquisition's
         // header would be refused for is refused at start instead.
         let max = dbt_pipeline::acquisition::limits::TUBE_OUTPUT_MAX_MGY_PER_MAS;
-        for (key, v) in [
-            (
-                "report.tube_output_mgy_per_mas",
-                Some(&self.report.tube_output_mgy_per_mas),
-            ),
-            (
-                "report.tube_output_w_al_mgy_per_mas",
-                self.report.tube_output_w_al_mgy_per_mas.as_ref(),
-            ),
-        ] {
-            if let Some(Err(e)) = v.map(|t| t.check(max)) {
-                return Err(bad(key, e));
+        for beam in dbt_dose::xray::AnodeFilter::ALL {
+            if let Some(Err(e)) = self.report.tube_output(beam).map(|t| t.check(max)) {
+                return Err(bad(ReportConfig::tube_output_key(beam), e));
             }
         }
         let unstated = &self.report.unstated_beam;
@@ -1020,7 +1024,10 @@ impl Config {
                 Ok(b) if self.report.tube_output(b).is_none() => {
                     return Err(bad(
                         "report.unstated_beam",
-                        format!("{unstated}: no tube output is configured for it (report.tube_output_w_al_mgy_per_mas)"),
+                        format!(
+                            "{unstated}: no tube output is configured for it ({})",
+                            ReportConfig::tube_output_key(b)
+                        ),
                     ))
                 }
                 Ok(_) => {}
@@ -1558,7 +1565,9 @@ mod tests {
         assert_eq!(unstated("refuse").unwrap().report.unstated_beam(), None);
         let e = unstated("W/Ag").unwrap_err().to_string();
         assert!(
-            e.contains("report.unstated_beam") && e.contains("W/Ag"),
+            e.contains("report.unstated_beam")
+                && e.contains("W/Ag")
+                && e.contains("report.tube_output_w_ag_mgy_per_mas"),
             "{e}"
         );
         let e = example(|t| {

@@ -96,7 +96,7 @@ pub use dbt_intake::Gantry;
 
 /// Refuse a stream header from another system than the site's gantry,
 /// naming both, or of an exposure the dose model has no spectra for (an
-/// anode/filter other than W/Rh and W/Al), naming it.
+/// anode/filter other than W/Rh, W/Al and W/Ag), naming it.
 pub fn check_header(gantry: &Gantry, h: &GantryHeader) -> Result<(), LinkError> {
     if let Some(a) = h.anode_filter.as_deref() {
         if AnodeFilter::parse(a).is_err() {
@@ -776,13 +776,13 @@ mod tests {
             e.contains("anode/filter Mo/Mo") && e.contains("W/Rh"),
             "{e}"
         );
-        h.anode_filter = Some("W/Ag".into());
+        h.anode_filter = Some("Mo/Rh".into());
         let e = go(h.clone(), &fan).to_string();
         assert!(
-            e.contains("anode/filter W/Ag") && e.contains("W/Rh, W/Al"),
+            e.contains("anode/filter Mo/Rh") && e.contains("W/Rh, W/Al, W/Ag"),
             "{e}"
         );
-        for ok in ["W/Rh", "W/Al"] {
+        for ok in ["W/Rh", "W/Al", "W/Ag"] {
             h.anode_filter = Some(ok.into());
             assert!(matches!(go(h.clone(), &fan), LinkError::Incomplete(_)));
         }

@@ -238,6 +238,8 @@ pub enum FilterMaterial {
     Rhodium,
     /// Aluminium (W/Al beams).
     Aluminum,
+    /// Silver (W/Ag beams).
+    Silver,
 }
 
 impl FilterMaterial {
@@ -246,15 +248,18 @@ impl FilterMaterial {
         match self {
             FilterMaterial::Rhodium => "RHODIUM",
             FilterMaterial::Aluminum => "ALUMINUM",
+            FilterMaterial::Silver => "SILVER",
         }
     }
 
-    /// The CID 10006 code (SNOMED CT; the legacy SRT codes were C-167F9
-    /// and C-120F9).
+    /// The CID 10006 code (SNOMED CT; the legacy SRT codes were C-167F9,
+    /// C-120F9 and C-137F9; silver's SCT code as pydicom's CID 10006
+    /// dictionary gives it).
     pub fn code(self) -> Code {
         match self {
             FilterMaterial::Rhodium => Code::new("59801003", "SCT", "Rhodium"),
             FilterMaterial::Aluminum => Code::new("12503006", "SCT", "Aluminum"),
+            FilterMaterial::Silver => Code::new("41967008", "SCT", "Silver"),
         }
     }
 }

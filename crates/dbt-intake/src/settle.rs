@@ -437,12 +437,15 @@ mod tests {
         let p = policy();
         let r = refused(settle(
             acquisition(),
-            &note(Some(registers(50.0, "W/Ag")), Some(registers(50.0, "W/Ag"))),
+            &note(
+                Some(registers(50.0, "Mo/Rh")),
+                Some(registers(50.0, "Mo/Rh")),
+            ),
             &p,
         ));
         assert_eq!(r.kind, RefusalKind::Technique);
         assert!(
-            r.message.contains("anode/filter W/Ag (Modbus register 6)"),
+            r.message.contains("anode/filter Mo/Rh (Modbus register 6)"),
             "{r}"
         );
         let mut n = note(Some(registers(50.0, "W/Rh")), Some(registers(50.0, "W/Rh")));

@@ -52,28 +52,32 @@ pub const MAX_SIGNAL: f64 = 1.5;
 /// its anode/filter.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ScatterRemoval {
-    w_rh: &'static ScatterTable,
-    w_al: &'static ScatterTable,
+    /// The table of each of `AnodeFilter::ALL`, in its order.
+    tables: [&'static ScatterTable; AnodeFilter::ALL.len()],
 }
 
 impl ScatterRemoval {
-    /// The shipped tables' removal.
+    /// The shipped tables' removal: every beam's table, each parsed and
+    /// checked once.
     pub fn shipped() -> Result<Self, DescatterError> {
-        let t = |af: AnodeFilter| {
-            ScatterTable::shipped_for(af.name()).map_err(|e| DescatterError::Model(e.to_string()))
-        };
-        Ok(Self {
-            w_rh: t(AnodeFilter::WRh)?,
-            w_al: t(AnodeFilter::WAl)?,
-        })
+        let mut tables = Vec::with_capacity(AnodeFilter::ALL.len());
+        for af in AnodeFilter::ALL {
+            tables.push(
+                ScatterTable::shipped_for(af.name())
+                    .map_err(|e| DescatterError::Model(e.to_string()))?,
+            );
+        }
+        let tables = tables
+            .try_into()
+            .map_err(|_| DescatterError::Model("one table per beam".into()))?;
+        Ok(Self { tables })
     }
 
     /// The kernels of a beam.
     pub fn table(&self, af: AnodeFilter) -> &'static ScatterTable {
-        match af {
-            AnodeFilter::WRh => self.w_rh,
-            AnodeFilter::WAl => self.w_al,
-        }
+        let i = AnodeFilter::ALL.iter().position(|a| *a == af);
+        // every beam is in ALL, its table at its place
+        self.tables[i.unwrap_or(0)]
     }
 
     /// Remove the scatter from an acquisition's counts in place

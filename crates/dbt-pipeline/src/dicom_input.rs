@@ -30,8 +30,8 @@ const SPACING_TOL: f64 = 1e-3;
 const THICKNESS_TOL_MM: f64 = 0.5;
 
 /// The beam of an object from its Anode Target Material (0018,1191) and
-/// Filter Material (0018,7050): a tungsten anode with rhodium or aluminium
-/// (`dbt_dose::xray::AnodeFilter`, the beams the dose model has spectra
+/// Filter Material (0018,7050): a tungsten anode with rhodium, aluminium or
+/// silver (`dbt_dose::xray::AnodeFilter`, the beams the dose model has spectra
 /// for); another anode or filter is refused naming the attribute and its
 /// value, never reported with another beam's dose. Where the object does
 /// not state its filter (optional in the DM IOD), the site's `unstated`
@@ -87,6 +87,7 @@ pub fn filter_material(af: AnodeFilter) -> dbt_dicom::FilterMaterial {
     match af {
         AnodeFilter::WRh => dbt_dicom::FilterMaterial::Rhodium,
         AnodeFilter::WAl => dbt_dicom::FilterMaterial::Aluminum,
+        AnodeFilter::WAg => dbt_dicom::FilterMaterial::Silver,
     }
 }
 

@@ -600,7 +600,8 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
     mixed_beam[4].filter = None;
     named(&mixed_beam, "FilterMaterial");
 
-    // The beam travels in both forms: a W/Al sweep reads back as W/Al (the
+    // The beam travels in both forms: a W/Al sweep reads back as W/Al, a
+    // W/Ag one as W/Ag (the
     // multi-frame object's X-Ray Filter Macro, each view's Filter
     // Material); another filter or anode is refused naming the attribute
     // and its value (issue #27).
@@ -618,8 +619,14 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
         from_views.header.anode_filter,
         dbt_dose::xray::AnodeFilter::WAl
     );
+    let mut w_ag = acq.clone();
+    w_ag.header.anode_filter = dbt_dose::xray::AnodeFilter::WAg;
+    let (received, _) = written_and_read(&w_ag, &angles);
+    assert_eq!(received.filter.as_deref(), Some("SILVER"));
+    let back = acquisition_from_projections(&received, &system).unwrap();
+    assert_eq!(back.header.anode_filter, dbt_dose::xray::AnodeFilter::WAg);
     for (anode, filter, field, value) in [
-        (None, Some("SILVER"), "FilterMaterial", "SILVER"),
+        (None, Some("COPPER"), "FilterMaterial", "COPPER"),
         (
             None,
             Some("ALUMINUM\\RHODIUM"),

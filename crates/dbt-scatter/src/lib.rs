@@ -230,6 +230,10 @@ pub const SHIPPED_JSON: &str = include_str!("../data/w-rh-paper.json");
 /// exposure, 200 um CsI): `data/w-al-paper.json`, made by `dbt-dose
 /// scatter-fit --anode-filter W/Al`.
 pub const SHIPPED_W_AL_JSON: &str = include_str!("../data/w-al-paper.json");
+/// The shipped table of the W/Ag beam (paper geometry, the W/Ag automatic
+/// exposure, 200 um CsI): `data/w-ag-paper.json`, made by `dbt-dose
+/// scatter-fit --anode-filter W/Ag`.
+pub const SHIPPED_W_AG_JSON: &str = include_str!("../data/w-ag-paper.json");
 
 impl ScatterTable {
     /// Parse and check a table.
@@ -250,10 +254,12 @@ impl ScatterTable {
     }
 
     /// The shipped table of a beam named as the gantry's anode/filter
-    /// register names it (`W/Rh`, `W/Al`), parsed once; another name is
-    /// refused, naming it.
+    /// register names it (`W/Rh`, `W/Al`, `W/Ag`), parsed once; another
+    /// name is refused, naming it.
     pub fn shipped_for(anode_filter: &str) -> Result<&'static ScatterTable, ScatterError> {
         static T: std::sync::OnceLock<Result<ScatterTable, ScatterError>> =
+            std::sync::OnceLock::new();
+        static AG: std::sync::OnceLock<Result<ScatterTable, ScatterError>> =
             std::sync::OnceLock::new();
         match anode_filter {
             "W/Rh" => Self::shipped(),
@@ -261,8 +267,12 @@ impl ScatterTable {
                 .get_or_init(|| Self::from_json(SHIPPED_W_AL_JSON))
                 .as_ref()
                 .map_err(Clone::clone),
+            "W/Ag" => AG
+                .get_or_init(|| Self::from_json(SHIPPED_W_AG_JSON))
+                .as_ref()
+                .map_err(Clone::clone),
             other => Err(ScatterError::Table(format!(
-                "no scatter table for the anode/filter `{other}` (W/Rh, W/Al)"
+                "no scatter table for the anode/filter `{other}` (W/Rh, W/Al, W/Ag)"
             ))),
         }
     }
