@@ -39,6 +39,17 @@ fn equipment() -> Equipment {
     }
 }
 
+/// [`dose_input`] of a W/Ag sweep: silver (CID 10006, SCT 41967008), its
+/// solved thickness and the Giotto's HVL at 28 kV.
+fn w_ag_dose_input() -> DoseInput {
+    DoseInput {
+        filter_material: dbt_dicom::FilterMaterial::Silver,
+        filter_mm: 0.059,
+        hvl_mm_al: 0.56,
+        ..dose_input()
+    }
+}
+
 pub fn dose_input() -> DoseInput {
     DoseInput {
         header: header(),
@@ -420,6 +431,8 @@ fn reports_pass_dciodvfy_and_dsrdump_and_broken_ones_do_not() {
     // A physics-only pair (issue #51 point 3).
     let dose_physics = dose_report(&physics_only_dose_input(), &mut uids).unwrap();
     let dens_physics = density_report(&physics_only_density_input(), &mut uids).unwrap();
+    // A W/Ag sweep (issue #51 point 2): the silver filter's code.
+    let dose_w_ag = dose_report(&w_ag_dose_input(), &mut uids).unwrap();
     for (name, r) in [
         ("dose.dcm", &dose),
         ("density.dcm", &dens),
@@ -427,6 +440,7 @@ fn reports_pass_dciodvfy_and_dsrdump_and_broken_ones_do_not() {
         ("density-unconfirmed.dcm", &dens_unconfirmed),
         ("dose-physics.dcm", &dose_physics),
         ("density-physics.dcm", &dens_physics),
+        ("dose-w-ag.dcm", &dose_w_ag),
     ] {
         if let Ok(d) = std::env::var("DBT_DICOM_KEEP") {
             std::fs::write(Path::new(&d).join(name), r.to_bytes().unwrap()).unwrap();
@@ -623,7 +637,8 @@ fn dose_report_meets_its_templates_and_each_known_defect_is_caught() {
 /// dose SR, except where its value sets predate the current edition: its
 /// CID 10006 and 10016 (2022 build) know the metals only by the retired
 /// "X or X compound" codes, where PS3.16 2024 lists the elements (Rhodium
-/// 59801003, Tungsten 26194003, as pydicom 3.0's tables of that edition do).
+/// 59801003, Silver 41967008, Tungsten 26194003, as pydicom 3.0's tables of
+/// that edition do).
 #[test]
 fn dose_report_passes_pixelmed_sr_validation() {
     let jar = Path::new("/usr/share/java/pixelmed.jar");
@@ -644,6 +659,7 @@ fn dose_report_passes_pixelmed_sr_validation() {
         dose_input(),
         three_events(unconfirmed_dose_input()),
         three_events(physics_only_dose_input()),
+        three_events(w_ag_dose_input()),
     ] {
         pixelmed_validates_dose(jar, &input);
     }
@@ -725,6 +741,7 @@ fn pixelmed_validates_dose(jar: &Path, input: &DoseInput) {
         .filter(|l| l.starts_with("Error"))
         .filter(|l| {
             !(l.contains("(59801003,SCT,\"Rhodium\") not found in context group 10006")
+                || l.contains("(41967008,SCT,\"Silver\") not found in context group 10006")
                 || l.contains("(26194003,SCT,\"Tungsten\") not found in context group 10016"))
         })
         .collect();
