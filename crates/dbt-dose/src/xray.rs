@@ -53,7 +53,7 @@ pub const W_AL_FILTER_MM: f64 = 0.7;
 /// W/Al DBT system could be retrieved (Feng & Sechopoulos 2012, AAPM
 /// TG-223, NHSBSP 1401 searched; issue #27); the firmware uses the kV the
 /// gantry sends, this table only chooses what the simulator exposes.
-/// `w_al_aec_is_hvl_matched` recomputes it.
+/// `w_al_and_w_ag_aec_are_hvl_matched` recomputes it.
 pub const W_AL_AEC: [(f64, u32); 5] = [(35.0, 31), (45.0, 32), (55.0, 32), (65.0, 33), (75.0, 33)];
 
 /// The W/Ag beam's measured first HVL, `(kV, mm Al)`: what an IMS Giotto
@@ -73,7 +73,7 @@ pub const W_AG_HVL: [(u32, f64); 2] = [(28, 0.560), (27, 0.542)];
 /// row of the paper's Table 3, the W/Ag kV whose first HVL is nearest that
 /// row's. **Our choice**: the one Giotto report read (27 kV at 41 mm, 28 kV
 /// at 44-47 mm, a kV or two above this table) is no table;
-/// `w_ag_aec_is_hvl_matched` recomputes it. The firmware uses the kV the
+/// `w_al_and_w_ag_aec_are_hvl_matched` recomputes it. The firmware uses the kV the
 /// gantry sends; this table only chooses what the simulator exposes.
 pub const W_AG_AEC: [(f64, u32); 5] = [(35.0, 26), (45.0, 26), (55.0, 27), (65.0, 27), (75.0, 28)];
 
@@ -462,23 +462,26 @@ mod tests {
         }
     }
 
-    /// [`W_AL_AEC`] is what its documentation says: per Table 3 row, the
-    /// W/Al kV (20-49) whose first HVL is nearest the row's W/Rh HVL.
+    /// [`W_AL_AEC`] and [`W_AG_AEC`] are what their documentation says: per
+    /// Table 3 row, the beam's kV (20-49) whose first HVL is nearest the
+    /// row's W/Rh HVL.
     #[test]
-    fn w_al_aec_is_hvl_matched() {
-        for (row, (t, kv)) in PAPER_TABLE3.iter().zip(W_AL_AEC) {
-            assert!((t - 0.5 * (row.0 .0 + row.0 .1)).abs() < 1e-9);
-            let best = (20..50)
-                .min_by(|a, b| {
-                    let d = |k: u32| {
-                        let s = technique_spectrum(AnodeFilter::WAl, f64::from(k), t).unwrap();
-                        (s.hvl_mm_al - row.2).abs()
-                    };
-                    d(*a).total_cmp(&d(*b))
-                })
-                .unwrap();
-            assert_eq!(kv, best, "{t} mm");
-            assert_eq!(AnodeFilter::WAl.aec_kv(t), kv);
+    fn w_al_and_w_ag_aec_are_hvl_matched() {
+        for (af, table) in [(AnodeFilter::WAl, W_AL_AEC), (AnodeFilter::WAg, W_AG_AEC)] {
+            for (row, (t, kv)) in PAPER_TABLE3.iter().zip(table) {
+                assert!((t - 0.5 * (row.0 .0 + row.0 .1)).abs() < 1e-9);
+                let best = (20..50)
+                    .min_by(|a, b| {
+                        let d = |k: u32| {
+                            let s = technique_spectrum(af, f64::from(k), t).unwrap();
+                            (s.hvl_mm_al - row.2).abs()
+                        };
+                        d(*a).total_cmp(&d(*b))
+                    })
+                    .unwrap();
+                assert_eq!(kv, best, "{af} {t} mm");
+                assert_eq!(af.aec_kv(t), kv);
+            }
         }
         assert_eq!(AnodeFilter::WAl.aec_kv(10.0), W_AL_AEC[0].1);
         assert_eq!(AnodeFilter::WAl.aec_kv(120.0), W_AL_AEC[4].1);
@@ -575,25 +578,6 @@ mod tests {
             sp.weights[i]
         };
         assert!(at(26.0) < 0.1 * at(25.0), "{} {}", at(25.0), at(26.0));
-    }
-
-    /// [`W_AG_AEC`] is HVL-matched to the paper's Table 3 as [`W_AL_AEC`].
-    #[test]
-    fn w_ag_aec_is_hvl_matched() {
-        for (row, (t, kv)) in PAPER_TABLE3.iter().zip(W_AG_AEC) {
-            assert!((t - 0.5 * (row.0 .0 + row.0 .1)).abs() < 1e-9);
-            let best = (20..50)
-                .min_by(|a, b| {
-                    let d = |k: u32| {
-                        let s = technique_spectrum(AnodeFilter::WAg, f64::from(k), t).unwrap();
-                        (s.hvl_mm_al - row.2).abs()
-                    };
-                    d(*a).total_cmp(&d(*b))
-                })
-                .unwrap();
-            assert_eq!(kv, best, "{t} mm");
-            assert_eq!(AnodeFilter::WAg.aec_kv(t), kv);
-        }
     }
 
     #[test]

@@ -605,26 +605,22 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
     // multi-frame object's X-Ray Filter Macro, each view's Filter
     // Material); another filter or anode is refused naming the attribute
     // and its value (issue #27).
-    let mut w_al = acq.clone();
-    w_al.header.anode_filter = dbt_dose::xray::AnodeFilter::WAl;
-    let (received, objects) = written_and_read(&w_al, &angles);
-    assert_eq!(received.filter.as_deref(), Some("ALUMINUM"));
-    let back = acquisition_from_projections(&received, &system).unwrap();
-    assert_eq!(back.header.anode_filter, dbt_dose::xray::AnodeFilter::WAl);
-    let views: Vec<_> = objects.iter().map(|(_, o)| o.clone()).collect();
-    let swept = assemble(&views, &system).unwrap();
-    assert_eq!(swept.filter.as_deref(), Some("ALUMINUM"));
-    let from_views = acquisition_from_projections(&swept, &system).unwrap();
-    assert_eq!(
-        from_views.header.anode_filter,
-        dbt_dose::xray::AnodeFilter::WAl
-    );
-    let mut w_ag = acq.clone();
-    w_ag.header.anode_filter = dbt_dose::xray::AnodeFilter::WAg;
-    let (received, _) = written_and_read(&w_ag, &angles);
-    assert_eq!(received.filter.as_deref(), Some("SILVER"));
-    let back = acquisition_from_projections(&received, &system).unwrap();
-    assert_eq!(back.header.anode_filter, dbt_dose::xray::AnodeFilter::WAg);
+    for (beam, term) in [
+        (dbt_dose::xray::AnodeFilter::WAl, "ALUMINUM"),
+        (dbt_dose::xray::AnodeFilter::WAg, "SILVER"),
+    ] {
+        let mut a = acq.clone();
+        a.header.anode_filter = beam;
+        let (received, objects) = written_and_read(&a, &angles);
+        assert_eq!(received.filter.as_deref(), Some(term));
+        let back = acquisition_from_projections(&received, &system).unwrap();
+        assert_eq!(back.header.anode_filter, beam);
+        let views: Vec<_> = objects.iter().map(|(_, o)| o.clone()).collect();
+        let swept = assemble(&views, &system).unwrap();
+        assert_eq!(swept.filter.as_deref(), Some(term));
+        let from_views = acquisition_from_projections(&swept, &system).unwrap();
+        assert_eq!(from_views.header.anode_filter, beam);
+    }
     for (anode, filter, field, value) in [
         (None, Some("COPPER"), "FilterMaterial", "COPPER"),
         (
