@@ -102,6 +102,15 @@ impl AnodeFilter {
     /// Every supported combination.
     pub const ALL: [AnodeFilter; 3] = [AnodeFilter::WRh, AnodeFilter::WAl, AnodeFilter::WAg];
 
+    /// Its place in [`Self::ALL`] (a table per beam indexes by it).
+    pub const fn index(self) -> usize {
+        match self {
+            AnodeFilter::WRh => 0,
+            AnodeFilter::WAl => 1,
+            AnodeFilter::WAg => 2,
+        }
+    }
+
     /// The register's name, `W/Rh`, `W/Al` or `W/Ag`.
     pub fn name(self) -> &'static str {
         match self {
@@ -523,7 +532,8 @@ mod tests {
 
     #[test]
     fn anode_filters_are_parsed_or_refused_by_name() {
-        for a in AnodeFilter::ALL {
+        for (i, a) in AnodeFilter::ALL.into_iter().enumerate() {
+            assert_eq!(a.index(), i, "{a}");
             assert_eq!(AnodeFilter::parse(a.name()).unwrap(), a);
             let json = serde_json::to_string(&a).unwrap();
             assert_eq!(json, format!("\"{}\"", a.name()));

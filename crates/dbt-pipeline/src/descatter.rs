@@ -52,7 +52,7 @@ pub const MAX_SIGNAL: f64 = 1.5;
 /// its anode/filter.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ScatterRemoval {
-    /// The table of each of `AnodeFilter::ALL`, in its order.
+    /// The table of each beam, at its `AnodeFilter::index`.
     tables: [&'static ScatterTable; AnodeFilter::ALL.len()],
 }
 
@@ -75,9 +75,7 @@ impl ScatterRemoval {
 
     /// The kernels of a beam.
     pub fn table(&self, af: AnodeFilter) -> &'static ScatterTable {
-        let i = AnodeFilter::ALL.iter().position(|a| *a == af);
-        // every beam is in ALL, its table at its place
-        self.tables[i.unwrap_or(0)]
+        self.tables[af.index()]
     }
 
     /// Remove the scatter from an acquisition's counts in place
