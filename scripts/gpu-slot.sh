@@ -85,8 +85,16 @@ if [ -f "$RUNS/$RUN/state.dbts" ]; then
     log "run $RUN: iteration $done_it of $all_it"
 fi
 sc=$(mktemp -d)
-"$hs" dataset --out "$sc/ds" --slices 1500 --test-phantoms 0 --levels N8 --binning 4 2> /dev/null \
-    || fail "host-sim could not make the self-check's dataset"
+# host-sim's log goes into slot.log: a failure here (a full disk, say) must
+# say why in the files that come back.
+if ! "$hs" dataset --out "$sc/ds" --slices 1500 --test-phantoms 0 --levels N8 --binning 4 \
+    > "$sc/host-sim.log" 2>&1; then
+    cat "$sc/host-sim.log" >> "$OUT/slot.log"
+    tail -n 5 "$sc/host-sim.log" >&2
+    df -h "$sc" "$OUT" 2>&1 | tee -a "$OUT/slot.log" >&2 || true
+    fail "host-sim could not make the self-check's dataset in $sc (its log above and in slot.log)"
+fi
+cat "$sc/host-sim.log" >> "$OUT/slot.log"
 (cd training && $PY -m dbtor.train --data "$sc/ds" --out "$sc/run" --iters 1 --batch 2 --blocks 2 \
     --val-every 1 --log-every 1 --device "$DEVICE" --precision bf16 >> "$OUT/slot.log" 2>&1) \
     || fail "one bf16 training iteration"

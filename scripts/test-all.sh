@@ -8,9 +8,16 @@ times=()
 stage() {
     local name=$1
     shift
-    local t0=$SECONDS
-    "$@"
-    times+=("$(printf '%-28s %5d s' "$name" $((SECONDS - t0)))")
+    local t0=$SECONDS rc=0
+    "$@" || rc=$?
+    # the disk left after each stage: a full disk fails the later stages
+    # with errors that need not say so
+    times+=("$(printf '%-28s %5d s   disk free after: %s' "$name" $((SECONDS - t0)) \
+        "$(df -h --output=avail . 2>/dev/null | tail -n 1 | tr -d ' ')")")
+    if [ "$rc" != 0 ]; then
+        times+=("  (failed: exit $rc)")
+        exit "$rc"
+    fi
 }
 report() {
     echo "test-all: time by stage (wall clock, $(nproc) CPUs)" >&2

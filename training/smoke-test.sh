@@ -158,6 +158,9 @@ if "${cont[@]}" 2> "$tmp/cont4.log" > /dev/null; then
     echo "smoke test: a changed dataset was accepted"; exit 1
 fi
 grep -q "differs: validation/masks.u8" "$tmp/cont4.log" || { echo "smoke test: the dataset refusal does not name the file"; cat "$tmp/cont4.log"; exit 1; }
+# The run "smoke" is done: its datasets and local run folder (about 0.5 GB)
+# are not kept while the next runs make theirs.
+rm -rf "$tmp"/cache/datasets/smoke-[0-9]-* "$tmp/cache/runs/smoke"
 # The GPU slot's script (scripts/gpu-slot.sh, issue #49 point 3) on the CPU
 # path: everything but the GPU (its self-check's bf16 iteration, the state's
 # round trip, the datasets regenerated, training to the budget, the files
