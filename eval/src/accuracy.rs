@@ -148,6 +148,55 @@ pub fn agreement(diffs: &[f64]) -> Agreement {
     }
 }
 
+/// The bar another beam passes to read the W/Rh glandularity calibration
+/// instead of its own (eval/README.md, "The W/Ag beam"; written before any
+/// acquisition of W/Al, the first beam it was put to, was evaluated): on
+/// the same validation phantoms, the other beam's reported-glandularity
+/// bias within this many pp of W/Rh's ...
+pub const BEAM_BAR_BIAS_PP: f64 = 0.5;
+/// ... its standard deviation at most this many pp over W/Rh's ...
+pub const BEAM_BAR_SD_PP: f64 = 0.1;
+/// ... and none of its errors beyond this many pp (the paper's bar).
+pub const BEAM_BAR_MAX_PP: f64 = 3.0;
+
+/// [`beam_bar`]'s verdict.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct BeamBar {
+    /// W/Rh's errors with its own calibration, pp.
+    pub w_rh: Agreement,
+    /// The other beam's errors with W/Rh's calibration, pp.
+    pub other: Agreement,
+    /// `|bias(other) - bias(W/Rh)|`, pp.
+    pub bias_difference_pp: f64,
+    /// `sd(other) - sd(W/Rh)`, pp.
+    pub sd_difference_pp: f64,
+    /// Whether the other beam keeps W/Rh's calibration.
+    pub kept: bool,
+}
+
+/// Whether another beam keeps the W/Rh calibration: `w_rh_pp` and
+/// `other_pp` are the reported-glandularity errors (pp) of the same
+/// phantoms, both read with W/Rh's calibration ([`BEAM_BAR_BIAS_PP`],
+/// [`BEAM_BAR_SD_PP`], [`BEAM_BAR_MAX_PP`]). A bar on fewer than two
+/// cases a side, or on unequal counts, is missed.
+pub fn beam_bar(w_rh_pp: &[f64], other_pp: &[f64]) -> BeamBar {
+    let (w_rh, other) = (agreement(w_rh_pp), agreement(other_pp));
+    let bias_difference_pp = (other.bias - w_rh.bias).abs();
+    let sd_difference_pp = other.sd - w_rh.sd;
+    let kept = w_rh_pp.len() == other_pp.len()
+        && w_rh_pp.len() >= 2
+        && bias_difference_pp <= BEAM_BAR_BIAS_PP
+        && sd_difference_pp <= BEAM_BAR_SD_PP
+        && other.max_abs <= BEAM_BAR_MAX_PP;
+    BeamBar {
+        w_rh,
+        other,
+        bias_difference_pp,
+        sd_difference_pp,
+        kept,
+    }
+}
+
 /// One phantom through acquisition, processing and dose.
 pub fn run_case(
     name: String,
@@ -542,6 +591,31 @@ pub fn summarise(cases: &[Case]) -> AccuracySummary {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The beam bar at and beyond each of its three limits: a beam whose
+    /// errors are W/Rh's shifted by the bias limit, or spread to the sd
+    /// limit, keeps the calibration; a little more of either, one error
+    /// beyond 3 pp, unequal counts or a single case miss it.
+    #[test]
+    fn beam_bar_holds_each_limit() {
+        let w_rh = [-1.0, -0.5, 0.0, 0.5, 1.0];
+        assert!(beam_bar(&w_rh, &w_rh).kept);
+        let shifted = |d: f64| w_rh.map(|e| e + d);
+        assert!(beam_bar(&w_rh, &shifted(0.49)).kept);
+        let b = beam_bar(&w_rh, &shifted(0.51));
+        assert!(!b.kept && (b.bias_difference_pp - 0.51).abs() < 1e-12);
+        assert!(!beam_bar(&w_rh, &shifted(-0.51)).kept);
+        let sd = agreement(&w_rh).sd;
+        let spread = |f: f64| w_rh.map(|e| e * f);
+        assert!(beam_bar(&w_rh, &spread((sd + 0.09) / sd)).kept);
+        let b = beam_bar(&w_rh, &spread((sd + 0.11) / sd));
+        assert!(!b.kept && (b.sd_difference_pp - 0.11).abs() < 1e-9);
+        let mut far = w_rh;
+        far[0] = -3.01;
+        assert!(!beam_bar(&far, &far).kept, "an error beyond 3 pp");
+        assert!(!beam_bar(&w_rh, &w_rh[..4]).kept, "unequal counts");
+        assert!(!beam_bar(&[0.1], &[0.1]).kept, "one case");
+    }
 
     /// Depth bands: slices fall in the band of their centre; skin and air
     /// do not count; a band without breast is `None`; slices beyond the

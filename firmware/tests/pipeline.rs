@@ -397,7 +397,8 @@ fn copy_model(to: &std::path::Path) -> std::path::PathBuf {
 /// The shipped model's report intervals (issue #48 point 4): loaded for
 /// the configured precision and inputs, none for a precision without a
 /// table; a folder whose calibration changed after the intervals were fit
-/// is refused (its intervals describe other figures), and one signed off
+/// for the intervals' inputs is refused (its intervals describe other
+/// figures), one given another beam's entry is not, and one signed off
 /// with intervals that lost them is refused by the sign-off.
 #[test]
 fn the_report_intervals_are_bound_to_the_model_and_its_calibration() {
@@ -441,20 +442,105 @@ fn the_report_intervals_are_bound_to_the_model_and_its_calibration() {
     }
     let dir = tmp.path();
     assert!(load(dir, Precision::Int8).unwrap().intervals.is_some());
-    // Recalibrated (the same figures, another file) and signed off again.
+    // Another file with the same figures for the tables' keys (an entry
+    // for another beam added, signed off again): the intervals stand.
     let cal = dir.join(dbt_model::CALIBRATION_FILE);
     let text = std::fs::read_to_string(&cal).unwrap();
-    std::fs::write(&cal, text + "\n").unwrap();
+    let mut f: dbt_model::CalibrationFile = serde_json::from_str(&text).unwrap();
+    let w_rh = f.calibrations["int8"];
+    f.calibrations.insert(
+        "int8 | beam W/Al".into(),
+        dbt_tissue::GlandularityCalibration {
+            offset: 0.2,
+            ..w_rh
+        },
+    );
+    std::fs::write(&cal, serde_json::to_string_pretty(&f).unwrap()).unwrap();
+    dbt_model::sign_off(dir).unwrap();
+    assert!(load(dir, Precision::Int8).unwrap().intervals.is_some());
+    // Recalibrated for the table's inputs (int8, plain counts) and signed
+    // off again: refused, naming the table.
+    f.calibrations.insert(
+        "int8".into(),
+        dbt_tissue::GlandularityCalibration {
+            offset: w_rh.offset + 0.001,
+            ..w_rh
+        },
+    );
+    std::fs::write(&cal, serde_json::to_string_pretty(&f).unwrap()).unwrap();
     dbt_model::sign_off(dir).unwrap();
     let e = load(dir, Precision::Int8).err().unwrap().to_string();
     assert!(
-        e.contains("report-intervals.json") && e.contains("dbt-eval intervals"),
+        e.contains("report-intervals.json")
+            && e.contains("table \"int8\"")
+            && e.contains("dbt-eval intervals"),
         "{e}"
     );
     // The intervals lost after the sign-off.
     std::fs::remove_file(dir.join(dbt_model::INTERVALS_FILE)).unwrap();
     let e = load(dir, Precision::Int8).err().unwrap().to_string();
     assert!(e.contains("report-intervals.json is missing"), "{e}");
+}
+
+/// The shipped model's beams (issue #51): with both corrections, int8
+/// reads W/Al's own calibration and W/Ag's entry, which is the W/Rh one
+/// that W/Ag's bar kept (`dbt-eval beam-bar`, its bar stored beside it);
+/// noise-matched int8 and fp32 have no W/Ag entry, so the pipeline refuses
+/// W/Ag there, naming the beam.
+#[test]
+fn the_shipped_model_reads_w_ag_only_where_its_bar_held() {
+    use dbt_dbtor::{Engine, Precision};
+    use dbt_dose::xray::AnodeFilter;
+    use dbt_model::{load_signed, CalibrationFile, InputCorrections, CALIBRATION_FILE};
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/dbtor-x4t3qa");
+    let corrected = InputCorrections {
+        scatter_removed: true,
+        linearised: true,
+        ..Default::default()
+    };
+    let load = |p, input| {
+        load_signed(
+            &dir,
+            p,
+            &[],
+            Engine::Fast,
+            &dbt_tissue::ClassifyOptions::default(),
+            input,
+            None,
+        )
+        .unwrap()
+    };
+    let beams = |m: &dbt_model::SignedModel| {
+        let mut b: Vec<String> = m.beam_calibrations.iter().map(|(b, _)| b.clone()).collect();
+        b.sort();
+        b
+    };
+    let int8 = load(Precision::Int8, corrected);
+    assert_eq!(beams(&int8), ["W/Ag", "W/Al"]);
+    let w_ag = int8.beam_calibrations.iter().find(|(b, _)| b == "W/Ag").unwrap().1;
+    assert_eq!(Some(w_ag), int8.calibration, "W/Ag's entry is the W/Rh calibration");
+    let f = CalibrationFile::read(&dir.join(CALIBRATION_FILE), &int8.model).unwrap();
+    let fit = &f.fits["int8 | scatter removed + linearised | beam W/Ag"];
+    assert_eq!(fit["bar"]["result"]["kept"], true, "{fit}");
+    assert_eq!(fit["cases"].as_array().map(Vec::len), Some(24));
+    let noise_matched = InputCorrections {
+        noise_matched: true,
+        ..corrected
+    };
+    for m in [
+        load(Precision::Int8, noise_matched),
+        load(Precision::Fp32, corrected),
+    ] {
+        assert_eq!(beams(&m), ["W/Al"]);
+        let opts = dbt_pipeline::PipelineOptions {
+            calibration: m.calibration,
+            beam_calibrations: dbt_pipeline::beam_calibrations(&m.beam_calibrations),
+            ..Default::default()
+        };
+        let e = opts.for_beam(AnodeFilter::WAg).unwrap_err().to_string();
+        assert!(e.contains("W/Ag") && e.contains("not reported"), "{e}");
+        assert!(opts.for_beam(AnodeFilter::WAl).is_ok());
+    }
 }
 
 /// The model folder's calibration: none without the file; applied for the

@@ -3,12 +3,18 @@
 //! validation split, the daemon and `dbtor-process` read it when they load
 //! the model. The table and the intervals are `dbt_intervals` (pure).
 //!
-//! Bound to the model (its manifest's SHA-256) and to the calibration the
-//! reported glandularity went through (the calibration file's SHA-256): a
-//! recalibrated model whose intervals were not refit is refused by name.
+//! Bound to the model (its manifest's SHA-256) and, table by table, to the
+//! calibration the reported glandularity went through (the calibration
+//! file's entry under the table's key, kept in the table): a model
+//! recalibrated for those inputs whose intervals were not refit is refused,
+//! naming the table; an entry added for another beam or input leaves the
+//! tables as they are.
 
-use crate::calibration::{check_binding, manifest_sha256, InputCorrections, CALIBRATION_FILE};
+use crate::calibration::{
+    check_binding, manifest_sha256, CalibrationFile, InputCorrections, CALIBRATION_FILE,
+};
 use dbt_intervals::IntervalTable;
+use dbt_tissue::GlandularityCalibration;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -18,7 +24,7 @@ use thiserror::Error;
 pub const INTERVALS_FILE: &str = "report-intervals.json";
 
 /// Format tag of [`INTERVALS_FILE`].
-pub const INTERVALS_FORMAT: &str = "dbtor-report-intervals/1";
+pub const INTERVALS_FORMAT: &str = "dbtor-report-intervals/2";
 
 /// An interval file is unreadable, inconsistent or stale.
 #[derive(Debug, Error)]
@@ -47,6 +53,10 @@ pub struct IntervalsSource {
 pub struct IntervalsEntry {
     /// The residual table.
     pub table: IntervalTable,
+    /// The calibration the residuals' reported glandularity went through:
+    /// the calibration file's entry under the table's key when the table
+    /// was fit (`None`: the model had none for it).
+    pub calibration: Option<GlandularityCalibration>,
     /// How it was fit.
     pub source: IntervalsSource,
 }
@@ -62,20 +72,24 @@ pub struct IntervalsFile {
     pub model: String,
     /// SHA-256 of the model's manifest.json.
     pub manifest_sha256: String,
-    /// SHA-256 of the calibration file the reported glandularity went
-    /// through (empty: the model has none).
-    pub calibration_sha256: String,
     /// The tables by key.
     pub tables: BTreeMap<String, IntervalsEntry>,
 }
 
-fn calibration_sha256(dir: &Path) -> Result<String, dbt_dbtor::DbtorError> {
-    let p = dir.join(CALIBRATION_FILE);
-    if p.is_file() {
-        dbt_dbtor::sha256_file(&p)
-    } else {
-        Ok(String::new())
+/// The entry under `key` of `model`'s calibration file as it stands (read
+/// and checked as the firmware reads it); `None` without a file or entry.
+pub fn current_calibration(
+    model: &dbt_dbtor::Dbtor,
+    key: &str,
+) -> Result<Option<GlandularityCalibration>, crate::CalibrationError> {
+    let p = model.root().join(CALIBRATION_FILE);
+    if !p.is_file() {
+        return Ok(None);
     }
+    Ok(CalibrationFile::read(&p, model)?
+        .calibrations
+        .get(key)
+        .copied())
 }
 
 impl IntervalsFile {
@@ -96,24 +110,24 @@ impl IntervalsFile {
             "dbt-eval intervals",
         )
         .map_err(fail)?;
-        let cal = calibration_sha256(model.root()).map_err(|e| fail(e.to_string()))?;
-        if f.calibration_sha256 != cal {
-            return Err(fail(format!(
-                "fit on glandularities calibrated by another {CALIBRATION_FILE} (SHA-256 {:?}, now {cal:?}); refit with `dbt-eval intervals`",
-                f.calibration_sha256
-            )));
-        }
         for (key, e) in &f.tables {
             e.table
                 .validate()
                 .map_err(|e| fail(format!("table {key:?}: {e}")))?;
+            let now = current_calibration(model, key).map_err(|e| fail(e.to_string()))?;
+            if now != e.calibration {
+                return Err(fail(format!(
+                    "table {key:?} was fit on glandularities calibrated as {:?}, but {CALIBRATION_FILE} now gives {now:?}; refit with `dbt-eval intervals`",
+                    e.calibration
+                )));
+            }
         }
         Ok(f)
     }
 
     /// The file at `path` to add `model`'s tables to: as read where it is
-    /// `model`'s under its present calibration (its other tables kept),
-    /// else an empty one bound to both.
+    /// `model`'s under its present calibrations (its other tables kept),
+    /// else an empty one bound to it.
     pub fn open_or_new(
         path: &Path,
         model: &dbt_dbtor::Dbtor,
@@ -124,7 +138,6 @@ impl IntervalsFile {
                 format: INTERVALS_FORMAT.into(),
                 model: model.manifest().name.clone(),
                 manifest_sha256: manifest_sha256(model)?,
-                calibration_sha256: calibration_sha256(model.root())?,
                 tables: BTreeMap::new(),
             }),
         }

@@ -20,8 +20,8 @@ pub use calibration::{
     CALIBRATION_FORMAT,
 };
 pub use intervals::{
-    load_intervals, IntervalsEntry, IntervalsError, IntervalsFile, IntervalsSource, INTERVALS_FILE,
-    INTERVALS_FORMAT,
+    current_calibration, load_intervals, IntervalsEntry, IntervalsError, IntervalsFile,
+    IntervalsSource, INTERVALS_FILE, INTERVALS_FORMAT,
 };
 pub use signoff::{sign_off, verify, Signoff, SIGNOFF_FILE, SIGNOFF_FORMAT};
 

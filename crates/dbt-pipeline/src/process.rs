@@ -210,9 +210,11 @@ impl PipelineOptions {
 
     /// The options for an acquisition with the beam `beam`: `calibration`
     /// replaced by the beam's own for another beam than W/Rh where there is
-    /// one; the W/Rh one for a beam of [`BEAMS_ON_THE_W_RH_CALIBRATION`]
-    /// without its own; refused (naming the beam) when there is none and
-    /// the options are calibrated (for W/Rh).
+    /// one; refused (naming the beam) when there is none and the options
+    /// are calibrated (for W/Rh). A beam that reads the W/Rh calibration
+    /// does so through an entry of its own in the model's signed
+    /// calibration file, written where the model passed the bar
+    /// (`dbt-eval beam-bar --write`): never by default, for every model.
     pub fn for_beam(
         &self,
         beam: AnodeFilter,
@@ -226,21 +228,11 @@ impl PipelineOptions {
                 calibration: Some(*c),
                 ..self.clone()
             })),
-            None if BEAMS_ON_THE_W_RH_CALIBRATION.contains(&beam) => Ok(Cow::Borrowed(self)),
             None if self.calibration.is_some() => Err(PipelineError::NoBeamCalibration(beam)),
             None => Ok(Cow::Borrowed(self)),
         }
     }
 }
-
-/// The beams whose glandularity the W/Rh calibration reads (for every
-/// precision and set of corrections) where the model has none of their
-/// own: W/Ag, decided on the validation split by the bar written before
-/// its evaluation (eval/README.md, "The W/Ag beam":
-/// `scripts/beam-calibration-bar.py`; with the W/Rh calibration, 24
-/// validation breasts, int8: +0.01 +- 0.87 pp, max 2.02, against W/Rh's
-/// +0.03 +- 0.85, max 1.80). W/Al missed the same bar and has its own.
-pub const BEAMS_ON_THE_W_RH_CALIBRATION: [AnodeFilter; 1] = [AnodeFilter::WAg];
 
 /// Everything the processing found.
 #[derive(Debug, Clone, Serialize)]
@@ -1534,11 +1526,13 @@ mod beam_tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("W/Al") && e.contains("not reported"), "{e}");
-        // W/Ag reads the W/Rh calibration (its bar), unless it has its own.
-        assert_eq!(
-            w_rh_only.for_beam(AnodeFilter::WAg).unwrap().calibration,
-            Some(cal(0.1))
-        );
+        // W/Ag too: no beam reads W/Rh's calibration without an entry of
+        // its own (the model's file carries it where its bar held).
+        let e = w_rh_only
+            .for_beam(AnodeFilter::WAg)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("W/Ag") && e.contains("not reported"), "{e}");
         let w_ag_own = PipelineOptions {
             beam_calibrations: beam_calibrations(&[("W/Ag".into(), cal(0.5))]),
             ..w_rh_only.clone()

@@ -127,10 +127,20 @@ enum Cmd {
     /// from `accuracy` outputs on the validation split (never the test split,
     /// never an external phantom): each band of thickness and reported
     /// glandularity's residuals (`dbt_intervals`), written into the model
-    /// folder (report-intervals.json, bound to the manifest and the
-    /// calibration by their SHA-256), where the firmware finds it. Sign the
+    /// folder (report-intervals.json, bound to the manifest by its SHA-256
+    /// and each table to the calibration entry of its key as it stands),
+    /// where the firmware finds it. Sign the
     /// model off again afterwards (`dbtor-diag model DIR --sign-off`).
     Intervals(IntervalsArgs),
+    /// Whether another beam reads a model's W/Rh glandularity calibration
+    /// as well as W/Rh does (eval/README.md, "The W/Ag beam"): two
+    /// `accuracy` runs of the same validation phantoms, one W/Rh, one the
+    /// other beam, the W/Rh calibration of their precision and inputs
+    /// applied to each case, the bar printed (`dbt_eval::accuracy::beam_bar`).
+    /// With `--write`, where the bar holds, that calibration is written
+    /// into the model's file as the other beam's (`KEY | beam W/Ag`), the
+    /// bar beside it; sign the model off again afterwards.
+    BeamBar(BeamBarArgs),
     /// Compress an uncompressed VICTRE breastPhantom volume (MetaImage) by
     /// the documented volume-preserving map (`dbt_eval::victre`;
     /// scripts/victre/README.md) and write it with a sidecar that
@@ -192,6 +202,30 @@ struct IntervalsArgs {
     /// Interior reported-glandularity band edges, 0..1.
     #[arg(long, value_delimiter = ',')]
     glandularity_edges: Option<Vec<f64>>,
+}
+
+/// The options of `dbt-eval beam-bar`.
+#[derive(Args)]
+struct BeamBarArgs {
+    /// The model folder whose W/Rh calibration is read (and, with
+    /// `--write`, written).
+    #[arg(long)]
+    model: PathBuf,
+    /// The precision the runs used (fp32, int8).
+    #[arg(long, default_value = "int8")]
+    precision: String,
+    /// The W/Rh `accuracy` run's folder (validation split).
+    #[arg(long)]
+    w_rh: PathBuf,
+    /// The other beam's `accuracy` run of the same phantoms, precision and
+    /// input corrections.
+    #[arg(long)]
+    other: PathBuf,
+    /// Where the bar holds, write the W/Rh calibration into the model's
+    /// calibration file as the other beam's; refused where it is missed or
+    /// the beam has an entry already.
+    #[arg(long)]
+    write: bool,
 }
 
 /// The options of `dbt-eval victre-compress`.
@@ -1030,6 +1064,7 @@ fn main() -> Result<()> {
         Cmd::Ladder(args) => run_ladder(args),
         Cmd::Calibrate(args) => run_calibrate(args),
         Cmd::Intervals(args) => run_intervals(args),
+        Cmd::BeamBar(args) => run_beam_bar(args),
         Cmd::VictreCompress(args) => run_victre_compress(args),
         Cmd::Anatomy(args) => run_anatomy(args),
         Cmd::Picture(args) => run_picture(args),
@@ -1671,15 +1706,7 @@ fn run_intervals(args: IntervalsArgs) -> Result<()> {
             path.display(),
             j["anode_filter"]
         );
-        let flag = |k: &str| j[k].as_bool().unwrap_or(false);
-        let this = dbt_model::InputCorrections {
-            scatter_removed: flag("descattered"),
-            linearised: flag("linearised"),
-            known_path: flag("linearised_on_known_path"),
-            noise_matched: !j["noise_matched_to_photons"].is_null(),
-            a_se_detector: j["detector"].as_str() == Some("a-Se"),
-            uncorrected_clinical: flag("uncorrected_input"),
-        };
+        let this = run_input_corrections(&j);
         if let Some(first) = input {
             anyhow::ensure!(
                 first == this,
@@ -1768,10 +1795,15 @@ fn run_intervals(args: IntervalsArgs) -> Result<()> {
     }
     let path = model.join(dbt_model::INTERVALS_FILE);
     let mut file = dbt_model::IntervalsFile::open_or_new(&path, &m)?;
+    // The calibration the runs' reported glandularity went through: the
+    // model's entry for these inputs as it stands (the table is refused
+    // once that entry changes).
+    let calibration = dbt_model::current_calibration(&m, &key)?;
     file.tables.insert(
         key,
         dbt_model::IntervalsEntry {
             table,
+            calibration,
             source: dbt_model::IntervalsSource {
                 command: std::env::args().collect::<Vec<_>>().join(" "),
                 inputs,
@@ -1785,6 +1817,218 @@ fn run_intervals(args: IntervalsArgs) -> Result<()> {
         "written: {} (sign the model off again: dbtor-diag model {} --sign-off)",
         path.display(),
         model.display()
+    );
+    Ok(())
+}
+
+/// The input corrections an `accuracy` run's accuracy.json records.
+fn run_input_corrections(j: &serde_json::Value) -> dbt_model::InputCorrections {
+    let flag = |k: &str| j[k].as_bool().unwrap_or(false);
+    dbt_model::InputCorrections {
+        scatter_removed: flag("descattered"),
+        linearised: flag("linearised"),
+        known_path: flag("linearised_on_known_path"),
+        noise_matched: !j["noise_matched_to_photons"].is_null(),
+        a_se_detector: j["detector"].as_str() == Some("a-Se"),
+        uncorrected_clinical: flag("uncorrected_input"),
+    }
+}
+
+/// One `accuracy` run read for `beam-bar`: its beam, input corrections,
+/// phantoms' description and, per case, (phantom, T mm, G true, partial
+/// volume) of `name`'s `precision` run.
+struct BarRun {
+    beam: dbt_dose::xray::AnodeFilter,
+    input: dbt_model::InputCorrections,
+    phantoms: String,
+    cases: Vec<(String, f64, f64, f64)>,
+}
+
+fn read_bar_run(dir: &Path, name: &str, precision: &str) -> Result<BarRun> {
+    let path = dir.join("accuracy.json");
+    let text =
+        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    let j: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
+    let phantoms = j["phantoms"].as_str().unwrap_or("").to_string();
+    anyhow::ensure!(
+        phantoms.starts_with("validation"),
+        "{}: phantoms {phantoms:?} are not the validation split; a calibration is chosen on validation breasts only",
+        path.display()
+    );
+    let beam_name = j["anode_filter"].as_str().unwrap_or("");
+    let beam = dbt_dose::xray::AnodeFilter::parse(beam_name)
+        .map_err(|e| anyhow::anyhow!("{}: anode_filter {beam_name:?}: {e}", path.display()))?;
+    let r = j["reconstructors"]
+        .as_array()
+        .and_then(|rs| {
+            rs.iter().find(|r| {
+                r["reconstructor"]
+                    .as_str()
+                    .is_some_and(|s| s.contains(name) && s.contains(&format!("({precision},")))
+            })
+        })
+        .with_context(|| format!("{}: no {precision} run of {name}", path.display()))?;
+    let mut cases = Vec::new();
+    for c in r["cases"].as_array().context("no cases")? {
+        let f = |k: &str| {
+            c[k].as_f64()
+                .with_context(|| format!("{}: a case without {k}", path.display()))
+        };
+        let phantom = c["phantom"]
+            .as_str()
+            .with_context(|| format!("{}: a case without its phantom", path.display()))?;
+        cases.push((
+            phantom.to_string(),
+            f("thickness_mm")?,
+            f("g_true")?,
+            f("g_partial_volume")?,
+        ));
+    }
+    Ok(BarRun {
+        beam,
+        input: run_input_corrections(&j),
+        phantoms,
+        cases,
+    })
+}
+
+/// `dbt-eval beam-bar`.
+fn run_beam_bar(args: BeamBarArgs) -> Result<()> {
+    use dbt_dose::xray::AnodeFilter;
+    use dbt_model::{CalibrationFile, CALIBRATION_FILE};
+    let prec: Precision = args.precision.parse().map_err(anyhow::Error::msg)?;
+    let m = Dbtor::load_mixed(&args.model, prec, &[], dbt_dbtor::Engine::Fast)
+        .with_context(|| format!("loading {}", args.model.display()))?;
+    let (label, name) = (m.precision_label(), m.manifest().name.clone());
+    let (a, b) = (
+        read_bar_run(&args.w_rh, &name, &args.precision)?,
+        read_bar_run(&args.other, &name, &args.precision)?,
+    );
+    anyhow::ensure!(
+        a.beam == AnodeFilter::WRh,
+        "{}: beam {}, not W/Rh",
+        args.w_rh.display(),
+        a.beam.name()
+    );
+    anyhow::ensure!(
+        b.beam != AnodeFilter::WRh,
+        "{}: beam W/Rh; the other run must be another beam's",
+        args.other.display()
+    );
+    anyhow::ensure!(
+        a.input == b.input,
+        "the runs' inputs differ: {} against {}",
+        a.input.key(&label),
+        b.input.key(&label)
+    );
+    anyhow::ensure!(
+        a.phantoms == b.phantoms
+            && a.cases.len() == b.cases.len()
+            && a.cases.iter().zip(&b.cases).all(|(x, y)| x.0 == y.0),
+        "the runs are not of the same phantoms ({}: {} cases of {}; {}: {} cases of {})",
+        args.w_rh.display(),
+        a.cases.len(),
+        a.phantoms,
+        args.other.display(),
+        b.cases.len(),
+        b.phantoms
+    );
+    let path = args.model.join(CALIBRATION_FILE);
+    let mut file = CalibrationFile::read(&path, &m)?;
+    let key = a.input.key(&label);
+    let cal = *file.calibrations.get(&key).with_context(|| {
+        format!(
+            "{}: no calibration under {key:?} (it has {:?})",
+            path.display(),
+            file.calibrations.keys().collect::<Vec<_>>()
+        )
+    })?;
+    let errors = |r: &BarRun| -> Vec<f64> {
+        r.cases
+            .iter()
+            .map(|(_, t, g, pv)| 100.0 * (cal.apply(*pv, *t) - g))
+            .collect()
+    };
+    let bar = dbt_eval::accuracy::beam_bar(&errors(&a), &errors(&b));
+    println!(
+        "{name}, calibration {key:?}: G = {:+.5} + {:.5} x partial volume{}",
+        cal.offset,
+        cal.slope,
+        if cal.per_mm != 0.0 {
+            format!(" {:+.6} x (T - 50 mm)", cal.per_mm)
+        } else {
+            String::new()
+        }
+    );
+    println!("| beam (W/Rh calibration) | n | bias (pp) | sd (pp) | max abs (pp) |\n|---|---|---|---|---|");
+    for (beam, ag) in [(a.beam, bar.w_rh), (b.beam, bar.other)] {
+        println!(
+            "| {} | {} | {:+.2} | {:.2} | {:.2} |",
+            beam.name(),
+            ag.n,
+            ag.bias,
+            ag.sd,
+            ag.max_abs
+        );
+    }
+    use dbt_eval::accuracy::{BEAM_BAR_BIAS_PP, BEAM_BAR_MAX_PP, BEAM_BAR_SD_PP};
+    println!(
+        "bar: |bias difference| {:.2} pp (<= {BEAM_BAR_BIAS_PP}), sd difference {:+.2} pp (<= {BEAM_BAR_SD_PP}), largest error {:.2} pp (<= {BEAM_BAR_MAX_PP}): {}",
+        bar.bias_difference_pp,
+        bar.sd_difference_pp,
+        bar.other.max_abs,
+        if bar.kept {
+            "kept"
+        } else {
+            "missed: the beam needs its own calibration"
+        }
+    );
+    if !args.write {
+        return Ok(());
+    }
+    let beam_key = a.input.beam_key(&label, b.beam.name());
+    if !bar.kept {
+        bail!(
+            "not written: {} missed the bar; fit its own calibration (`dbt-eval calibrate --anode-filter {}` with the same precision and corrections)",
+            b.beam.name(),
+            b.beam.name()
+        );
+    }
+    if file.calibrations.contains_key(&beam_key) {
+        bail!(
+            "not written: {} has an entry {beam_key:?} already; remove it first to replace it",
+            path.display()
+        );
+    }
+    file.calibrations.insert(beam_key.clone(), cal);
+    file.fits.insert(
+        beam_key.clone(),
+        serde_json::json!({
+            "w_rh_calibration_kept": key,
+            "why": "the beam's validation acquisitions read with the W/Rh calibration passed the bar written before they were evaluated (eval/README.md, \"The W/Ag beam\")",
+            "bar": {
+                "limits_pp": {
+                    "bias_difference": BEAM_BAR_BIAS_PP,
+                    "sd_difference": BEAM_BAR_SD_PP,
+                    "max_abs": BEAM_BAR_MAX_PP,
+                },
+                "result": bar,
+            },
+            "command": std::env::args().collect::<Vec<_>>().join(" "),
+            "split": b.phantoms,
+            "anode_filter": b.beam.name(),
+            "input_corrections": b.input.describe(),
+            "cases": b.cases.iter().map(|(p, t, g, pv)| serde_json::json!({
+                "phantom": p, "thickness_mm": t, "g_true": g, "g_partial_volume": pv,
+            })).collect::<Vec<_>>(),
+        }),
+    );
+    write_json(&path, &file)?;
+    println!(
+        "wrote {beam_key:?} into {} (sign the model off again: dbtor-diag model {} --sign-off, and pin its new digest)",
+        path.display(),
+        args.model.display()
     );
     Ok(())
 }
