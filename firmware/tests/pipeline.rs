@@ -517,8 +517,17 @@ fn the_shipped_model_reads_w_ag_only_where_its_bar_held() {
     };
     let int8 = load(Precision::Int8, corrected);
     assert_eq!(beams(&int8), ["W/Ag", "W/Al"]);
-    let w_ag = int8.beam_calibrations.iter().find(|(b, _)| b == "W/Ag").unwrap().1;
-    assert_eq!(Some(w_ag), int8.calibration, "W/Ag's entry is the W/Rh calibration");
+    let w_ag = int8
+        .beam_calibrations
+        .iter()
+        .find(|(b, _)| b == "W/Ag")
+        .unwrap()
+        .1;
+    assert_eq!(
+        Some(w_ag),
+        int8.calibration,
+        "W/Ag's entry is the W/Rh calibration"
+    );
     let f = CalibrationFile::read(&dir.join(CALIBRATION_FILE), &int8.model).unwrap();
     let fit = &f.fits["int8 | scatter removed + linearised | beam W/Ag"];
     assert_eq!(fit["bar"]["result"]["kept"], true, "{fit}");
