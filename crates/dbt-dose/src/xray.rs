@@ -364,11 +364,10 @@ pub fn technique_spectrum(
         )));
     }
     let kv = kv as u32;
-    if af == AnodeFilter::WAl {
-        return filtered(af, kv, W_AL_FILTER_MM);
-    }
-    if af == AnodeFilter::WAg {
-        return filtered(af, kv, w_ag_filter_mm()?);
+    match af {
+        AnodeFilter::WAl => return filtered(af, kv, W_AL_FILTER_MM),
+        AnodeFilter::WAg => return filtered(af, kv, w_ag_filter_mm()?),
+        AnodeFilter::WRh => {}
     }
     let row = PAPER_TABLE3
         .iter()

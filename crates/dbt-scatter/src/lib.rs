@@ -235,6 +235,14 @@ pub const SHIPPED_W_AL_JSON: &str = include_str!("../data/w-al-paper.json");
 /// scatter-fit --anode-filter W/Ag`.
 pub const SHIPPED_W_AG_JSON: &str = include_str!("../data/w-ag-paper.json");
 
+/// Each beam's shipped table, by the name the gantry's anode/filter
+/// register gives the beam.
+pub const SHIPPED_TABLES: [(&str, &str); 3] = [
+    ("W/Rh", SHIPPED_JSON),
+    ("W/Al", SHIPPED_W_AL_JSON),
+    ("W/Ag", SHIPPED_W_AG_JSON),
+];
+
 impl ScatterTable {
     /// Parse and check a table.
     pub fn from_json(text: &str) -> Result<Self, ScatterError> {
@@ -244,37 +252,32 @@ impl ScatterTable {
         Ok(t)
     }
 
-    /// The shipped table, parsed once.
+    /// The shipped table (W/Rh's), parsed once.
     pub fn shipped() -> Result<&'static ScatterTable, ScatterError> {
-        static T: std::sync::OnceLock<Result<ScatterTable, ScatterError>> =
-            std::sync::OnceLock::new();
-        T.get_or_init(|| Self::from_json(SHIPPED_JSON))
-            .as_ref()
-            .map_err(Clone::clone)
+        Self::shipped_for("W/Rh")
     }
 
     /// The shipped table of a beam named as the gantry's anode/filter
-    /// register names it (`W/Rh`, `W/Al`, `W/Ag`), parsed once; another
-    /// name is refused, naming it.
+    /// register names it (one of [`SHIPPED_TABLES`]), parsed once; another
+    /// name is refused, naming it and the beams that have one.
     pub fn shipped_for(anode_filter: &str) -> Result<&'static ScatterTable, ScatterError> {
-        static T: std::sync::OnceLock<Result<ScatterTable, ScatterError>> =
-            std::sync::OnceLock::new();
-        static AG: std::sync::OnceLock<Result<ScatterTable, ScatterError>> =
-            std::sync::OnceLock::new();
-        match anode_filter {
-            "W/Rh" => Self::shipped(),
-            "W/Al" => T
-                .get_or_init(|| Self::from_json(SHIPPED_W_AL_JSON))
-                .as_ref()
-                .map_err(Clone::clone),
-            "W/Ag" => AG
-                .get_or_init(|| Self::from_json(SHIPPED_W_AG_JSON))
-                .as_ref()
-                .map_err(Clone::clone),
-            other => Err(ScatterError::Table(format!(
-                "no scatter table for the anode/filter `{other}` (W/Rh, W/Al, W/Ag)"
-            ))),
-        }
+        type Parsed = std::sync::OnceLock<Result<ScatterTable, ScatterError>>;
+        static PARSED: [Parsed; SHIPPED_TABLES.len()] =
+            [const { Parsed::new() }; SHIPPED_TABLES.len()];
+        let i = SHIPPED_TABLES
+            .iter()
+            .position(|(name, _)| *name == anode_filter)
+            .ok_or_else(|| {
+                let have: Vec<&str> = SHIPPED_TABLES.iter().map(|(n, _)| *n).collect();
+                ScatterError::Table(format!(
+                    "no scatter table for the anode/filter `{anode_filter}` ({})",
+                    have.join(", ")
+                ))
+            })?;
+        PARSED[i]
+            .get_or_init(|| Self::from_json(SHIPPED_TABLES[i].1))
+            .as_ref()
+            .map_err(Clone::clone)
     }
 
     /// Check every entry and their order.
