@@ -115,7 +115,7 @@ print(f"glandularity: reported {r['glandularity']:.3f} ({'calibrated ' if r['cal
 c = r["density_check"]
 pct = lambda g: "none" if g is None else f"{g:.3f}"
 if r.get("method") == "physics-only":
-    print(f"method: physics-based density alone (no DBToR model for {r['dose_geometry']['name']}); its own checks "
+    print(f"method: physics-based density alone (no DBToR model trained and calibrated for {r['dose_geometry']['name']} and this beam); its own checks "
           + ("passed" if c["confirmed"] else "NOT PASSED, no composition category reported: " + "; ".join(c["reasons"])))
 else:
     print(f"physics density (no learning, same projections): {pct(c['physics'])}; contact region: network "

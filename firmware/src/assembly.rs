@@ -45,6 +45,7 @@ pub fn pipeline_options(
         linearise: cfg.linearise(),
         descatter: cfg.descatter(config_path)?,
         slice_step: cfg.recon.slice_step,
+        uncalibrated_beam: cfg.recon.uncalibrated_beam.pipeline(),
         ..PipelineOptions::default()
     };
     match cfg.recon.reconstructor {

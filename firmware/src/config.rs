@@ -243,6 +243,33 @@ pub struct ReconConfig {
     /// the default: every slice). The reports' Algorithm Version says so.
     #[serde(default = "default_slice_step")]
     pub slice_step: usize,
+    /// An acquisition whose beam the model has no glandularity calibration
+    /// for: `physics` (the default) reports it physics-only, each report
+    /// naming the method (issue #51 point 3); `refuse` makes it a fault
+    /// naming the beam.
+    #[serde(default)]
+    pub uncalibrated_beam: UncalibratedBeamMode,
+}
+
+/// `recon.uncalibrated_beam`.
+#[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum UncalibratedBeamMode {
+    /// Reported physics-only (`dbt_pipeline::UncalibratedBeam::PhysicsOnly`).
+    #[default]
+    Physics,
+    /// Refused, naming the beam.
+    Refuse,
+}
+
+impl UncalibratedBeamMode {
+    /// The pipeline's option.
+    pub fn pipeline(self) -> dbt_pipeline::UncalibratedBeam {
+        match self {
+            Self::Physics => dbt_pipeline::UncalibratedBeam::PhysicsOnly,
+            Self::Refuse => dbt_pipeline::UncalibratedBeam::Refuse,
+        }
+    }
 }
 
 /// How the counts' scatter is handled.
@@ -1786,6 +1813,30 @@ mod tests {
                 .to_string();
             assert!(e.contains("recon.slice_step") && e.contains(bad), "{e}");
         }
+    }
+
+    /// `recon.uncalibrated_beam`: physics-only in the shipped file and
+    /// when absent, `refuse` taken, another value refused naming it.
+    #[test]
+    fn an_uncalibrated_beam_is_reported_physics_only_unless_refused() {
+        let mode = |f: &dyn Fn(String) -> String| example(f).map(|c| c.recon.uncalibrated_beam);
+        let shipped = "uncalibrated_beam = \"physics\"";
+        assert_eq!(mode(&|t| t).unwrap(), UncalibratedBeamMode::Physics);
+        assert_eq!(
+            mode(&|t| without(&t, "uncalibrated_beam")).unwrap(),
+            UncalibratedBeamMode::Physics
+        );
+        let refuse = mode(&|t| t.replace(shipped, "uncalibrated_beam = \"refuse\"")).unwrap();
+        assert_eq!(refuse, UncalibratedBeamMode::Refuse);
+        assert_eq!(refuse.pipeline(), dbt_pipeline::UncalibratedBeam::Refuse);
+        assert_eq!(
+            UncalibratedBeamMode::Physics.pipeline(),
+            dbt_pipeline::UncalibratedBeam::PhysicsOnly
+        );
+        let e = mode(&|t| t.replace(shipped, "uncalibrated_beam = \"w/rh\""))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("w/rh") && e.contains("uncalibrated_beam"), "{e}");
     }
 
     /// With a cone-beam system, the linearisation must be for its

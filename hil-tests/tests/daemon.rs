@@ -835,7 +835,8 @@ fn a_vendor_gantry_without_a_model_is_reported_by_the_physics() {
     for r in &reports {
         let bytes = std::fs::read(r).unwrap();
         assert!(
-            String::from_utf8_lossy(&bytes).contains("No DBToR model is trained for this gantry"),
+            String::from_utf8_lossy(&bytes)
+                .contains("No DBToR model is trained and calibrated for this gantry and beam"),
             "{}",
             r.display()
         );

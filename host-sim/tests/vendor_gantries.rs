@@ -97,7 +97,7 @@ fn every_vendor_gantry_is_reported_without_a_model() {
             let bytes = r.to_bytes().unwrap();
             let text = String::from_utf8_lossy(&bytes);
             assert!(
-                text.contains("No DBToR model is trained for this gantry"),
+                text.contains("No DBToR model is trained and calibrated for this gantry and beam"),
                 "{system}"
             );
         }

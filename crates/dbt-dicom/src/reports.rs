@@ -188,7 +188,9 @@ pub enum ReportMethod {
     /// patient-specific on it.
     #[default]
     Reconstruction,
-    /// No DBToR model is trained for the gantry: the physics-based density
+    /// No DBToR model is trained and calibrated for the gantry and beam
+    /// (`recon.reconstructor = "physics"`, or `recon.uncalibrated_beam`):
+    /// the physics-based density
     /// of the projections is the glandularity (its own consistency checks
     /// stated; no composition category: nothing cross-checks it), and the
     /// AGD is the model breast's (the
@@ -203,7 +205,7 @@ impl ReportMethod {
     pub fn describe(self) -> &'static str {
         match self {
             ReportMethod::Reconstruction => "DBToR reconstruction",
-            ReportMethod::PhysicsOnly => "physics-based density (no DBToR model for this gantry)",
+            ReportMethod::PhysicsOnly => "physics-based density (no DBToR model trained and calibrated for this gantry and beam)",
         }
     }
 }
@@ -791,7 +793,7 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
             input.algorithm_version
         ),
         ReportMethod::PhysicsOnly => format!(
-            "No DBToR model is trained for this gantry: average glandular dose of the model breast \
+            "No DBToR model is trained and calibrated for this gantry and beam: average glandular dose of the model breast \
              by Monte Carlo photon transport (photoelectric, Rayleigh, Compton; validated against \
              AAPM TG-195 case 3) on this gantry's geometry: the breast's outline and thickness from \
              its projections, its interior at the physics-based glandularity (see the density \
@@ -1324,7 +1326,7 @@ pub fn density_report(input: &DensityInput, uids: &mut UidSource) -> Result<Repo
             Item::Text(
                 private("NOCATWHY", "Why no composition category is given"),
                 format!(
-                    "No DBToR model is trained for this gantry: the physics-based density alone, with no \
+                    "No DBToR model is trained and calibrated for this gantry and beam: the physics-based density alone, with no \
                      reconstruction to cross-check it, is not validated to the precision a composition \
                      category needs, and none is given.{checks}"
                 ),
@@ -1386,7 +1388,7 @@ pub fn density_report(input: &DensityInput, uids: &mut UidSource) -> Result<Repo
              tissue-classified DBToR reconstruction; the composition category uses the volumetric fraction \
              (thresholds 4.5 / 7.5 / 15.5 %) and is given only where the physics-based density (each ray's \
              dense-tissue path relative to fat, from the same projections, no learning) confirms the reported one.",
-                ReportMethod::PhysicsOnly => "No DBToR model is trained for this gantry: Percent Fibroglandular Tissue is the \
+                ReportMethod::PhysicsOnly => "No DBToR model is trained and calibrated for this gantry and beam: Percent Fibroglandular Tissue is the \
              physics-based glandularity by mass (each ray's dense-tissue path relative to fat, from the projections \
              of the central view, no learning; Hammerstein densities, skin excluded), not a reconstruction's; \
              its own checks (the views' agreement, the thickness readout, the breast inside the detector, the \

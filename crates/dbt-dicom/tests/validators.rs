@@ -151,7 +151,7 @@ pub fn physics_only_density_input() -> DensityInput {
     DensityInput {
         glandularity: 0.41,
         fibroglandular_cm3: 80.0,
-        reconstructor: "none: physics-based density (no DBToR model for this gantry; model breast central columns)".into(),
+        reconstructor: "none: physics-based density (no DBToR model trained and calibrated for this gantry and beam; model breast central columns)".into(),
         check: dbt_dicom::DensityCheckReport {
             physics_glandularity: Some(0.41),
             confirmed: false,
@@ -178,7 +178,7 @@ pub fn physics_only_dose_input() -> DoseInput {
 pub fn physics_only_interval() -> dbt_dicom::FigureInterval {
     dbt_dicom::FigureInterval {
         limits: None,
-        basis: "a physics-only report (no DBToR model for this gantry): no validation residuals"
+        basis: "a physics-only report (no DBToR model trained and calibrated for this gantry and beam): no validation residuals"
             .into(),
     }
 }
@@ -283,7 +283,7 @@ fn a_physics_only_report_names_its_method_and_gives_no_category() {
     let m = values(dose_report(&physics_only_dose_input(), &mut uids).unwrap());
     let comment = get(&m, "Comment").unwrap();
     assert!(
-        comment.contains("No DBToR model is trained for this gantry")
+        comment.contains("No DBToR model is trained and calibrated for this gantry and beam")
             && comment.contains("not patient-specific"),
         "{comment}"
     );

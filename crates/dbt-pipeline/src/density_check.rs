@@ -288,7 +288,7 @@ impl DensityCheck {
         let pc = |v: Option<f64>| v.map_or("none".to_string(), |g| format!("{:.1} %", 100.0 * g));
         if self.physics_only {
             return format!(
-                "physics-based density alone (no model for this gantry, nothing to cross-check): {}, its own checks {}; contact region {}",
+                "physics-based density alone (no model trained and calibrated for this gantry and beam, nothing to cross-check): {}, its own checks {}; contact region {}",
                 pc(self.physics),
                 if self.confirmed { "passed" } else { "NOT PASSED" },
                 pc(self.contact_physics),

@@ -100,6 +100,26 @@ pub struct PipelineOptions {
     /// Where a physics-only report's model breast holds its glandular
     /// tissue ([`crate::model_breast::Placement`]).
     pub physics_breast: crate::model_breast::Placement,
+    /// What becomes of an acquisition whose beam the model has no
+    /// glandularity calibration for ([`PipelineOptions::for_beam`]).
+    pub uncalibrated_beam: UncalibratedBeam,
+}
+
+/// What the processing does with an acquisition whose beam the calibrated
+/// model has no glandularity calibration for (issue #51 point 3: a useful
+/// report on every gantry, never a refusal for want of a model).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+pub enum UncalibratedBeam {
+    /// Refused, naming the beam ([`PipelineError::NoBeamCalibration`]):
+    /// the evaluation's choice, so that no figure made another way enters
+    /// a table of the model's.
+    #[default]
+    Refuse,
+    /// Reported physics-only ([`ReportMethod::PhysicsOnly`]: the
+    /// physics-based density, the model breast's MGD, each report naming
+    /// the method; no network, calibration, noise matching or interval):
+    /// the firmware's default (`recon.uncalibrated_beam`).
+    PhysicsOnly,
 }
 
 impl Default for PipelineOptions {
@@ -121,6 +141,7 @@ impl Default for PipelineOptions {
             intervals: None,
             method: ReportMethod::Reconstruction,
             physics_breast: crate::model_breast::Placement::CentralColumns,
+            uncalibrated_beam: UncalibratedBeam::Refuse,
         }
     }
 }
@@ -210,8 +231,9 @@ impl PipelineOptions {
 
     /// The options for an acquisition with the beam `beam`: `calibration`
     /// replaced by the beam's own for another beam than W/Rh where there is
-    /// one; refused (naming the beam) when there is none and the options
-    /// are calibrated (for W/Rh). A beam that reads the W/Rh calibration
+    /// one; when there is none and the options are calibrated (for W/Rh),
+    /// refused naming the beam, or the physics-only options
+    /// ([`UncalibratedBeam`]). A beam that reads the W/Rh calibration
     /// does so through an entry of its own in the model's signed
     /// calibration file, written where the model passed the bar
     /// (`dbt-eval beam-bar --write`): never by default, for every model.
@@ -228,7 +250,24 @@ impl PipelineOptions {
                 calibration: Some(*c),
                 ..self.clone()
             })),
-            None if self.calibration.is_some() => Err(PipelineError::NoBeamCalibration(beam)),
+            None if self.calibration.is_some() => match self.uncalibrated_beam {
+                UncalibratedBeam::Refuse => Err(PipelineError::NoBeamCalibration(beam)),
+                UncalibratedBeam::PhysicsOnly => {
+                    tracing::warn!(
+                        beam = beam.name(),
+                        "the model has no glandularity calibration for this beam: reported physics-only"
+                    );
+                    Ok(Cow::Owned(PipelineOptions {
+                        method: ReportMethod::PhysicsOnly,
+                        dbtor: None,
+                        calibration: None,
+                        beam_calibrations: Vec::new(),
+                        noise_match: None,
+                        intervals: None,
+                        ..self.clone()
+                    }))
+                }
+            },
             None => Ok(Cow::Borrowed(self)),
         }
     }
@@ -392,7 +431,7 @@ pub struct Volume {
 pub fn reconstructor_name(opts: &PipelineOptions) -> String {
     if opts.method == ReportMethod::PhysicsOnly {
         return format!(
-            "none: physics-based density (no DBToR model for this gantry; model breast {})",
+            "none: physics-based density (no DBToR model trained and calibrated for this gantry and beam; model breast {})",
             match opts.physics_breast {
                 crate::model_breast::Placement::Homogeneous => "homogeneous",
                 crate::model_breast::Placement::CentralColumns => "central columns",
@@ -1260,7 +1299,7 @@ fn physics_only<H: ToSinograms>(
         FigureInterval {
         limits: None,
         basis: format!(
-            "a physics-only report (no DBToR model for this gantry): its {what} has no validation residuals to rest an interval on"
+            "a physics-only report (no DBToR model trained and calibrated for this gantry and beam): its {what} has no validation residuals to rest an interval on"
         ),
     }
     };
@@ -1533,6 +1572,22 @@ mod beam_tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("W/Ag") && e.contains("not reported"), "{e}");
+        // Or, where the site asks for it, reported physics-only: no
+        // calibration, noise matching or intervals of the model's.
+        let physics = PipelineOptions {
+            uncalibrated_beam: UncalibratedBeam::PhysicsOnly,
+            noise_match: Some(crate::noise_match::NoiseMatch {
+                target_photons: 16_000.0,
+            }),
+            ..w_rh_only.clone()
+        };
+        let o = physics.for_beam(AnodeFilter::WAg).unwrap();
+        assert_eq!(o.method, ReportMethod::PhysicsOnly);
+        assert_eq!(o.calibration, None);
+        assert!(o.noise_match.is_none() && o.intervals.is_none() && o.dbtor.is_none());
+        let o = physics.for_beam(AnodeFilter::WRh).unwrap();
+        assert_eq!(o.method, ReportMethod::Reconstruction);
+        assert_eq!(o.calibration, Some(cal(0.1)));
         let w_ag_own = PipelineOptions {
             beam_calibrations: beam_calibrations(&[("W/Ag".into(), cal(0.5))]),
             ..w_rh_only.clone()

@@ -68,6 +68,11 @@ struct Cli {
     /// "physics"`).
     #[arg(long, conflicts_with_all = ["model", "iterations", "slice_step"])]
     physics_only: bool,
+    /// An acquisition whose beam the model has no glandularity calibration
+    /// for: `physics` reports it physics-only, `refuse` refuses it naming
+    /// the beam (the daemon's `recon.uncalibrated_beam`).
+    #[arg(long, default_value = "physics", value_parser = ["physics", "refuse"])]
+    uncalibrated_beam: String,
 }
 
 /// A slice step the firmware takes (`dbtor_firmware::config::SLICE_STEPS`).
@@ -120,6 +125,11 @@ fn run(cli: Cli) -> Result<()> {
             dbt_dicom::ReportMethod::PhysicsOnly
         } else {
             dbt_dicom::ReportMethod::Reconstruction
+        },
+        uncalibrated_beam: if cli.uncalibrated_beam == "refuse" {
+            dbt_pipeline::UncalibratedBeam::Refuse
+        } else {
+            dbt_pipeline::UncalibratedBeam::PhysicsOnly
         },
         ..PipelineOptions::default()
     };
