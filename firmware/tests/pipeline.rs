@@ -482,11 +482,12 @@ fn the_report_intervals_are_bound_to_the_model_and_its_calibration() {
     assert!(e.contains("report-intervals.json is missing"), "{e}");
 }
 
-/// The shipped model's beams (issue #51): with both corrections, int8
-/// reads W/Al's own calibration and W/Ag's entry, which is the W/Rh one
-/// that W/Ag's bar kept (`dbt-eval beam-bar`, its bar stored beside it);
-/// noise-matched int8 and fp32 have no W/Ag entry, so the pipeline refuses
-/// W/Ag there, naming the beam.
+/// The shipped model's beams (issue #51): int8 with both corrections,
+/// noise-matched or not, reads W/Al's own calibration and W/Ag's entry,
+/// which is the W/Rh one (its thickness term's range included) that W/Ag's
+/// bar kept (`dbt-eval beam-bar`, the bar stored beside it); fp32 has no
+/// W/Ag entry, so the pipeline refuses W/Ag there, naming the beam, or
+/// reports it physics-only where asked (the firmware's default).
 #[test]
 fn the_shipped_model_reads_w_ag_only_where_its_bar_held() {
     use dbt_dbtor::{Engine, Precision};
@@ -497,6 +498,10 @@ fn the_shipped_model_reads_w_ag_only_where_its_bar_held() {
         scatter_removed: true,
         linearised: true,
         ..Default::default()
+    };
+    let noise_matched = InputCorrections {
+        noise_matched: true,
+        ..corrected
     };
     let load = |p, input| {
         load_signed(
@@ -515,41 +520,43 @@ fn the_shipped_model_reads_w_ag_only_where_its_bar_held() {
         b.sort();
         b
     };
-    let int8 = load(Precision::Int8, corrected);
-    assert_eq!(beams(&int8), ["W/Ag", "W/Al"]);
-    let w_ag = int8
-        .beam_calibrations
-        .iter()
-        .find(|(b, _)| b == "W/Ag")
-        .unwrap()
-        .1;
-    assert_eq!(
-        Some(w_ag),
-        int8.calibration,
-        "W/Ag's entry is the W/Rh calibration"
-    );
-    let f = CalibrationFile::read(&dir.join(CALIBRATION_FILE), &int8.model).unwrap();
-    let fit = &f.fits["int8 | scatter removed + linearised | beam W/Ag"];
-    assert_eq!(fit["bar"]["result"]["kept"], true, "{fit}");
-    assert_eq!(fit["cases"].as_array().map(Vec::len), Some(24));
-    let noise_matched = InputCorrections {
-        noise_matched: true,
-        ..corrected
-    };
-    for m in [
-        load(Precision::Int8, noise_matched),
-        load(Precision::Fp32, corrected),
-    ] {
-        assert_eq!(beams(&m), ["W/Al"]);
-        let opts = dbt_pipeline::PipelineOptions {
-            calibration: m.calibration,
-            beam_calibrations: dbt_pipeline::beam_calibrations(&m.beam_calibrations),
-            ..Default::default()
-        };
-        let e = opts.for_beam(AnodeFilter::WAg).unwrap_err().to_string();
-        assert!(e.contains("W/Ag") && e.contains("not reported"), "{e}");
-        assert!(opts.for_beam(AnodeFilter::WAl).is_ok());
+    for input in [corrected, noise_matched] {
+        let int8 = load(Precision::Int8, input);
+        assert_eq!(beams(&int8), ["W/Ag", "W/Al"]);
+        let w_ag = int8
+            .beam_calibrations
+            .iter()
+            .find(|(b, _)| b == "W/Ag")
+            .unwrap()
+            .1;
+        assert_eq!(
+            Some(w_ag),
+            int8.calibration,
+            "W/Ag's entry is the W/Rh calibration as applied"
+        );
+        let f = CalibrationFile::read(&dir.join(CALIBRATION_FILE), &int8.model).unwrap();
+        let fit = &f.fits[&input.beam_key("int8", "W/Ag")];
+        assert_eq!(fit["bar"]["result"]["kept"], true, "{fit}");
+        assert_eq!(fit["cases"].as_array().map(Vec::len), Some(24));
     }
+    let fp32 = load(Precision::Fp32, corrected);
+    assert_eq!(beams(&fp32), ["W/Al"]);
+    let opts = dbt_pipeline::PipelineOptions {
+        calibration: fp32.calibration,
+        beam_calibrations: dbt_pipeline::beam_calibrations(&fp32.beam_calibrations),
+        ..Default::default()
+    };
+    let e = opts.for_beam(AnodeFilter::WAg).unwrap_err().to_string();
+    assert!(e.contains("W/Ag") && e.contains("not reported"), "{e}");
+    assert!(opts.for_beam(AnodeFilter::WAl).is_ok());
+    let physics = dbt_pipeline::PipelineOptions {
+        uncalibrated_beam: dbt_pipeline::UncalibratedBeam::PhysicsOnly,
+        ..opts
+    };
+    assert_eq!(
+        physics.for_beam(AnodeFilter::WAg).unwrap().method,
+        dbt_pipeline::ReportMethod::PhysicsOnly
+    );
 }
 
 /// The model folder's calibration: none without the file; applied for the

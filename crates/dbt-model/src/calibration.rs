@@ -221,6 +221,17 @@ impl InputCorrections {
     }
 }
 
+impl CalibrationFile {
+    /// The entry under `key` as the firmware applies it: with the
+    /// thicknesses its thickness term was fit on (stated, else its fit's
+    /// cases'); `None` without one.
+    pub fn applied(&self, key: &str) -> Option<GlandularityCalibration> {
+        self.calibrations
+            .get(key)
+            .map(|c| with_fitted_range(self, key, *c))
+    }
+}
+
 /// `c` of the entry `key` of `f`, with the thicknesses its thickness term
 /// was fit on: the ones it states, else those of its fit's cases (the
 /// files written before the range was stored beside the calibration).

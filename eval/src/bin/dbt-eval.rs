@@ -1937,7 +1937,9 @@ fn run_beam_bar(args: BeamBarArgs) -> Result<()> {
     let path = args.model.join(CALIBRATION_FILE);
     let mut file = CalibrationFile::read(&path, &m)?;
     let key = a.input.key(&label);
-    let cal = *file.calibrations.get(&key).with_context(|| {
+    // As the firmware applies it (a thickness term held within the
+    // thicknesses it was fit on), and so carried: the range stated.
+    let cal = file.applied(&key).with_context(|| {
         format!(
             "{}: no calibration under {key:?} (it has {:?})",
             path.display(),
