@@ -251,8 +251,8 @@ pub struct ReconConfig {
     pub uncalibrated_beam: UncalibratedBeamMode,
 }
 
-/// `recon.uncalibrated_beam`.
-#[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq, Eq)]
+/// `recon.uncalibrated_beam` (`dbtor-process --uncalibrated-beam`).
+#[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq, Eq, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum UncalibratedBeamMode {
     /// Reported physics-only (`dbt_pipeline::UncalibratedBeam::PhysicsOnly`).

@@ -458,6 +458,41 @@ fn the_report_intervals_are_bound_to_the_model_and_its_calibration() {
     std::fs::write(&cal, serde_json::to_string_pretty(&f).unwrap()).unwrap();
     dbt_model::sign_off(dir).unwrap();
     assert!(load(dir, Precision::Int8).unwrap().intervals.is_some());
+    // Recalibrated for the clinical inputs only: the plain counts' table
+    // still loads; the clinical one is refused, naming it.
+    let corrected = InputCorrections {
+        scatter_removed: true,
+        linearised: true,
+        ..Default::default()
+    };
+    let clinical = corrected.key("int8");
+    let c = f.calibrations[&clinical];
+    f.calibrations.insert(
+        clinical.clone(),
+        dbt_tissue::GlandularityCalibration {
+            slope: c.slope * 1.001,
+            ..c
+        },
+    );
+    std::fs::write(&cal, serde_json::to_string_pretty(&f).unwrap()).unwrap();
+    dbt_model::sign_off(dir).unwrap();
+    assert!(load(dir, Precision::Int8).unwrap().intervals.is_some());
+    let e = load_signed(
+        dir,
+        Precision::Int8,
+        &[],
+        Engine::Fast,
+        &classify,
+        corrected,
+        None,
+    )
+    .err()
+    .unwrap()
+    .to_string();
+    assert!(
+        e.contains(&format!("table {clinical:?}")) && e.contains("dbt-eval intervals"),
+        "{e}"
+    );
     // Recalibrated for the table's inputs (int8, plain counts) and signed
     // off again: refused, naming the table.
     f.calibrations.insert(

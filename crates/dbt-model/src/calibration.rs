@@ -412,6 +412,11 @@ mod tests {
                 [b.offset, b.slope, b.per_mm].map(f64::to_bits),
                 "{k}"
             );
+            assert_eq!(
+                c.thickness_range_mm.map(|r| r.map(f64::to_bits)),
+                b.thickness_range_mm.map(|r| r.map(f64::to_bits)),
+                "{k}"
+            );
         }
         let cases: Vec<f64> =
             serde_json::from_value(back.fits["int8 | 0"]["cases"].clone()).unwrap();

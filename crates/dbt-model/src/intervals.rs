@@ -4,11 +4,11 @@
 //! the model. The table and the intervals are `dbt_intervals` (pure).
 //!
 //! Bound to the model (its manifest's SHA-256) and, table by table, to the
-//! calibration the reported glandularity went through (the calibration
-//! file's entry under the table's key, kept in the table): a model
-//! recalibrated for those inputs whose intervals were not refit is refused,
-//! naming the table; an entry added for another beam or input leaves the
-//! tables as they are.
+//! calibration the reported glandularity went through (its key and entry,
+//! as the firmware picked it, kept in the table): a model recalibrated for
+//! the loaded precision and inputs whose table was not refit is refused,
+//! naming the table; an entry added for another beam or input, or a stale
+//! table of another precision or input, leaves the loaded one as it is.
 
 use crate::calibration::{
     check_binding, manifest_sha256, CalibrationFile, InputCorrections, CALIBRATION_FILE,
@@ -48,15 +48,25 @@ pub struct IntervalsSource {
     pub cases: usize,
 }
 
+/// The calibration entry a table's reported glandularity went through.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationUsed {
+    /// Its key in the calibration file (the table's own, or the plain
+    /// precision's where the firmware fell back to it:
+    /// [`crate::pick_calibration`]).
+    pub key: String,
+    /// The entry as the file stores it.
+    pub entry: GlandularityCalibration,
+}
+
 /// One reconstructor's and input's table, with where it came from.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct IntervalsEntry {
     /// The residual table.
     pub table: IntervalTable,
-    /// The calibration the residuals' reported glandularity went through:
-    /// the calibration file's entry under the table's key when the table
-    /// was fit (`None`: the model had none for it).
-    pub calibration: Option<GlandularityCalibration>,
+    /// The calibration the residuals' reported glandularity went through,
+    /// as the firmware picked it when the table was fit (`None`: none).
+    pub calibration: Option<CalibrationUsed>,
     /// How it was fit.
     pub source: IntervalsSource,
 }
@@ -76,25 +86,33 @@ pub struct IntervalsFile {
     pub tables: BTreeMap<String, IntervalsEntry>,
 }
 
-/// The entry under `key` of `model`'s calibration file as it stands (read
-/// and checked as the firmware reads it); `None` without a file or entry.
+/// The calibration the firmware applies to `model`'s glandularity at its
+/// precision for inputs corrected as `input` ([`crate::pick_calibration`]
+/// on its folder's file, read and checked as the firmware reads it), as a
+/// table records it; `None` without a file or an entry.
 pub fn current_calibration(
     model: &dbt_dbtor::Dbtor,
-    key: &str,
-) -> Result<Option<GlandularityCalibration>, crate::CalibrationError> {
+    input: InputCorrections,
+) -> Result<Option<CalibrationUsed>, crate::CalibrationError> {
     let p = model.root().join(CALIBRATION_FILE);
     if !p.is_file() {
         return Ok(None);
     }
-    Ok(CalibrationFile::read(&p, model)?
-        .calibrations
-        .get(key)
-        .copied())
+    let f = CalibrationFile::read(&p, model)?;
+    Ok(
+        crate::pick_calibration(&f, &model.precision_label(), input).and_then(|(_, key)| {
+            f.calibrations
+                .get(&key)
+                .map(|&entry| CalibrationUsed { key, entry })
+        }),
+    )
 }
 
 impl IntervalsFile {
     /// Read and check `path` against `model`: the format, the model's
-    /// manifest and calibration, every table valid.
+    /// manifest, every table valid. Each table's calibration is checked
+    /// where it is used ([`IntervalsFile::pick`]): a stale table of another
+    /// precision or input does not stop this one's.
     pub fn read(path: &Path, model: &dbt_dbtor::Dbtor) -> Result<Self, IntervalsError> {
         let fail = |reason: String| IntervalsError {
             path: path.to_path_buf(),
@@ -114,41 +132,61 @@ impl IntervalsFile {
             e.table
                 .validate()
                 .map_err(|e| fail(format!("table {key:?}: {e}")))?;
-            let now = current_calibration(model, key).map_err(|e| fail(e.to_string()))?;
-            if now != e.calibration {
-                return Err(fail(format!(
-                    "table {key:?} was fit on glandularities calibrated as {:?}, but {CALIBRATION_FILE} now gives {now:?}; refit with `dbt-eval intervals`",
-                    e.calibration
-                )));
-            }
         }
         Ok(f)
     }
 
     /// The file at `path` to add `model`'s tables to: as read where it is
-    /// `model`'s under its present calibrations (its other tables kept),
-    /// else an empty one bound to it.
+    /// `model`'s (its other tables kept as they are: each is checked where
+    /// it is used), else an empty one bound to it.
     pub fn open_or_new(
         path: &Path,
         model: &dbt_dbtor::Dbtor,
     ) -> Result<Self, dbt_dbtor::DbtorError> {
         match Self::read(path, model) {
             Ok(f) => Ok(f),
-            Err(_) => Ok(Self {
-                format: INTERVALS_FORMAT.into(),
-                model: model.manifest().name.clone(),
-                manifest_sha256: manifest_sha256(model)?,
-                tables: BTreeMap::new(),
-            }),
+            Err(e) => {
+                if path.is_file() {
+                    tracing::warn!(%e, "report intervals started afresh");
+                }
+                Ok(Self {
+                    format: INTERVALS_FORMAT.into(),
+                    model: model.manifest().name.clone(),
+                    manifest_sha256: manifest_sha256(model)?,
+                    tables: BTreeMap::new(),
+                })
+            }
         }
     }
 
-    /// The table for inputs corrected as `input` at `precision_label`: the
-    /// exact key only (residuals of other inputs do not describe these).
-    pub fn pick(&self, precision_label: &str, input: InputCorrections) -> Option<&IntervalTable> {
-        self.tables
-            .get(&input.key(precision_label))
-            .map(|e| &e.table)
+    /// The table of `model` (read from `path`) at its precision for inputs
+    /// corrected as `input`: the exact key only (residuals of other inputs
+    /// do not describe these); refused where the calibration the firmware
+    /// now applies to them is not the one the table's residuals went
+    /// through (a model recalibrated for these inputs, its intervals not
+    /// refit).
+    pub fn pick(
+        &self,
+        path: &Path,
+        model: &dbt_dbtor::Dbtor,
+        input: InputCorrections,
+    ) -> Result<Option<&IntervalTable>, IntervalsError> {
+        let key = input.key(&model.precision_label());
+        let Some(e) = self.tables.get(&key) else {
+            return Ok(None);
+        };
+        let fail = |reason: String| IntervalsError {
+            path: path.to_path_buf(),
+            reason,
+        };
+        let now = current_calibration(model, input).map_err(|e| fail(e.to_string()))?;
+        if now != e.calibration {
+            return Err(fail(format!(
+                "table {key:?} was fit on glandularities calibrated with {:?}, but the firmware now applies {now:?} from {CALIBRATION_FILE}; refit with `dbt-eval intervals`",
+                e.calibration
+            )));
+        }
+        Ok(Some(&e.table))
     }
 }
 
@@ -165,5 +203,5 @@ pub fn load_intervals(
         return Ok(None);
     }
     let f = IntervalsFile::read(&path, model)?;
-    Ok(f.pick(&model.precision_label(), input).cloned())
+    Ok(f.pick(&path, model, input)?.cloned())
 }

@@ -20,8 +20,8 @@ pub use calibration::{
     CALIBRATION_FORMAT,
 };
 pub use intervals::{
-    current_calibration, load_intervals, IntervalsEntry, IntervalsError, IntervalsFile,
-    IntervalsSource, INTERVALS_FILE, INTERVALS_FORMAT,
+    current_calibration, load_intervals, CalibrationUsed, IntervalsEntry, IntervalsError,
+    IntervalsFile, IntervalsSource, INTERVALS_FILE, INTERVALS_FORMAT,
 };
 pub use signoff::{sign_off, verify, Signoff, SIGNOFF_FILE, SIGNOFF_FORMAT};
 
@@ -127,8 +127,9 @@ pub struct SignedModel {
     /// for a model signed off without a calibration file.
     pub calibration: Option<GlandularityCalibration>,
     /// The calibrations for other beams than W/Rh (beam name, calibration:
-    /// [`pick_beam_calibrations`]); a beam without one is refused by the
-    /// pipeline while `calibration` is set.
+    /// [`pick_beam_calibrations`]); a beam without one is refused or
+    /// reported physics-only by the pipeline while `calibration` is set
+    /// (`dbt_pipeline::UncalibratedBeam`).
     pub beam_calibrations: Vec<(String, GlandularityCalibration)>,
     /// The validation residuals behind the reports' 95 % intervals for the
     /// loaded precision and inputs, `None` where the model has none for
@@ -231,9 +232,10 @@ pub fn load_signed(
         None
     };
     let intervals = if signoff.files.contains_key(INTERVALS_FILE) {
-        let f = IntervalsFile::read(&dir.join(INTERVALS_FILE), &model)?;
+        let path = dir.join(INTERVALS_FILE);
+        let f = IntervalsFile::read(&path, &model)?;
         let label = model.precision_label();
-        let t = f.pick(&label, input).cloned();
+        let t = f.pick(&path, &model, input)?.cloned();
         match &t {
             Some(_) => {
                 tracing::info!(model = %dir.display(), key = %input.key(&label), "report intervals")

@@ -46,6 +46,6 @@ pub enum PipelineError {
     #[error("cone-beam rebinning: {0}")]
     Rebin(#[from] crate::rebin::RebinError),
     /// The model's glandularity calibration is not for this beam.
-    #[error("anode/filter {0}: the model has no glandularity calibration for this beam (fit one on validation acquisitions with `dbt-eval calibrate --anode-filter {0}`); not reported")]
+    #[error("anode/filter {0}: the model has no glandularity calibration for this beam (run its bar on validation acquisitions with `dbt-eval beam-bar`, or fit one with `dbt-eval calibrate --anode-filter {0}`); not reported")]
     NoBeamCalibration(AnodeFilter),
 }

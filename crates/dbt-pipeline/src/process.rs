@@ -52,8 +52,9 @@ pub struct PipelineOptions {
     /// The calibrations of acquisitions with another beam than the paper's
     /// W/Rh, which `calibration` is for (issue #27: the linearisation of a
     /// W/Al beam leaves another contrast, eval/README.md "W/Al"); a beam
-    /// without one is refused while `calibration` is set, never reported
-    /// with the W/Rh calibration.
+    /// without one is never reported with the W/Rh calibration while
+    /// `calibration` is set: refused or physics-only
+    /// ([`PipelineOptions::uncalibrated_beam`]).
     #[serde(skip)]
     pub beam_calibrations: Vec<(AnodeFilter, GlandularityCalibration)>,
     /// Beam-hardening linearisation of a polychromatic detector's counts
@@ -1225,7 +1226,7 @@ fn physics_only<H: ToSinograms>(
     progress(Stage::Classification);
     let physics = physics_density_checked(h, &acq.counts).map_err(|e| {
         PipelineError::Input(format!(
-            "no report: the physics-based density, the only method without a model for this gantry, could not be made: {e}"
+            "no report: the physics-based density, the only method without a calibrated model for this gantry and beam, could not be made: {e}"
         ))
     })?;
     let gl = physics.central.glandularity;

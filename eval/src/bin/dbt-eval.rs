@@ -1798,7 +1798,7 @@ fn run_intervals(args: IntervalsArgs) -> Result<()> {
     // The calibration the runs' reported glandularity went through: the
     // model's entry for these inputs as it stands (the table is refused
     // once that entry changes).
-    let calibration = dbt_model::current_calibration(&m, &key)?;
+    let calibration = dbt_model::current_calibration(&m, input)?;
     file.tables.insert(
         key,
         dbt_model::IntervalsEntry {
@@ -1841,6 +1841,7 @@ struct BarRun {
     beam: dbt_dose::xray::AnodeFilter,
     input: dbt_model::InputCorrections,
     phantoms: String,
+    classification: serde_json::Value,
     cases: Vec<(String, f64, f64, f64)>,
 }
 
@@ -1865,7 +1866,7 @@ fn read_bar_run(dir: &Path, name: &str, precision: &str) -> Result<BarRun> {
             rs.iter().find(|r| {
                 r["reconstructor"]
                     .as_str()
-                    .is_some_and(|s| s.contains(name) && s.contains(&format!("({precision},")))
+                    .is_some_and(|s| s.contains(&format!(" {name} ({precision},")))
             })
         })
         .with_context(|| format!("{}: no {precision} run of {name}", path.display()))?;
@@ -1889,6 +1890,7 @@ fn read_bar_run(dir: &Path, name: &str, precision: &str) -> Result<BarRun> {
         beam,
         input: run_input_corrections(&j),
         phantoms,
+        classification: j["classification"].clone(),
         cases,
     })
 }
@@ -1936,6 +1938,15 @@ fn run_beam_bar(args: BeamBarArgs) -> Result<()> {
     );
     let path = args.model.join(CALIBRATION_FILE);
     let mut file = CalibrationFile::read(&path, &m)?;
+    let classification = serde_json::to_value(file.classification)?;
+    for (run, dir) in [(&a, &args.w_rh), (&b, &args.other)] {
+        anyhow::ensure!(
+            run.classification == classification,
+            "{}: classified with {}, but the calibration was fit with {classification}",
+            dir.display(),
+            run.classification
+        );
+    }
     let key = a.input.key(&label);
     // As the firmware applies it (a thickness term held within the
     // thicknesses it was fit on), and so carried: the range stated.

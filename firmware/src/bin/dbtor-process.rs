@@ -71,8 +71,8 @@ struct Cli {
     /// An acquisition whose beam the model has no glandularity calibration
     /// for: `physics` reports it physics-only, `refuse` refuses it naming
     /// the beam (the daemon's `recon.uncalibrated_beam`).
-    #[arg(long, default_value = "physics", value_parser = ["physics", "refuse"])]
-    uncalibrated_beam: String,
+    #[arg(long, value_enum, default_value = "physics")]
+    uncalibrated_beam: dbtor_firmware::config::UncalibratedBeamMode,
 }
 
 /// A slice step the firmware takes (`dbtor_firmware::config::SLICE_STEPS`).
@@ -126,11 +126,7 @@ fn run(cli: Cli) -> Result<()> {
         } else {
             dbt_dicom::ReportMethod::Reconstruction
         },
-        uncalibrated_beam: if cli.uncalibrated_beam == "refuse" {
-            dbt_pipeline::UncalibratedBeam::Refuse
-        } else {
-            dbt_pipeline::UncalibratedBeam::PhysicsOnly
-        },
+        uncalibrated_beam: cli.uncalibrated_beam.pipeline(),
         ..PipelineOptions::default()
     };
     let dbt_cli::ModelArgs {
