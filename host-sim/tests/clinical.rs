@@ -228,3 +228,75 @@ fn scatter_is_added_and_removed() {
 fn slices(h: &dbt_pipeline::AcquisitionHeader) -> dbt_pipeline::SliceHeader {
     dbt_pipeline::SliceHeader::try_from(h.clone()).expect("a slice-wise acquisition")
 }
+
+/// A W/Ag acquisition processed with a W/Rh calibration and no W/Ag one
+/// (issue #51 point 3): refused naming the beam where the options refuse
+/// (the evaluation's default), else reported physics-only (the firmware's
+/// default, `recon.uncalibrated_beam`): no calibration, no interval, the
+/// method named in the result.
+#[test]
+fn an_uncalibrated_beam_is_refused_or_reported_physics_only() {
+    let g = Geometry::builtin("paper-tall").unwrap().binned(4).unwrap();
+    let vol = PopulationKind::Procedural
+        .draw(&g, Population::TEST_SEED, 2)
+        .generate()
+        .unwrap();
+    let af = AnodeFilter::WAg;
+    let a = host_sim::simulate_acquisition_with(
+        &vol,
+        &g,
+        NoiseLevel::Poisson(8),
+        host_sim::Physics::Clinical {
+            detector: Default::default(),
+            scatter: true,
+        },
+        5,
+        host_sim::Technique {
+            anode_filter: af,
+            ..Default::default()
+        },
+        f64::from(af.aec_kv(vol.thickness_mm())),
+        "UNCAL",
+        "1.2.826.0.1.3680043.10.543.3",
+    )
+    .unwrap();
+    let acq = dbt_pipeline::acquisition::Acquisition {
+        header: a.header,
+        counts: a.counts,
+    };
+    let refuse = PipelineOptions {
+        mltr_iterations: 5,
+        dose_uncertainty: 0.3,
+        linearise: Some(dbt_pipeline::linearise::BeamHardening {
+            detector: Default::default(),
+            path: dbt_pipeline::linearise::PathModel::Reference,
+        }),
+        descatter: Some(dbt_pipeline::descatter::ScatterRemoval::shipped().unwrap()),
+        calibration: Some(dbt_tissue::GlandularityCalibration {
+            offset: 0.0,
+            slope: 1.0,
+            per_mm: 0.0,
+            thickness_range_mm: None,
+        }),
+        ..Default::default()
+    };
+    let e = process(&acq, &refuse).unwrap_err().to_string();
+    assert!(e.contains("W/Ag") && e.contains("not reported"), "{e}");
+    let physics = PipelineOptions {
+        uncalibrated_beam: dbt_pipeline::UncalibratedBeam::PhysicsOnly,
+        ..refuse
+    };
+    let r = process(&acq, &physics).unwrap();
+    assert_eq!(r.method, dbt_pipeline::ReportMethod::PhysicsOnly);
+    assert!(!r.calibrated);
+    assert!(r
+        .reconstructor
+        .contains("trained and calibrated for this gantry and beam"));
+    let pd = r.physics_density.as_ref().unwrap();
+    assert!((r.glandularity - pd.central.glandularity).abs() < 1e-12);
+    eprintln!(
+        "W/Ag, physics-only: {:.3} against truth {:.3}",
+        r.glandularity,
+        vol.glandularity().unwrap()
+    );
+}
