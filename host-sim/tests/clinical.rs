@@ -92,30 +92,7 @@ fn scatter_is_added_and_removed() {
         .generate()
         .unwrap();
     let truth = vol.glandularity().unwrap();
-    let acq = |scatter, noise, af: AnodeFilter| {
-        let a = host_sim::simulate_acquisition_with(
-            &vol,
-            &g,
-            noise,
-            host_sim::Physics::Clinical {
-                detector: Default::default(),
-                scatter,
-            },
-            5,
-            host_sim::Technique {
-                anode_filter: af,
-                ..Default::default()
-            },
-            f64::from(af.aec_kv(vol.thickness_mm())),
-            "SCAT",
-            "1.2.826.0.1.3680043.10.543.3",
-        )
-        .unwrap();
-        dbt_pipeline::acquisition::Acquisition {
-            header: a.header,
-            counts: a.counts,
-        }
-    };
+    let acq = |scatter, noise, af| clinical(&vol, &g, noise, scatter, af, "SCAT");
     // Noise-free counts: removal against the primary, each beam with its
     // own kernels.
     let removal = dbt_pipeline::descatter::ScatterRemoval::shipped().unwrap();
@@ -224,6 +201,40 @@ fn scatter_is_added_and_removed() {
     assert!((err(&removed) - err(&reference)).abs() < 0.015);
 }
 
+/// A clinical acquisition of `vol` with the beam `af` at its HVL-matched
+/// kV, scatter added or not, seed 5.
+fn clinical(
+    vol: &dbt_phantom::LabelVolume,
+    g: &Geometry,
+    noise: NoiseLevel,
+    scatter: bool,
+    af: AnodeFilter,
+    patient: &str,
+) -> dbt_pipeline::acquisition::Acquisition {
+    let a = host_sim::simulate_acquisition_with(
+        vol,
+        g,
+        noise,
+        host_sim::Physics::Clinical {
+            detector: Default::default(),
+            scatter,
+        },
+        5,
+        host_sim::Technique {
+            anode_filter: af,
+            ..Default::default()
+        },
+        f64::from(af.aec_kv(vol.thickness_mm())),
+        patient,
+        "1.2.826.0.1.3680043.10.543.3",
+    )
+    .unwrap();
+    dbt_pipeline::acquisition::Acquisition {
+        header: a.header,
+        counts: a.counts,
+    }
+}
+
 /// The slice-wise header of a fan-beam acquisition.
 fn slices(h: &dbt_pipeline::AcquisitionHeader) -> dbt_pipeline::SliceHeader {
     dbt_pipeline::SliceHeader::try_from(h.clone()).expect("a slice-wise acquisition")
@@ -241,29 +252,14 @@ fn an_uncalibrated_beam_is_refused_or_reported_physics_only() {
         .draw(&g, Population::TEST_SEED, 2)
         .generate()
         .unwrap();
-    let af = AnodeFilter::WAg;
-    let a = host_sim::simulate_acquisition_with(
+    let acq = clinical(
         &vol,
         &g,
         NoiseLevel::Poisson(8),
-        host_sim::Physics::Clinical {
-            detector: Default::default(),
-            scatter: true,
-        },
-        5,
-        host_sim::Technique {
-            anode_filter: af,
-            ..Default::default()
-        },
-        f64::from(af.aec_kv(vol.thickness_mm())),
+        true,
+        AnodeFilter::WAg,
         "UNCAL",
-        "1.2.826.0.1.3680043.10.543.3",
-    )
-    .unwrap();
-    let acq = dbt_pipeline::acquisition::Acquisition {
-        header: a.header,
-        counts: a.counts,
-    };
+    );
     let refuse = PipelineOptions {
         mltr_iterations: 5,
         dose_uncertainty: 0.3,
