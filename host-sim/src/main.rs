@@ -743,6 +743,17 @@ fn run_dicom_send(args: DicomSendArgs) -> Result<()> {
         }
         _ => None,
     };
+    // The objects written to the temporary folder (no --out) are removed
+    // however this returns: a refused store or a failed check too.
+    struct Temporary(Vec<PathBuf>);
+    impl Drop for Temporary {
+        fn drop(&mut self) {
+            for f in &self.0 {
+                let _ = std::fs::remove_file(f);
+            }
+        }
+    }
+    let mut temporary = Temporary(Vec::new());
     let mut written = Vec::new();
     for (k, obj) in objects.iter().enumerate() {
         let bytes = obj.to_bytes()?;
@@ -751,6 +762,9 @@ fn run_dicom_send(args: DicomSendArgs) -> Result<()> {
             (None, Some(p)) => p.clone(),
             (None, None) => std::env::temp_dir().join(format!("host-sim-{}.dcm", obj.sop_instance)),
         };
+        if out.is_none() {
+            temporary.0.push(file.clone());
+        }
         std::fs::write(&file, &bytes).with_context(|| format!("writing {}", file.display()))?;
         if !no_check {
             dciodvfy_clean(&file)?;
@@ -783,11 +797,6 @@ fn run_dicom_send(args: DicomSendArgs) -> Result<()> {
             dbt_pacs::store_with_retry(&cfg, bytes)?;
         }
         println!("sent to {to}");
-    }
-    if out.is_none() {
-        for (f, _, _) in &written {
-            let _ = std::fs::remove_file(f);
-        }
     }
     Ok(())
 }
