@@ -221,7 +221,42 @@ impl InputCorrections {
     }
 }
 
+/// The fit record's field that names the W/Rh entry a beam's entry is a
+/// copy of (`dbt-eval beam-bar --write`).
+pub const KEPT_FROM_FIELD: &str = "w_rh_calibration_kept";
+
 impl CalibrationFile {
+    /// Put `cal` under `key` with its fit record `fit`. A refit entry
+    /// invalidates the beams' entries copied from it (their bar was run
+    /// against the old figures: [`KEPT_FROM_FIELD`]): those are removed,
+    /// and their keys returned, so that their acquisitions are reported
+    /// physics-only or refused until the bar is run again, never read with
+    /// a copy of figures the model no longer has.
+    pub fn insert_fit(
+        &mut self,
+        key: &str,
+        cal: GlandularityCalibration,
+        fit: serde_json::Value,
+    ) -> Vec<String> {
+        let changed = self.calibrations.get(key) != Some(&cal);
+        self.calibrations.insert(key.to_string(), cal);
+        self.fits.insert(key.to_string(), fit);
+        if !changed {
+            return Vec::new();
+        }
+        let stale: Vec<String> = self
+            .fits
+            .iter()
+            .filter(|(k, f)| k.as_str() != key && f[KEPT_FROM_FIELD].as_str() == Some(key))
+            .map(|(k, _)| k.clone())
+            .collect();
+        for k in &stale {
+            self.calibrations.remove(k);
+            self.fits.remove(k);
+        }
+        stale
+    }
+
     /// The entry under `key` as the firmware applies it: with the
     /// thicknesses its thickness term was fit on (stated, else its fit's
     /// cases'); `None` without one.
@@ -360,6 +395,49 @@ pub fn load_calibration(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A refit entry removes the beams' entries copied from it (and only
+    /// those); the same figures written again keep them.
+    #[test]
+    fn a_refit_removes_the_beam_entries_copied_from_it() {
+        let cal = |o: f64| GlandularityCalibration {
+            offset: o,
+            slope: 1.0,
+            per_mm: 0.0,
+            thickness_range_mm: None,
+        };
+        let mut f = CalibrationFile {
+            format: CALIBRATION_FORMAT.into(),
+            model: "m".into(),
+            manifest_sha256: String::new(),
+            classification: Default::default(),
+            calibrations: Default::default(),
+            fits: Default::default(),
+        };
+        assert!(f
+            .insert_fit("int8 | c", cal(0.1), serde_json::json!({}))
+            .is_empty());
+        f.insert_fit("int8", cal(0.2), serde_json::json!({}));
+        f.insert_fit(
+            "int8 | c | beam W/Ag",
+            cal(0.1),
+            serde_json::json!({ (KEPT_FROM_FIELD): "int8 | c" }),
+        );
+        f.insert_fit("int8 | c | beam W/Al", cal(0.3), serde_json::json!({}));
+        // The same figures again: nothing removed.
+        assert!(f
+            .insert_fit("int8 | c", cal(0.1), serde_json::json!({}))
+            .is_empty());
+        assert!(f
+            .insert_fit("int8", cal(0.25), serde_json::json!({}))
+            .is_empty());
+        assert_eq!(f.calibrations.len(), 4);
+        let removed = f.insert_fit("int8 | c", cal(0.11), serde_json::json!({}));
+        assert_eq!(removed, ["int8 | c | beam W/Ag"]);
+        assert!(!f.calibrations.contains_key("int8 | c | beam W/Ag"));
+        assert!(!f.fits.contains_key("int8 | c | beam W/Ag"));
+        assert!(f.calibrations.contains_key("int8 | c | beam W/Al"));
+    }
 
     /// A calibration file read and written again keeps every float it
     /// held, bit for bit, the fits' provenance included (`dbt-eval

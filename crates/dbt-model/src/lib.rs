@@ -17,7 +17,7 @@ pub mod signoff;
 pub use calibration::{
     load_calibration, load_calibrations, manifest_sha256, pick_beam_calibrations, pick_calibration,
     CalibrationError, CalibrationFile, Calibrations, InputCorrections, CALIBRATION_FILE,
-    CALIBRATION_FORMAT,
+    CALIBRATION_FORMAT, KEPT_FROM_FIELD,
 };
 pub use intervals::{
     current_calibration, load_intervals, CalibrationUsed, IntervalsEntry, IntervalsError,

@@ -2014,11 +2014,11 @@ fn run_beam_bar(args: BeamBarArgs) -> Result<()> {
             path.display()
         );
     }
-    file.calibrations.insert(beam_key.clone(), cal);
-    file.fits.insert(
-        beam_key.clone(),
+    file.insert_fit(
+        &beam_key,
+        cal,
         serde_json::json!({
-            "w_rh_calibration_kept": key,
+            (dbt_model::KEPT_FROM_FIELD): key,
             "why": "the beam's validation acquisitions read with the W/Rh calibration passed the bar written before they were evaluated (eval/README.md, \"The W/Ag beam\")",
             "bar": {
                 "limits_pp": {
@@ -2522,9 +2522,9 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
     // Keep the other precisions' entries of a file fit for this model
     // and classification; start afresh otherwise.
     let mut file = CalibrationFile::open_or_new(&path, &m, classify)?;
-    file.calibrations.insert(label.clone(), cal);
-    file.fits.insert(
-        label,
+    let removed = file.insert_fit(
+        &label,
+        cal,
         serde_json::json!({
             "command": std::env::args().collect::<Vec<_>>().join(" "),
             "split": split.describe(),
@@ -2547,6 +2547,9 @@ fn run_calibrate(args: CalibrateArgs) -> Result<()> {
     );
     write_json(&path, &file)?;
     println!("wrote {}", path.display());
+    for k in removed {
+        println!("removed {k:?}: a copy of the entry refit here, its bar run against the old figures (run `dbt-eval beam-bar` again)");
+    }
     Ok(())
 }
 
@@ -2624,19 +2627,21 @@ fn carry_calibration(
     }
     for k in keys {
         let cal = old_file.calibrations[k];
-        file.calibrations.insert(k.clone(), cal);
-        file.fits.insert(
-            k.clone(),
-            serde_json::json!({
-                "carried_from": {
-                    "model": om.name,
-                    "manifest_sha256": old_file.manifest_sha256,
-                    "why": format!("the same {precision} blocks (SHA-256 checked), geometry and normalisation"),
-                    "command": std::env::args().collect::<Vec<_>>().join(" "),
-                },
-                "fit": old_file.fits.get(k),
-            }),
-        );
+        let fit = old_file.fits.get(k);
+        let mut record = serde_json::json!({
+            "carried_from": {
+                "model": om.name,
+                "manifest_sha256": old_file.manifest_sha256,
+                "why": format!("the same {precision} blocks (SHA-256 checked), geometry and normalisation"),
+                "command": std::env::args().collect::<Vec<_>>().join(" "),
+            },
+            "fit": fit,
+        });
+        // A beam's copy of a W/Rh entry stays marked as one.
+        if let Some(kept) = fit.and_then(|f| f.get(dbt_model::KEPT_FROM_FIELD)) {
+            record[dbt_model::KEPT_FROM_FIELD] = kept.clone();
+        }
+        file.insert_fit(k, cal, record);
         println!(
             "carried {k}: G = {:+.5} + {:.5} x partial volume (from {})",
             cal.offset, cal.slope, om.name
