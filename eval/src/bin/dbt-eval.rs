@@ -1689,17 +1689,8 @@ fn run_intervals(args: IntervalsArgs) -> Result<()> {
     let mut inputs = Vec::new();
     let mut input: Option<dbt_model::InputCorrections> = None;
     for dir in &from {
-        let path = dir.join("accuracy.json");
-        let text = std::fs::read_to_string(&path)
-            .with_context(|| format!("reading {}", path.display()))?;
-        let j: serde_json::Value =
-            serde_json::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
+        let (path, j) = read_validation_run(dir, "intervals are fit on validation breasts only")?;
         let phantoms = j["phantoms"].as_str().unwrap_or("");
-        anyhow::ensure!(
-            phantoms.starts_with("validation"),
-            "{}: phantoms {phantoms:?} are not the validation split; intervals are fit on validation breasts only",
-            path.display()
-        );
         anyhow::ensure!(
             j["anode_filter"].as_str() == Some("W/Rh"),
             "{}: beam {}, the intervals are W/Rh's",
@@ -1845,18 +1836,27 @@ struct BarRun {
     cases: Vec<(String, f64, f64, f64)>,
 }
 
-fn read_bar_run(dir: &Path, name: &str, precision: &str) -> Result<BarRun> {
+/// An `accuracy` run's accuracy.json (its path, its JSON), refused unless
+/// its phantoms are the validation split (`why` says what is decided on
+/// it): what the model's files are fit on never sees a test breast.
+fn read_validation_run(dir: &Path, why: &str) -> Result<(PathBuf, serde_json::Value)> {
     let path = dir.join("accuracy.json");
     let text =
         std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
     let j: serde_json::Value =
         serde_json::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
-    let phantoms = j["phantoms"].as_str().unwrap_or("").to_string();
+    let phantoms = j["phantoms"].as_str().unwrap_or("");
     anyhow::ensure!(
         phantoms.starts_with("validation"),
-        "{}: phantoms {phantoms:?} are not the validation split; a calibration is chosen on validation breasts only",
+        "{}: phantoms {phantoms:?} are not the validation split; {why}",
         path.display()
     );
+    Ok((path, j))
+}
+
+fn read_bar_run(dir: &Path, name: &str, precision: &str) -> Result<BarRun> {
+    let (path, j) = read_validation_run(dir, "a calibration is chosen on validation breasts only")?;
+    let phantoms = j["phantoms"].as_str().unwrap_or("").to_string();
     let beam_name = j["anode_filter"].as_str().unwrap_or("");
     let beam = dbt_dose::xray::AnodeFilter::parse(beam_name)
         .map_err(|e| anyhow::anyhow!("{}: anode_filter {beam_name:?}: {e}", path.display()))?;
