@@ -40,7 +40,7 @@
 # scatter = "kernel", beam_hardening = "csi" or "a-se",
 # noise_match = "training-level"). Default mono
 # (the paper's simulated detector, the shipped model's training world).
-# ANODE_FILTER=W/Al or W/Ag: the exposure's beam (default W/Rh, the paper's): the
+# ANODE_FILTER=W/Al, W/Ag, Mo/Mo, Mo/Rh or Rh/Rh: the exposure's beam (default W/Rh, the paper's): the
 # stream's header carries it, the corrections and the dose use its spectra.
 # SYSTEM=<name> (issue #51): the gantry, a built-in cone-beam system
 # (hologic-dimensions, ge-essential, siemens-inspiration, siemens-victre,

@@ -381,6 +381,16 @@ pub struct ReportConfig {
     /// The same for the W/Ag beam; absent, W/Ag exposures are refused.
     #[serde(default)]
     pub tube_output_w_ag_mgy_per_mas: Option<TubeOutput>,
+    /// The Mo/Mo beam's tube output, mGy/mAs at 1 m, as
+    /// [`Self::tube_output_w_al_mgy_per_mas`]. Absent: refused.
+    #[serde(default)]
+    pub tube_output_mo_mo_mgy_per_mas: Option<TubeOutput>,
+    /// The Mo/Rh beam's tube output, as above. Absent: refused.
+    #[serde(default)]
+    pub tube_output_mo_rh_mgy_per_mas: Option<TubeOutput>,
+    /// The Rh/Rh beam's tube output, as above. Absent: refused.
+    #[serde(default)]
+    pub tube_output_rh_rh_mgy_per_mas: Option<TubeOutput>,
     /// The beam of an acquisition whose input does not state it (a DICOM
     /// object without Filter Material; a stream header without
     /// `anode_filter` where no Modbus register 6 is read): `"W/Rh"` (the
@@ -410,16 +420,15 @@ impl ReportConfig {
             dbt_dose::xray::AnodeFilter::WRh => Some(&self.tube_output_mgy_per_mas),
             dbt_dose::xray::AnodeFilter::WAl => self.tube_output_w_al_mgy_per_mas.as_ref(),
             dbt_dose::xray::AnodeFilter::WAg => self.tube_output_w_ag_mgy_per_mas.as_ref(),
+            dbt_dose::xray::AnodeFilter::MoMo => self.tube_output_mo_mo_mgy_per_mas.as_ref(),
+            dbt_dose::xray::AnodeFilter::MoRh => self.tube_output_mo_rh_mgy_per_mas.as_ref(),
+            dbt_dose::xray::AnodeFilter::RhRh => self.tube_output_rh_rh_mgy_per_mas.as_ref(),
         }
     }
 
     /// The configuration key of `beam`'s tube output.
     pub fn tube_output_key(beam: dbt_dose::xray::AnodeFilter) -> &'static str {
-        match beam {
-            dbt_dose::xray::AnodeFilter::WRh => "report.tube_output_mgy_per_mas",
-            dbt_dose::xray::AnodeFilter::WAl => "report.tube_output_w_al_mgy_per_mas",
-            dbt_dose::xray::AnodeFilter::WAg => "report.tube_output_w_ag_mgy_per_mas",
-        }
+        dbt_intake::technique::tube_output_key(beam)
     }
 }
 
@@ -1534,6 +1543,41 @@ mod tests {
         assert!(e.contains("report.tube_output_w_al_mgy_per_mas"), "{e}");
         let absent = example(|t| t.replace("tube_output_w_al_mgy_per_mas = 0.11\n", "")).unwrap();
         assert_eq!(absent.report.tube_output(AnodeFilter::WAl), None);
+        // Every other beam's key is the one its messages name, and sets
+        // that beam's output only.
+        for beam in AnodeFilter::ALL {
+            if matches!(beam, AnodeFilter::WRh | AnodeFilter::WAl) {
+                continue;
+            }
+            let key = ReportConfig::tube_output_key(beam);
+            let field = key.trim_start_matches("report.");
+            assert_eq!(absent.report.tube_output(beam), None, "{beam}");
+            let c = example(|t| {
+                t.replace(
+                    "tube_output_w_al_mgy_per_mas = 0.11\n",
+                    &format!("{field} = 0.07\n"),
+                )
+            })
+            .unwrap();
+            for other in AnodeFilter::ALL {
+                let got = c.report.tube_output(other).map(|t| t.at(30.0).unwrap());
+                let want = match other {
+                    AnodeFilter::WRh => Some(0.11),
+                    o if o == beam => Some(0.07),
+                    _ => None,
+                };
+                assert_eq!(got, want, "{key}: {other}");
+            }
+            let e = example(|t| {
+                t.replace(
+                    "tube_output_w_al_mgy_per_mas = 0.11\n",
+                    &format!("{field} = -1\n"),
+                )
+            })
+            .unwrap_err()
+            .to_string();
+            assert!(e.contains(key), "{e}");
+        }
         // The QC's outputs by kV: a power law between measured kV, exact at
         // them, refused outside; bad tables refused naming the key.
         let table = example(|t| {

@@ -429,7 +429,7 @@ fn thickness_disagreement_is_a_fault_not_a_report() {
 fn another_anode_filter_is_a_fault_not_a_report() {
     let dir = tempfile::tempdir().unwrap();
     let (acq, thickness) = acquire(dir.path());
-    let g = gantry_full(&acq, thickness, &[], &["--anode-filter", "Mo/Rh"]);
+    let g = gantry_full(&acq, thickness, &[], &["--anode-filter", "Rh/Ag"]);
     let cfg = config(dir.path(), &g, 2);
     let st = once(&cfg);
     assert_eq!(st.code(), Some(1), "--once after a fault exits 1");
@@ -437,7 +437,10 @@ fn another_anode_filter_is_a_fault_not_a_report() {
     let f = &s["faults"][0];
     assert_eq!(f["kind"], "technique", "{s}");
     let m = f["message"].as_str().unwrap();
-    assert!(m.contains("Mo/Rh") && m.contains("W/Rh, W/Al, W/Ag"), "{m}");
+    assert!(
+        m.contains("Rh/Ag") && m.contains("W/Rh, W/Al, W/Ag, Mo/Mo, Mo/Rh, Rh/Rh"),
+        "{m}"
+    );
     drop(g);
     // The stream's header says W/Rh (the acquisition's beam), the register
     // W/Al: which beam was used is not known, nothing is reported.

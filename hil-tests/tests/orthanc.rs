@@ -58,6 +58,7 @@ fn dose(agd: f64) -> DoseInput {
         compression_mm: 52.0,
         compression_force_n: Some(110.0),
         hvl_mm_al: 0.538,
+        anode_material: dbt_dicom::AnodeMaterial::Tungsten,
         filter_material: dbt_dicom::FilterMaterial::Rhodium,
         filter_mm: 0.0583,
         accumulated_agd_mgy: agd,

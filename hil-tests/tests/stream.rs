@@ -144,7 +144,7 @@ fn a_misbehaving_gantry_is_refused_or_timed_out() {
         // No tube voltage: refused at the header, naming it.
         (&["kvp:0"][..], 20, "kvp 0"),
         // A stated anode/filter the dose model has no spectra for.
-        (&["anode:4"][..], 20, "anode/filter Mo/Mo"),
+        (&["anode:7"][..], 20, "anode/filter Rh/Ag"),
         // Acknowledgements of a flood of repeated headers that nobody reads:
         // whichever comes first, the write timeout or the acquisition not
         // advancing, ends it.

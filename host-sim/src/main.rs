@@ -162,7 +162,7 @@ struct ModbusArgs {
     /// the compression changed during the sweep.
     #[arg(long)]
     thickness_then_mm: Option<f64>,
-    /// Anode/filter register: W/Rh, W/Al, W/Ag, Mo/Mo or Mo/Rh.
+    /// Anode/filter register: W/Rh, W/Al, W/Ag, Mo/Mo, Mo/Rh, Rh/Rh or Rh/Ag.
     #[arg(long, default_value = "W/Rh")]
     anode_filter: String,
 }

@@ -129,8 +129,17 @@ fn scatter_is_added_and_removed() {
         eprintln!(
         "{af}: {n} elements: scatter / primary {spr_min:.2}..{spr_max:.2}, removed {spr:.2}, worst residual {worst:.4}"
     );
+        // The molybdenum and rhodium anodes' softer beams leave less of the
+        // primary under the breast's densest columns than the scatter,
+        // which comes from the whole breast (Mo/Mo's largest ratio 3.8
+        // against W/Rh's 2.0).
+        let spr_bound = if af.anode() == dbt_dose::xray::Anode::W {
+            2.5
+        } else {
+            4.5
+        };
         assert!(
-            n > 10_000 && spr_min > 0.0 && spr_max > 1.0 && spr_max < 2.5,
+            n > 10_000 && spr_min > 0.0 && spr_max > 1.0 && spr_max < spr_bound,
             "{af}: {spr_min} {spr_max}"
         );
         assert!(worst < 0.01, "{af}: worst residual after removal {worst}");

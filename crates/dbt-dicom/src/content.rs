@@ -225,9 +225,50 @@ mod tests {
     }
 }
 
-/// The tube's Anode Target Material (0018,1191) as the objects name it:
-/// tungsten, the anode of every beam the dose model has spectra for.
+/// The tube's Anode Target Material (0018,1191) defined term for
+/// tungsten (the material a projection without the attribute is taken on).
 pub const ANODE_TUNGSTEN: &str = "TUNGSTEN";
+
+/// The tube's anode material, as the objects name it: Anode Target
+/// Material (0018,1191) in the projections, CID 10016 "Anode Target
+/// Material" in the dose report.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum AnodeMaterial {
+    /// Tungsten (W/Rh, W/Al, W/Ag beams).
+    Tungsten,
+    /// Molybdenum (Mo/Mo, Mo/Rh beams).
+    Molybdenum,
+    /// Rhodium (Rh/Rh beams).
+    Rhodium,
+}
+
+impl AnodeMaterial {
+    /// Every anode the objects name.
+    pub const ALL: [AnodeMaterial; 3] = [
+        AnodeMaterial::Tungsten,
+        AnodeMaterial::Molybdenum,
+        AnodeMaterial::Rhodium,
+    ];
+
+    /// The Anode Target Material (0018,1191) defined term.
+    pub fn term(self) -> &'static str {
+        match self {
+            AnodeMaterial::Tungsten => ANODE_TUNGSTEN,
+            AnodeMaterial::Molybdenum => "MOLYBDENUM",
+            AnodeMaterial::Rhodium => "RHODIUM",
+        }
+    }
+
+    /// The CID 10016 code (SNOMED CT, as pydicom's CID 10016 dictionary
+    /// gives them; the legacy SRT codes were C-164F9, C-150F9 and C-167F9).
+    pub fn code(self) -> Code {
+        match self {
+            AnodeMaterial::Tungsten => Code::new("26194003", "SCT", "Tungsten"),
+            AnodeMaterial::Molybdenum => Code::new("71128006", "SCT", "Molybdenum"),
+            AnodeMaterial::Rhodium => Code::new("59801003", "SCT", "Rhodium"),
+        }
+    }
+}
 
 /// An x-ray filter's material, as the objects name it: Filter Material
 /// (0018,7050) in the projections, CID 10006 "X-Ray Filter Materials" in
@@ -240,6 +281,8 @@ pub enum FilterMaterial {
     Aluminum,
     /// Silver (W/Ag beams).
     Silver,
+    /// Molybdenum (Mo/Mo beams).
+    Molybdenum,
 }
 
 impl FilterMaterial {
@@ -249,17 +292,19 @@ impl FilterMaterial {
             FilterMaterial::Rhodium => "RHODIUM",
             FilterMaterial::Aluminum => "ALUMINUM",
             FilterMaterial::Silver => "SILVER",
+            FilterMaterial::Molybdenum => "MOLYBDENUM",
         }
     }
 
     /// The CID 10006 code (SNOMED CT; the legacy SRT codes were C-167F9,
-    /// C-120F9 and C-137F9; silver's SCT code as pydicom's CID 10006
-    /// dictionary gives it).
+    /// C-120F9, C-137F9 and C-150F9; silver's and molybdenum's SCT codes as
+    /// pydicom's CID 10006 dictionary gives them).
     pub fn code(self) -> Code {
         match self {
             FilterMaterial::Rhodium => Code::new("59801003", "SCT", "Rhodium"),
             FilterMaterial::Aluminum => Code::new("12503006", "SCT", "Aluminum"),
             FilterMaterial::Silver => Code::new("41967008", "SCT", "Silver"),
+            FilterMaterial::Molybdenum => Code::new("71128006", "SCT", "Molybdenum"),
         }
     }
 }

@@ -20,7 +20,7 @@ pub mod projections;
 pub mod reports;
 pub mod templates;
 
-pub use content::{format_ds, Code, FilterMaterial, Item, Rel, ANODE_TUNGSTEN};
+pub use content::{format_ds, AnodeMaterial, Code, FilterMaterial, Item, Rel, ANODE_TUNGSTEN};
 pub use reports::{
     composition_category, composition_code, density_report, dose_report, read_values,
     DensityCheckReport, DensityInput, DoseEvent, DoseInput, Equipment, FigureInterval, Header,

@@ -57,6 +57,8 @@ pub struct ProjectionSet<'a> {
     pub kvp: f64,
     /// Tube loading of each view, uAs.
     pub exposure_uas_per_view: f64,
+    /// Anode target material.
+    pub anode_material: crate::AnodeMaterial,
     /// Filter material.
     pub filter_material: crate::FilterMaterial,
     /// Filter thickness, mm.
@@ -203,7 +205,7 @@ pub(crate) fn common_elements(p: &ProjectionSet<'_>) -> Vec<DataElement<InMemDic
         s(tags::STUDY_INSTANCE_UID, VR::UI, &h.study_uid),
         s(tags::STUDY_ID, VR::SH, &h.study_id),
         s(tags::FOCAL_SPOTS, VR::DS, "0.3"),
-        s(tags::ANODE_TARGET_MATERIAL, VR::CS, crate::ANODE_TUNGSTEN),
+        s(tags::ANODE_TARGET_MATERIAL, VR::CS, p.anode_material.term()),
         s(tags::COMPRESSION_FORCE, VR::DS, &ds(p.compression_force_n)),
         s(tags::PADDLE_DESCRIPTION, VR::LO, "flat compression paddle"),
         s(tags::BREAST_IMPLANT_PRESENT, VR::CS, "NO"),

@@ -246,6 +246,8 @@ pub struct DoseInput {
     pub compression_force_n: Option<f64>,
     /// First HVL, mm Al.
     pub hvl_mm_al: f64,
+    /// Anode target material.
+    pub anode_material: crate::AnodeMaterial,
     /// Filter material.
     pub filter_material: crate::FilterMaterial,
     /// Filter thickness, mm.
@@ -1031,8 +1033,8 @@ pub fn dose_report(input: &DoseInput, uids: &mut UidSource) -> Result<Report, Di
                 Rel::Contains,
                 Item::Code(
                     dcm("111632", "Anode Target Material"),
-                    // CID 10016 (current edition; the legacy SRT code was C-164F9).
-                    Code::new("26194003", "SCT", "Tungsten"),
+                    // CID 10016.
+                    input.anode_material.code(),
                     vec![],
                 ),
             ),

@@ -43,9 +43,23 @@ fn equipment() -> Equipment {
 /// solved thickness and the Giotto's HVL at 28 kV.
 fn w_ag_dose_input() -> DoseInput {
     DoseInput {
+        anode_material: dbt_dicom::AnodeMaterial::Tungsten,
         filter_material: dbt_dicom::FilterMaterial::Silver,
         filter_mm: 0.059,
         hvl_mm_al: 0.56,
+        ..dose_input()
+    }
+}
+
+/// [`dose_input`] of a Mo/Mo sweep (GE's molybdenum anode and filter):
+/// both CID 10016's and CID 10006's molybdenum (SCT 71128006), the solved
+/// filter and EUREF's typical HVL at 28 kV.
+fn mo_mo_dose_input() -> DoseInput {
+    DoseInput {
+        anode_material: dbt_dicom::AnodeMaterial::Molybdenum,
+        filter_material: dbt_dicom::FilterMaterial::Molybdenum,
+        filter_mm: 0.0484,
+        hvl_mm_al: 0.36,
         ..dose_input()
     }
 }
@@ -72,6 +86,7 @@ pub fn dose_input() -> DoseInput {
         compression_mm: 44.0,
         compression_force_n: Some(110.0),
         hvl_mm_al: 0.53,
+        anode_material: dbt_dicom::AnodeMaterial::Tungsten,
         filter_material: dbt_dicom::FilterMaterial::Rhodium,
         filter_mm: 0.0587,
         accumulated_agd_mgy: 1.428,
@@ -433,6 +448,8 @@ fn reports_pass_dciodvfy_and_dsrdump_and_broken_ones_do_not() {
     let dens_physics = density_report(&physics_only_density_input(), &mut uids).unwrap();
     // A W/Ag sweep (issue #51 point 2): the silver filter's code.
     let dose_w_ag = dose_report(&w_ag_dose_input(), &mut uids).unwrap();
+    // A Mo/Mo sweep: molybdenum's code as anode and as filter.
+    let dose_mo_mo = dose_report(&mo_mo_dose_input(), &mut uids).unwrap();
     for (name, r) in [
         ("dose.dcm", &dose),
         ("density.dcm", &dens),
@@ -441,6 +458,7 @@ fn reports_pass_dciodvfy_and_dsrdump_and_broken_ones_do_not() {
         ("dose-physics.dcm", &dose_physics),
         ("density-physics.dcm", &dens_physics),
         ("dose-w-ag.dcm", &dose_w_ag),
+        ("dose-mo-mo.dcm", &dose_mo_mo),
     ] {
         if let Ok(d) = std::env::var("DBT_DICOM_KEEP") {
             std::fs::write(Path::new(&d).join(name), r.to_bytes().unwrap()).unwrap();
@@ -660,6 +678,7 @@ fn dose_report_passes_pixelmed_sr_validation() {
         three_events(unconfirmed_dose_input()),
         three_events(physics_only_dose_input()),
         three_events(w_ag_dose_input()),
+        three_events(mo_mo_dose_input()),
     ] {
         pixelmed_validates_dose(jar, &input);
     }
@@ -742,7 +761,8 @@ fn pixelmed_validates_dose(jar: &Path, input: &DoseInput) {
         .filter(|l| {
             !(l.contains("(59801003,SCT,\"Rhodium\") not found in context group 10006")
                 || l.contains("(41967008,SCT,\"Silver\") not found in context group 10006")
-                || l.contains("(26194003,SCT,\"Tungsten\") not found in context group 10016"))
+                || l.contains("(26194003,SCT,\"Tungsten\") not found in context group 10016")
+                || l.contains("(71128006,SCT,\"Molybdenum\") not found in context group 100"))
         })
         .collect();
     assert!(errors.is_empty(), "{}", errors.join("\n"));
@@ -786,6 +806,7 @@ fn projection_set<'a>(
         entrance_dose_mgy: 6.6,
         kvp: 29.0,
         exposure_uas_per_view: 2400.0,
+        anode_material: dbt_dicom::AnodeMaterial::Tungsten,
         filter_material: dbt_dicom::FilterMaterial::Rhodium,
         filter_mm: 0.058,
         counts,

@@ -65,7 +65,8 @@ struct ViewsArgs {
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// The beam: `W/Rh` (the paper's Table 3 technique by thickness) or
-    /// `W/Al` (`dbt_dose::xray::W_AL_AEC`) or `W/Ag` (`W_AG_AEC`).
+    /// `W/Al` (`dbt_dose::xray::W_AL_AEC`), `W/Ag` (`W_AG_AEC`), or `Mo/Mo`,
+    /// `Mo/Rh`, `Rh/Rh` (`MO_RH_ANODE_AEC`).
     #[arg(long, default_value = "W/Rh", value_parser = parse_anode_filter)]
     anode_filter: AnodeFilter,
     /// Keep the Monte Carlo views in this JSON file: read from it when it
@@ -140,7 +141,8 @@ struct SprArgs {
     #[arg(long)]
     energy: Option<f64>,
     /// The beam: `W/Rh` (the paper's Table 3 technique by thickness) or
-    /// `W/Al` (`dbt_dose::xray::W_AL_AEC`) or `W/Ag` (`W_AG_AEC`).
+    /// `W/Al` (`dbt_dose::xray::W_AL_AEC`), `W/Ag` (`W_AG_AEC`), or `Mo/Mo`,
+    /// `Mo/Rh`, `Rh/Rh` (`MO_RH_ANODE_AEC`).
     #[arg(long, default_value = "W/Rh", value_parser = parse_anode_filter)]
     anode_filter: AnodeFilter,
     /// Side of the square region of interest, mm.
@@ -506,6 +508,15 @@ fn spectrum_description(af: AnodeFilter) -> String {
         AnodeFilter::WAg => format!(
             "W/Ag: TASMICS through {:.1} um Ag (dbt_dose::xray::w_ag_filter_mm: solved for the IMS Giotto Class's reported HVL, W_AG_HVL) at the kV of dbt_dose::xray::W_AG_AEC for each thickness (HVL-matched to the paper's Table 3)",
             dbt_dose::xray::w_ag_filter_mm().map_or(f64::NAN, |mm| 1000.0 * mm)
+        ),
+        AnodeFilter::MoMo | AnodeFilter::MoRh | AnodeFilter::RhRh => format!(
+            "{af}: SpekPy's {}-anode spectra through {:.1} um {} (dbt_dose::xray::hvl_solved_filter_mm: solved for EUREF's typical HVL, MO_RH_ANODE_HVL) at the kV of dbt_dose::xray::MO_RH_ANODE_AEC for each thickness (our choice)",
+            af.anode().symbol(),
+            dbt_dose::xray::hvl_solved_filter_mm(af).map_or(f64::NAN, |mm| 1000.0 * mm),
+            match af.filter_metal() {
+                dbt_dose::xray::FilterMetal::Mo => "Mo",
+                _ => "Rh",
+            }
         ),
     }
 }

@@ -27,7 +27,7 @@ import os
 
 import xraylib as xl
 
-ELEMENTS = [1, 6, 7, 8, 13, 15, 16, 18, 19, 20, 34, 45, 47, 53, 55]
+ELEMENTS = [1, 6, 7, 8, 13, 15, 16, 18, 19, 20, 34, 42, 45, 47, 53, 55]
 # Converters of the detectors (a-Se; CsI): their K-fluorescence data.
 KSHELL = [34, 53, 55]
 K_GROUPS = [

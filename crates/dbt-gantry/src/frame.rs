@@ -116,7 +116,7 @@ pub struct AcquisitionHeader {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub system: Option<String>,
     /// The exposure's anode/filter as register 6 names them (`W/Rh`,
-    /// `W/Al`, `W/Ag`, `Mo/Mo`, `Mo/Rh`); absent: not stated (the Modbus
+    /// `W/Al`, `W/Ag`, `Mo/Mo`, `Mo/Rh`, `Rh/Rh`, `Rh/Ag`); absent: not stated (the Modbus
     /// register then says it).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub anode_filter: Option<String>,

@@ -10,7 +10,7 @@
 //! | 3 | compression force | 0.1 N |
 //! | 4 | tube voltage | 0.1 kV |
 //! | 5 | tube current-time product per projection | 0.01 mAs |
-//! | 6 | anode/filter | 1 W/Rh, 2 W/Al, 3 W/Ag, 4 Mo/Mo, 5 Mo/Rh |
+//! | 6 | anode/filter | 1 W/Rh, 2 W/Al, 3 W/Ag, 4 Mo/Mo, 5 Mo/Rh, 6 Rh/Rh, 7 Rh/Ag |
 //! | 7 | number of projections | count |
 //! | 8 | first angle | 0.1 degree, two's complement |
 //! | 9 | last angle | 0.1 degree, two's complement |
@@ -104,7 +104,7 @@ const NAMES: [&str; COUNT] = [
     "fault code",
 ];
 /// The anode/filter combinations of register 6, by code (1 = `W/Rh`).
-pub const ANODES: [&str; 5] = ["W/Rh", "W/Al", "W/Ag", "Mo/Mo", "Mo/Rh"];
+pub const ANODES: [&str; 7] = ["W/Rh", "W/Al", "W/Ag", "Mo/Mo", "Mo/Rh", "Rh/Rh", "Rh/Ag"];
 const VIEWS: [&str; 4] = ["CC", "MLO", "ML", "LM"];
 
 fn err(address: usize, value: u16, reason: impl Into<String>) -> RegisterError {
@@ -152,7 +152,7 @@ pub fn decode(r: &[u16]) -> Result<Registers, RegisterError> {
         return Err(err(4, r[4], "outside 15-50 kV"));
     }
     let anode_filter = match r[6] {
-        1..=5 => ANODES[r[6] as usize - 1],
+        1..=7 => ANODES[r[6] as usize - 1],
         v => return Err(err(6, v, "unknown anode/filter code")),
     };
     let angle = |i: usize| (r[i] as i16) as f64 / 10.0;

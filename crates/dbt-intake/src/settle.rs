@@ -291,7 +291,8 @@ pub fn settle(
         .map(|(_, t)| t)
         .ok_or_else(|| {
             format!(
-                "anode/filter {beam}: no tube output configured for this beam ([report] tube_output_w_al_mgy_per_mas); its dose cannot be computed; not reported"
+                "anode/filter {beam}: no tube output configured for this beam ({}); its dose cannot be computed; not reported",
+                crate::technique::tube_output_key(beam)
             )
         })
         .and_then(|t| {
@@ -438,14 +439,14 @@ mod tests {
         let r = refused(settle(
             acquisition(),
             &note(
-                Some(registers(50.0, "Mo/Rh")),
-                Some(registers(50.0, "Mo/Rh")),
+                Some(registers(50.0, "Rh/Ag")),
+                Some(registers(50.0, "Rh/Ag")),
             ),
             &p,
         ));
         assert_eq!(r.kind, RefusalKind::Technique);
         assert!(
-            r.message.contains("anode/filter Mo/Rh (Modbus register 6)"),
+            r.message.contains("anode/filter Rh/Ag (Modbus register 6)"),
             "{r}"
         );
         let mut n = note(Some(registers(50.0, "W/Rh")), Some(registers(50.0, "W/Rh")));

@@ -2,7 +2,21 @@
 //! (the incident air kerma per mAs at the reference point), as the
 //! physicist's QC measured it.
 
+use dbt_dose::xray::AnodeFilter;
 use serde::{Deserialize, Serialize};
+
+/// The site configuration's key of a beam's tube output (`[report]`):
+/// one per beam, W/Rh's the unqualified one.
+pub fn tube_output_key(beam: AnodeFilter) -> &'static str {
+    match beam {
+        AnodeFilter::WRh => "report.tube_output_mgy_per_mas",
+        AnodeFilter::WAl => "report.tube_output_w_al_mgy_per_mas",
+        AnodeFilter::WAg => "report.tube_output_w_ag_mgy_per_mas",
+        AnodeFilter::MoMo => "report.tube_output_mo_mo_mgy_per_mas",
+        AnodeFilter::MoRh => "report.tube_output_mo_rh_mgy_per_mas",
+        AnodeFilter::RhRh => "report.tube_output_rh_rh_mgy_per_mas",
+    }
+}
 
 /// A beam's tube output at the reference point, mGy/mAs: one figure for
 /// every kV (`tube_output_mgy_per_mas = 0.11`), or the QC's measurements by

@@ -30,40 +30,65 @@ const SPACING_TOL: f64 = 1e-3;
 const THICKNESS_TOL_MM: f64 = 0.5;
 
 /// The beam of an object from its Anode Target Material (0018,1191) and
-/// Filter Material (0018,7050): a tungsten anode with rhodium, aluminium or
-/// silver (`dbt_dose::xray::AnodeFilter`, the beams the dose model has spectra
-/// for); another anode or filter is refused naming the attribute and its
-/// value, never reported with another beam's dose. Where the object does
-/// not state its filter (optional in the DM IOD), the site's `unstated`
-/// beam ([`Gantry::unstated_beam`]; `None` refuses it, naming Filter
-/// Material); a filter without an anode is taken on a tungsten anode.
+/// Filter Material (0018,7050): one of the beams the dose model has spectra
+/// for (`dbt_dose::xray::AnodeFilter`: a tungsten anode with rhodium,
+/// aluminium or silver; molybdenum with molybdenum or rhodium; rhodium with
+/// rhodium); another anode, filter or pairing is refused naming the
+/// attribute and its value, never reported with another beam's dose. An
+/// object without an anode is taken on a tungsten one. Where the object
+/// does not state its filter (optional in the DM IOD), the site's
+/// `unstated` beam ([`Gantry::unstated_beam`]; `None` refuses it, naming
+/// Filter Material), if its anode is the object's.
 pub fn beam(
     p: &ReceivedProjections,
     unstated: Option<AnodeFilter>,
 ) -> Result<AnodeFilter, HeaderError> {
-    use dbt_dicom::ANODE_TUNGSTEN;
-    let anode = p.anode.as_deref().unwrap_or(ANODE_TUNGSTEN);
-    if anode.trim() != ANODE_TUNGSTEN {
-        return Err(refuse(
-            "AnodeTargetMaterial",
-            anode,
-            format!("the dose model's spectra are for a {ANODE_TUNGSTEN} anode"),
-        ));
-    }
-    let Some(f) = p.filter.as_deref() else {
-        return unstated.ok_or_else(|| {
+    use dbt_dicom::{AnodeMaterial, ANODE_TUNGSTEN};
+    let stated = p.anode.as_deref().unwrap_or(ANODE_TUNGSTEN);
+    let anode = AnodeMaterial::ALL
+        .into_iter()
+        .find(|a| a.term() == stated.trim())
+        .ok_or_else(|| {
             refuse(
+                "AnodeTargetMaterial",
+                stated,
+                format!(
+                    "the dose model's spectra are for a {} anode",
+                    AnodeMaterial::ALL.map(|a| a.term()).join(", ")
+                ),
+            )
+        })?;
+    let on_anode: Vec<AnodeFilter> = AnodeFilter::ALL
+        .into_iter()
+        .filter(|a| anode_material(*a) == anode)
+        .collect();
+    let Some(f) = p.filter.as_deref() else {
+        let Some(u) = unstated else {
+            return Err(refuse(
                 "FilterMaterial",
                 "(absent)",
                 "the object does not state its filter, and this site takes no beam for granted \
                  ([report] unstated_beam = \"refuse\")",
-            )
-        });
+            ));
+        };
+        if !on_anode.contains(&u) {
+            return Err(refuse(
+                "FilterMaterial",
+                "(absent)",
+                format!(
+                    "the object does not state its filter, and the site's unstated beam ({u}) \
+                     is not on its {} anode",
+                    anode.term()
+                ),
+            ));
+        }
+        return Ok(u);
     };
     // A filter of several layers (`\`-separated) is one beam's only if
     // every layer is that beam's filter.
-    AnodeFilter::ALL
-        .into_iter()
+    on_anode
+        .iter()
+        .copied()
         .find(|a| {
             let term = filter_material(*a).term();
             f.split('\\').all(|m| m.trim() == term)
@@ -73,21 +98,34 @@ pub fn beam(
                 "FilterMaterial",
                 f,
                 format!(
-                    "the dose model's spectra are for one filter of {}",
-                    AnodeFilter::ALL
-                        .map(|a| filter_material(a).term())
+                    "the dose model's spectra on a {} anode are for one filter of {}",
+                    anode.term(),
+                    on_anode
+                        .iter()
+                        .map(|a| filter_material(*a).term())
+                        .collect::<Vec<_>>()
                         .join(" or ")
                 ),
             )
         })
 }
 
+/// The DICOM anode material of a beam.
+pub fn anode_material(af: AnodeFilter) -> dbt_dicom::AnodeMaterial {
+    match af.anode() {
+        dbt_dose::xray::Anode::W => dbt_dicom::AnodeMaterial::Tungsten,
+        dbt_dose::xray::Anode::Mo => dbt_dicom::AnodeMaterial::Molybdenum,
+        dbt_dose::xray::Anode::Rh => dbt_dicom::AnodeMaterial::Rhodium,
+    }
+}
+
 /// The DICOM filter material of a beam.
 pub fn filter_material(af: AnodeFilter) -> dbt_dicom::FilterMaterial {
-    match af {
-        AnodeFilter::WRh => dbt_dicom::FilterMaterial::Rhodium,
-        AnodeFilter::WAl => dbt_dicom::FilterMaterial::Aluminum,
-        AnodeFilter::WAg => dbt_dicom::FilterMaterial::Silver,
+    match af.filter_metal() {
+        dbt_dose::xray::FilterMetal::Rh => dbt_dicom::FilterMaterial::Rhodium,
+        dbt_dose::xray::FilterMetal::Al => dbt_dicom::FilterMaterial::Aluminum,
+        dbt_dose::xray::FilterMetal::Ag => dbt_dicom::FilterMaterial::Silver,
+        dbt_dose::xray::FilterMetal::Mo => dbt_dicom::FilterMaterial::Molybdenum,
     }
 }
 
@@ -525,6 +563,7 @@ pub fn projection_set<'a>(
         entrance_dose_mgy: h.mas_total * h.tube_output_mgy_per_mas,
         kvp: h.kvp,
         exposure_uas_per_view: h.mas_total * 1000.0 / views as f64,
+        anode_material: anode_material(h.anode_filter),
         filter_material: filter_material(h.anode_filter),
         filter_mm: sweep.filter_mm,
         counts,

@@ -575,7 +575,10 @@ mod tests {
     /// is why the glandularity calibration is per beam (eval/README.md,
     /// "W/Al"). W/Ag (26 kV, mean 19.4 keV, silver's K edge cutting the
     /// spectrum above 25.5 keV) keeps +1.0 % and -1.1 % (uncorrected +0.5 %
-    /// and -6.1 %).
+    /// and -6.1 %). The molybdenum and rhodium anodes' softer beams read
+    /// both tissues high uncorrected (Mo/Mo 27 kV, mean 16.8 keV: +30.5 %
+    /// and +25.8 %) and keep Mo/Mo -1.5 % and +0.4 %, Mo/Rh -0.4 % and
+    /// -0.3 %, Rh/Rh +0.5 % and -0.8 % after it.
     #[test]
     fn other_tissues_are_corrected_to_the_second_order() {
         for (af, kv, s) in beams() {
@@ -605,16 +608,19 @@ mod tests {
                     AnodeFilter::WRh => 0.01,
                     AnodeFilter::WAl => 0.035,
                     AnodeFilter::WAg => 0.015,
+                    AnodeFilter::MoMo => 0.02,
+                    AnodeFilter::MoRh | AnodeFilter::RhRh => 0.01,
                 };
                 assert!(
                     (got / want - 1.0).abs() < bound,
                     "{af} {paths:?}: {got} vs {want} (uncorrected {off} %)"
                 );
-                // W/Ag (26 kV, mean 19.4 keV: the paper's 20 keV nearly)
-                // reads fat +0.5 % uncorrected, +1.0 % corrected: the one
-                // reference moves fat the wrong way where the signal was
-                // already near its line integral; dense tissue improves.
-                if af != AnodeFilter::WAg || paths[1] > 0.0 {
+                // Where the beam already reads a path within 1 % of its
+                // line integral (W/Ag's fat, +0.5 %; Rh/Rh's dense tissue,
+                // -0.6 %: both beams' means near the paper's 20 keV), the
+                // one reference may move it the wrong way by as much;
+                // elsewhere the correction improves it.
+                if (p / want - 1.0).abs() > 0.01 {
                     assert!(
                         (got - want).abs() < (p - want).abs(),
                         "{af} {paths:?}: {got} vs {p}"

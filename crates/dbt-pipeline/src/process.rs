@@ -1497,6 +1497,7 @@ pub fn reports(
             compression_mm: h.thickness_mm,
             compression_force_n: h.compression_force_n,
             hvl_mm_al: tube.hvl_mm_al,
+            anode_material: crate::dicom_input::anode_material(h.anode_filter),
             filter_material: crate::dicom_input::filter_material(h.anode_filter),
             filter_mm: tube.filter_mm,
             accumulated_agd_mgy: res.mgd_mgy,
@@ -1600,7 +1601,7 @@ mod beam_tests {
         let both = PipelineOptions {
             beam_calibrations: beam_calibrations(&[
                 ("W/Al".into(), cal(0.3)),
-                ("Mo/Mo".into(), cal(0.9)),
+                ("Rh/Ag".into(), cal(0.9)),
             ]),
             ..w_rh_only
         };

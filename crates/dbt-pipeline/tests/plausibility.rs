@@ -605,14 +605,22 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
     // multi-frame object's X-Ray Filter Macro, each view's Filter
     // Material); another filter or anode is refused naming the attribute
     // and its value (issue #27).
-    for (beam, term) in [
-        (dbt_dose::xray::AnodeFilter::WAl, "ALUMINUM"),
-        (dbt_dose::xray::AnodeFilter::WAg, "SILVER"),
+    for (beam, anode, term) in [
+        (dbt_dose::xray::AnodeFilter::WAl, "TUNGSTEN", "ALUMINUM"),
+        (dbt_dose::xray::AnodeFilter::WAg, "TUNGSTEN", "SILVER"),
+        (
+            dbt_dose::xray::AnodeFilter::MoMo,
+            "MOLYBDENUM",
+            "MOLYBDENUM",
+        ),
+        (dbt_dose::xray::AnodeFilter::MoRh, "MOLYBDENUM", "RHODIUM"),
+        (dbt_dose::xray::AnodeFilter::RhRh, "RHODIUM", "RHODIUM"),
     ] {
         let mut a = acq.clone();
         a.header.anode_filter = beam;
         let (received, objects) = written_and_read(&a, &angles);
         assert_eq!(received.filter.as_deref(), Some(term));
+        assert_eq!(received.anode.as_deref(), Some(anode));
         let back = acquisition_from_projections(&received, &system).unwrap();
         assert_eq!(back.header.anode_filter, beam);
         let views: Vec<_> = objects.iter().map(|(_, o)| o.clone()).collect();
@@ -630,10 +638,25 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
             "ALUMINUM\\RHODIUM",
         ),
         (
-            Some("MOLYBDENUM"),
+            Some("COPPER"),
             Some("RHODIUM"),
             "AnodeTargetMaterial",
-            "MOLYBDENUM",
+            "COPPER",
+        ),
+        // GE Pristina's Rh/Ag, and pairings no gantry makes: refused
+        // naming the filter and the anode's beams.
+        (Some("RHODIUM"), Some("SILVER"), "FilterMaterial", "SILVER"),
+        (
+            Some("MOLYBDENUM"),
+            Some("ALUMINUM"),
+            "FilterMaterial",
+            "MOLYBDENUM anode",
+        ),
+        (
+            Some("TUNGSTEN"),
+            Some("MOLYBDENUM"),
+            "FilterMaterial",
+            "RHODIUM or ALUMINUM or SILVER",
         ),
     ] {
         let mut r = received.clone();
@@ -686,6 +709,35 @@ fn a_projection_object_reads_back_as_the_same_acquisition() {
             .unwrap_err()
             .to_string();
         assert!(e.contains("FilterMaterial"), "{e}");
+    }
+    // A molybdenum or rhodium anode without a filter: the site's unstated
+    // beam only if it is on that anode, else refused naming both.
+    for (anode, site, ok) in [
+        ("MOLYBDENUM", AnodeFilter::WRh, false),
+        ("MOLYBDENUM", AnodeFilter::MoRh, true),
+        ("RHODIUM", AnodeFilter::MoRh, false),
+        ("RHODIUM", AnodeFilter::RhRh, true),
+    ] {
+        let mut r = received.clone();
+        (r.anode, r.filter) = (Some(anode.into()), None);
+        let site_gantry = Gantry {
+            unstated_beam: Some(site),
+            ..system.clone()
+        };
+        match acquisition_from_projections(&r, &site_gantry) {
+            Ok(got) => {
+                assert!(ok, "{anode} with {site}");
+                assert_eq!(got.header.anode_filter, site);
+            }
+            Err(e) => {
+                let e = e.to_string();
+                assert!(!ok, "{anode} with {site}: {e}");
+                assert!(
+                    e.contains("FilterMaterial") && e.contains(site.name()) && e.contains(anode),
+                    "{e}"
+                );
+            }
+        }
     }
 }
 

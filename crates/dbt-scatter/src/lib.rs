@@ -234,13 +234,25 @@ pub const SHIPPED_W_AL_JSON: &str = include_str!("../data/w-al-paper.json");
 /// exposure, 200 um CsI): `data/w-ag-paper.json`, made by `dbt-dose
 /// scatter-fit --anode-filter W/Ag`.
 pub const SHIPPED_W_AG_JSON: &str = include_str!("../data/w-ag-paper.json");
+/// The shipped tables of the molybdenum- and rhodium-anode beams (paper
+/// geometry, each beam's simulated automatic exposure, 200 um CsI):
+/// `data/mo-mo-paper.json`, `data/mo-rh-paper.json`, `data/rh-rh-paper.json`,
+/// made by `dbt-dose scatter-fit --anode-filter Mo/Mo` (`Mo/Rh`, `Rh/Rh`).
+pub const SHIPPED_MO_MO_JSON: &str = include_str!("../data/mo-mo-paper.json");
+/// See [`SHIPPED_MO_MO_JSON`].
+pub const SHIPPED_MO_RH_JSON: &str = include_str!("../data/mo-rh-paper.json");
+/// See [`SHIPPED_MO_MO_JSON`].
+pub const SHIPPED_RH_RH_JSON: &str = include_str!("../data/rh-rh-paper.json");
 
 /// Each beam's shipped table, by the name the gantry's anode/filter
 /// register gives the beam.
-pub const SHIPPED_TABLES: [(&str, &str); 3] = [
+pub const SHIPPED_TABLES: [(&str, &str); 6] = [
     ("W/Rh", SHIPPED_JSON),
     ("W/Al", SHIPPED_W_AL_JSON),
     ("W/Ag", SHIPPED_W_AG_JSON),
+    ("Mo/Mo", SHIPPED_MO_MO_JSON),
+    ("Mo/Rh", SHIPPED_MO_RH_JSON),
+    ("Rh/Rh", SHIPPED_RH_RH_JSON),
 ];
 
 impl ScatterTable {

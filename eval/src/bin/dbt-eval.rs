@@ -385,8 +385,9 @@ struct PhysicsArgs {
     /// expects the scatter beside the breast above the flat field.
     #[arg(long)]
     uncorrected: bool,
-    /// The beam: `W/Rh` (the paper's Table 3 kV for each thickness) or
-    /// `W/Al` (`dbt_dose::xray::W_AL_AEC`); the acquisition's header carries
+    /// The beam: `W/Rh` (the paper's Table 3 kV for each thickness), or
+    /// another of `dbt_dose::xray::AnodeFilter::ALL` at its automatic
+    /// exposure (`AnodeFilter::aec_kv`); the acquisition's header carries
     /// it to the corrections and the dose.
     #[arg(long, default_value = "W/Rh")]
     anode_filter: String,
