@@ -913,6 +913,12 @@ mod tests {
             assert!(kvs.windows(2).all(|w| w[0] <= w[1]), "{af}: {kvs:?}");
             assert!(kvs.iter().all(|kv| (25..=32).contains(kv)), "{af}: {kvs:?}");
         }
+        // Each beam reads its own row of the table.
+        for (af, rows) in MO_RH_ANODE_AEC {
+            for (t, kv) in rows {
+                assert_eq!(af.aec_kv(t), kv, "{af} {t} mm");
+            }
+        }
         assert!(unfiltered(Anode::Mo, 41)
             .unwrap_err()
             .to_string()
