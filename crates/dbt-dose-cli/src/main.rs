@@ -513,10 +513,7 @@ fn spectrum_description(af: AnodeFilter) -> String {
             "{af}: SpekPy's {}-anode spectra through {:.1} um {} (dbt_dose::xray::hvl_solved_filter_mm: solved for EUREF's typical HVL, MO_RH_ANODE_HVL) at the kV of dbt_dose::xray::MO_RH_ANODE_AEC for each thickness (our choice)",
             af.anode().symbol(),
             dbt_dose::xray::hvl_solved_filter_mm(af).map_or(f64::NAN, |mm| 1000.0 * mm),
-            match af.filter_metal() {
-                dbt_dose::xray::FilterMetal::Mo => "Mo",
-                _ => "Rh",
-            }
+            af.filter_metal().symbol()
         ),
     }
 }

@@ -193,6 +193,18 @@ pub enum FilterMetal {
     Mo,
 }
 
+impl FilterMetal {
+    /// The element's symbol.
+    pub fn symbol(self) -> &'static str {
+        match self {
+            FilterMetal::Rh => "Rh",
+            FilterMetal::Al => "Al",
+            FilterMetal::Ag => "Ag",
+            FilterMetal::Mo => "Mo",
+        }
+    }
+}
+
 /// The anode/filter combinations the product has spectra for, named as the
 /// gantry's register 6 names them (GANTRY_INTERFACE.md): another
 /// combination (Rh/Ag, W/Mo: no measured HVL to solve its filter for) is
@@ -550,8 +562,7 @@ pub fn technique_spectrum(
     let kv = kv as u32;
     match af {
         AnodeFilter::WAl => return filtered(af, kv, W_AL_FILTER_MM),
-        AnodeFilter::WAg => return filtered(af, kv, w_ag_filter_mm()?),
-        AnodeFilter::MoMo | AnodeFilter::MoRh | AnodeFilter::RhRh => {
+        AnodeFilter::WAg | AnodeFilter::MoMo | AnodeFilter::MoRh | AnodeFilter::RhRh => {
             return filtered(af, kv, hvl_solved_filter_mm(af)?)
         }
         AnodeFilter::WRh => {}
@@ -565,34 +576,34 @@ pub fn technique_spectrum(
     filtered(AnodeFilter::WRh, kv, rh)
 }
 
-/// The silver of the W/Ag beam, mm: solved once for the first pair of
-/// [`W_AG_HVL`].
+/// The silver of the W/Ag beam, mm: [`hvl_solved_filter_mm`] of W/Ag.
 pub fn w_ag_filter_mm() -> Result<f64, DoseError> {
-    static MM: std::sync::OnceLock<Result<f64, String>> = std::sync::OnceLock::new();
-    MM.get_or_init(|| {
-        let (kv, hvl) = W_AG_HVL[0];
-        Filters::new()
-            .and_then(|f| f.solve(AnodeFilter::WAg, kv, hvl))
-            .map_err(|e| e.to_string())
-    })
-    .clone()
-    .map_err(DoseError::Spectrum)
+    hvl_solved_filter_mm(AnodeFilter::WAg)
 }
 
-/// The filter of a molybdenum- or rhodium-anode beam, mm: solved once
-/// for the first pair of its [`MO_RH_ANODE_HVL`] row. Another beam is
-/// refused naming it (its filter is not solved this way).
+/// The filter of a beam solved for one stated first HVL, mm: solved once
+/// for the first pair of W/Ag's [`W_AG_HVL`] or of the molybdenum and
+/// rhodium anodes' [`MO_RH_ANODE_HVL`] row. Another beam is refused naming
+/// it (W/Rh's rhodium is solved per Table 3 row, W/Al's aluminium is
+/// nominal).
 pub fn hvl_solved_filter_mm(af: AnodeFilter) -> Result<f64, DoseError> {
     type Solved = std::sync::OnceLock<Result<f64, String>>;
     static MM: [Solved; AnodeFilter::ALL.len()] = [const { Solved::new() }; AnodeFilter::ALL.len()];
-    let Some((_, hvls)) = MO_RH_ANODE_HVL.iter().find(|(a, _)| *a == af) else {
+    let first = if af == AnodeFilter::WAg {
+        Some(W_AG_HVL[0])
+    } else {
+        MO_RH_ANODE_HVL
+            .iter()
+            .find(|(a, _)| *a == af)
+            .map(|(_, hvls)| hvls[0])
+    };
+    let Some((kv, hvl)) = first else {
         return Err(DoseError::Spectrum(format!(
-            "{af}: its filter is not solved for a typical HVL"
+            "{af}: its filter is not solved for a stated HVL"
         )));
     };
     MM[af.index()]
         .get_or_init(|| {
-            let (kv, hvl) = hvls[0];
             Filters::new()
                 .and_then(|f| f.solve(af, kv, hvl))
                 .map_err(|e| e.to_string())
@@ -757,13 +768,7 @@ mod tests {
         for a in AnodeFilter::ALL {
             let (anode, filter) = a.name().split_once('/').unwrap();
             assert_eq!(a.anode().symbol(), anode);
-            let metal = match a.filter_metal() {
-                FilterMetal::Rh => "Rh",
-                FilterMetal::Al => "Al",
-                FilterMetal::Ag => "Ag",
-                FilterMetal::Mo => "Mo",
-            };
-            assert_eq!(metal, filter);
+            assert_eq!(a.filter_metal().symbol(), filter);
         }
     }
 
