@@ -62,10 +62,77 @@ pub struct Case {
     /// Glandular fraction by depth from the chest wall (bands of
     /// [`DEPTH_BAND_MM`]), truth against the classified reconstruction.
     pub by_depth: Vec<DepthBand>,
+    /// Fibroglandular volume by height above the breast support (bands of
+    /// [`HEIGHT_BAND_MM`]), truth against the classified reconstruction:
+    /// where the gland lies along the beam sets the patient MGD (the dose
+    /// falls from the entrance surface at the top to the support).
+    pub by_height: Vec<HeightBand>,
 }
 
 /// Width of the depth bands of [`Case::by_depth`], mm.
 pub const DEPTH_BAND_MM: f64 = 20.0;
+
+/// Width of the height bands of [`Case::by_height`], mm.
+pub const HEIGHT_BAND_MM: f64 = 10.0;
+
+/// One band of height above the breast support: the fibroglandular volume
+/// (Cooper's ligaments included, skin excluded) and the volume of the
+/// adipose and fibroglandular voxels, in the truth's labels and in the
+/// classified reconstruction's, cm^3.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct HeightBand {
+    /// Band start, mm above the support.
+    pub from_mm: f64,
+    /// Band end, mm.
+    pub to_mm: f64,
+    /// True fibroglandular volume, cm^3.
+    pub gland_true_cm3: f64,
+    /// Reconstructed fibroglandular volume, cm^3.
+    pub gland_recon_cm3: f64,
+    /// True adipose + fibroglandular volume, cm^3.
+    pub tissue_true_cm3: f64,
+    /// Reconstructed adipose + fibroglandular volume, cm^3.
+    pub tissue_recon_cm3: f64,
+}
+
+/// The fibroglandular and the adipose + fibroglandular volumes (cm^3) of
+/// `labels` (dims `[lateral, vertical, depth]`, vertical index 0 on the
+/// support, cubic voxels of `voxel_mm`) in bands of `band_mm` of height,
+/// `bands` of them (a voxel in the band of its centre; voxels above the
+/// last band ignored).
+pub fn gland_by_height(
+    labels: &[u8],
+    dims: [usize; 3],
+    voxel_mm: f64,
+    band_mm: f64,
+    bands: usize,
+) -> Vec<(f64, f64)> {
+    let [nx, ny, _] = dims;
+    let cm3 = voxel_mm.powi(3) / 1000.0;
+    let mut counts = vec![(0usize, 0usize); bands];
+    if nx == 0 || ny == 0 {
+        return vec![(0.0, 0.0); bands];
+    }
+    for (row, line) in labels.chunks_exact(nx).enumerate() {
+        let v = row % ny;
+        let b = (((v as f64 + 0.5) * voxel_mm) / band_mm) as usize;
+        let Some(c) = counts.get_mut(b) else { continue };
+        for &l in line {
+            match l {
+                1 => c.1 += 1,
+                3 | 4 => {
+                    c.0 += 1;
+                    c.1 += 1;
+                }
+                _ => {}
+            }
+        }
+    }
+    counts
+        .into_iter()
+        .map(|(g, t)| (g as f64 * cm3, t as f64 * cm3))
+        .collect()
+}
 
 /// One band of depth from the chest wall: the fibroglandular share of the
 /// breast's adipose and fibroglandular voxels (skin excluded; Cooper's
@@ -351,6 +418,37 @@ pub fn run_cases_on(
                     })
                     .collect()
             },
+            by_height: {
+                let height_mm =
+                    (vol.dims()[1] as f64 * vol.voxel_mm()).max(res.dims[1] as f64 * res.voxel_mm);
+                let bands = (height_mm / HEIGHT_BAND_MM).ceil() as usize;
+                let t = gland_by_height(
+                    vol.labels(),
+                    vol.dims(),
+                    vol.voxel_mm(),
+                    HEIGHT_BAND_MM,
+                    bands,
+                );
+                let r = gland_by_height(
+                    &res.classification.labels,
+                    res.dims,
+                    res.voxel_mm,
+                    HEIGHT_BAND_MM,
+                    bands,
+                );
+                t.into_iter()
+                    .zip(r)
+                    .enumerate()
+                    .map(|(k, (t, r))| HeightBand {
+                        from_mm: k as f64 * HEIGHT_BAND_MM,
+                        to_mm: (k + 1) as f64 * HEIGHT_BAND_MM,
+                        gland_true_cm3: t.0,
+                        gland_recon_cm3: r.0,
+                        tissue_true_cm3: t.1,
+                        tissue_recon_cm3: r.1,
+                    })
+                    .collect()
+            },
         });
     }
     Ok(cases)
@@ -630,6 +728,35 @@ mod tests {
         assert_eq!(g, vec![Some(2.0 / 3.0), None, Some(0.5)]);
         let g = gland_by_depth(&labels, [2, 1, 5], 10.0, 30.0, 2);
         assert_eq!(g, vec![Some(2.0 / 3.0), Some(0.5)]);
+    }
+
+    /// Height bands: rows fall in the band of their centre (vertical index
+    /// 0 on the support, whatever the depth slice); skin and air count in
+    /// neither volume; rows above the last band are ignored.
+    #[test]
+    fn gland_by_height_counts_per_band() {
+        // 2 lateral x 3 vertical x 2 depth voxels of 10 mm (1 cm^3 each).
+        #[rustfmt::skip]
+        let labels = [
+            3, 1, // depth 0, height 0-10 mm
+            4, 2, //          10-20
+            0, 3, //          20-30
+            1, 1, // depth 1, 0-10
+            3, 0, //          10-20
+            3, 3, //          20-30
+        ];
+        let g = gland_by_height(&labels, [2, 3, 2], 10.0, 20.0, 2);
+        assert_eq!(g, vec![(3.0, 6.0), (3.0, 3.0)]);
+        let g = gland_by_height(&labels, [2, 3, 2], 10.0, 10.0, 2);
+        assert_eq!(
+            g,
+            vec![(1.0, 4.0), (2.0, 2.0)],
+            "the top row is beyond the bands"
+        );
+        assert_eq!(
+            gland_by_height(&labels, [0, 3, 2], 10.0, 10.0, 1),
+            vec![(0.0, 0.0)]
+        );
     }
 
     /// Several reconstructors on one acquisition share its truth: the same

@@ -11,7 +11,7 @@
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
-use dbt_bench::{f32_bytes, median_ms};
+use dbt_bench::{f32_bytes, median_ms, spread_ms};
 use dbt_geometry::Geometry;
 use dbt_projector::{dot, Kernel, Projector};
 use rand::{Rng, SeedableRng};
@@ -81,12 +81,13 @@ fn main() -> Result<()> {
     let mut sino = vec![0.0f32; proj.range_len()];
     let mut back = vec![0.0f32; proj.domain_len()];
 
-    let fwd_ms = median_ms(args.warmup, args.reps, || {
+    let fwd = spread_ms(args.warmup, args.reps, || {
         let _ = fast.forward(&img, &mut sino);
     });
-    let adj_ms = median_ms(args.warmup, args.reps, || {
+    let adj = spread_ms(args.warmup, args.reps, || {
         let _ = fast.adjoint(&sino_in, &mut back);
     });
+    let (fwd_ms, adj_ms) = (fwd.median, adj.median);
     let (afwd_ms, aadj_ms) = if avx2.kernel() == Kernel::Avx2 && fast.kernel() != Kernel::Avx2 {
         (
             median_ms(args.warmup, args.reps, || {
@@ -142,6 +143,12 @@ fn main() -> Result<()> {
         format!("ours, {:?}, {threads} threads", fast.kernel()),
         fwd_ms,
         adj_ms
+    );
+    println!(
+        "{:<34} {:>10} {:>10}",
+        "  (its p10-p90 over the repetitions)",
+        format!("{:.2}-{:.2}", fwd.p10, fwd.p90),
+        format!("{:.2}-{:.2}", adj.p10, adj.p90)
     );
     if afwd_ms.is_finite() {
         println!(
@@ -210,6 +217,8 @@ fn main() -> Result<()> {
         "reps": args.reps,
         "forward_ms": fwd_ms,
         "adjoint_ms": adj_ms,
+        "forward_p10_p90_ms": [fwd.p10, fwd.p90],
+        "adjoint_p10_p90_ms": [adj.p10, adj.p90],
         "avx2_forced_forward_ms": if afwd_ms.is_finite() { json!(afwd_ms) } else { Value::Null },
         "avx2_forced_adjoint_ms": if aadj_ms.is_finite() { json!(aadj_ms) } else { Value::Null },
         "cpu": dbt_cli::cpu_summary(),

@@ -269,6 +269,10 @@ struct PairedArgs {
     /// Write the table and the cases here as JSON.
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Also print this case's (the reference run's index) fibroglandular
+    /// volume by height above the support in both runs, beside the truth's.
+    #[arg(long)]
+    case: Option<usize>,
 }
 
 /// The options of `dbt-eval baselines`.
@@ -2792,9 +2796,19 @@ fn run_paired(args: PairedArgs) -> Result<()> {
             .with_context(|| format!("{}: no cases", which.display()))
     };
     let (ca, cb) = (cases(&a, &args.reference)?, cases(&b, &args.compared)?);
+    // The same network and precision; the calibration (the bracket after
+    // the name) may differ, as with and without noise matching.
+    let model = |v: &serde_json::Value| {
+        let name = v["reconstructors"][0]["reconstructor"]
+            .as_str()
+            .unwrap_or_default();
+        name.split(" [").next().unwrap_or_default().to_string()
+    };
     anyhow::ensure!(
-        a["reconstructors"][0]["reconstructor"] == b["reconstructors"][0]["reconstructor"],
-        "the two runs used different reconstructors"
+        model(&a) == model(&b),
+        "the two runs used different reconstructors: {} and {}",
+        model(&a),
+        model(&b)
     );
     let num = |c: &serde_json::Value, k: &str| -> Result<f64> {
         c[k].as_f64().with_context(|| format!("case without {k}"))
@@ -2904,8 +2918,78 @@ fn run_paired(args: PairedArgs) -> Result<()> {
             );
         }
     }
+    // The fibroglandular volume by height above the support (runs that
+    // recorded it): per band, the mean over the cases of reconstruction -
+    // truth, cm^3, in each run.
+    let height = height_bands(&ca, &cb);
+    if !height.is_empty() {
+        println!("\nFibroglandular volume by height above the support, classified reconstruction - truth (cm^3, mean over the cases):");
+        println!("| height (mm) | cases | reference | compared |\n|---|---|---|---|");
+        for h in &height {
+            println!(
+                "| {:.0}-{:.0} | {} | {:+.2} | {:+.2} |",
+                h.0, h.1, h.2, h.3, h.4
+            );
+        }
+    }
+    if let Some(k) = args.case {
+        let x = ca
+            .get(k)
+            .with_context(|| format!("--case {k}: the reference run has {} cases", ca.len()))?;
+        let name = x["phantom"].as_str().unwrap_or_default();
+        let y = cb
+            .iter()
+            .find(|y| y["phantom"].as_str() == Some(name))
+            .with_context(|| format!("phantom {name} is not in {}", args.compared.display()))?;
+        let empty = Vec::new();
+        let (bx, by) = (
+            x["by_height"].as_array().unwrap_or(&empty),
+            y["by_height"].as_array().unwrap_or(&empty),
+        );
+        anyhow::ensure!(
+            !bx.is_empty() && bx.len() == by.len(),
+            "case {k} ({name}): no fibroglandular volume by height in both runs (accuracy.json before it was recorded?)"
+        );
+        let f = |v: &serde_json::Value, key: &str| v[key].as_f64().unwrap_or(f64::NAN);
+        println!(
+            "\n{name}, {:.1} mm, {:.1} % glandular: fibroglandular volume by height above the support (cm^3)",
+            f(x, "thickness_mm"),
+            100.0 * f(x, "g_true")
+        );
+        println!("| height (mm) | truth | reference | compared |\n|---|---|---|---|");
+        let mut sums = [0.0f64; 3];
+        for (p, q) in bx.iter().zip(by) {
+            if f(p, "tissue_true_cm3") > 0.0 || f(p, "tissue_recon_cm3") > 0.0 {
+                let v = [
+                    f(p, "gland_true_cm3"),
+                    f(p, "gland_recon_cm3"),
+                    f(q, "gland_recon_cm3"),
+                ];
+                for (s, v) in sums.iter_mut().zip(v) {
+                    *s += v;
+                }
+                println!(
+                    "| {:.0}-{:.0} | {:.1} | {:.1} | {:.1} |",
+                    f(p, "from_mm"),
+                    f(p, "to_mm"),
+                    v[0],
+                    v[1],
+                    v[2]
+                );
+            }
+        }
+        println!("| all | {:.1} | {:.1} | {:.1} |", sums[0], sums[1], sums[2]);
+        for (run, c) in [("reference", x), ("compared", y)] {
+            println!(
+                "{run}: glandularity by labels {:+.2} pp, patient MGD {:+.1} % against the truth",
+                100.0 * (f(c, "g_labels") - f(c, "g_true")),
+                100.0 * (f(c, "mgd_est") / f(c, "mgd_true") - 1.0)
+            );
+        }
+    }
     if let Some(out) = args.out {
         let json = serde_json::json!({
+            "by_height": height.iter().map(|h| serde_json::json!({"from_mm": h.0, "to_mm": h.1, "n": h.2, "reference_excess_cm3": h.3, "compared_excess_cm3": h.4})).collect::<Vec<_>>(),
             "by_depth": depth,
             "reference": args.reference.display().to_string(),
             "compared": args.compared.display().to_string(),
@@ -2917,10 +3001,80 @@ fn run_paired(args: PairedArgs) -> Result<()> {
     Ok(())
 }
 
+/// Per height band of both runs' cases (matched by phantom; cases without
+/// `by_height` left out): `(from_mm, to_mm, cases, reference, compared)`,
+/// the last two the mean over the cases of the reconstruction's
+/// fibroglandular volume less the truth's, cm^3.
+fn height_bands(
+    ca: &[serde_json::Value],
+    cb: &[serde_json::Value],
+) -> Vec<(f64, f64, usize, f64, f64)> {
+    let mut bands: Vec<(f64, f64, usize, f64, f64)> = Vec::new();
+    for x in ca {
+        let name = x["phantom"].as_str().unwrap_or_default();
+        let Some(y) = cb.iter().find(|y| y["phantom"].as_str() == Some(name)) else {
+            continue;
+        };
+        let (Some(bx), Some(by)) = (x["by_height"].as_array(), y["by_height"].as_array()) else {
+            continue;
+        };
+        for (k, (p, q)) in bx.iter().zip(by).enumerate() {
+            let f = |v: &serde_json::Value, key: &str| v[key].as_f64();
+            if let (Some(a), Some(b), Some(tp), Some(rp), Some(tq), Some(rq)) = (
+                f(p, "from_mm"),
+                f(p, "to_mm"),
+                f(p, "gland_true_cm3"),
+                f(p, "gland_recon_cm3"),
+                f(q, "gland_true_cm3"),
+                f(q, "gland_recon_cm3"),
+            ) {
+                if bands.len() <= k {
+                    bands.resize(k + 1, (0.0, 0.0, 0, 0.0, 0.0));
+                }
+                let band = &mut bands[k];
+                (band.0, band.1) = (a, b);
+                band.2 += 1;
+                band.3 += rp - tp;
+                band.4 += rq - tq;
+            }
+        }
+    }
+    bands
+        .into_iter()
+        .filter(|b| b.2 > 0)
+        .map(|(a, b, n, r, c)| (a, b, n, r / n as f64, c / n as f64))
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use dbt_tissue::{ClassifyOptions, SkinRule};
+
+    /// The height bands average each band's excess over the matched cases;
+    /// a case missing from the compared run or without bands is left out.
+    #[test]
+    fn height_bands_average_the_matched_cases() {
+        let case = |name: &str, bands: &[(f64, f64)]| {
+            serde_json::json!({"phantom": name, "by_height": bands.iter().enumerate().map(|(k, (t, r))| serde_json::json!({
+                "from_mm": 10.0 * k as f64, "to_mm": 10.0 * (k + 1) as f64,
+                "gland_true_cm3": t, "gland_recon_cm3": r})).collect::<Vec<_>>()})
+        };
+        let a = [
+            case("p0", &[(1.0, 2.0), (3.0, 3.0)]),
+            case("p1", &[(1.0, 4.0)]),
+            case("p2", &[(1.0, 9.0)]),
+            serde_json::json!({"phantom": "p3"}),
+        ];
+        let b = [
+            case("p1", &[(1.0, 1.0)]),
+            case("p0", &[(1.0, 1.0), (3.0, 5.0)]),
+            serde_json::json!({"phantom": "p3"}),
+        ];
+        let h = height_bands(&a, &b);
+        assert_eq!(h, vec![(0.0, 10.0, 2, 2.0, 0.0), (10.0, 20.0, 1, 0.0, 2.0)]);
+        assert!(height_bands(&a, &[]).is_empty());
+    }
 
     /// Every skin variant's spelling reads as the rule it names, the fat
     /// band only under a bounded skin, and a bad one is refused naming it.
