@@ -150,6 +150,32 @@ pub struct DepthBand {
     pub g_recon: Option<f64>,
 }
 
+/// Labels with their dims and cubic voxel size, mm.
+type Labelled<'a> = (&'a [u8], [usize; 3], f64);
+
+/// A band statistic: `(labels, dims, voxel_mm, band_mm, bands)` to one
+/// value per band.
+type BandStat<T> = fn(&[u8], [usize; 3], f64, f64, usize) -> Vec<T>;
+
+/// One band statistic `f(labels, dims, voxel_mm, band_mm, bands)` of the
+/// truth and of the reconstruction, band by band: `(from_mm, to_mm, truth,
+/// reconstruction)`.
+fn banded<T>(
+    truth: Labelled,
+    recon: Labelled,
+    band_mm: f64,
+    bands: usize,
+    f: BandStat<T>,
+) -> Vec<(f64, f64, T, T)> {
+    let t = f(truth.0, truth.1, truth.2, band_mm, bands);
+    let r = f(recon.0, recon.1, recon.2, band_mm, bands);
+    t.into_iter()
+        .zip(r)
+        .enumerate()
+        .map(|(k, (t, r))| (k as f64 * band_mm, (k + 1) as f64 * band_mm, t, r))
+        .collect()
+}
+
 /// The fibroglandular volume fraction of `labels` (dims `[lateral,
 /// vertical, depth]`, voxels `voxel_mm` deep) in bands of `band_mm` from the
 /// chest wall (depth index 0), `bands` of them.
@@ -368,6 +394,10 @@ pub fn run_cases_on(
                 m
             }
         };
+        // Labels, dims and voxel size of the truth and of the classified
+        // reconstruction, for the band statistics.
+        let truth_labels = (vol.labels(), vol.dims(), vol.voxel_mm());
+        let recon_labels = (&res.classification.labels[..], res.dims, res.voxel_mm);
         cases.push(Case {
             phantom: name.clone(),
             thickness_mm: vol.thickness_mm(),
@@ -393,61 +423,43 @@ pub fn run_cases_on(
             by_depth: {
                 let depth_mm = vol.n_coronal() as f64 * vol.voxel_mm();
                 let bands = (depth_mm / DEPTH_BAND_MM).ceil() as usize;
-                let t = gland_by_depth(
-                    vol.labels(),
-                    vol.dims(),
-                    vol.voxel_mm(),
+                banded(
+                    truth_labels,
+                    recon_labels,
                     DEPTH_BAND_MM,
                     bands,
-                );
-                let r = gland_by_depth(
-                    &res.classification.labels,
-                    res.dims,
-                    res.voxel_mm,
-                    DEPTH_BAND_MM,
-                    bands,
-                );
-                t.into_iter()
-                    .zip(r)
-                    .enumerate()
-                    .map(|(k, (g_true, g_recon))| DepthBand {
-                        from_mm: k as f64 * DEPTH_BAND_MM,
-                        to_mm: (k + 1) as f64 * DEPTH_BAND_MM,
-                        g_true,
-                        g_recon,
-                    })
-                    .collect()
+                    gland_by_depth,
+                )
+                .into_iter()
+                .map(|(from_mm, to_mm, g_true, g_recon)| DepthBand {
+                    from_mm,
+                    to_mm,
+                    g_true,
+                    g_recon,
+                })
+                .collect()
             },
             by_height: {
                 let height_mm =
                     (vol.dims()[1] as f64 * vol.voxel_mm()).max(res.dims[1] as f64 * res.voxel_mm);
                 let bands = (height_mm / HEIGHT_BAND_MM).ceil() as usize;
-                let t = gland_by_height(
-                    vol.labels(),
-                    vol.dims(),
-                    vol.voxel_mm(),
+                banded(
+                    truth_labels,
+                    recon_labels,
                     HEIGHT_BAND_MM,
                     bands,
-                );
-                let r = gland_by_height(
-                    &res.classification.labels,
-                    res.dims,
-                    res.voxel_mm,
-                    HEIGHT_BAND_MM,
-                    bands,
-                );
-                t.into_iter()
-                    .zip(r)
-                    .enumerate()
-                    .map(|(k, (t, r))| HeightBand {
-                        from_mm: k as f64 * HEIGHT_BAND_MM,
-                        to_mm: (k + 1) as f64 * HEIGHT_BAND_MM,
-                        gland_true_cm3: t.0,
-                        gland_recon_cm3: r.0,
-                        tissue_true_cm3: t.1,
-                        tissue_recon_cm3: r.1,
-                    })
-                    .collect()
+                    gland_by_height,
+                )
+                .into_iter()
+                .map(|(from_mm, to_mm, t, r)| HeightBand {
+                    from_mm,
+                    to_mm,
+                    gland_true_cm3: t.0,
+                    gland_recon_cm3: r.0,
+                    tissue_true_cm3: t.1,
+                    tissue_recon_cm3: r.1,
+                })
+                .collect()
             },
         });
     }
