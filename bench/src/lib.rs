@@ -23,13 +23,12 @@ pub struct Spread {
 
 impl Spread {
     /// Of the timings `v` (ms); NaN everywhere when empty.
-    pub fn of(v: Vec<f64>) -> Self {
-        let mut sorted = v.clone();
-        sorted.sort_by(|a, b| a.total_cmp(b));
+    pub fn of(mut v: Vec<f64>) -> Self {
+        v.sort_by(|a, b| a.total_cmp(b));
         Spread {
-            p10: percentile(&sorted, 0.1),
+            p10: percentile(&v, 0.1),
+            p90: percentile(&v, 0.9),
             median: median(v),
-            p90: percentile(&sorted, 0.9),
         }
     }
 }

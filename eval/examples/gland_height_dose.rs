@@ -19,11 +19,10 @@ use anyhow::{ensure, Context, Result};
 use dbt_dose::patient::{mgd_to_uncertainty_on, Breast, DoseGeometry, Model};
 use dbt_dose::xray::{aec_spectrum, AnodeFilter};
 use dbt_eval::accuracy::{split_phantoms, Split};
+use dbt_materials::Tissue;
 use dbt_phantom::PopulationKind;
 
 const BAND_MM: f64 = 10.0;
-const ADIPOSE: u8 = 1;
-const FIBROGLANDULAR: u8 = 3;
 
 fn main() -> Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -89,7 +88,7 @@ fn main() -> Result<()> {
         let idx: Vec<usize> = (0..vol.labels().len())
             .filter(|&i| {
                 let h = ((i / nx) % ny) as f64 * vox + 0.5 * vox;
-                h >= lo && h < lo + BAND_MM && vol.labels()[i] == ADIPOSE
+                h >= lo && h < lo + BAND_MM && vol.labels()[i] == Tissue::Adipose.label()
             })
             .collect();
         let want = (add_cm3 / per_voxel_cm3).round() as usize;
@@ -100,7 +99,7 @@ fn main() -> Result<()> {
         );
         let mut labels = vol.labels().to_vec();
         for j in 0..want {
-            labels[idx[j * idx.len() / want]] = FIBROGLANDULAR;
+            labels[idx[j * idx.len() / want]] = Tissue::Fibroglandular.label();
         }
         let m = mgd(&labels)?;
         println!(

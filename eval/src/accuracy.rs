@@ -8,8 +8,10 @@ use dbt_dose::patient::{mgd_to_uncertainty_on, Breast, Model};
 use dbt_dose::xray::AnodeFilter;
 use dbt_forward::NoiseLevel;
 use dbt_geometry::Geometry;
+use dbt_materials::Tissue;
 use dbt_phantom::{LabelVolume, Population, PopulationKind};
 use dbt_pipeline::{process, PipelineOptions};
+use dbt_tissue::PartialVolumeMass;
 use host_sim::Technique;
 use serde::Serialize;
 
@@ -117,15 +119,9 @@ pub fn gland_by_height(
         let v = row % ny;
         let b = (((v as f64 + 0.5) * voxel_mm) / band_mm) as usize;
         let Some(c) = counts.get_mut(b) else { continue };
-        for &l in line {
-            match l {
-                1 => c.1 += 1,
-                3 | 4 => {
-                    c.0 += 1;
-                    c.1 += 1;
-                }
-                _ => {}
-            }
+        for &l in line.iter().filter(|&&l| PartialVolumeMass::counts(l)) {
+            c.1 += 1;
+            c.0 += usize::from(is_gland(l));
         }
     }
     counts
@@ -148,6 +144,12 @@ pub struct DepthBand {
     pub g_true: Option<f64>,
     /// Reconstructed fibroglandular volume fraction.
     pub g_recon: Option<f64>,
+}
+
+/// Whether a voxel of label `label` is fibroglandular for glandularity and
+/// dose (ligaments included: [`Tissue::is_glandular`]).
+fn is_gland(label: u8) -> bool {
+    Tissue::from_label(label).is_ok_and(Tissue::is_glandular)
 }
 
 /// Labels with their dims and cubic voxel size, mm.
@@ -191,17 +193,15 @@ pub fn gland_by_depth(
     for d in 0..dims[2] {
         let b = (((d as f64 + 0.5) * voxel_mm) / band_mm) as usize;
         let Some(c) = counts.get_mut(b) else { break };
-        for &l in labels.get(d * plane..(d + 1) * plane).unwrap_or(&[]) {
-            match l {
-                1 => c.1 += 1,
-                3 | 4 => c.0 += 1,
-                _ => {}
-            }
+        let slice = labels.get(d * plane..(d + 1) * plane).unwrap_or(&[]);
+        for &l in slice.iter().filter(|&&l| PartialVolumeMass::counts(l)) {
+            c.1 += 1;
+            c.0 += usize::from(is_gland(l));
         }
     }
     counts
         .into_iter()
-        .map(|(g, a)| (g + a > 0).then(|| g as f64 / (g + a) as f64))
+        .map(|(g, t)| (t > 0).then(|| g as f64 / t as f64))
         .collect()
 }
 

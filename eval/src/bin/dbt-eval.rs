@@ -2813,12 +2813,11 @@ fn run_paired(args: PairedArgs) -> Result<()> {
     let num = |c: &serde_json::Value, k: &str| -> Result<f64> {
         c[k].as_f64().with_context(|| format!("case without {k}"))
     };
+    let pairs = matched_cases(&ca, &cb)
+        .map_err(|name| anyhow::anyhow!("phantom {name} is not in {}", args.compared.display()))?;
     let mut rows: Vec<Row> = Vec::new();
-    for x in &ca {
+    for &(x, y) in &pairs {
         let name = x["phantom"].as_str().unwrap_or_default();
-        let Some(y) = cb.iter().find(|y| y["phantom"].as_str() == Some(name)) else {
-            anyhow::bail!("phantom {name} is not in {}", args.compared.display());
-        };
         let dg = 100.0 * (num(y, "g_reported")? - num(x, "g_reported")?);
         let dm = 100.0 * (num(y, "mgd_est")? / num(x, "mgd_est")? - 1.0);
         let eg = 100.0 * (num(y, "g_reported")? - num(y, "g_true")?);
@@ -2860,11 +2859,7 @@ fn run_paired(args: PairedArgs) -> Result<()> {
     // Per band: its range (mm) and each case's (reference, compared) error.
     type Band = (f64, f64, Vec<(f64, f64)>);
     let mut bands: Vec<Band> = Vec::new();
-    for x in &ca {
-        let name = x["phantom"].as_str().unwrap_or_default();
-        let Some(y) = cb.iter().find(|y| y["phantom"].as_str() == Some(name)) else {
-            continue;
-        };
+    for &(x, y) in &pairs {
         let empty = Vec::new();
         let (bx, by) = (
             x["by_depth"].as_array().unwrap_or(&empty),
@@ -2921,7 +2916,7 @@ fn run_paired(args: PairedArgs) -> Result<()> {
     // The fibroglandular volume by height above the support (runs that
     // recorded it): per band, the mean over the cases of reconstruction -
     // truth, cm^3, in each run.
-    let height = height_bands(&ca, &cb);
+    let height = height_bands(&pairs);
     if !height.is_empty() {
         println!("\nFibroglandular volume by height above the support, classified reconstruction - truth (cm^3, mean over the cases):");
         println!("| height (mm) | cases | reference | compared |\n|---|---|---|---|");
@@ -2933,14 +2928,10 @@ fn run_paired(args: PairedArgs) -> Result<()> {
         }
     }
     if let Some(k) = args.case {
-        let x = ca
+        let &(x, y) = pairs
             .get(k)
             .with_context(|| format!("--case {k}: the reference run has {} cases", ca.len()))?;
         let name = x["phantom"].as_str().unwrap_or_default();
-        let y = cb
-            .iter()
-            .find(|y| y["phantom"].as_str() == Some(name))
-            .with_context(|| format!("phantom {name} is not in {}", args.compared.display()))?;
         let empty = Vec::new();
         let (bx, by) = (
             x["by_height"].as_array().unwrap_or(&empty),
@@ -3001,20 +2992,32 @@ fn run_paired(args: PairedArgs) -> Result<()> {
     Ok(())
 }
 
-/// Per height band of both runs' cases (matched by phantom; cases without
-/// `by_height` left out): `(from_mm, to_mm, cases, reference, compared)`,
-/// the last two the mean over the cases of the reconstruction's
-/// fibroglandular volume less the truth's, cm^3.
+/// Each reference case (in its order) with the compared run's case of the
+/// same phantom; `Err` names the first phantom the compared run lacks.
+fn matched_cases<'a>(
+    ca: &'a [serde_json::Value],
+    cb: &'a [serde_json::Value],
+) -> Result<Vec<(&'a serde_json::Value, &'a serde_json::Value)>, String> {
+    ca.iter()
+        .map(|x| {
+            let name = x["phantom"].as_str().unwrap_or_default();
+            cb.iter()
+                .find(|y| y["phantom"].as_str() == Some(name))
+                .map(|y| (x, y))
+                .ok_or_else(|| name.to_string())
+        })
+        .collect()
+}
+
+/// Per height band of matched cases (cases without `by_height` left out):
+/// `(from_mm, to_mm, cases, reference, compared)`, the last two the mean
+/// over the cases of the reconstruction's fibroglandular volume less the
+/// truth's, cm^3.
 fn height_bands(
-    ca: &[serde_json::Value],
-    cb: &[serde_json::Value],
+    pairs: &[(&serde_json::Value, &serde_json::Value)],
 ) -> Vec<(f64, f64, usize, f64, f64)> {
     let mut bands: Vec<(f64, f64, usize, f64, f64)> = Vec::new();
-    for x in ca {
-        let name = x["phantom"].as_str().unwrap_or_default();
-        let Some(y) = cb.iter().find(|y| y["phantom"].as_str() == Some(name)) else {
-            continue;
-        };
+    for &(x, y) in pairs {
         let (Some(bx), Some(by)) = (x["by_height"].as_array(), y["by_height"].as_array()) else {
             continue;
         };
@@ -3052,7 +3055,8 @@ mod tests {
     use dbt_tissue::{ClassifyOptions, SkinRule};
 
     /// The height bands average each band's excess over the matched cases;
-    /// a case missing from the compared run or without bands is left out.
+    /// a case without bands is left out; the matching pairs each reference
+    /// case with its phantom's in the other run and names one it lacks.
     #[test]
     fn height_bands_average_the_matched_cases() {
         let case = |name: &str, bands: &[(f64, f64)]| {
@@ -3071,9 +3075,14 @@ mod tests {
             case("p0", &[(1.0, 1.0), (3.0, 5.0)]),
             serde_json::json!({"phantom": "p3"}),
         ];
-        let h = height_bands(&a, &b);
+        assert_eq!(matched_cases(&a, &b).unwrap_err(), "p2");
+        let (a, b) = ([&a[..2], &a[3..]].concat(), b);
+        let pairs = matched_cases(&a, &b).unwrap();
+        assert_eq!(pairs.len(), 3);
+        assert_eq!(pairs[0].1["phantom"], "p0");
+        let h = height_bands(&pairs);
         assert_eq!(h, vec![(0.0, 10.0, 2, 2.0, 0.0), (10.0, 20.0, 1, 0.0, 2.0)]);
-        assert!(height_bands(&a, &[]).is_empty());
+        assert!(height_bands(&[]).is_empty());
     }
 
     /// Every skin variant's spelling reads as the rule it names, the fat
