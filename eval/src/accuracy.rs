@@ -69,6 +69,51 @@ pub struct Case {
     /// where the gland lies along the beam sets the patient MGD (the dose
     /// falls from the entrance surface at the top to the support).
     pub by_height: Vec<HeightBand>,
+    /// The same volumes in single voxel layers at the two compressed
+    /// surfaces: where the blurred skin and the limited angle put false
+    /// gland (eval/README.md, "Where a fatty breast's dose reads high").
+    pub by_surface: SurfaceLayers,
+}
+
+/// Layers of the reconstruction's voxel at each compressed surface in
+/// [`Case::by_surface`] (8 mm at 0.8 mm voxels).
+pub const SURFACE_LAYERS: usize = 10;
+
+/// The fibroglandular and tissue volumes of single voxel layers (the
+/// reconstruction's voxel) at the breast support and under the paddle (the
+/// compressed thickness), truth against the classified reconstruction.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct SurfaceLayers {
+    /// Layers above the support, the lowest first.
+    pub support: Vec<HeightBand>,
+    /// Layers under the paddle, the highest first.
+    pub paddle: Vec<HeightBand>,
+}
+
+/// One band of height: `(from_mm, to_mm, truth, reconstruction)`, each
+/// `(fibroglandular, adipose + fibroglandular)` cm^3 ([`gland_by_height`]
+/// through [`banded`]).
+pub type VolumeBand = (f64, f64, (f64, f64), (f64, f64));
+
+/// [`SurfaceLayers`] from per-layer bands of height `layers` (one per
+/// voxel row of the compressed thickness, the lowest first; `(from_mm,
+/// to_mm, truth, reconstruction)`, each `(gland, tissue)` cm^3): at most
+/// [`SURFACE_LAYERS`] at each end (fewer in a breast thinner than twice
+/// that, the two ends never sharing a layer).
+pub fn surface_layers(layers: &[VolumeBand]) -> SurfaceLayers {
+    let band = |&(from_mm, to_mm, t, r): &VolumeBand| HeightBand {
+        from_mm,
+        to_mm,
+        gland_true_cm3: t.0,
+        gland_recon_cm3: r.0,
+        tissue_true_cm3: t.1,
+        tissue_recon_cm3: r.1,
+    };
+    let n = SURFACE_LAYERS.min(layers.len() / 2);
+    SurfaceLayers {
+        support: layers[..n].iter().map(band).collect(),
+        paddle: layers[layers.len() - n..].iter().rev().map(band).collect(),
+    }
 }
 
 /// Width of the depth bands of [`Case::by_depth`], mm.
@@ -461,6 +506,17 @@ pub fn run_cases_on(
                 })
                 .collect()
             },
+            by_surface: {
+                // One band per voxel row of the compressed thickness.
+                let rows = (vol.thickness_mm() / res.voxel_mm).round() as usize;
+                surface_layers(&banded(
+                    truth_labels,
+                    recon_labels,
+                    res.voxel_mm,
+                    rows,
+                    gland_by_height,
+                ))
+            },
         });
     }
     Ok(cases)
@@ -769,6 +825,34 @@ mod tests {
             gland_by_height(&labels, [0, 3, 2], 10.0, 10.0, 1),
             vec![(0.0, 0.0)]
         );
+    }
+
+    /// The surface layers are the ends of the per-layer bands, the paddle's
+    /// counted down from the top; a thin breast's ends share no layer.
+    #[test]
+    fn surface_layers_take_each_end() {
+        let layers: Vec<_> = (0..25)
+            .map(|k| {
+                let k = k as f64;
+                (k, k + 1.0, (k, 100.0), (2.0 * k, 100.0 + k))
+            })
+            .collect();
+        let s = surface_layers(&layers);
+        assert_eq!(s.support.len(), SURFACE_LAYERS);
+        assert_eq!(s.paddle.len(), SURFACE_LAYERS);
+        assert_eq!(s.support[0].from_mm, 0.0);
+        assert_eq!(s.support[9].gland_recon_cm3, 18.0);
+        assert_eq!(s.paddle[0].from_mm, 24.0, "the top layer first");
+        assert_eq!(s.paddle[0].gland_true_cm3, 24.0);
+        assert_eq!(s.paddle[0].tissue_recon_cm3, 124.0);
+        assert_eq!(s.paddle[9].to_mm, 16.0);
+        let thin = surface_layers(&layers[..7]);
+        assert_eq!((thin.support.len(), thin.paddle.len()), (3, 3));
+        assert_eq!(
+            thin.paddle[2].from_mm, 4.0,
+            "layer 3 (the middle) in neither"
+        );
+        assert!(surface_layers(&[]).support.is_empty());
     }
 
     /// Several reconstructors on one acquisition share its truth: the same

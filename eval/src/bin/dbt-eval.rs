@@ -2797,12 +2797,16 @@ fn run_paired(args: PairedArgs) -> Result<()> {
     };
     let (ca, cb) = (cases(&a, &args.reference)?, cases(&b, &args.compared)?);
     // The same network and precision; the calibration (the bracket after
-    // the name) may differ, as with and without noise matching.
+    // the name) may differ, as with and without noise matching, or be
+    // absent from one (another classification than the calibration's).
     let model = |v: &serde_json::Value| {
         let name = v["reconstructors"][0]["reconstructor"]
             .as_str()
             .unwrap_or_default();
-        name.split(" [").next().unwrap_or_default().to_string()
+        name.split(" [")
+            .next()
+            .unwrap_or_default()
+            .replace(", calibrated)", ")")
     };
     anyhow::ensure!(
         model(&a) == model(&b),
@@ -2927,6 +2931,19 @@ fn run_paired(args: PairedArgs) -> Result<()> {
             );
         }
     }
+    let surface = surface_bands(&pairs);
+    for (bands, at) in surface
+        .iter()
+        .zip(["above the support", "under the paddle"])
+    {
+        if !bands.is_empty() {
+            println!("\nFibroglandular volume by voxel layer {at}, classified reconstruction - truth (cm^3, mean over the cases):");
+            println!("| layer | cases | reference | compared |\n|---|---|---|---|");
+            for (k, h) in bands.iter().enumerate() {
+                println!("| {} | {} | {:+.3} | {:+.3} |", k + 1, h.2, h.3, h.4);
+            }
+        }
+    }
     if let Some(k) = args.case {
         let &(x, y) = pairs
             .get(k)
@@ -2970,6 +2987,29 @@ fn run_paired(args: PairedArgs) -> Result<()> {
             }
         }
         println!("| all | {:.1} | {:.1} | {:.1} |", sums[0], sums[1], sums[2]);
+        for at in ["support", "paddle"] {
+            let (Some(sx), Some(sy)) = (
+                x["by_surface"][at].as_array(),
+                y["by_surface"][at].as_array(),
+            ) else {
+                continue;
+            };
+            println!("\n{name}: fibroglandular volume by voxel layer at the {at} (cm^3)");
+            println!(
+                "| layer | height (mm) | truth | reference | compared |\n|---|---|---|---|---|"
+            );
+            for (k, (p, q)) in sx.iter().zip(sy).enumerate() {
+                println!(
+                    "| {} | {:.1}-{:.1} | {:.3} | {:.3} | {:.3} |",
+                    k + 1,
+                    f(p, "from_mm"),
+                    f(p, "to_mm"),
+                    f(p, "gland_true_cm3"),
+                    f(p, "gland_recon_cm3"),
+                    f(q, "gland_recon_cm3")
+                );
+            }
+        }
         for (run, c) in [("reference", x), ("compared", y)] {
             println!(
                 "{run}: glandularity by labels {:+.2} pp, patient MGD {:+.1} % against the truth",
@@ -2981,6 +3021,10 @@ fn run_paired(args: PairedArgs) -> Result<()> {
     if let Some(out) = args.out {
         let json = serde_json::json!({
             "by_height": height.iter().map(|h| serde_json::json!({"from_mm": h.0, "to_mm": h.1, "n": h.2, "reference_excess_cm3": h.3, "compared_excess_cm3": h.4})).collect::<Vec<_>>(),
+            "by_surface": {
+                "support": surface[0].iter().enumerate().map(|(k, h)| serde_json::json!({"layer": k + 1, "n": h.2, "reference_excess_cm3": h.3, "compared_excess_cm3": h.4})).collect::<Vec<_>>(),
+                "paddle": surface[1].iter().enumerate().map(|(k, h)| serde_json::json!({"layer": k + 1, "n": h.2, "reference_excess_cm3": h.3, "compared_excess_cm3": h.4})).collect::<Vec<_>>(),
+            },
             "by_depth": depth,
             "reference": args.reference.display().to_string(),
             "compared": args.compared.display().to_string(),
@@ -3009,16 +3053,39 @@ fn matched_cases<'a>(
         .collect()
 }
 
+/// One band's mean excess over matched cases: `(from_mm, to_mm, cases,
+/// reference, compared)` ([`mean_excess`]).
+type Excess = (f64, f64, usize, f64, f64);
+
 /// Per height band of matched cases (cases without `by_height` left out):
 /// `(from_mm, to_mm, cases, reference, compared)`, the last two the mean
 /// over the cases of the reconstruction's fibroglandular volume less the
 /// truth's, cm^3.
-fn height_bands(
+fn height_bands(pairs: &[(&serde_json::Value, &serde_json::Value)]) -> Vec<Excess> {
+    mean_excess(pairs, |c| c["by_height"].as_array())
+}
+
+/// Per voxel layer at the support and under the paddle (`by_surface`;
+/// cases without it left out), as [`height_bands`]: layer `k` is the `k`-th
+/// from its surface in every case (its heights, the first case's, differ
+/// with the thickness under the paddle).
+fn surface_bands(pairs: &[(&serde_json::Value, &serde_json::Value)]) -> [Vec<Excess>; 2] {
+    [
+        mean_excess(pairs, |c| c["by_surface"]["support"].as_array()),
+        mean_excess(pairs, |c| c["by_surface"]["paddle"].as_array()),
+    ]
+}
+
+/// The mean over matched cases, band by band of the array `bands_of` selects
+/// in each case, of the reconstruction's fibroglandular volume less the
+/// truth's: `(from_mm, to_mm, cases, reference, compared)`.
+fn mean_excess(
     pairs: &[(&serde_json::Value, &serde_json::Value)],
-) -> Vec<(f64, f64, usize, f64, f64)> {
-    let mut bands: Vec<(f64, f64, usize, f64, f64)> = Vec::new();
+    bands_of: fn(&serde_json::Value) -> Option<&Vec<serde_json::Value>>,
+) -> Vec<Excess> {
+    let mut bands: Vec<Excess> = Vec::new();
     for &(x, y) in pairs {
-        let (Some(bx), Some(by)) = (x["by_height"].as_array(), y["by_height"].as_array()) else {
+        let (Some(bx), Some(by)) = (bands_of(x), bands_of(y)) else {
             continue;
         };
         for (k, (p, q)) in bx.iter().zip(by).enumerate() {
@@ -3035,7 +3102,9 @@ fn height_bands(
                     bands.resize(k + 1, (0.0, 0.0, 0, 0.0, 0.0));
                 }
                 let band = &mut bands[k];
-                (band.0, band.1) = (a, b);
+                if band.2 == 0 {
+                    (band.0, band.1) = (a, b);
+                }
                 band.2 += 1;
                 band.3 += rp - tp;
                 band.4 += rq - tq;
@@ -3083,6 +3152,27 @@ mod tests {
         let h = height_bands(&pairs);
         assert_eq!(h, vec![(0.0, 10.0, 2, 2.0, 0.0), (10.0, 20.0, 1, 0.0, 2.0)]);
         assert!(height_bands(&[]).is_empty());
+        // The surface layers, by their count from each surface whatever
+        // their heights.
+        let layered = |name: &str, paddle: &[(f64, f64, f64)]| {
+            serde_json::json!({"phantom": name, "by_surface": {"support": [], "paddle": paddle.iter().map(|(from, t, r)| serde_json::json!({
+                "from_mm": from, "to_mm": from + 0.8, "gland_true_cm3": t, "gland_recon_cm3": r})).collect::<Vec<_>>()}})
+        };
+        let a = [
+            layered("p0", &[(40.0, 0.5, 1.5), (39.2, 1.0, 1.0)]),
+            layered("p1", &[(70.4, 0.0, 0.5)]),
+        ];
+        let b = [
+            layered("p0", &[(40.0, 0.5, 0.5), (39.2, 1.0, 2.0)]),
+            layered("p1", &[(70.4, 0.0, 0.0)]),
+        ];
+        let pairs = matched_cases(&a, &b).unwrap();
+        let [support, paddle] = surface_bands(&pairs);
+        assert!(support.is_empty());
+        assert_eq!(
+            paddle,
+            vec![(40.0, 40.8, 2, 0.75, 0.0), (39.2, 40.0, 1, 0.0, 1.0)]
+        );
     }
 
     /// Every skin variant's spelling reads as the rule it names, the fat
