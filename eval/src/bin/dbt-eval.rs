@@ -2796,17 +2796,12 @@ fn run_paired(args: PairedArgs) -> Result<()> {
             .with_context(|| format!("{}: no cases", which.display()))
     };
     let (ca, cb) = (cases(&a, &args.reference)?, cases(&b, &args.compared)?);
-    // The same network and precision; the calibration (the bracket after
-    // the name) may differ, as with and without noise matching, or be
-    // absent from one (another classification than the calibration's).
     let model = |v: &serde_json::Value| {
-        let name = v["reconstructors"][0]["reconstructor"]
-            .as_str()
-            .unwrap_or_default();
-        name.split(" [")
-            .next()
-            .unwrap_or_default()
-            .replace(", calibrated)", ")")
+        network_of(
+            v["reconstructors"][0]["reconstructor"]
+                .as_str()
+                .unwrap_or_default(),
+        )
     };
     anyhow::ensure!(
         model(&a) == model(&b),
@@ -3036,6 +3031,18 @@ fn run_paired(args: PairedArgs) -> Result<()> {
     Ok(())
 }
 
+/// The network and precision of an `accuracy` run's reconstructor name,
+/// which `paired` requires the same in both runs: the calibration (the
+/// bracket after the name) may differ, as with and without noise matching,
+/// or be absent from one (a classification other than the calibration's).
+fn network_of(reconstructor: &str) -> String {
+    reconstructor
+        .split(" [")
+        .next()
+        .unwrap_or_default()
+        .replace(", calibrated)", ")")
+}
+
 /// Each reference case (in its order) with the compared run's case of the
 /// same phantom; `Err` names the first phantom the compared run lacks.
 fn matched_cases<'a>(
@@ -3173,6 +3180,19 @@ mod tests {
             paddle,
             vec![(40.0, 40.8, 2, 0.75, 0.0), (39.2, 40.0, 1, 0.0, 1.0)]
         );
+    }
+
+    /// Runs of one network compare whatever their calibrations; another
+    /// network or precision does not.
+    #[test]
+    fn paired_runs_are_one_network_whatever_the_calibration() {
+        let cal = "DBToR m (int8, fast, calibrated) [G = -0.0257 + 1.0475 x PV]";
+        let other = "DBToR m (int8, fast, calibrated) [G = -0.04 + 1.07 x PV]";
+        let none = "DBToR m (int8, fast)";
+        assert_eq!(network_of(cal), network_of(other));
+        assert_eq!(network_of(cal), network_of(none));
+        assert_ne!(network_of(cal), network_of("DBToR m (fp32, fast)"));
+        assert_ne!(network_of(none), network_of("DBToR n (int8, fast)"));
     }
 
     /// Every skin variant's spelling reads as the rule it names, the fat
