@@ -16,7 +16,9 @@
 # U-Net on FBP run once by the evaluation; and a run kept in the repository
 # continued by one command (continue_run.py: the datasets regenerated into a
 # cache, the compact state saved, restored on "another machine", a segment
-# stopped by SIGTERM, the ledger's lines, a changed dataset refused).
+# stopped by SIGTERM, the ledger's lines, a changed dataset refused). After
+# the first run's export the continued runs and the other models run side
+# by side (two independent halves), the first's output printed at the end.
 # Needs training/requirements.txt installed and
 # the binaries host-sim, dbtor-diag and dbt-eval: from DBTOR_BIN_DIR where
 # scripts/test-all.sh built every binary once, else their release build, made here.
@@ -118,6 +120,15 @@ if $PY -m dbtor.train --data "$tmp/ds" --out "$tmp/from-tampered" --init "$tmp/t
     echo "smoke test: --init from a tampered model folder was accepted"; exit 1
 fi
 grep -q "fp32/dual00.onnx does not match its SHA-256" "$tmp/tampered.log" || { echo "smoke test: the tampered-folder refusal does not name the file"; cat "$tmp/tampered.log"; exit 1; }
+# The rest is two independent halves, run side by side so that each fills
+# the cores the other leaves idle (issue #52 point 7, CI's time): the runs
+# continued by one command (their own runs folder, cache and ledger under
+# $tmp) in the background, its output kept and printed at the end; the
+# other models' trainings and exports (their own folders) in the
+# foreground. Both read the first run and its export above and write
+# nothing the other reads.
+(
+set -euo pipefail
 # A run kept in the repository and continued by one command (issue #49,
 # continue_run.py, state.py, ledger.py), rehearsed in a temporary runs folder,
 # cache and ledger: the recipe (two datasets of one geometry sampled
@@ -197,6 +208,11 @@ grep -q "^adding the FBP" "$tmp/unet.log" && grep -q "stopped at iteration 2 of 
 ds=$(ls -d "$tmp"/cache/datasets/smoke-unet-0-*)
 [ -s "$ds/train/fbp-N8.f32" ] && [ -s "$ds/validation/fbp-N8.f32" ] \
     || { echo "smoke test: the U-Net run's dataset has no FBP"; exit 1; }
+
+) > "$tmp/continued.log" 2>&1 &
+continued=$!
+# A failure in the foreground half stops the background one before $tmp goes.
+trap 'pkill -TERM -P "$continued" 2>/dev/null || true; kill "$continued" 2>/dev/null || true; rm -rf "$tmp"' EXIT
 # Quantisation-aware fine-tuning (2 iterations) and an export of its int8
 # blocks beside the first run's fp32 ones.
 $PY -m dbtor.train --data "$tmp/ds" --out "$tmp/qat-run" --init "$tmp/run" --qat --qat-calibration 2 \
@@ -269,4 +285,9 @@ cd ..
 "$BIN"/dbt-eval baselines --unet "$tmp/unet" --phantoms 1 --slices 1 --levels N8 --iterations 2 \
     --json "$tmp/unet-eval.json" > "$tmp/unet-eval.txt"
 grep -q "| U-Net | N8 |" "$tmp/unet-eval.txt" || { echo "smoke test: no U-Net row"; exit 1; }
+if ! wait "$continued"; then
+    cat "$tmp/continued.log"
+    echo "smoke test: the continued runs (above) failed"; exit 1
+fi
+cat "$tmp/continued.log"
 echo "training smoke test passed"
