@@ -101,18 +101,28 @@ pub type VolumeBand = (f64, f64, (f64, f64), (f64, f64));
 /// [`SURFACE_LAYERS`] at each end (fewer in a breast thinner than twice
 /// that, the two ends never sharing a layer).
 pub fn surface_layers(layers: &[VolumeBand]) -> SurfaceLayers {
-    let band = |&(from_mm, to_mm, t, r): &VolumeBand| HeightBand {
-        from_mm,
-        to_mm,
-        gland_true_cm3: t.0,
-        gland_recon_cm3: r.0,
-        tissue_true_cm3: t.1,
-        tissue_recon_cm3: r.1,
-    };
     let n = SURFACE_LAYERS.min(layers.len() / 2);
     SurfaceLayers {
-        support: layers[..n].iter().map(band).collect(),
-        paddle: layers[layers.len() - n..].iter().rev().map(band).collect(),
+        support: layers[..n].iter().copied().map(HeightBand::from).collect(),
+        paddle: layers[layers.len() - n..]
+            .iter()
+            .rev()
+            .copied()
+            .map(HeightBand::from)
+            .collect(),
+    }
+}
+
+impl From<VolumeBand> for HeightBand {
+    fn from((from_mm, to_mm, t, r): VolumeBand) -> Self {
+        Self {
+            from_mm,
+            to_mm,
+            gland_true_cm3: t.0,
+            gland_recon_cm3: r.0,
+            tissue_true_cm3: t.1,
+            tissue_recon_cm3: r.1,
+        }
     }
 }
 
@@ -496,14 +506,7 @@ pub fn run_cases_on(
                     gland_by_height,
                 )
                 .into_iter()
-                .map(|(from_mm, to_mm, t, r)| HeightBand {
-                    from_mm,
-                    to_mm,
-                    gland_true_cm3: t.0,
-                    gland_recon_cm3: r.0,
-                    tissue_true_cm3: t.1,
-                    tissue_recon_cm3: r.1,
-                })
+                .map(HeightBand::from)
                 .collect()
             },
             by_surface: {
