@@ -304,25 +304,27 @@ unsafe fn row_in<T: TileOps>(
             let mut q0 = 0;
             while q0 < nq {
                 let nqp = qb.min(nq - q0);
-                for k in 0..np * nqp {
-                    tiles.zero(k);
-                }
-                for t in 0..ntaps {
-                    let tap = r * rs + x * cs + tap_offset(t);
-                    for i in 0..np {
-                        let a = A0 + i % 2;
-                        tiles.load(a, inp.as_ptr().add(tap + i * MT * cs), cs);
-                        for j in 0..nqp {
-                            let b = B0 + j % 2;
-                            // the weights stay in B while they fit (two
-                            // blocks), else each is loaded for its product
-                            if i == 0 || nqp > 2 {
-                                let wq = wts.as_ptr().add((t * (k / 4) * ocp + (q0 + j) * L) * 4);
-                                tiles.load(b, wq as *const u8, ocp * 4);
-                            }
-                            tiles.dot(i * nqp + j, a, b);
-                        }
-                    }
+                // the pass with its tile numbers as constants (no jumps
+                // between the tile instructions)
+                let pass = Pass {
+                    inp,
+                    wts,
+                    base: r * rs + x * cs,
+                    cs,
+                    k,
+                    ocp,
+                    q0,
+                };
+                match (np, nqp) {
+                    (1, 1) => pass.products::<T, 1, 1>(tiles, ntaps, &tap_offset),
+                    (2, 1) => pass.products::<T, 2, 1>(tiles, ntaps, &tap_offset),
+                    (3, 1) => pass.products::<T, 3, 1>(tiles, ntaps, &tap_offset),
+                    (4, 1) => pass.products::<T, 4, 1>(tiles, ntaps, &tap_offset),
+                    (1, 2) => pass.products::<T, 1, 2>(tiles, ntaps, &tap_offset),
+                    (2, 2) => pass.products::<T, 2, 2>(tiles, ntaps, &tap_offset),
+                    (1, 3) => pass.products::<T, 1, 3>(tiles, ntaps, &tap_offset),
+                    (1, 4) => pass.products::<T, 1, 4>(tiles, ntaps, &tap_offset),
+                    _ => unreachable!("{np} x {nqp} blocks: more than the four sum tiles"),
                 }
                 // sums of pixel block i, channel block q: the epilogue's
                 // layout of block i (`MT * ocp` sums, group by group)
@@ -378,6 +380,65 @@ unsafe fn row_in<T: TileOps>(
                 xx += np;
             }
             g0 += gw;
+        }
+    }
+}
+
+/// One pass of [`row_in`]: the sums of `NP` 16-pixel blocks from the
+/// pixel at `base` by `NQ` 16-channel blocks from `q0`, over every tap.
+struct Pass<'a> {
+    inp: &'a [u8],
+    wts: &'a [i8],
+    base: usize,
+    cs: usize,
+    /// Bytes per product.
+    k: usize,
+    ocp: usize,
+    q0: usize,
+}
+
+impl Pass<'_> {
+    /// Zero the `NP * NQ` sum tiles and accumulate every tap's products
+    /// into them (sum tile `i * NQ + j`: pixel block `i`, channel block
+    /// `q0 + j`).
+    ///
+    /// # Safety
+    /// [`row_in`]'s: the tile operations may run and are configured for
+    /// `k`-byte products; the pass's pixels and weights are inside `inp`
+    /// and `wts`.
+    #[inline(always)]
+    unsafe fn products<T: TileOps, const NP: usize, const NQ: usize>(
+        &self,
+        tiles: &mut T,
+        ntaps: usize,
+        tap_offset: &impl Fn(usize) -> usize,
+    ) {
+        let (k, ocp, cs) = (self.k, self.ocp, self.cs);
+        // SAFETY: the contract.
+        unsafe {
+            for q in 0..NP * NQ {
+                tiles.zero(q);
+            }
+            for t in 0..ntaps {
+                let tap = self.base + tap_offset(t);
+                for i in 0..NP {
+                    let a = A0 + i % 2;
+                    tiles.load(a, self.inp.as_ptr().add(tap + i * MT * cs), cs);
+                    for j in 0..NQ {
+                        let b = B0 + j % 2;
+                        // the weights stay in B while they fit (two
+                        // blocks), else each is loaded for its product
+                        if i == 0 || NQ > 2 {
+                            let wq = self
+                                .wts
+                                .as_ptr()
+                                .add((t * (k / 4) * ocp + (self.q0 + j) * L) * 4);
+                            tiles.load(b, wq as *const u8, ocp * 4);
+                        }
+                        tiles.dot(i * NQ + j, a, b);
+                    }
+                }
+            }
         }
     }
 }
