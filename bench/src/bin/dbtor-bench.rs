@@ -69,6 +69,10 @@ struct Args {
     /// Winograd (`DBTOR_FP32_WINOGRAD=on`, opt-in: other rounding).
     #[arg(long)]
     fp32_winograd: bool,
+    /// Also each int8 row with its blocks run layer by layer over
+    /// whole-image buffers instead of in fused bands of rows: the same bits.
+    #[arg(long)]
+    layered: bool,
     /// Adds "fast mixed": int8 with these blocks in fp32 (e.g.
     /// `primal08,primal09`).
     #[arg(long, value_parser = parse_blocks)]
@@ -203,9 +207,22 @@ mod peak {
 }
 
 /// One row to run: engine, precision, the blocks kept in fp32, the kernel
-/// level forced (`None`: chosen by measurement), Winograd toggled from the
-/// precision's default.
-type Combo<'a> = (Engine, Precision, &'a [String], Option<Kernel>, bool);
+/// level forced (`None`: chosen by measurement), and how the row differs
+/// from the precision's default.
+type Combo<'a> = (Engine, Precision, &'a [String], Option<Kernel>, Variation);
+
+/// How a row runs its blocks.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Variation {
+    /// As the firmware loads them.
+    Default,
+    /// Winograd toggled from the precision's default (int8 direct, fp32 by
+    /// Winograd).
+    Toggled,
+    /// int8 blocks layer by layer over whole-image buffers instead of in
+    /// fused bands of rows.
+    Layered,
+}
 
 struct Variant {
     name: String,
@@ -315,7 +332,7 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64, f64)) -
     let mut combos: Vec<Combo> = Vec::new();
     if std::env::var_os(dbt_dbtor::KERNEL_ENV).is_none() {
         for p in [Precision::Fp32, Precision::Int8] {
-            combos.push((Engine::Fast, p, &[][..], None, false));
+            combos.push((Engine::Fast, p, &[][..], None, Variation::Default));
         }
     }
     let mut seen: Vec<(Precision, Kernel)> = Vec::new();
@@ -326,38 +343,73 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64, f64)) -
         ] {
             if !seen.contains(&(precision, runs)) {
                 seen.push((precision, runs));
-                combos.push((Engine::Fast, precision, &[][..], Some(*k), false));
+                combos.push((
+                    Engine::Fast,
+                    precision,
+                    &[][..],
+                    Some(*k),
+                    Variation::Default,
+                ));
+                if a.layered && precision == Precision::Int8 {
+                    combos.push((
+                        Engine::Fast,
+                        precision,
+                        &[][..],
+                        Some(*k),
+                        Variation::Layered,
+                    ));
+                }
                 // Winograd is the AVX2 and AVX-VNNI int8 kernels' default,
                 // the fp32 kernels' option
                 if a.direct
                     && precision == Precision::Int8
                     && matches!(runs, Kernel::Avx2 | Kernel::AvxVnni)
                 {
-                    combos.push((Engine::Fast, precision, &[][..], Some(*k), true));
+                    combos.push((
+                        Engine::Fast,
+                        precision,
+                        &[][..],
+                        Some(*k),
+                        Variation::Toggled,
+                    ));
                 }
                 if a.fp32_winograd
                     && precision == Precision::Fp32
                     && matches!(runs, Kernel::Avx2 | Kernel::Avx512)
                 {
-                    combos.push((Engine::Fast, precision, &[][..], Some(*k), true));
+                    combos.push((
+                        Engine::Fast,
+                        precision,
+                        &[][..],
+                        Some(*k),
+                        Variation::Toggled,
+                    ));
                 }
             }
         }
     }
     if a.tract {
         for p in [Precision::Fp32, Precision::Int8] {
-            combos.push((Engine::Tract, p, &[][..], Some(best), false));
+            combos.push((Engine::Tract, p, &[][..], Some(best), Variation::Default));
         }
     }
     if let Some(Blocks(mixed)) = a.mixed.as_ref().filter(|b| !b.0.is_empty()) {
         let at = combos.len().min(2);
         combos.insert(
             at,
-            (Engine::Fast, Precision::Int8, &mixed[..], Some(best), false),
+            (
+                Engine::Fast,
+                Precision::Int8,
+                &mixed[..],
+                Some(best),
+                Variation::Default,
+            ),
         );
     }
     let mut measurements: Vec<String> = Vec::new();
-    for (engine, precision, fp32_blocks, limit, toggled) in combos {
+    for (engine, precision, fp32_blocks, limit, variation) in combos {
+        let toggled = variation == Variation::Toggled;
+        let layered = variation == Variation::Layered;
         // Forced rows are named by the kernel they run (fp32 at the AVX-VNNI
         // level runs AVX2); the measured rows by what the measurement chose.
         let runs = |limit: Kernel| match precision {
@@ -374,6 +426,8 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64, f64)) -
             format!("{engine} {precision} [{} winograd]", runs.name())
         } else if toggled {
             format!("{engine} {precision} [{} direct]", runs.name())
+        } else if layered {
+            format!("{engine} {precision} [{}, layer by layer]", runs.name())
         } else if fp32_blocks.is_empty() {
             format!("{engine} {precision}{forced_note}")
         } else {
@@ -392,6 +446,7 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64, f64)) -
                 measurements.push(m.clone());
             }
         }
+        let d = if layered { d.int8_layer_by_layer() } else { d };
         let d = match (toggled, precision) {
             (false, _) => Ok(d),
             (true, Precision::Int8) => d.without_winograd(),
@@ -417,8 +472,9 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64, f64)) -
                     max / range.max(f32::MIN_POSITIVE)
                 );
             }
-        } else if toggled {
-            // The row before is the same kernel by Winograd: the same bits.
+        } else if toggled || layered {
+            // The row before is the same kernel by Winograd, or fused: the
+            // same bits.
             if let Some((wn, wo)) = outputs.last() {
                 let differ = wo.iter().zip(&first).filter(|(a, b)| a != b).count();
                 if differ > 0 {
@@ -479,7 +535,13 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64, f64)) -
                     } else {
                         String::new()
                     };
-                    format!("kernel {k}, projector {}{wg}", d.projector_kernel().name())
+                    let (fu, n8) = d.int8_fused_blocks();
+                    let fu = if n8 > 0 {
+                        format!("; {fu} of {n8} int8 blocks fused")
+                    } else {
+                        String::new()
+                    };
+                    format!("kernel {k}, projector {}{wg}{fu}", d.projector_kernel().name())
                 }
                 (Some(k), n) => format!(
                     "kernels {k}, projector {}; {n} blocks fp32 (rate and floor as fp32)",

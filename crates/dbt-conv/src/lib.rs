@@ -152,7 +152,7 @@ pub mod select;
 pub use fp32::{Fp32Block, Fp32Workspace};
 pub use int8::{
     amx_peak_ops, reference_int8_block, Int8Block, Int8BlockWeights, Int8Conv, Int8Workspace,
-    QuantParams,
+    QuantParams, FUSED_FROM_BYTES,
 };
 
 /// Errors: weights or shapes that do not make a DBToR block.

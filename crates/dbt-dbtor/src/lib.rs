@@ -916,6 +916,39 @@ impl Dbtor {
         self.with_blocks_rebuilt(Precision::Int8, false)
     }
 
+    /// The same model with its int8 blocks run layer by layer over
+    /// whole-image buffers instead of in fused bands of rows (the same
+    /// bits; for benchmarks).
+    pub fn int8_layer_by_layer(mut self) -> Self {
+        if let Blocks::Fast(v) = &mut self.blocks {
+            for (blk, _) in v.iter_mut() {
+                if let FastBlock::Int8(k) = blk {
+                    *k = k.clone().layer_by_layer();
+                }
+            }
+        }
+        self
+    }
+
+    /// Of the fast engine's int8 blocks, how many run fused over bands of
+    /// rows on their whole grid (a primal block cropped to fewer rows may
+    /// run layer by layer), and how many there are.
+    pub fn int8_fused_blocks(&self) -> (usize, usize) {
+        match &self.blocks {
+            Blocks::Tract(_) => (0, 0),
+            Blocks::Fast(v) => v.iter().zip(&self.manifest.blocks).fold(
+                (0, 0),
+                |(n, all), ((blk, _), b)| match blk {
+                    FastBlock::Int8(k) => {
+                        let (h, w) = grid(&self.manifest.geometry, b.role);
+                        (n + usize::from(k.runs_fused(h, w)), all + 1)
+                    }
+                    FastBlock::Fp32(_) => (n, all),
+                },
+            ),
+        }
+    }
+
     /// The same model with its fp32 blocks convolving by Winograd (as
     /// [`FP32_WINOGRAD_ENV`]`=on` loads it; for benchmarks).
     pub fn with_fp32_winograd(self) -> Result<Self, DbtorError> {

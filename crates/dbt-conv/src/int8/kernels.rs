@@ -26,6 +26,47 @@ pub(super) enum Out<'a> {
     Floats(&'a mut [f32]),
 }
 
+/// One output row `r` of the direct convolution of `inp` (padded rows of
+/// `w + 2` pixels `cs` bytes apart, rows `r..r + 3` read): `dst(0, x, g0,
+/// tile)` for each tile, in [`for_each_tile`]'s order or, on AMX, 16-pixel
+/// blocks of every group first. `win`: the AVX2 kernel's scratch
+/// ([`avx2_window_len`]).
+#[allow(clippy::too_many_arguments)]
+pub(super) fn conv_row(
+    kernel: Kernel,
+    p: &PackedI8,
+    inp: &[u8],
+    cs: usize,
+    w: usize,
+    r: usize,
+    win: &mut [i16],
+    dst: &mut RowSink<'_>,
+) {
+    let rs = (w + 2) * cs;
+    #[cfg(target_arch = "x86_64")]
+    if kernel == Kernel::Amx && super::amx::eligible(p) {
+        super::amx::row(p, inp, r, rs, cs, w, dst);
+        return;
+    }
+    let mut tile = [0i32; NP_NARROW * GROUP];
+    for_each_tile(p.ocp, w, |g0, gw, x, np| {
+        run_tile(
+            kernel,
+            gw,
+            np,
+            inp,
+            r * rs + x * cs,
+            rs,
+            cs,
+            p,
+            g0,
+            &mut tile,
+            win,
+        );
+        dst(0, x, g0, &tile[..np * gw]);
+    });
+}
+
 pub(super) fn conv(
     kernel: Kernel,
     p: &PackedI8,
@@ -65,33 +106,9 @@ pub(super) fn conv(
             super::winograd::row_triple(kernel, p, u, inp, r0, rs, cs, w, win, dst);
             return;
         }
-        #[cfg(target_arch = "x86_64")]
-        if kernel == Kernel::Amx && super::amx::eligible(p) {
-            for a in 0..n {
-                super::amx::row(p, inp, r0 + a, rs, cs, w, &mut |_, x, g0, t| {
-                    dst(a, x, g0, t)
-                });
-            }
-            return;
-        }
-        let mut tile = [0i32; NP_NARROW * GROUP];
         for a in 0..n {
-            let r = r0 + a;
-            for_each_tile(ocp, w, |g0, gw, x, np| {
-                run_tile(
-                    kernel,
-                    gw,
-                    np,
-                    inp,
-                    r * rs + x * cs,
-                    rs,
-                    cs,
-                    p,
-                    g0,
-                    &mut tile,
-                    win,
-                );
-                dst(a, x, g0, &tile[..np * gw]);
+            conv_row(kernel, p, inp, cs, w, r0 + a, win, &mut |_, x, g0, t| {
+                dst(a, x, g0, t)
             });
         }
     };

@@ -45,6 +45,7 @@ use crate::{check_run, for_each_tile, group_width, ConvError, Kernel, GROUP, L, 
 use rayon::prelude::*;
 
 mod amx;
+mod fused;
 mod kernels;
 mod pack;
 mod quant;
@@ -78,6 +79,29 @@ pub use quant::QuantParams;
 use quant::*;
 pub use reference::{reference_int8_block, Int8BlockWeights, Int8Conv};
 
+/// From how many bytes of layer-by-layer buffers
+/// ([`Int8Block::layered_bytes`]) a block runs fused over bands of rows
+/// ([`Int8Block::runs_fused`]). Measured on the Intel Xeon with AMX
+/// (`dbtor-bench --layered`, docs/benchmarks.md, "Fused rows"): below it,
+/// at 1.6 to 6.5 MB (the model's blocks, the paper's dual blocks), layer by
+/// layer was the faster by 4 to 14 % (a band recomputes rows at its edges;
+/// the buffers stay in cache); at the paper's primal blocks (58 MB) fused
+/// was 11-14 % faster with AMX.
+pub const FUSED_FROM_BYTES: usize = 16 << 20;
+
+/// How an [`Int8Block`] chooses between the fused and the layer-by-layer
+/// run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Fusion {
+    /// Fused from [`FUSED_FROM_BYTES`] on.
+    BySize,
+    /// Layer by layer always.
+    Never,
+    /// Fused at every size (the tests).
+    #[cfg(test)]
+    Always,
+}
+
 /// A quantized DBToR block ready for the int8 fast path.
 #[derive(Clone, Debug)]
 pub struct Int8Block {
@@ -92,6 +116,10 @@ pub struct Int8Block {
     layers: [PackedI8; 3],
     kernel: Kernel,
     ops_per_pixel: f64,
+    /// Whether the three convolutions and the residual run in one pass
+    /// over bands of rows ([`fused`]) or layer by layer over the
+    /// workspace's buffers (the same bits).
+    fusion: Fusion,
 }
 
 /// Buffers of one int8 block run on an `h x w` grid, made once and reused.
@@ -180,12 +208,42 @@ impl Int8Block {
             },
             kernel,
             ops_per_pixel: b.ops(1, 1),
+            fusion: Fusion::BySize,
         })
     }
 
     /// The kernel in use.
     pub fn kernel(&self) -> Kernel {
         self.kernel
+    }
+
+    /// The same block run layer by layer over the workspace's buffers at
+    /// every size (the same bits; for benchmarks).
+    pub fn layer_by_layer(mut self) -> Self {
+        self.fusion = Fusion::Never;
+        self
+    }
+
+    /// The bytes a layer-by-layer run on `h x w` writes and reads back: the
+    /// two padded activations and the float output.
+    pub fn layered_bytes(&self, h: usize, w: usize) -> usize {
+        let [l1, l2, l3] = &self.layers;
+        (h + 2) * (w + 2) * (l1.ocp + l2.ocp) + h * w * l3.ocp * 4
+    }
+
+    /// Whether a run on `h x w` rows makes the three convolutions and the
+    /// residual in one pass over bands of rows: where no layer convolves by
+    /// Winograd and the layer-by-layer run's buffers
+    /// ([`Int8Block::layered_bytes`]) reach [`FUSED_FROM_BYTES`]; else
+    /// layer by layer.
+    pub fn runs_fused(&self, h: usize, w: usize) -> bool {
+        let direct = self.layers.iter().all(|l| l.wino.is_none());
+        match self.fusion {
+            Fusion::Never => false,
+            Fusion::BySize => direct && self.layered_bytes(h, w) >= FUSED_FROM_BYTES,
+            #[cfg(test)]
+            Fusion::Always => direct,
+        }
     }
 
     /// How many of the block's three convolutions run by Winograd.
@@ -264,6 +322,24 @@ impl Int8Block {
                     }
                 }
             });
+        if self.runs_fused(h, w) {
+            fused::run(
+                self.kernel,
+                &self.layers,
+                &ws.x0,
+                h,
+                w,
+                fused::Residual {
+                    state,
+                    state_ch: sc,
+                    hf,
+                    r0,
+                    qs,
+                    qr: self.q_result,
+                },
+            );
+            return Ok(());
+        }
         conv(
             self.kernel,
             l1,
@@ -291,7 +367,7 @@ impl Int8Block {
             w,
             Out::Floats(&mut ws.out),
         );
-        let (out, o3, qr, kernel) = (&ws.out, l3.ocp, self.q_result, self.kernel);
+        let (out, o3, qr) = (&ws.out, l3.ocp, self.q_result);
         state.par_chunks_mut(w).enumerate().for_each(|(k, row)| {
             let (ch, r) = (k / hf, k % hf);
             if r < r0 {
@@ -639,6 +715,65 @@ pub(crate) mod tests {
         }
         let moved = got.iter().zip(&quantized).filter(|(a, b)| a != b).count();
         assert!(moved * 2 > got.len(), "only {moved} outputs differ");
+    }
+
+    #[test]
+    fn fused_bands_give_the_layer_by_layer_bits() {
+        // Heights from one row a band to several window steps, widths
+        // with and without AMX's 16-pixel remainder, both output forms, on
+        // one and on four threads (one band, and four), every kernel here
+        // (AVX2 and AVX-VNNI without Winograd, the fused pass's case).
+        let pools = [1, 4].map(|n| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(n)
+                .build()
+                .unwrap()
+        });
+        let mut kernels = vec![Kernel::Portable];
+        for k in [Kernel::Avx2, Kernel::AvxVnni, Kernel::Avx512, Kernel::Amx] {
+            if (k == Kernel::Amx && Kernel::amx_available())
+                || (k != Kernel::Amx && Kernel::best_int8_up_to(k) == k)
+            {
+                kernels.push(k);
+            }
+        }
+        for (h, w, form) in [
+            (1, 7, Form::Plain),
+            (2, 16, Form::ConvInputs),
+            (3, 33, Form::FloatResidual),
+            (31, 18, Form::ConvInputs),
+            (32, 40, Form::Plain),
+            (70, 21, Form::ConvInputs),
+        ] {
+            let b = in_form(random_int8(5, 2, 64, 40 + h as u64), form, h as u64);
+            let state = random_vec(5 * h * w, 7);
+            let aux = random_vec(2 * h * w, 8);
+            for &k in &kernels {
+                let mut fused = Int8Block::with_winograd(&b, k, false).unwrap();
+                fused.fusion = Fusion::Always;
+                let layered = fused.clone().layer_by_layer();
+                let mut ws = Int8Workspace::new(&fused, h, w);
+                let mut want = state.clone();
+                layered.run(&mut ws, &mut want, &aux).unwrap();
+                // the windows' sizes for their width (32 rows here), and
+                // the fewest (5 rows: a step of one output row)
+                for rows in [0, 5] {
+                    fused::TEST_WINDOW_ROWS.store(rows, std::sync::atomic::Ordering::Relaxed);
+                    for pool in &pools {
+                        let mut got = state.clone();
+                        pool.install(|| fused.run(&mut ws, &mut got, &aux)).unwrap();
+                        let n = pool.current_num_threads();
+                        assert_eq!(
+                            got,
+                            want,
+                            "{} on {h} x {w}, {form:?}, {n} threads, window {rows}",
+                            k.name()
+                        );
+                    }
+                }
+                fused::TEST_WINDOW_ROWS.store(0, std::sync::atomic::Ordering::Relaxed);
+            }
+        }
     }
 
     #[test]
