@@ -33,22 +33,29 @@ pub struct Selection<C> {
     pub chosen: C,
     /// Every candidate, in the order measured.
     pub timings: Vec<Timing<C>>,
+    /// Where the candidates were compared with the bits of this one (the
+    /// instruction-set rank's choice, [`select_keeping_bits`]) rather than
+    /// with the portable kernel's output: its label.
+    pub bits_of: Option<String>,
 }
 
 impl<C: PartialEq> Selection<C> {
     /// One line for logs, the status file and the self-test: each
     /// candidate's median time, the chosen one marked, a disagreeing one
-    /// named as refused.
+    /// named as refused, or, where the candidates had to give the rank
+    /// choice's bits, as giving other bits.
     pub fn describe(&self) -> String {
         self.timings
             .iter()
             .map(|t| {
                 let what = if t.candidate == self.chosen {
-                    " (chosen)"
-                } else if !t.agrees {
-                    " (disagrees with the reference: refused)"
+                    " (chosen)".to_string()
+                } else if t.agrees {
+                    String::new()
+                } else if let Some(b) = &self.bits_of {
+                    format!(" (other bits than {b}'s: not eligible)")
                 } else {
-                    ""
+                    " (disagrees with the reference: refused)".to_string()
                 };
                 format!("{} {:.2} ms{what}", t.label, t.median_ms)
             })
@@ -170,7 +177,11 @@ fn select_measured<C: Clone + PartialEq>(
                     .join(", ")
             ))
         })?;
-    Ok(Selection { chosen, timings })
+    Ok(Selection {
+        chosen,
+        timings,
+        bits_of: None,
+    })
 }
 
 /// [`select`] that never changes a result: where the `preferred`
@@ -192,8 +203,13 @@ pub fn select_keeping_bits<C: Clone + PartialEq>(
 ) -> Result<Selection<C>, ConvError> {
     if let Some(p) = preferred {
         if let Ok(out) = run(p) {
-            if deviation(&out, reference) <= tolerance {
-                return select(candidates, &out, 0.0, reps, Some(p), run);
+            if deviation(&out, reference) <= tolerance && tolerance > 0.0 {
+                let mut sel = select(candidates, &out, 0.0, reps, Some(p), run)?;
+                sel.bits_of = candidates
+                    .iter()
+                    .find(|(c, _)| c == p)
+                    .map(|(_, l)| l.clone());
+                return Ok(sel);
             }
         }
     }
@@ -584,9 +600,25 @@ mod tests {
         if rank != portable {
             assert!(deviation(&out(&rank), &out(&portable)) <= 1e-4);
         }
-        // A configuration with other bits is refused, however fast.
+        // A configuration with other bits is refused, however fast, and
+        // named as giving other bits than the rank choice's (not as
+        // disagreeing with the portable kernel, within whose tolerance it
+        // may be).
+        let d = sel.describe();
         for t in &sel.timings {
             assert_eq!(t.agrees, out(&t.candidate) == out(&rank), "{}", t.label);
+            if !t.agrees {
+                let named = format!("{} ", t.label);
+                let at = d.find(&named).expect("every candidate named");
+                assert!(
+                    d[at..]
+                        .split(", ")
+                        .next()
+                        .unwrap()
+                        .contains("other bits than"),
+                    "{d}"
+                );
+            }
         }
     }
 }
