@@ -16,7 +16,9 @@
 //! tiles: alternating lets a load proceed while a product reads the other).
 //! The products accumulate the direct kernel's sums exactly. Up to 64 input
 //! bytes and four 16-channel blocks (`ocp <= 64`); other layers, and the
-//! last `w % 16` pixels of a row, run the AVX-512 VNNI tile.
+//! rows of fewer than 16 pixels, run the AVX-512 VNNI tile; a longer row's
+//! last `w % 16` pixels are made by the block of its last 16 pixels, which
+//! overlaps the block before.
 //!
 //! Linux gives a process AMX's tile data only on request
 //! (`arch_prctl(ARCH_REQ_XCOMP_PERM, XFEATURE_XTILEDATA)`); [`available`]
@@ -244,7 +246,7 @@ trait TileOps {
 struct Hardware;
 
 /// [`row`] with its scratch of `16 * ocp` sums, its tile operations and the
-/// kernel of the row's last `w % 16` pixels (callers: [`row`], which checks
+/// kernel of a row of fewer than 16 pixels (callers: [`row`], which checks
 /// the bounds the tile loads rely on; the tests' emulation).
 ///
 /// # Safety
@@ -298,7 +300,13 @@ unsafe fn row_in<T: TileOps>(
     unsafe {
         tiles.configure(&cfg);
         let mut x = 0;
-        while x + MT <= w {
+        while x < w && w >= MT {
+            // A row's last `w % 16` pixels: the block of its last 16, whose
+            // first pixels were made already (the same sums again, written
+            // over themselves).
+            if x + MT > w {
+                x = w - MT;
+            }
             // `np` blocks of 16 pixels from x (fewer at the row's end)
             let np = ((w - x) / MT).min(pb);
             let mut q0 = 0;
@@ -351,7 +359,7 @@ unsafe fn row_in<T: TileOps>(
             x += np * MT;
         }
         tiles.release();
-        // The row's last pixels: the AVX-512 VNNI tile (`rest`).
+        // A row of fewer than 16 pixels: the AVX-512 VNNI tile (`rest`).
         let mut tile = [0i32; NP_NARROW * GROUP];
         let mut g0 = 0;
         while g0 < ocp {
@@ -852,7 +860,7 @@ mod tests {
         ] {
             let p = random_conv(cin, out_ch, &mut next);
             assert!(eligible(&p), "{cin} -> {out_ch}");
-            let ws = [5, 16, 37, 48, 80, 101];
+            let ws = [5, 15, 16, 17, 37, 48, 80, 101];
             for (w, cs) in ws.iter().flat_map(|&w| [(w, p.cin4), (w, p.cin4 + 4)]) {
                 let rs = (w + 2) * cs;
                 let inp: Vec<u8> = (0..3 * rs).map(|_| next() as u8).collect();
@@ -896,7 +904,10 @@ mod tests {
                 } else {
                     9
                 };
-                assert_eq!(tiles.dots, (w / MT) * taps * (p.ocp / L), "tdpbusd count");
+                // a block per 16 pixels, the last 16 a block of their own
+                // where the width leaves a remainder (none below 16)
+                let blocks = if w < MT { 0 } else { w.div_ceil(MT) };
+                assert_eq!(tiles.dots, blocks * taps * (p.ocp / L), "tdpbusd count");
                 dots += tiles.dots;
                 if taps == 3 {
                     row_products += tiles.dots;
