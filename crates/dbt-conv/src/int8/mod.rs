@@ -123,6 +123,9 @@ pub struct Int8Block {
 }
 
 /// Buffers of one int8 block run on an `h x w` grid, made once and reused.
+/// For a block that runs fused on that grid ([`Int8Block::runs_fused`]),
+/// only the quantized input: the layer-by-layer buffers stay empty, and a
+/// block run on such a workspace runs fused (the same bits).
 #[derive(Clone, Debug)]
 pub struct Int8Workspace {
     h: usize,
@@ -139,14 +142,16 @@ impl Int8Workspace {
     pub fn new(block: &Int8Block, h: usize, w: usize) -> Self {
         let [l1, l2, l3] = &block.layers;
         let padded = (h + 2) * (w + 2);
+        let layered = !block.runs_fused(h, w);
+        let n = |len: usize| if layered { len } else { 0 };
         Self {
             h,
             w,
             widths: [l1.cin4, l1.ocp, l2.ocp, l3.ocp],
             x0: vec![0; padded * l1.cin4],
-            a1: vec![0; padded * l1.ocp],
-            a2: vec![0; padded * l2.ocp],
-            out: vec![0.0; h * w * l3.ocp],
+            a1: vec![0; n(padded * l1.ocp)],
+            a2: vec![0; n(padded * l2.ocp)],
+            out: vec![0.0; n(h * w * l3.ocp)],
         }
     }
 
@@ -218,7 +223,8 @@ impl Int8Block {
     }
 
     /// The same block run layer by layer over the workspace's buffers at
-    /// every size (the same bits; for benchmarks).
+    /// every size, on a workspace made for it (the same bits; for
+    /// benchmarks).
     pub fn layer_by_layer(mut self) -> Self {
         self.fusion = Fusion::Never;
         self
@@ -288,8 +294,6 @@ impl Int8Block {
         // Borders (and channel padding) hold the byte of real zero of each
         // buffer's quantization, which differs from block to block.
         fill_border(&mut ws.x0, h, w, l1.cin4, pad_byte(l1.q_in));
-        fill_border(&mut ws.a1, h, w, l1.ocp, pad_byte(l2.q_in));
-        fill_border(&mut ws.a2, h, w, l2.ocp, pad_byte(l3.q_in));
         let (sc, c4) = (self.state_ch, l1.cin4);
         let pad0 = pad_byte(l1.q_in);
         let (qs, qa, qc, kernel) = (self.q_state, self.q_aux, self.q_cat, self.kernel);
@@ -322,7 +326,10 @@ impl Int8Block {
                     }
                 }
             });
-        if self.runs_fused(h, w) {
+        // Fused where the block does on the workspace's whole grid (the
+        // decision of `Int8Workspace::new`), or where the workspace has no
+        // layer-by-layer buffers.
+        if self.runs_fused(hf, w) || ws.a1.is_empty() {
             fused::run(
                 self.kernel,
                 &self.layers,
@@ -340,6 +347,8 @@ impl Int8Block {
             );
             return Ok(());
         }
+        fill_border(&mut ws.a1, h, w, l1.ocp, pad_byte(l2.q_in));
+        fill_border(&mut ws.a2, h, w, l2.ocp, pad_byte(l3.q_in));
         conv(
             self.kernel,
             l1,
@@ -752,9 +761,12 @@ pub(crate) mod tests {
                 let mut fused = Int8Block::with_winograd(&b, k, false).unwrap();
                 fused.fusion = Fusion::Always;
                 let layered = fused.clone().layer_by_layer();
-                let mut ws = Int8Workspace::new(&fused, h, w);
+                let mut wl = Int8Workspace::new(&layered, h, w);
                 let mut want = state.clone();
-                layered.run(&mut ws, &mut want, &aux).unwrap();
+                layered.run(&mut wl, &mut want, &aux).unwrap();
+                // the fused block's workspace holds the input only
+                let mut ws = Int8Workspace::new(&fused, h, w);
+                assert!(ws.a1.is_empty() && ws.bytes() < wl.bytes());
                 // the windows' sizes for their width (32 rows here), and
                 // the fewest (5 rows: a step of one output row)
                 for rows in [0, 5] {
