@@ -343,47 +343,21 @@ fn bench_geometry(a: &Args, label: &str, g: &Geometry, peaks: (f64, f64, f64)) -
         ] {
             if !seen.contains(&(precision, runs)) {
                 seen.push((precision, runs));
-                combos.push((
-                    Engine::Fast,
-                    precision,
-                    &[][..],
-                    Some(*k),
-                    Variation::Default,
-                ));
+                let row = |v| (Engine::Fast, precision, &[][..], Some(*k), v);
+                combos.push(row(Variation::Default));
                 if a.layered && precision == Precision::Int8 {
-                    combos.push((
-                        Engine::Fast,
-                        precision,
-                        &[][..],
-                        Some(*k),
-                        Variation::Layered,
-                    ));
+                    combos.push(row(Variation::Layered));
                 }
                 // Winograd is the AVX2 and AVX-VNNI int8 kernels' default,
                 // the fp32 kernels' option
-                if a.direct
-                    && precision == Precision::Int8
-                    && matches!(runs, Kernel::Avx2 | Kernel::AvxVnni)
-                {
-                    combos.push((
-                        Engine::Fast,
-                        precision,
-                        &[][..],
-                        Some(*k),
-                        Variation::Toggled,
-                    ));
-                }
-                if a.fp32_winograd
-                    && precision == Precision::Fp32
-                    && matches!(runs, Kernel::Avx2 | Kernel::Avx512)
-                {
-                    combos.push((
-                        Engine::Fast,
-                        precision,
-                        &[][..],
-                        Some(*k),
-                        Variation::Toggled,
-                    ));
+                let toggles = match precision {
+                    Precision::Int8 => a.direct && matches!(runs, Kernel::Avx2 | Kernel::AvxVnni),
+                    Precision::Fp32 => {
+                        a.fp32_winograd && matches!(runs, Kernel::Avx2 | Kernel::Avx512)
+                    }
+                };
+                if toggles {
+                    combos.push(row(Variation::Toggled));
                 }
             }
         }

@@ -655,7 +655,7 @@ fn random_conv(cin: usize, out_ch: usize, next: &mut impl FnMut() -> u64) -> Pac
 }
 
 /// One row's integer sums, `[x][ocp]`, by `kernel` (portable: its tiles;
-/// AMX: [`row`]).
+/// AMX: [`row`]; not AVX2, whose scratch this does not give).
 #[cfg(target_arch = "x86_64")]
 fn sums(kernel: Kernel, p: &PackedI8, inp: &[u8], rs: usize, cs: usize, w: usize) -> Vec<i32> {
     let mut out = vec![0i32; w * p.ocp];
@@ -666,27 +666,10 @@ fn sums(kernel: Kernel, p: &PackedI8, inp: &[u8], rs: usize, cs: usize, w: usize
             out[o..o + gw].copy_from_slice(t);
         }
     };
-    if kernel == Kernel::Amx {
-        row(p, inp, 0, rs, cs, w, &mut |_, x, g0, t| put(x, g0, t));
-    } else {
-        let mut tile = [0i32; NP_NARROW * GROUP];
-        for_each_tile(p.ocp, w, |g0, gw, x, np| {
-            run_tile(
-                kernel,
-                gw,
-                np,
-                inp,
-                x * cs,
-                rs,
-                cs,
-                p,
-                g0,
-                &mut tile,
-                &mut [],
-            );
-            put(x, g0, &tile[..np * gw]);
-        });
-    }
+    assert_eq!(rs, (w + 2) * cs);
+    super::kernels::conv_row(kernel, p, inp, cs, w, 0, &mut [], &mut |_, x, g0, t| {
+        put(x, g0, t)
+    });
     out
 }
 
