@@ -91,7 +91,8 @@ fn deviation(a: &[f32], b: &[f32]) -> f64 {
 /// float kernels' last bits from one start to the next.
 pub const KEEP_PREFERRED_WITHIN: f64 = 0.05;
 
-/// Run every candidate `reps` times after one warm-up run, compare its
+/// Run every candidate `reps` times after one warm-up run (in rounds, each
+/// candidate once a round), compare its
 /// output with `reference` (agreeing when its [`Timing::deviation`] is at
 /// most `tolerance`: 0 asks for the same bits) and choose the fastest that
 /// agrees, or `preferred` (the instruction-set rank's choice) where it
@@ -125,24 +126,32 @@ fn select_measured<C: Clone + PartialEq>(
     preferred: Option<&C>,
     mut measure: impl FnMut(&C) -> (Result<Vec<f32>, ConvError>, f64),
 ) -> Result<Selection<C>, ConvError> {
-    let mut timings = Vec::with_capacity(candidates.len());
-    for (c, label) in candidates {
-        let mut times = Vec::with_capacity(reps.max(1));
-        let mut dev = 0.0f64;
-        // One warm-up run (its output is checked too), then the timed ones.
-        for k in 0..=reps.max(1) {
+    // One warm-up round (its outputs are checked too), then the timed
+    // rounds, each candidate once a round in turn: a machine whose speed
+    // drifts during the measurement (another tenant, the clock) moves every
+    // candidate alike, where timing one candidate's runs after another's
+    // gave the earlier ones other conditions than the later ones. A
+    // candidate that fails or gives no number is not run again.
+    let n = candidates.len();
+    let mut times: Vec<Vec<f64>> = vec![Vec::with_capacity(reps.max(1)); n];
+    let mut devs = vec![0.0f64; n];
+    for k in 0..=reps.max(1) {
+        for (i, (c, _)) in candidates.iter().enumerate() {
+            if !devs[i].is_finite() {
+                continue;
+            }
             let (out, dt) = measure(c);
-            match out {
-                Ok(o) => dev = dev.max(deviation(&o, reference)),
-                Err(_) => dev = f64::INFINITY,
-            }
+            devs[i] = match out {
+                Ok(o) => devs[i].max(deviation(&o, reference)),
+                Err(_) => f64::INFINITY,
+            };
             if k > 0 {
-                times.push(dt);
-            }
-            if !dev.is_finite() {
-                break;
+                times[i].push(dt);
             }
         }
+    }
+    let mut timings = Vec::with_capacity(n);
+    for (((c, label), mut times), dev) in candidates.iter().zip(times).zip(devs) {
         times.sort_by(f64::total_cmp);
         let median_ms = times.get(times.len() / 2).copied().unwrap_or(f64::INFINITY);
         timings.push(Timing {
@@ -531,6 +540,34 @@ mod tests {
         let sel =
             select_measured(&bad, &reference, 0.0, 1, Some(&"broken".to_string()), timed).unwrap();
         assert_eq!(sel.chosen, "slow");
+    }
+
+    /// A machine that slows down during the measurement does not favour
+    /// the candidate measured first: the rounds interleave the candidates.
+    /// "faster" is 10 % faster than "first"; every run takes 10 % longer
+    /// than the run before it. Timed one candidate after the other, "first"
+    /// (medians 12 against 14.4 ms) would be chosen.
+    #[test]
+    fn a_drifting_machine_does_not_favour_the_first_measured() {
+        let reference = vec![1.0f32];
+        let c = |n: &str| (n.to_string(), n.to_string());
+        let mut run = 0usize;
+        let sel = select_measured(
+            &[c("first"), c("faster")],
+            &reference,
+            0.0,
+            3,
+            None,
+            |name| {
+                let base = if name == "faster" { 9.0 } else { 10.0 };
+                let ms = base * (1.0 + 0.1 * run as f64);
+                run += 1;
+                (Ok(reference.clone()), ms)
+            },
+        )
+        .unwrap();
+        assert_eq!(sel.chosen, "faster", "{}", sel.describe());
+        assert_eq!(run, 8, "a warm-up and three timed rounds of two");
     }
 
     /// `select` times the runs by the wall clock: of two that agree, one
