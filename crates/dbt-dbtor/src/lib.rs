@@ -923,16 +923,20 @@ impl Dbtor {
         if let Blocks::Fast(v) = &mut self.blocks {
             for (blk, _) in v.iter_mut() {
                 if let FastBlock::Int8(k) = blk {
-                    *k = k.clone().layer_by_layer();
+                    k.set_layer_by_layer();
                 }
             }
         }
+        // a workspace made before holds the fused pass's buffers only
+        self.buffers
+            .get_mut()
+            .unwrap_or_else(|e| e.into_inner())
+            .clear();
         self
     }
 
     /// Of the fast engine's int8 blocks, how many run fused over bands of
-    /// rows on their whole grid (a primal block cropped to fewer rows may
-    /// run layer by layer), and how many there are.
+    /// rows on their grid, and how many there are.
     pub fn int8_fused_blocks(&self) -> (usize, usize) {
         match &self.blocks {
             Blocks::Tract(_) => (0, 0),

@@ -18,7 +18,7 @@
 //! (`fused_bands_give_the_layer_by_layer_bits`).
 
 use super::kernels::{conv_row, epilogue_bytes, epilogue_floats};
-use super::quant::{pad_byte, residual_chunk, CHUNK};
+use super::quant::{pad_byte, residual_row};
 use super::{Kernel, PackedI8, QuantParams};
 use rayon::prelude::*;
 
@@ -178,7 +178,6 @@ impl StatePtr {
 /// The block's three convolutions from the quantized input `x0` (padded
 /// channels-last, `h + 2` rows of `w + 2` pixels of `l1.cin4` bytes, its
 /// borders filled) and the residual into `res`'s rows `r0..r0 + h`.
-#[allow(clippy::too_many_arguments)]
 pub(super) fn run(
     kernel: Kernel,
     [l1, l2, l3]: &[PackedI8; 3],
@@ -283,8 +282,7 @@ pub(super) fn run(
                                     epilogue_floats(kernel, l3, x, g0, t, orow)
                                 });
                                 // the residual on the row's state, channel by
-                                // channel, in the layer-by-layer pass's chunks
-                                let mut add = [0.0f32; CHUNK];
+                                // channel, as the layer-by-layer pass adds it
                                 for ch in 0..state_ch {
                                     // SAFETY: row r0 + rr of channel ch is
                                     // inside the state (asserted above); only
@@ -292,12 +290,7 @@ pub(super) fn run(
                                     // else touches the state during the pass
                                     // (`StatePtr`).
                                     let row = unsafe { sp.row((ch * hf + r0 + rr) * w, w) };
-                                    for (c, part) in row.chunks_mut(CHUNK).enumerate() {
-                                        for (e, a) in add[..part.len()].iter_mut().enumerate() {
-                                            *a = orow[(c * CHUNK + e) * c3 + ch];
-                                        }
-                                        residual_chunk(kernel, part, &add, qs, qr);
-                                    }
+                                    residual_row(kernel, row, orow, (c3, ch), qs, qr);
                                 }
                             }
                             r = re;

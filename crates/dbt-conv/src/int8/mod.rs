@@ -86,7 +86,7 @@ pub use reference::{reference_int8_block, Int8BlockWeights, Int8Conv};
 /// at 1.6 to 6.5 MB (the model's blocks, the paper's dual blocks), layer by
 /// layer was the faster by 4 to 14 % (a band recomputes rows at its edges;
 /// the buffers stay in cache); at the paper's primal blocks (58 MB) fused
-/// was 11-14 % faster with AMX.
+/// took a median 0.89 of the layer-by-layer time with AMX over seven runs.
 pub const FUSED_FROM_BYTES: usize = 16 << 20;
 
 /// How an [`Int8Block`] chooses between the fused and the layer-by-layer
@@ -124,12 +124,14 @@ pub struct Int8Block {
 
 /// Buffers of one int8 block run on an `h x w` grid, made once and reused.
 /// For a block that runs fused on that grid ([`Int8Block::runs_fused`]),
-/// only the quantized input: the layer-by-layer buffers stay empty, and a
-/// block run on such a workspace runs fused (the same bits).
+/// only the quantized input: the layer-by-layer buffers stay empty, and
+/// every block run on such a workspace runs fused (the same bits).
 #[derive(Clone, Debug)]
 pub struct Int8Workspace {
     h: usize,
     w: usize,
+    /// Whether runs on it are fused (its layer-by-layer buffers empty).
+    fused: bool,
     widths: [usize; 4],
     x0: Vec<u8>,
     a1: Vec<u8>,
@@ -142,11 +144,12 @@ impl Int8Workspace {
     pub fn new(block: &Int8Block, h: usize, w: usize) -> Self {
         let [l1, l2, l3] = &block.layers;
         let padded = (h + 2) * (w + 2);
-        let layered = !block.runs_fused(h, w);
-        let n = |len: usize| if layered { len } else { 0 };
+        let fused = block.runs_fused(h, w);
+        let n = |len: usize| if fused { 0 } else { len };
         Self {
             h,
             w,
+            fused,
             widths: [l1.cin4, l1.ocp, l2.ocp, l3.ocp],
             x0: vec![0; padded * l1.cin4],
             a1: vec![0; n(padded * l1.ocp)],
@@ -222,12 +225,10 @@ impl Int8Block {
         self.kernel
     }
 
-    /// The same block run layer by layer over the workspace's buffers at
-    /// every size, on a workspace made for it (the same bits; for
-    /// benchmarks).
-    pub fn layer_by_layer(mut self) -> Self {
+    /// Run layer by layer over the workspace's buffers at every size, on a
+    /// workspace made after this (the same bits; for benchmarks).
+    pub fn set_layer_by_layer(&mut self) {
         self.fusion = Fusion::Never;
-        self
     }
 
     /// The bytes a layer-by-layer run on `h x w` writes and reads back: the
@@ -326,10 +327,8 @@ impl Int8Block {
                     }
                 }
             });
-        // Fused where the block does on the workspace's whole grid (the
-        // decision of `Int8Workspace::new`), or where the workspace has no
-        // layer-by-layer buffers.
-        if self.runs_fused(hf, w) || ws.a1.is_empty() {
+        // Fused where the workspace was made for it (`Int8Workspace::new`).
+        if ws.fused {
             fused::run(
                 self.kernel,
                 &self.layers,
@@ -383,13 +382,7 @@ impl Int8Block {
                 return;
             }
             let r = r - r0;
-            let mut add = [0.0f32; CHUNK];
-            for (c, part) in row.chunks_mut(CHUNK).enumerate() {
-                for (e, a) in add[..part.len()].iter_mut().enumerate() {
-                    *a = out[(r * w + c * CHUNK + e) * o3 + ch];
-                }
-                residual_chunk(kernel, part, &add, qs, qr);
-            }
+            residual_row(kernel, row, &out[r * w * o3..], (o3, ch), qs, qr);
         });
         Ok(())
     }
@@ -760,13 +753,15 @@ pub(crate) mod tests {
             for &k in &kernels {
                 let mut fused = Int8Block::with_winograd(&b, k, false).unwrap();
                 fused.fusion = Fusion::Always;
-                let layered = fused.clone().layer_by_layer();
+                let mut layered = fused.clone();
+                layered.set_layer_by_layer();
                 let mut wl = Int8Workspace::new(&layered, h, w);
                 let mut want = state.clone();
                 layered.run(&mut wl, &mut want, &aux).unwrap();
                 // the fused block's workspace holds the input only
                 let mut ws = Int8Workspace::new(&fused, h, w);
-                assert!(ws.a1.is_empty() && ws.bytes() < wl.bytes());
+                assert!(ws.fused && ws.a1.is_empty() && ws.bytes() < wl.bytes());
+                assert!(!wl.fused);
                 // the windows' sizes for their width (32 rows here), and
                 // the fewest (5 rows: a step of one output row)
                 for rows in [0, 5] {

@@ -95,6 +95,26 @@ pub(super) fn quantize_chunk(
     }
 }
 
+/// The residual on one state row of `channel`: `row[x]` updated with
+/// channel `channel` of `out`'s pixel `x` (`out`: that output row's pixels,
+/// `stride` channels apart), in [`CHUNK`]-pixel pieces ([`residual_chunk`]).
+pub(super) fn residual_row(
+    kernel: Kernel,
+    row: &mut [f32],
+    out: &[f32],
+    (stride, channel): (usize, usize),
+    qs: Option<QuantParams>,
+    qr: Option<QuantParams>,
+) {
+    let mut add = [0.0f32; CHUNK];
+    for (c, part) in row.chunks_mut(CHUNK).enumerate() {
+        for (e, a) in add[..part.len()].iter_mut().enumerate() {
+            *a = out[(c * CHUNK + e) * stride + channel];
+        }
+        residual_chunk(kernel, part, &add, qs, qr);
+    }
+}
+
 /// `row[x] = Q_r/DQ(Q_s/DQ(row[x]) + add[x])`, or `row[x] + add[x]` without
 /// `qr` (the float residual).
 pub(super) fn residual_chunk(
