@@ -15,12 +15,10 @@ clippy_dir="$PWD/target/clippy"
 # run at the next stage's end, or at the latest after the last stage.
 clippy_check() {
     [ -n "$clippy_pid" ] || return 0
-    if [ "${1:-}" = wait ]; then
-        wait "$clippy_pid" || true
-    elif kill -0 "$clippy_pid" 2>/dev/null; then
+    if [ "${1:-}" != wait ] && kill -0 "$clippy_pid" 2>/dev/null; then
         return 0
     fi
-    wait "$clippy_pid" 2>/dev/null || true
+    wait "$clippy_pid" || true
     clippy_pid=""
     local rc
     rc=$(cat "$clippy_dir/test-all.rc" 2>/dev/null || echo 1)
@@ -56,6 +54,8 @@ report() {
 trap report EXIT
 stage "cargo fmt --check" cargo fmt --all --check
 mkdir -p "$clippy_dir"
+# an earlier run's result must not stand for this one's
+rm -f "$clippy_dir/test-all.rc" "$clippy_dir/test-all.s" "$clippy_dir/test-all.log"
 (
     t0=$SECONDS rc=0
     CARGO_TARGET_DIR="$clippy_dir" setsid nice -n 19 cargo clippy --workspace --all-targets --locked \

@@ -667,8 +667,8 @@ fn dose_report_passes_pixelmed_sr_validation() {
     // The full 25-event sweep once; the unconfirmed and physics-only
     // reports differ from it above the events (their intervals, the model
     // breast at the physics density, the method), so they are validated on
-    // a 3-event sweep: PixelMed's templates take about 10 s a 25-event
-    // report on a 2-core CI machine even with Saxon (issue #52 point 7).
+    // a 3-event sweep: PixelMed's templates are slow on a 25-event report
+    // on a 2-core CI machine, even with Saxon (issue #52 point 7).
     let three_events = |mut d: DoseInput| {
         d.events.truncate(3);
         d
@@ -725,10 +725,8 @@ fn density_reports_pass_pixelmed_sr_validation() {
 
 /// Saxon-HE (Debian libsaxonhe-java; `.ci/run` installs it): the XSLT
 /// processor PixelMed's own validation scripts name instead of the JDK's
-/// Xalan. Its output here is Xalan's, line for line, on every report the
-/// tests validate; a 25-event dose SR took 9.6 s of wall time with it
-/// against 51 s with Xalan, a 3-event one 8.7 against 21 s (one run each on
-/// the Intel Xeon with AMX, 2 cores, other work beside; issue #52 point 7).
+/// Xalan, and faster on the dose SRs (issue #52 point 7). Its output here
+/// was Xalan's, line for line, on every report the tests validate.
 const SAXON_JAR: &str = "/usr/share/java/Saxon-HE.jar";
 
 /// PixelMed's DicomSRValidator's output (stdout and stderr) on `file`.
