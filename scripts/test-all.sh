@@ -1,72 +1,136 @@
 #!/usr/bin/env bash
 # The one command that runs every test: formatting, lints, and the whole
 # workspace's test suite. `.ci/run` calls exactly this. Each stage's wall
-# time is printed at the end (issue #52: where CI's time goes).
+# time and CPU time are printed at the end (issue #52: where CI's time goes).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 times=()
-clippy_pid=""
-clippy_dir="$PWD/target/clippy"
-# The lints run beside the other stages, at nice 19, in their own target
-# folder (cargo locks a build folder while its tests run): they type-check
-# every crate, which shares nothing with the tests' optimised build, and
-# take the cores the build's serial phases, the test binaries and the smoke
-# test leave idle (docs/benchmarks.md, "CI time"). A lint failure fails the
-# run at the next stage's end, or at the latest after the last stage.
-clippy_check() {
-    [ -n "$clippy_pid" ] || return 0
-    if [ "${1:-}" != wait ] && kill -0 "$clippy_pid" 2>/dev/null; then
+# cargo's own folder (CARGO_TARGET_DIR, else target/): the binaries the
+# process tests run, the lints' folder and the background jobs' files
+target_dir=$(mkdir -p "${CARGO_TARGET_DIR:-target}" && cd "${CARGO_TARGET_DIR:-target}" && pwd)
+clippy_dir="$target_dir/clippy"
+jobs_dir="$target_dir/test-all"
+mkdir -p "$clippy_dir" "$jobs_dir"
+# CPU seconds of a shell's finished children (`children_cpu PID`:
+# /proc/PID/stat's cutime + cstime): a stage's or job's CPU time against its
+# wall time says how much of the cores it left idle. Each stage and job runs
+# in a subshell of its own, which reads its own, so that a job reaped during
+# a stage is not counted as the stage's.
+ticks=$(getconf CLK_TCK 2>/dev/null || echo 100)
+children_cpu() {
+    local s
+    s=$(cat "/proc/$1/stat" 2>/dev/null) || { echo 0; return; }
+    s=${s##*) }
+    # shellcheck disable=SC2086
+    set -- $s
+    echo $(((${14} + ${15}) / ticks))
+}
+cores_busy() {
+    awk -v c="$1" -v w="$2" 'BEGIN { printf "%.2f", (w > 0 ? c / w : 0) }'
+}
+# Jobs beside the stages (`beside NAME -- COMMAND...`), each in a session of
+# its own (setsid: stopped as a whole by its process group), sharing the
+# cores with the stages as an equal: Linux's autogroup gives each session an
+# equal share (where the kernel has it on, as /proc/sys/kernel/
+# sched_autogroup_enabled says on this project's machines), so a nice value
+# inside the job would not lower it, and a job
+# lowered below the stages (its autogroup at nice 19) was measured slower
+# overall, the idle share between test binaries coming in slivers too short
+# for it (docs/benchmarks.md, "CI time"). Their output, exit code, wall and
+# CPU time in $jobs_dir/NAME.{log,rc,s,cpu} (spaces as dashes). A job's
+# failure fails the run at the end of the stage during which it finished
+# (its output printed), or at the latest when it is waited for; a run that
+# stops early stops them.
+declare -A job_pid=() job_t0=()
+job_file() { local n=${1// /-}; echo "$jobs_dir/$n.$2"; }
+beside() {
+    local name=$1
+    shift 2
+    # an earlier run's result must not stand for this one's
+    rm -f "$(job_file "$name" rc)" "$(job_file "$name" s)" "$(job_file "$name" cpu)" "$(job_file "$name" log)"
+    (
+        t0=$SECONDS rc=0
+        setsid "$@" > "$(job_file "$name" log)" 2>&1 &
+        pid=$!
+        trap 'kill -- -"$pid" 2>/dev/null; exit 143' TERM
+        wait "$pid" || rc=$?
+        echo $((SECONDS - t0)) > "$(job_file "$name" s)"
+        children_cpu "$BASHPID" > "$(job_file "$name" cpu)"
+        echo "$rc" > "$(job_file "$name" rc)"
+    ) &
+    job_pid[$name]=$!
+    job_t0[$name]=$SECONDS
+}
+# A finished job's result (`job_check NAME`), or the job waited for
+# (`job_check NAME wait`); every job after each stage (`jobs_check`).
+job_check() {
+    local name=$1 pid=${job_pid[$1]:-} rc wall cpu t_wait=$SECONDS
+    [ -n "$pid" ] || return 0
+    if [ "${2:-}" != wait ] && kill -0 "$pid" 2>/dev/null; then
         return 0
     fi
-    wait "$clippy_pid" || true
-    clippy_pid=""
-    local rc
-    rc=$(cat "$clippy_dir/test-all.rc" 2>/dev/null || echo 1)
-    times+=("$(printf '%-28s %5d s   beside the stages above' "cargo clippy" \
-        "$(cat "$clippy_dir/test-all.s" 2>/dev/null || echo 0)")")
+    wait "$pid" || true
+    unset "job_pid[$name]"
+    rc=$(cat "$(job_file "$name" rc)" 2>/dev/null || echo 1)
+    wall=$(cat "$(job_file "$name" s)" 2>/dev/null || echo 0)
+    cpu=$(cat "$(job_file "$name" cpu)" 2>/dev/null || echo 0)
+    times+=("$(printf '%-28s %5d s   CPU %5d s (%s cores busy)   beside the stages, from %d s into the run' \
+        "$name" "$wall" "$cpu" "$(cores_busy "$cpu" "$wall")" "${job_t0[$name]}")")
+    [ $((SECONDS - t_wait)) -lt 1 ] || times+=("$(printf '%-28s %5d s' "  (waited for it)" $((SECONDS - t_wait)))")
     if [ "$rc" != 0 ]; then
-        cat "$clippy_dir/test-all.log" >&2
+        cat "$(job_file "$name" log)" >&2
         times+=("  (failed: exit $rc)")
         exit "$rc"
     fi
 }
+jobs_check() {
+    local name
+    for name in "${!job_pid[@]}"; do job_check "$name"; done
+}
 stage() {
     local name=$1
     shift
-    local t0=$SECONDS rc=0
-    "$@" || rc=$?
+    local t0=$SECONDS rc=0 cpu wall
+    rm -f "$jobs_dir/stage.cpu"
+    (
+        rc=0
+        "$@" || rc=$?
+        children_cpu "$BASHPID" > "$jobs_dir/stage.cpu"
+        exit "$rc"
+    ) || rc=$?
+    wall=$((SECONDS - t0))
+    cpu=$(cat "$jobs_dir/stage.cpu" 2>/dev/null || echo 0)
     # the disk left after each stage: a full disk fails the later stages
-    # with errors that need not say so
-    times+=("$(printf '%-28s %5d s   disk free after: %s' "$name" $((SECONDS - t0)) \
+    # with errors that need not say so; the CPU time its processes used
+    # (cores busy = CPU / wall; the jobs beside it not counted)
+    times+=("$(printf '%-28s %5d s   CPU %5d s (%s cores busy)   disk free after: %s' "$name" "$wall" \
+        "$cpu" "$(cores_busy "$cpu" "$wall")" \
         "$(df -h --output=avail . 2>/dev/null | tail -n 1 | tr -d ' ')")")
     if [ "$rc" != 0 ]; then
         times+=("  (failed: exit $rc)")
         exit "$rc"
     fi
-    clippy_check
+    jobs_check
 }
 report() {
-    # a run that stops early stops the lints too
-    if [ -n "$clippy_pid" ]; then kill "$clippy_pid" 2>/dev/null || true; fi
-    echo "test-all: time by stage (wall clock, $(nproc) CPUs)" >&2
+    local pid
+    for pid in "${job_pid[@]}"; do kill "$pid" 2>/dev/null || true; done
+    echo "test-all: time by stage (wall clock, $(nproc) CPUs; whole run $SECONDS s)" >&2
     for t in "${times[@]}"; do echo "  $t" >&2; done
 }
 trap report EXIT
+# The trainer's smoke test needs PyTorch, onnx and onnxruntime
+# (training/requirements.txt): said before the build, not after it.
+if ! python3 -c 'import torch, onnx, onnxruntime' 2>/dev/null; then
+    echo "training smoke test: PyTorch/onnx/onnxruntime missing; pip install -r training/requirements.txt (.ci/run does)" >&2
+    exit 1
+fi
 stage "cargo fmt --check" cargo fmt --all --check
-mkdir -p "$clippy_dir"
-# an earlier run's result must not stand for this one's
-rm -f "$clippy_dir/test-all.rc" "$clippy_dir/test-all.s" "$clippy_dir/test-all.log"
-(
-    t0=$SECONDS rc=0
-    CARGO_TARGET_DIR="$clippy_dir" setsid nice -n 19 cargo clippy --workspace --all-targets --locked \
-        -- -D warnings > "$clippy_dir/test-all.log" 2>&1 &
-    cargo_pid=$!
-    trap 'kill -- -"$cargo_pid" 2>/dev/null; exit 143' TERM
-    wait "$cargo_pid" || rc=$?
-    echo $((SECONDS - t0)) > "$clippy_dir/test-all.s"
-    echo "$rc" > "$clippy_dir/test-all.rc"
-) &
-clippy_pid=$!
+# The lints, in their own target folder (cargo locks a build folder while
+# its tests run): they type-check every crate, which shares nothing with
+# the tests' optimised build (docs/benchmarks.md, "CI time").
+beside "cargo clippy" -- env CARGO_TARGET_DIR="$clippy_dir" \
+    cargo clippy --workspace --all-targets --locked -- -D warnings
 # Every binary, once, in the tests' own profile (optimised, debug assertions
 # on): the process tests (hil-tests: cli, daemon, stream, ...) and the
 # training smoke test run these instead of building their own, and cargo
@@ -74,16 +138,13 @@ clippy_pid=$!
 # features the same; hil-tests/tests/architecture.rs checks it): one build
 # of the workspace in all (issue #52 point 7, CI's time).
 stage "cargo build (binaries)" cargo build --profile test --locked --workspace --bins
-export DBTOR_BIN_DIR="$PWD/target/debug"
+export DBTOR_BIN_DIR="$target_dir/debug"
+# The trainer (a few iterations on a small dataset, resumed, exported, and
+# the export checked by the firmware's runtime) beside the test binaries:
+# each leaves a share of the cores idle (1.3-1.8 of 2 busy), and it needs
+# only the binaries above.
+beside "training smoke test" -- ./training/smoke-test.sh
 stage "cargo test" cargo test --workspace --locked
-# The trainer: a few iterations on a small dataset, resumed, exported, and the
-# export checked by the firmware's runtime (needs training/requirements.txt).
-if ! python3 -c 'import torch, onnx, onnxruntime' 2>/dev/null; then
-    echo "training smoke test: PyTorch/onnx/onnxruntime missing; pip install -r training/requirements.txt (.ci/run does)" >&2
-    exit 1
-fi
-stage "training smoke test" ./training/smoke-test.sh
-# the lints, if they are still running
-t_wait=$SECONDS
-clippy_check wait
-[ $((SECONDS - t_wait)) -lt 1 ] || times+=("$(printf '%-28s %5d s' "  (waited for the lints)" $((SECONDS - t_wait)))")
+job_check "training smoke test" wait
+cat "$(job_file "training smoke test" log)"
+job_check "cargo clippy" wait

@@ -65,8 +65,21 @@ fn lpd_matches_pytorch_and_onnxruntime() {
 /// from the manifests' SHA-256), so its fp32 path is checked once, on
 /// dbtor-x4t3qa (each fp32 check of these models takes seconds a fixture
 /// on a 2-core CI machine); the two int8 sets differ and both are checked.
+/// One test per model and precision, so that the test threads share them
+/// (CI's time, issue #52 point 7).
+fn tall_model_matches(name: &str, p: Precision) {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../models")
+        .join(name);
+    for e in [Engine::Fast, Engine::Tract] {
+        check_dir(&dir, p, e);
+    }
+    let m = ModelManifest::load(&dir).unwrap();
+    assert_eq!((m.kind.as_str(), m.geometry.image.rows), ("dbtor", 100));
+}
+
 #[test]
-fn tall_models_match_pytorch_and_onnxruntime() {
+fn tall_models_share_their_fp32_blocks() {
     let models = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models");
     let shipped = ModelManifest::load(&models.join("dbtor-x4t3qa")).unwrap();
     let source = ModelManifest::load(&models.join("dbtor-x4t3")).unwrap();
@@ -83,19 +96,21 @@ fn tall_models_match_pytorch_and_onnxruntime() {
         fp32(&source),
         "dbtor-x4t3qa's fp32 blocks are dbtor-x4t3's"
     );
-    for (name, precisions) in [
-        ("dbtor-x4t3qa", &[Precision::Fp32, Precision::Int8][..]),
-        ("dbtor-x4t3", &[Precision::Int8][..]),
-    ] {
-        let dir = models.join(name);
-        for &p in precisions {
-            for e in [Engine::Fast, Engine::Tract] {
-                check_dir(&dir, p, e);
-            }
-        }
-        let m = ModelManifest::load(&dir).unwrap();
-        assert_eq!((m.kind.as_str(), m.geometry.image.rows), ("dbtor", 100));
-    }
+}
+
+#[test]
+fn tall_shipped_fp32_matches_pytorch() {
+    tall_model_matches("dbtor-x4t3qa", Precision::Fp32);
+}
+
+#[test]
+fn tall_shipped_int8_matches_onnxruntime() {
+    tall_model_matches("dbtor-x4t3qa", Precision::Int8);
+}
+
+#[test]
+fn tall_source_int8_matches_onnxruntime() {
+    tall_model_matches("dbtor-x4t3", Precision::Int8);
 }
 
 /// fp32: the fast path + Rust projector against PyTorch, same tolerance.
@@ -455,47 +470,55 @@ fn mixed_precision_runs_the_named_blocks_in_fp32() {
 /// forces it (AVX-512, AVX2, portable for fp32, which runs AVX2 at the
 /// AVX-VNNI level; AVX-512 VNNI, AVX-VNNI, AVX2 and portable for int8), passes the model's fixtures against PyTorch (fp32) and
 /// onnxruntime (int8), and reports the kernel it runs; the fused projector
-/// is forced with it (its scalar kernel for `portable`).
+/// is forced with it (its scalar kernel for `portable`). One test per
+/// precision, so that the test threads share them.
 #[test]
-fn every_forced_kernel_matches_the_fixtures() {
+fn every_forced_fp32_kernel_matches_the_fixtures() {
+    every_forced_kernel_matches_the_fixtures(Precision::Fp32);
+}
+
+#[test]
+fn every_forced_int8_kernel_matches_the_fixtures() {
+    every_forced_kernel_matches_the_fixtures(Precision::Int8);
+}
+
+fn every_forced_kernel_matches_the_fixtures(p: Precision) {
     use dbt_dbtor::Kernel;
     let dir = model_dir();
     let g = dbt_dbtor::ModelManifest::load(&dir).unwrap().geometry;
-    for p in [Precision::Fp32, Precision::Int8] {
-        for limit in Kernel::ALL {
-            let m = Dbtor::load_for_geometry_up_to(&dir, p, &[], Engine::Fast, &g, limit).unwrap();
-            let want = match p {
-                Precision::Fp32 => Kernel::best_fp32_up_to(limit),
-                Precision::Int8 => Kernel::best_int8_up_to(limit),
-            };
-            assert_eq!(m.kernel(), Some(want.name()), "{p} up to {limit:?}");
+    for limit in Kernel::ALL {
+        let m = Dbtor::load_for_geometry_up_to(&dir, p, &[], Engine::Fast, &g, limit).unwrap();
+        let want = match p {
+            Precision::Fp32 => Kernel::best_fp32_up_to(limit),
+            Precision::Int8 => Kernel::best_int8_up_to(limit),
+        };
+        assert_eq!(m.kernel(), Some(want.name()), "{p} up to {limit:?}");
+        assert_eq!(
+            m.projector_kernel(),
+            dbt_projector::best_kernel_up_to(dbt_dbtor::projector_limit(limit)),
+            "{p} up to {limit:?}"
+        );
+        for c in check_fixtures(&m, &dir).unwrap() {
+            assert!(c.pass, "{p} on {}: {c:?}", want.name());
+        }
+        // int8 on AVX2 and AVX-VNNI convolves by Winograd: every
+        // convolution, and the direct convolution gives the same bits.
+        let (wg, all) = m.winograd_convolutions();
+        let winograd = p == Precision::Int8 && matches!(want, Kernel::Avx2 | Kernel::AvxVnni);
+        assert_eq!(wg, if winograd { all } else { 0 }, "{p} on {}", want.name());
+        if winograd {
+            let sino: Vec<f32> = (0..g.n_rays())
+                .map(|i| (i * 7919 % 1000) as f32 / 400.0)
+                .collect();
+            let a = m.reconstruct(&sino, 40.0).unwrap();
+            let direct = m.without_winograd().unwrap();
+            assert_eq!(direct.winograd_convolutions().0, 0);
             assert_eq!(
-                m.projector_kernel(),
-                dbt_projector::best_kernel_up_to(dbt_dbtor::projector_limit(limit)),
-                "{p} up to {limit:?}"
+                direct.reconstruct(&sino, 40.0).unwrap(),
+                a,
+                "{}",
+                want.name()
             );
-            for c in check_fixtures(&m, &dir).unwrap() {
-                assert!(c.pass, "{p} on {}: {c:?}", want.name());
-            }
-            // int8 on AVX2 and AVX-VNNI convolves by Winograd: every
-            // convolution, and the direct convolution gives the same bits.
-            let (wg, all) = m.winograd_convolutions();
-            let winograd = p == Precision::Int8 && matches!(want, Kernel::Avx2 | Kernel::AvxVnni);
-            assert_eq!(wg, if winograd { all } else { 0 }, "{p} on {}", want.name());
-            if winograd {
-                let sino: Vec<f32> = (0..g.n_rays())
-                    .map(|i| (i * 7919 % 1000) as f32 / 400.0)
-                    .collect();
-                let a = m.reconstruct(&sino, 40.0).unwrap();
-                let direct = m.without_winograd().unwrap();
-                assert_eq!(direct.winograd_convolutions().0, 0);
-                assert_eq!(
-                    direct.reconstruct(&sino, 40.0).unwrap(),
-                    a,
-                    "{}",
-                    want.name()
-                );
-            }
         }
     }
 }
