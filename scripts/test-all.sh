@@ -30,17 +30,16 @@ cores_busy() {
 }
 # Jobs beside the stages (`beside NAME -- COMMAND...`), each in a session of
 # its own (setsid: stopped as a whole by its process group), sharing the
-# cores with the stages as an equal: Linux's autogroup gives each session an
-# equal share (where the kernel has it on, as /proc/sys/kernel/
-# sched_autogroup_enabled says on this project's machines), so a nice value
-# inside the job would not lower it, and a job
-# lowered below the stages (its autogroup at nice 19) was measured slower
-# overall, the idle share between test binaries coming in slivers too short
-# for it (docs/benchmarks.md, "CI time"). Their output, exit code, wall and
-# CPU time in $jobs_dir/NAME.{log,rc,s,cpu} (spaces as dashes). A job's
-# failure fails the run at the end of the stage during which it finished
-# (its output printed), or at the latest when it is waited for; a run that
-# stops early stops them.
+# cores with the stages as an equal: Linux's autogroup (on where
+# /proc/sys/kernel/sched_autogroup_enabled is 1, as on this project's
+# machines) gives each session an equal share, so a nice value inside a job
+# would not lower it; a job lowered below the stages (its autogroup at nice
+# 19) was measured slower overall, the idle share between test binaries
+# coming in slivers too short for it (docs/benchmarks.md, "CI time"). Their
+# output, exit code, wall and CPU time in $jobs_dir/NAME.{log,rc,s,cpu}
+# (spaces as dashes). A job's failure fails the run at the end of the stage
+# during which it finished (its output printed), or at the latest when it
+# is waited for; a run that stops early stops them.
 declare -A job_pid=() job_t0=()
 job_file() { local n=${1// /-}; echo "$jobs_dir/$n.$2"; }
 beside() {

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# CI smoke test of the whole training path, in about a minute on 2 cores:
+# CI smoke test of the whole training path (its time: scripts/test-all.sh prints it):
 # a small dataset (binned x4 geometry, N8) from host-sim, DBToR with 2+2 blocks
 # trained for 4 iterations in two runs (the second resumes from the first's
 # checkpoint), the same under torchrun with 2 processes resumed by one (the

@@ -6,12 +6,16 @@
 use dbt_dbtor::{check_fixtures, Dbtor, DbtorError, Engine, ModelManifest, Precision};
 use std::path::{Path, PathBuf};
 
+fn models_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models")
+}
+
 fn model_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/dbtor-x4")
+    models_dir().join("dbtor-x4")
 }
 
 fn lpd_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/lpd-x4")
+    models_dir().join("lpd-x4")
 }
 
 fn check(p: Precision, e: Engine) {
@@ -68,9 +72,7 @@ fn lpd_matches_pytorch_and_onnxruntime() {
 /// One test per model and precision, so that the test threads share them
 /// (CI's time, issue #52 point 7).
 fn tall_model_matches(name: &str, p: Precision) {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../models")
-        .join(name);
+    let dir = models_dir().join(name);
     for e in [Engine::Fast, Engine::Tract] {
         check_dir(&dir, p, e);
     }
@@ -80,9 +82,8 @@ fn tall_model_matches(name: &str, p: Precision) {
 
 #[test]
 fn tall_models_share_their_fp32_blocks() {
-    let models = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models");
-    let shipped = ModelManifest::load(&models.join("dbtor-x4t3qa")).unwrap();
-    let source = ModelManifest::load(&models.join("dbtor-x4t3")).unwrap();
+    let shipped = ModelManifest::load(&models_dir().join("dbtor-x4t3qa")).unwrap();
+    let source = ModelManifest::load(&models_dir().join("dbtor-x4t3")).unwrap();
     let fp32 = |m: &ModelManifest| -> Vec<(String, String)> {
         m.sha256
             .iter()
@@ -390,7 +391,7 @@ fn the_nonnegativity_zeroes_the_negative_values_only() {
         let off = m.with_nonnegativity(false);
         assert_eq!(off.reconstruct(&sino, 35.0).unwrap(), raw, "{p}");
     }
-    let lpd = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/lpd-x4");
+    let lpd = lpd_dir();
     let l = Dbtor::load_with(&lpd, Precision::Fp32, Engine::Fast).unwrap();
     assert!(!l.support() && l.constraints().nonnegative);
 }
