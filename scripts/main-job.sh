@@ -27,7 +27,7 @@
 #     density SR to the output folder.
 #  5. Validation: every report is read back (dbtor-diag report) and, where
 #     installed, checked with dciodvfy and dsrdump (apt-get install dicom3tools
-#     dcmtk; .ci/run installs them).
+#     dcmtk; scripts/install-test-deps.sh installs them).
 # Output: out/main-job/ (summary.json, reports/*.dcm). Options for step 3 can
 # be given as arguments, e.g. --pacs ORTHANC@127.0.0.1:4242.
 # PHYSICS=clinical (issue #27): the gantry's exposure is polychromatic (W/Rh),

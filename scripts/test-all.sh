@@ -118,12 +118,14 @@ report() {
     for t in "${times[@]}"; do echo "  $t" >&2; done
 }
 trap report EXIT
-# The trainer's smoke test needs PyTorch, onnx and onnxruntime
-# (training/requirements.txt): said before the build, not after it.
-if ! python3 -c 'import torch, onnx, onnxruntime' 2>/dev/null; then
-    echo "training smoke test: PyTorch/onnx/onnxruntime missing; pip install -r training/requirements.txt (.ci/run does)" >&2
-    exit 1
-fi
+# What the tests need beyond the Rust toolchain (Debian packages: the
+# validators and the process tests' peers; Python packages: the interop
+# peers and the trainer's), installed where missing, beside the format
+# check and the build, which need none of it: on a fresh machine the
+# downloads cost no time of their own (scripts/install-test-deps.sh).
+# Waited for before the first stage that needs them.
+rustup component add rustfmt clippy >/dev/null 2>&1 || true
+beside "installs" -- ./scripts/install-test-deps.sh
 stage "cargo fmt --check" cargo fmt --all --check
 # The lints, in their own target folder (cargo locks a build folder while
 # its tests run): they type-check every crate, which shares nothing with
@@ -138,6 +140,8 @@ beside "cargo clippy" -- env CARGO_TARGET_DIR="$clippy_dir" \
 # of the workspace in all (issue #52 point 7, CI's time).
 stage "cargo build (binaries)" cargo build --profile test --locked --workspace --bins
 export DBTOR_BIN_DIR="$target_dir/debug"
+# the smoke test and the process tests need the installs
+job_check "installs" wait
 # The trainer (a few iterations on a small dataset, resumed, exported, and
 # the export checked by the firmware's runtime) beside the test binaries:
 # each leaves a share of the cores idle (1.3-1.8 of 2 busy), and it needs

@@ -1,6 +1,6 @@
 //! Our L2 / PSNR / SSIM against scikit-image on the same images (agreement
 //! 1e-4: SSIM absolute, MSE and PSNR relative). Needs python3 with the
-//! packages of `eval/peers/requirements.txt` (`.ci/run` installs them); a
+//! packages of `eval/peers/requirements.txt` (`scripts/install-test-deps.sh` installs them); a
 //! missing peer fails the test with the install command.
 
 use dbt_forward::NoiseLevel;

@@ -182,7 +182,7 @@ fn acquisition_to_reports() {
     let pft_cal = percent(&dens_cal);
     assert!((pft_cal - 100.0 * res_cal.glandularity).abs() < 1e-9);
     // The reports the product writes pass the validators (dicom3tools,
-    // dcmtk; installed by .ci/run).
+    // dcmtk; installed by scripts/install-test-deps.sh).
     dicom_tools_accept(&dose, &dens);
     // A bad acquisition is named.
     let mut bad = acq.clone();
@@ -216,7 +216,7 @@ fn equipment() -> Equipment {
 }
 
 /// The reports pass the validators (dicom3tools, dcmtk; installed by
-/// .ci/run).
+/// scripts/install-test-deps.sh).
 fn dicom_tools_accept(dose: &dbt_dicom::Report, dens: &dbt_dicom::Report) {
     let dir = tempfile::tempdir().unwrap();
     for (name, r) in [("dose.dcm", dose), ("density.dcm", dens)] {

@@ -170,7 +170,7 @@ pub fn acquire_args(
     acq
 }
 
-/// A pseudo-terminal pair made by socat (Debian; `.ci/run` installs it):
+/// A pseudo-terminal pair made by socat (Debian; `scripts/install-test-deps.sh` installs it):
 /// `a` for the gantry's end, `b` for the firmware's. Killed on drop.
 pub struct PtyPair {
     socat: std::process::Child,
@@ -351,7 +351,7 @@ pub fn storescu(called: &str, calling: &str, port: u16, file: &Path) -> std::pro
         ])
         .arg(file)
         .output()
-        .expect("storescu (dcmtk; .ci/run installs it)")
+        .expect("storescu (dcmtk; scripts/install-test-deps.sh installs it)")
 }
 
 #[cfg(test)]

@@ -1,6 +1,6 @@
 //! The gantry's Modbus registers over loopback TCP, host-sim (server) and the
 //! firmware's diagnostics (client) as separate processes; a third-party
-//! client, mbpoll (Debian; `.ci/run` installs it), reads the same registers.
+//! client, mbpoll (Debian; `scripts/install-test-deps.sh` installs it), reads the same registers.
 //! Injected faults (exception responses, silence) give named failures and
 //! exit status 1, never made-up values.
 
@@ -109,7 +109,7 @@ fn registers_are_read_decoded_and_faults_named() {
 
 /// The firmware's client against a third-party server: pymodbus
 /// (`hil-tests/peers/pymodbus_gantry.py`, the register map encoded
-/// independently in Python; `.ci/run` installs pymodbus).
+/// independently in Python; `scripts/install-test-deps.sh` installs pymodbus).
 #[test]
 fn firmware_client_reads_a_pymodbus_server() {
     let port = free_port();

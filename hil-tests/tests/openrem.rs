@@ -2,7 +2,7 @@
 //! acquisition (`host-sim acquire` on the shipped gantry, `dbtor-process`
 //! with the shipped model) walked by `peers/openrem_walk.py`, our
 //! transcription of how OpenREM's RDSR importer reads mammography
-//! irradiation events with pydicom (`.ci/run` installs pydicom from
+//! irradiation events with pydicom (`scripts/install-test-deps.sh` installs pydicom from
 //! `peers/requirements.txt`). Every projection of the sweep is an event
 //! the importer reads with its Average Glandular Dose, kV, exposure,
 //! compression thickness, angles, anode and filter, and the events' doses

@@ -1,7 +1,7 @@
 //! A real PACS: Orthanc (Debian package `orthanc`) started on loopback ports.
 //! Reports arrive by C-STORE and are read back through Orthanc's REST API;
 //! with Orthanc stopped they wait in the outbox and arrive after it starts.
-//! `.ci/run` installs Orthanc; a missing binary fails the test.
+//! `scripts/install-test-deps.sh` installs Orthanc; a missing binary fails the test.
 
 use dbt_dicom::*;
 use dbt_pacs::{echo, Outbox, PacsConfig};

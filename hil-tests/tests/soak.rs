@@ -11,7 +11,7 @@
 //!
 //! The first seven acquisitions inject each kind once (none first), the rest
 //! at random. CI runs 10 acquisitions (this test); the full soak is
-//! `DBTOR_SOAK_ACQUISITIONS=100 cargo test -p hil-tests --test soak -- --nocapture`
+//! `DBTOR_SOAK_ACQUISITIONS=100 cargo test -p hil-tests --test hil soak:: -- --nocapture`
 //! (hil-tests/README.md has its result).
 
 use hil_tests::{acquire, free_port, http_get, workspace_bin, Orthanc};

@@ -1,5 +1,5 @@
 //! The daemon's status page in a real headless browser (Debian's
-//! `chromium`; `.ci/run` installs it): the daemon (`dbtor-daemon`, the
+//! `chromium`; `scripts/install-test-deps.sh` installs it): the daemon (`dbtor-daemon`, the
 //! shipped model and geometry, int8) receives three acquisitions of
 //! different breasts from host-sim's frame server and one cut stream; then
 //! chromium loads the page, runs its script and renders it:
@@ -77,7 +77,7 @@ fn dsrdump(file: &Path) -> String {
         .arg("-Ec")
         .arg(file)
         .output()
-        .expect("dsrdump (dcmtk) must be installed: .ci/run installs it");
+        .expect("dsrdump (dcmtk) must be installed: scripts/install-test-deps.sh installs it");
     assert!(out.status.success(), "{}", file.display());
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
@@ -110,7 +110,9 @@ fn chromium(args: &[&str], url: &str) -> std::process::Output {
         .args(args)
         .arg(url)
         .output()
-        .expect("chromium must be installed: .ci/run installs Debian's chromium");
+        .expect(
+            "chromium must be installed: scripts/install-test-deps.sh installs Debian's chromium",
+        );
     assert!(
         out.status.success(),
         "chromium {args:?}: {}",

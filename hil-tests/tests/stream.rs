@@ -72,7 +72,7 @@ fn faults_are_repaired_or_reported() {
 }
 
 /// The same stream over a serial line: a pseudo-terminal pair made by socat
-/// (Debian; `.ci/run` installs it), host-sim on one end, the firmware on the
+/// (Debian; `scripts/install-test-deps.sh` installs it), host-sim on one end, the firmware on the
 /// other, with repairable faults.
 #[test]
 fn serial_line_over_a_pty_pair() {

@@ -1,7 +1,7 @@
 //! Every report passes dciodvfy (dicom3tools: no line starting "Error") and
 //! dsrdump (dcmtk: exit 0, no error), and a deliberately broken report is
 //! caught by the same check. Needs the Debian packages dicom3tools and dcmtk
-//! (`.ci/run` installs them); a missing validator fails the test.
+//! (`scripts/install-test-deps.sh` installs them); a missing validator fails the test.
 
 use dbt_dicom::*;
 use dicom_dictionary_std::tags;
@@ -650,7 +650,7 @@ fn dose_report_meets_its_templates_and_each_known_defect_is_caught() {
     }
 }
 
-/// PixelMed's DicomSRValidator (Debian libpixelmed-java; `.ci/run` installs
+/// PixelMed's DicomSRValidator (Debian libpixelmed-java; `scripts/install-test-deps.sh` installs
 /// it), an SR validator independent of ours, finds no template error in the
 /// dose SR, except where its value sets predate the current edition: its
 /// CID 10006 and 10016 (2022 build) know the metals only by the retired
@@ -662,7 +662,7 @@ fn dose_report_passes_pixelmed_sr_validation() {
     let jar = Path::new("/usr/share/java/pixelmed.jar");
     assert!(
         jar.is_file(),
-        "PixelMed not found: apt-get install libpixelmed-java (.ci/run installs it)"
+        "PixelMed not found: apt-get install libpixelmed-java (scripts/install-test-deps.sh installs it)"
     );
     // The full 25-event sweep once; the unconfirmed and physics-only
     // reports differ from it above the events (their intervals, the model
@@ -692,7 +692,7 @@ fn density_reports_pass_pixelmed_sr_validation() {
     let jar = Path::new("/usr/share/java/pixelmed.jar");
     assert!(
         jar.is_file(),
-        "PixelMed not found: apt-get install libpixelmed-java (.ci/run installs it)"
+        "PixelMed not found: apt-get install libpixelmed-java (scripts/install-test-deps.sh installs it)"
     );
     let dir = tempfile::tempdir().unwrap();
     let mut uids = UidSource::new("1.2.826.0.1.3680043.10.543", 44).unwrap();
@@ -723,7 +723,7 @@ fn density_reports_pass_pixelmed_sr_validation() {
     }
 }
 
-/// Saxon-HE (Debian libsaxonhe-java; `.ci/run` installs it): the XSLT
+/// Saxon-HE (Debian libsaxonhe-java; `scripts/install-test-deps.sh` installs it): the XSLT
 /// processor PixelMed's own validation scripts name instead of the JDK's
 /// Xalan, and faster on the dose SRs (issue #52 point 7). Its output here
 /// was Xalan's, line for line, on every report the tests validate.
@@ -734,14 +734,20 @@ fn pixelmed(jar: &Path, file: &Path) -> String {
     let saxon = Path::new(SAXON_JAR);
     assert!(
         saxon.is_file(),
-        "Saxon-HE not found at {SAXON_JAR}: apt-get install libsaxonhe-java (.ci/run installs it)"
+        "Saxon-HE not found at {SAXON_JAR}: apt-get install libsaxonhe-java (scripts/install-test-deps.sh installs it)"
     );
     let mut classpath = jar.as_os_str().to_owned();
     classpath.push(":");
     classpath.push(saxon);
     let out = Command::new("java")
-        // PixelMed's compiled templates exceed the JDK's default XPath limits.
         .args([
+            // A short run: the JVM's first-tier compiler only and its serial
+            // collector cut its CPU time about threefold (9.5 -> 3.5 s a
+            // report on the Intel Xeon; docs/benchmarks.md, "CI time"), the
+            // validator's output unchanged byte for byte.
+            "-XX:TieredStopAtLevel=1",
+            "-XX:+UseSerialGC",
+            // PixelMed's compiled templates exceed the JDK's default XPath limits.
             "-Djdk.xml.xpathExprOpLimit=0",
             "-Djdk.xml.xpathExprGrpLimit=0",
             "-Djdk.xml.xpathTotalOpLimit=0",

@@ -1,0 +1,66 @@
+//! The hardware-in-the-loop tests, one test binary: each file beside this
+//! one is a module of it (`autotests = false` in Cargo.toml), so the
+//! workspace's build links and compiles them once instead of once a file,
+//! and the test harness shares both cores between every file's tests
+//! instead of running the files one after another (issue #52 point 7, CI's
+//! time; docs/benchmarks.md, "CI time"). One file's tests alone: `cargo
+//! test -p hil-tests --test hil daemon::`.
+
+#[path = "architecture.rs"]
+mod architecture;
+#[path = "cli.rs"]
+mod cli;
+#[path = "daemon.rs"]
+mod daemon;
+#[path = "dicom_input.rs"]
+mod dicom_input;
+#[path = "dicom_send.rs"]
+mod dicom_send;
+#[path = "dicom_views.rs"]
+mod dicom_views;
+#[path = "docs.rs"]
+mod docs;
+#[path = "modbus.rs"]
+mod modbus;
+#[path = "openrem.rs"]
+mod openrem;
+#[path = "orthanc.rs"]
+mod orthanc;
+#[path = "progress.rs"]
+mod progress;
+#[path = "scp.rs"]
+mod scp;
+#[path = "soak.rs"]
+mod soak;
+#[path = "status_page.rs"]
+mod status_page;
+#[path = "stream.rs"]
+mod stream;
+#[path = "vendor_dicom.rs"]
+mod vendor_dicom;
+
+/// Every `.rs` file beside this one is a module above: with `autotests =
+/// false`, cargo would not build a new file by itself, and its tests would
+/// silently never run.
+#[test]
+fn every_test_file_is_a_module_of_this_binary() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests");
+    let this = include_str!("hil.rs");
+    let mut missing = Vec::new();
+    for e in std::fs::read_dir(&dir).unwrap() {
+        let name = e.unwrap().file_name().to_string_lossy().into_owned();
+        let Some(stem) = name.strip_suffix(".rs") else {
+            continue;
+        };
+        if stem == "hil" {
+            continue;
+        }
+        if !this.contains(&format!("#[path = \"{name}\"]\nmod {stem};")) {
+            missing.push(name);
+        }
+    }
+    assert!(
+        missing.is_empty(),
+        "files of hil-tests/tests/ not declared as modules in tests/hil.rs (their tests would never run): {missing:?}"
+    );
+}
