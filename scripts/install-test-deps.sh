@@ -26,7 +26,8 @@ if ! command -v dciodvfy >/dev/null 2>&1 || ! command -v dsrdump >/dev/null 2>&1
             echo "install-test-deps: Debian packages missing and neither root nor sudo: apt-get install ${debian[*]}" >&2
             exit 1
         fi
-        SUDO="sudo"
+        # no password prompt: this runs beside the build, without a terminal
+        SUDO="sudo -n"
     fi
     echo "install-test-deps: apt-get install ${debian[*]}"
     $SUDO apt-get update -qq

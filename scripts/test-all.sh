@@ -39,7 +39,8 @@ cores_busy() {
 # output, exit code, wall and CPU time in $jobs_dir/NAME.{log,rc,s,cpu}
 # (spaces as dashes). A job's failure fails the run at the end of the stage
 # during which it finished (its output printed), or at the latest when it
-# is waited for; a run that stops early stops them.
+# is waited for; a run that stops early stops them, except the installs,
+# which it waits for.
 declare -A job_pid=() job_t0=()
 job_file() { local n=${1// /-}; echo "$jobs_dir/$n.$2"; }
 beside() {
@@ -112,8 +113,17 @@ stage() {
     jobs_check
 }
 report() {
-    local pid
-    for pid in "${job_pid[@]}"; do kill "$pid" 2>/dev/null || true; done
+    local name
+    for name in "${!job_pid[@]}"; do
+        if [ "$name" = installs ]; then
+            # never stopped mid-install (an interrupted dpkg leaves the
+            # machine's packages half configured): waited for instead
+            echo "test-all: waiting for the installs to finish before stopping" >&2
+            wait "${job_pid[$name]}" 2>/dev/null || true
+        else
+            kill "${job_pid[$name]}" 2>/dev/null || true
+        fi
+    done
     echo "test-all: time by stage (wall clock, $(nproc) CPUs; whole run $SECONDS s)" >&2
     for t in "${times[@]}"; do echo "  $t" >&2; done
 }
