@@ -472,3 +472,78 @@ fn build_and_test_features_agree() {
         differ.join("\n")
     );
 }
+
+/// Every file of a workspace crate's `tests/` folder is compiled: a test
+/// target of its own, or a module (`#[path = "FILE.rs"] mod STEM;`) of one
+/// of the crate's test targets, as where several files share one test
+/// binary (`autotests = false`: CI's time, issue #52 point 7). Otherwise
+/// cargo would never build a file left out, and its tests would silently
+/// never run.
+#[test]
+fn every_file_in_tests_is_built() {
+    let out = Command::new(env!("CARGO"))
+        .args([
+            "metadata",
+            "--format-version",
+            "1",
+            "--locked",
+            "--offline",
+            "--no-deps",
+        ])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .expect("cargo metadata runs");
+    assert!(
+        out.status.success(),
+        "cargo metadata: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let m: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let mut left_out = Vec::new();
+    let mut merged = 0;
+    for p in m["packages"].as_array().unwrap() {
+        let manifest = std::path::Path::new(p["manifest_path"].as_str().unwrap());
+        let dir = manifest.parent().unwrap().join("tests");
+        let Ok(entries) = std::fs::read_dir(&dir) else {
+            continue;
+        };
+        let roots: Vec<std::path::PathBuf> = p["targets"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|t| t["kind"].as_array().unwrap().iter().any(|k| k == "test"))
+            .map(|t| std::path::PathBuf::from(t["src_path"].as_str().unwrap()))
+            .collect();
+        let root_texts: Vec<String> = roots
+            .iter()
+            .map(|r| std::fs::read_to_string(r).unwrap())
+            .collect();
+        for e in entries {
+            let path = e.unwrap().path();
+            let (Some(name), Some("rs")) = (
+                path.file_name().and_then(|n| n.to_str()),
+                path.extension().and_then(|x| x.to_str()),
+            ) else {
+                continue;
+            };
+            if roots.contains(&path) {
+                continue;
+            }
+            let stem = name.trim_end_matches(".rs");
+            let decl = format!("#[path = \"{name}\"]\nmod {stem};");
+            if root_texts.iter().any(|t| t.contains(&decl)) {
+                merged += 1;
+            } else {
+                left_out.push(path.display().to_string());
+            }
+        }
+    }
+    assert!(
+        left_out.is_empty(),
+        "files in a tests/ folder that no test target builds (declare them as modules of the crate's test binary): {left_out:?}"
+    );
+    assert!(
+        merged > 0,
+        "no test file is a module of a merged test binary"
+    );
+}
