@@ -47,7 +47,8 @@ pub enum LinkError {
         "the acquisition has not advanced for {secs:.0} s although bytes keep arriving ({stats})"
     )]
     NoProgress {
-        /// Seconds since the last intact frame (or the start).
+        /// Seconds since the last frame that advanced the acquisition (or
+        /// the first byte).
         secs: f64,
         /// What arrived meanwhile.
         stats: String,
@@ -304,10 +305,16 @@ pub fn receive_from<S: Read + Write>(
 
         // Bytes that do not advance the acquisition (garbage, corrupt or
         // repeated frames) get `idle_timeout`; a frame in progress the time
-        // its declared length takes at `min_rate` on top.
+        // its declared length takes at `min_rate` on top. Only while bytes
+        // keep arriving: a line silent for `idle_timeout` is the idle case
+        // below (the acquisition's own fault: no header, or what is
+        // missing), whichever check a busy machine happens to reach first.
         let in_flight = dec.frame_in_progress().unwrap_or(0) as f64 / opts.min_rate.max(1.0);
         let progress_limit = opts.idle_timeout + Duration::from_secs_f64(in_flight);
-        if stats.bytes > 0 && last_frame.elapsed() > progress_limit {
+        if stats.bytes > 0
+            && last_frame.elapsed() > progress_limit
+            && last_data.elapsed() <= opts.idle_timeout
+        {
             return Err(LinkError::NoProgress {
                 secs: last_frame.elapsed().as_secs_f64(),
                 stats: stats.to_string(),
@@ -342,6 +349,11 @@ pub fn receive_from<S: Read + Write>(
         if n == 0 {
             // Peer gone (cable pulled, gantry restarted) before completion.
             return Err(ended(&asm, &stats));
+        }
+        if stats.bytes == 0 {
+            // The no-progress clock starts at the first byte: waiting for
+            // a gantry to begin is the idle timeout's business.
+            last_frame = last_data;
         }
         stats.bytes += n;
         dec.push(&buf[..n]);
@@ -806,11 +818,43 @@ mod tests {
         );
     }
 
+    /// Garbage then silence is the idle case (no header), not "bytes keep
+    /// arriving", however late the receiver first reads them: this test
+    /// failed under load when the first read came more than one read
+    /// timeout after the start (the no-progress clock starts there).
     #[test]
     fn headerless_bytes_are_a_fault_and_silence_is_not() {
         let e = run(vec![0x55; 100], false, true);
         assert!(matches!(e, LinkError::NoHeader { bytes: 100, .. }), "{e}");
         let e = run(vec![], false, true);
         assert!(matches!(e, LinkError::NoHeader { bytes: 0, .. }), "{e}");
+        // The receiver reaches its first read only after the idle timeout
+        // (a loaded machine), the garbage waiting for it, then silence.
+        struct Late(Peer, bool);
+        impl Read for Late {
+            fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+                if !std::mem::replace(&mut self.1, true) {
+                    std::thread::sleep(Duration::from_millis(400));
+                }
+                self.0.read(buf)
+            }
+        }
+        impl Write for Late {
+            fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+                self.0.write(buf)
+            }
+            fn flush(&mut self) -> std::io::Result<()> {
+                self.0.flush()
+            }
+        }
+        let mut late = Late(
+            Peer {
+                input: std::io::Cursor::new(vec![0x55; 100]),
+                writes_stall: false,
+            },
+            false,
+        );
+        let e = receive_from(&mut late, &LinkOptions::new(Duration::from_millis(300))).unwrap_err();
+        assert!(matches!(e, LinkError::NoHeader { bytes: 100, .. }), "{e}");
     }
 }
