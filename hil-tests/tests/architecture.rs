@@ -74,6 +74,23 @@ const EDGE_CRATES: &[&str] = &[
     "indicatif",
 ];
 
+/// `cargo metadata` of the workspace (format 1, locked, offline) with
+/// `extra` options.
+fn cargo_metadata(extra: &[&str]) -> Value {
+    let out = Command::new(env!("CARGO"))
+        .args(["metadata", "--format-version", "1", "--locked", "--offline"])
+        .args(extra)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .expect("cargo metadata runs");
+    assert!(
+        out.status.success(),
+        "cargo metadata: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
 /// Package name by package id, and each package's normal dependencies (ids).
 /// (On this machine's platform: the other platforms' dependencies are not
 /// downloaded.)
@@ -86,18 +103,7 @@ fn graph() -> (BTreeMap<String, String>, BTreeMap<String, Vec<String>>) {
         .lines()
         .find_map(|l| l.strip_prefix("host: ").map(str::to_string))
         .expect("rustc -vV names the host");
-    let out = Command::new(env!("CARGO"))
-        .args(["metadata", "--format-version", "1", "--locked", "--offline"])
-        .args(["--filter-platform", &host])
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .output()
-        .expect("cargo metadata runs");
-    assert!(
-        out.status.success(),
-        "cargo metadata: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let m: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let m = cargo_metadata(&["--filter-platform", &host]);
     let names = m["packages"]
         .as_array()
         .unwrap()
@@ -481,24 +487,7 @@ fn build_and_test_features_agree() {
 /// never run.
 #[test]
 fn every_file_in_tests_is_built() {
-    let out = Command::new(env!("CARGO"))
-        .args([
-            "metadata",
-            "--format-version",
-            "1",
-            "--locked",
-            "--offline",
-            "--no-deps",
-        ])
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .output()
-        .expect("cargo metadata runs");
-    assert!(
-        out.status.success(),
-        "cargo metadata: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let m: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let m = cargo_metadata(&["--no-deps"]);
     let mut left_out = Vec::new();
     let mut merged = 0;
     for p in m["packages"].as_array().unwrap() {
