@@ -819,9 +819,9 @@ mod tests {
     }
 
     /// Garbage then silence is the idle case (no header), not "bytes keep
-    /// arriving", however late the receiver first reads them: this test
-    /// failed under load when the first read came more than one read
-    /// timeout after the start (the no-progress clock starts there).
+    /// arriving", however late the receiver first reads them (a loaded
+    /// machine: the no-progress clock starts at the first byte, not at the
+    /// start).
     #[test]
     fn headerless_bytes_are_a_fault_and_silence_is_not() {
         let e = run(vec![0x55; 100], false, true);
