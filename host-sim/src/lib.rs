@@ -175,12 +175,15 @@ impl Physics {
     /// The same physics on `system`'s detector: the clinical model's
     /// converter becomes the system's (`ConeSystem::converter`: its file's
     /// `[detector.converter]`, a-Se for Hologic and Siemens, else 200 um of
-    /// CsI), the one the firmware's linearisation checks against.
+    /// CsI), the one the firmware's linearisation checks against; and its
+    /// line spread, where the file states one (`line_spread_um`: GE's CsI,
+    /// Hologic's tomosynthesis mode; `dbt_forward::spread`).
     pub fn on_system(self, system: &dbt_geometry::ConeSystem) -> Self {
         match self {
             Physics::Clinical { detector, scatter } => Physics::Clinical {
                 detector: dbt_forward::clinical::Detector {
                     converter: system.converter(),
+                    line_spread_mm: system.line_spread_mm(),
                     ..detector
                 },
                 scatter,
@@ -220,33 +223,30 @@ impl Physics {
 }
 
 /// Signals of rays with per-material path lengths under `physics`'s
-/// clinical model (noise-free at `NoiseFree`); with scatter, the rays
-/// form the stack `layout` of a breast `thickness_mm` thick exposed with
-/// the beam `af` (its shipped scatter table).
+/// clinical model (noise-free at `NoiseFree`), the rays forming the stack
+/// `layout` of detector images; with scatter, of a breast `thickness_mm`
+/// thick exposed with the beam `af` (its shipped scatter table).
 fn clinical_signals(
     model: &dbt_forward::clinical::ClinicalPhysics,
     paths: &[Vec<f32>; 3],
-    scatter: Option<(
-        &dbt_forward::clinical::StackLayout,
-        f64,
-        dbt_dose::xray::AnodeFilter,
-    )>,
+    layout: &dbt_forward::clinical::StackLayout,
+    scatter: Option<(f64, dbt_dose::xray::AnodeFilter)>,
     noise: NoiseLevel,
     seed: u64,
 ) -> Result<Vec<f32>, SimError> {
     let err = |e: dbt_forward::AcquisitionError| SimError::Options(e.to_string());
     let noisy = noise != NoiseLevel::NoiseFree;
-    match scatter {
-        None => model.simulate(paths, noisy, seed).map_err(err),
-        Some((layout, thickness, af)) => {
-            let table = dbt_scatter::ScatterTable::shipped_for(af.name())
-                .map_err(|e| SimError::Options(e.to_string()))?;
-            Ok(model
-                .simulate_scattered(paths, layout, table, thickness, noisy, seed)
-                .map_err(err)?
-                .0)
-        }
-    }
+    let table = scatter
+        .map(|(thickness, af)| {
+            dbt_scatter::ScatterTable::shipped_for(af.name())
+                .map(|t| (t, thickness))
+                .map_err(|e| SimError::Options(e.to_string()))
+        })
+        .transpose()?;
+    Ok(model
+        .simulate_stack(paths, layout, table, noisy, seed)
+        .map_err(err)?
+        .0)
 }
 
 /// The positions of one exposure of each view: the system itself for a
@@ -395,7 +395,8 @@ pub fn simulate_acquisition_with(
         let signals = clinical_signals(
             &model,
             &all,
-            Some((&layout, vol.thickness_mm(), technique.anode_filter)),
+            &layout,
+            Some((vol.thickness_mm(), technique.anode_filter)),
             noise,
             mix_seed(seed, &[u64::MAX - 1]),
         )?;
@@ -404,10 +405,21 @@ pub fn simulate_acquisition_with(
             .map(<[f32]>::to_vec)
             .collect()
     } else {
+        // Each slice's rays alone: one detector row.
+        let layout = dbt_forward::clinical::StackLayout::fan(geom, 1, vol.voxel_mm());
         paths
             .par_iter()
             .enumerate()
-            .map(|(d, p)| clinical_signals(&model, p, None, noise, mix_seed(seed, &[d as u64, 0])))
+            .map(|(d, p)| {
+                clinical_signals(
+                    &model,
+                    p,
+                    &layout,
+                    None,
+                    noise,
+                    mix_seed(seed, &[d as u64, 0]),
+                )
+            })
             .collect::<Result<_, SimError>>()?
     };
     let mut file =
@@ -655,7 +667,8 @@ pub fn simulate_cone_acquisition_with(
             let c = clinical_signals(
                 &model,
                 &paths,
-                scatter.then_some((&layout, vol.thickness_mm(), technique.anode_filter)),
+                &layout,
+                scatter.then_some((vol.thickness_mm(), technique.anode_filter)),
                 noise,
                 mix_seed(seed, &[u64::MAX]),
             )?;
@@ -670,6 +683,7 @@ pub fn simulate_cone_acquisition_with(
     if let (Physics::Clinical { detector, .. }, Some(t)) = (physics, file.header.truth.as_mut()) {
         t["physics"] = physics.name().into();
         t["detector"] = detector.converter.to_string().into();
+        t["line_spread_um"] = (detector.line_spread_mm * 1000.0).into();
     }
     file.counts = counts.chunks(views * dcols).map(<[f32]>::to_vec).collect();
     Ok(file)

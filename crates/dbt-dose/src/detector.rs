@@ -34,8 +34,10 @@
 //! within the energy range of a mammographic spectrum") and of VICTRE's
 //! MC-GPU detector (K-edge, fluorescence energy and yield as its input);
 //! the reabsorbed fluorescence's lateral spread (a blur: 15 % of the MTF at
-//! an 85 um element's Nyquist frequency, Zhao et al.) is not modelled, as
-//! no detector blur is. For CsI the model changes nothing below iodine's K
+//! an 85 um element's Nyquist frequency, Zhao et al.) is not modelled here:
+//! the detector's spatial spread, where a system's file states one, is
+//! the simulator's (`dbt_forward::spread`: an exponential line spread
+//! fitted to a measured MTF, which includes whatever spreads the signal). For CsI the model changes nothing below iodine's K
 //! edge (33.17 keV): every tube voltage of our automatic exposures (27-33
 //! kV); an exposure at 34 kV or more (the intake takes 20-49) loses
 //! iodine's and caesium's lines too. Normal incidence: an oblique ray's

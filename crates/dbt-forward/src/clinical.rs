@@ -4,7 +4,10 @@
 //! scintillator or an a-Se photoconductor), with quantum and electronic
 //! noise; with [`ClinicalPhysics::simulate_scattered`] each view's scatter
 //! (the kernel model of `dbt_scatter`, fitted to our Monte Carlo engine)
-//! added to the expected primary before the noise.
+//! added to the expected primary before the noise; where the detector
+//! spreads its signal (a scintillator's light: [`crate::spread`]), each
+//! view's quanta are spread after their draw and before the electronic
+//! noise ([`ClinicalPhysics::simulate_stack`]).
 //!
 //! # The model
 //! For a ray crossing `L_a`, `L_g`, `L_s` mm of adipose, fibroglandular
@@ -62,22 +65,27 @@ pub struct Detector {
     pub converter: Converter,
     /// Electronic noise, in photons of the mean detected energy per element.
     pub electronic_photons: f64,
+    /// The converter's line spread, mm: the scale of its exponential line
+    /// spread function ([`crate::spread`]); 0: none.
+    pub line_spread_mm: f64,
 }
 
 impl Default for Detector {
     /// 200 um of CsI ([`Converter::default`]), 4 photons of electronic
-    /// noise.
+    /// noise, no spread.
     fn default() -> Self {
         Self::with(Converter::default())
     }
 }
 
 impl Detector {
-    /// `converter` with the default electronic noise (4 photons).
+    /// `converter` with the default electronic noise (4 photons) and no
+    /// spread.
     pub fn with(converter: Converter) -> Self {
         Self {
             converter,
             electronic_photons: 4.0,
+            line_spread_mm: 0.0,
         }
     }
 }
@@ -96,6 +104,8 @@ pub struct ClinicalPhysics {
     gain: f64,
     electronic_sd: f64,
     flat_adu: f64,
+    /// The detector's line spread, mm (0: none).
+    line_spread_mm: f64,
 }
 
 fn bad(what: impl Into<String>) -> AcquisitionError {
@@ -124,6 +134,12 @@ impl ClinicalPhysics {
             return Err(bad(format!(
                 "electronic noise {} photons must be a non-negative number",
                 detector.electronic_photons
+            )));
+        }
+        if !(detector.line_spread_mm.is_finite() && detector.line_spread_mm >= 0.0) {
+            return Err(bad(format!(
+                "line spread {} mm must be a non-negative number",
+                detector.line_spread_mm
             )));
         }
         let conv = ConverterModel::new(detector.converter).map_err(|e| bad(e.to_string()))?;
@@ -168,6 +184,7 @@ impl ClinicalPhysics {
             gain,
             electronic_sd,
             flat_adu,
+            line_spread_mm: detector.line_spread_mm,
         })
     }
 
@@ -200,13 +217,20 @@ impl ClinicalPhysics {
     /// Noisy signals of rays with per-material path lengths
     /// (`paths[m][ray]`, mm, in the order of [`MATERIALS`]), reproducible
     /// from `seed` (blocks of 4096 rays draw from their own streams);
-    /// `noise: false` gives the expected signals.
+    /// `noise: false` gives the expected signals. A detector with a line
+    /// spread needs the rays' layout on the detector: [`Self::simulate_stack`].
     pub fn simulate(
         &self,
         paths: &[Vec<f32>; 3],
         noise: bool,
         seed: u64,
     ) -> Result<Vec<f32>, AcquisitionError> {
+        if self.line_spread_mm > 0.0 {
+            return Err(bad(format!(
+                "the detector's line spread ({} mm) needs the rays' layout on the detector (simulate_stack)",
+                self.line_spread_mm
+            )));
+        }
         let (mean, var) = self.expected_all(paths)?;
         Ok(draw(&mean, &var, noise, seed))
     }
@@ -259,17 +283,67 @@ impl ClinicalPhysics {
         noise: bool,
         seed: u64,
     ) -> Result<(Vec<f32>, Vec<f32>), AcquisitionError> {
+        self.simulate_stack(paths, layout, Some((table, thickness_mm)), noise, seed)
+    }
+
+    /// The signals of a stack of detector images (`layout`): with
+    /// `scatter` (a table and the breast's thickness) as
+    /// [`Self::simulate_scattered`], else the primary alone (then the
+    /// returned scatter is zeros); the detector's line spread, if it has
+    /// one, spreads each view's quanta after their draw and before the
+    /// electronic noise ([`crate::spread`]). Without a spread the signals
+    /// are [`Self::simulate`]'s (with the scatter added), draw for draw.
+    pub fn simulate_stack(
+        &self,
+        paths: &[Vec<f32>; 3],
+        layout: &StackLayout,
+        scatter: Option<(&dbt_scatter::ScatterTable, f64)>,
+        noise: bool,
+        seed: u64,
+    ) -> Result<(Vec<f32>, Vec<f32>), AcquisitionError> {
         let (mut mean, mut var) = self.expected_all(paths)?;
-        let scatter = layout.scatter(&mean, self.flat_adu, table, thickness_mm)?;
-        let vpa = self.variance_per_adu();
-        for ((m, v), s) in mean.iter_mut().zip(&mut var).zip(&scatter) {
-            *m += s;
-            *v += vpa * s;
+        layout.check(mean.len())?;
+        let scatter = match scatter {
+            Some((table, thickness_mm)) => {
+                let scatter = layout.scatter(&mean, self.flat_adu, table, thickness_mm)?;
+                let vpa = self.variance_per_adu();
+                for ((m, v), s) in mean.iter_mut().zip(&mut var).zip(&scatter) {
+                    *m += s;
+                    *v += vpa * s;
+                }
+                scatter
+            }
+            None => vec![0.0; mean.len()],
+        };
+        let signals = if self.line_spread_mm > 0.0 {
+            self.draw_spread(mean, &var, layout, noise, seed)?
+        } else {
+            draw(&mean, &var, noise, seed)
+        };
+        Ok((signals, scatter.iter().map(|&x| x as f32).collect()))
+    }
+
+    /// [`draw`] through the line spread: the quanta (the variance less the
+    /// electronic part) drawn, spread view by view, then the electronic
+    /// noise added (its own streams of `seed`).
+    fn draw_spread(
+        &self,
+        mut mean: Vec<f64>,
+        var: &[f64],
+        layout: &StackLayout,
+        noise: bool,
+        seed: u64,
+    ) -> Result<Vec<f32>, AcquisitionError> {
+        let e_var = self.electronic_sd * self.electronic_sd;
+        if noise {
+            normal_draws(&mut mean, seed, 0, |i| (var[i] - e_var).max(0.0).sqrt());
         }
-        Ok((
-            draw(&mean, &var, noise, seed),
-            scatter.iter().map(|&x| x as f32).collect(),
-        ))
+        crate::spread::spread_stack(&mut mean, layout, self.line_spread_mm)?;
+        if noise {
+            let sd = self.electronic_sd;
+            normal_draws(&mut mean, seed, ELECTRONIC_STREAMS, |_| sd);
+        }
+        Ok(mean.iter().map(|&s| s.max(0.0) as f32).collect())
     }
 }
 
@@ -401,6 +475,31 @@ impl StackLayout {
 /// Noisy draws of normals of the given means and variances (blocks of 4096
 /// from their own streams of `seed`), clamped at zero; the means when
 /// `noise` is false.
+/// The electronic noise's streams of a spread detector start here (the
+/// quanta's are the blocks' numbers, as [`draw`]'s).
+const ELECTRONIC_STREAMS: u64 = 1 << 40;
+
+/// Adds to each value a normal draw of standard deviation `sd(i)`, blocks
+/// of 4096 from their own streams `first_stream + block` of `seed`.
+fn normal_draws(
+    values: &mut [f64],
+    seed: u64,
+    first_stream: u64,
+    sd: impl Fn(usize) -> f64 + Sync,
+) {
+    values
+        .par_chunks_mut(4096)
+        .enumerate()
+        .for_each(|(blk, o)| {
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            rng.set_stream(first_stream + blk as u64);
+            for (k, y) in o.iter_mut().enumerate() {
+                let z: f64 = rand_distr::StandardNormal.sample(&mut rng);
+                *y += sd(blk * 4096 + k) * z;
+            }
+        });
+}
+
 fn draw(mean: &[f64], var: &[f64], noise: bool, seed: u64) -> Vec<f32> {
     let mut out = vec![0f32; mean.len()];
     out.par_chunks_mut(4096).enumerate().for_each(|(blk, o)| {
@@ -505,6 +604,7 @@ mod tests {
             &Detector {
                 converter: Converter::default(),
                 electronic_photons: 0.0,
+                line_spread_mm: 0.0,
             },
             16_000.0,
         )
@@ -532,6 +632,7 @@ mod tests {
             let d = Detector {
                 converter: Converter::new(dbt_materials::ConverterMaterial::CsI, um).unwrap(),
                 electronic_photons: 0.0,
+                line_spread_mm: 0.0,
             };
             ClinicalPhysics::new(&s, 1.0, &d, 1.0)
                 .unwrap()
@@ -580,5 +681,114 @@ mod tests {
             .simulate(&[vec![1.0], vec![], vec![]], false, 0)
             .unwrap_err();
         assert!(e.to_string().contains("path lengths"), "{e}");
+    }
+
+    /// A spreading detector (GE's CsI, `crate::spread`): a uniform exposure
+    /// keeps its mean, and its noise is the quanta's times the kernel's
+    /// `(sum h^2)^2` plus the electronic noise's, unspread (within the
+    /// sampling error of 40,000 elements); an edge is spread exactly as the
+    /// kernel says (noise-free); the draws are seeded; without a spread
+    /// the stack's signals are `simulate`'s draw for draw; `simulate`
+    /// refuses a spreading detector (it has no layout).
+    #[test]
+    fn a_spreading_detector_blurs_quanta_not_readout() {
+        let s = dbt_dose::xray::paper_spectrum(50.0)
+            .unwrap()
+            .spectrum
+            .unwrap();
+        let spread_mm = 0.0604;
+        let detector = Detector {
+            // Electronic noise large enough to be seen beside the quanta.
+            electronic_photons: 40.0,
+            line_spread_mm: spread_mm,
+            ..Detector::default()
+        };
+        let p = ClinicalPhysics::new(&s, 16_000.0, &detector, 16_000.0).unwrap();
+        let (rows, cols) = (200, 200);
+        let layout = StackLayout {
+            rows,
+            views: 1,
+            cols,
+            row_mm: 0.1,
+            col_mm: 0.1,
+            tan_angles: vec![0.0],
+        };
+        let n = rows * cols;
+        let paths = [vec![20.0f32; n], vec![10.0; n], vec![1.5; n]];
+        let (a, scatter) = p.simulate_stack(&paths, &layout, None, true, 7).unwrap();
+        assert!(scatter.iter().all(|&x| x == 0.0));
+        assert_eq!(
+            a,
+            p.simulate_stack(&paths, &layout, None, true, 7).unwrap().0
+        );
+        let (m, v) = p.expected([20.0, 10.0, 1.5]);
+        let e_var = p.electronic_sd * p.electronic_sd;
+        let k = crate::spread::element_kernel(spread_mm, 0.1).unwrap();
+        let sq: f64 = k.iter().map(|h| h * h).sum();
+        let want = (v - e_var) * sq * sq + e_var;
+        // The interior (the mirrored borders correlate differently).
+        let inner: Vec<f64> = (5..rows - 5)
+            .flat_map(|r| (5..cols - 5).map(move |c| r * cols + c))
+            .map(|i| f64::from(a[i]))
+            .collect();
+        let mean = inner.iter().sum::<f64>() / inner.len() as f64;
+        let var = inner.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (inner.len() - 1) as f64;
+        assert!((mean / m - 1.0).abs() < 1e-3, "{mean} vs {m}");
+        assert!(
+            (var / want - 1.0).abs() < 0.05,
+            "{var} vs {want} (unspread {v})"
+        );
+        assert!(want < 0.75 * v, "the spread removes noise: {want} of {v}");
+
+        // A noise-free edge: 20 mm more gland under the left half.
+        let paths = [
+            vec![20.0f32; n],
+            (0..n)
+                .map(|i| if i % cols < cols / 2 { 30.0 } else { 10.0 })
+                .collect(),
+            vec![1.5; n],
+        ];
+        let (edge, _) = p.simulate_stack(&paths, &layout, None, false, 0).unwrap();
+        let (lo, hi) = (
+            p.expected([20.0, 30.0, 1.5]).0,
+            p.expected([20.0, 10.0, 1.5]).0,
+        );
+        let half = k.len() / 2;
+        for c in 0..cols {
+            let want: f64 = (0..k.len())
+                .map(|t| {
+                    let src = (c + t) as i64 - half as i64;
+                    let src = src.clamp(0, cols as i64 - 1) as usize;
+                    k[t] * if src < cols / 2 { lo } else { hi }
+                })
+                .sum();
+            let got = f64::from(edge[100 * cols + c]);
+            assert!(
+                (got / want - 1.0).abs() < 1e-6,
+                "column {c}: {got} vs {want}"
+            );
+        }
+        assert!(f64::from(edge[100 * cols + cols / 2 - 1]) > lo * 1.01);
+
+        let e = p.simulate(&paths, false, 0).unwrap_err().to_string();
+        assert!(e.contains("line spread") && e.contains("0.0604"), "{e}");
+        // No spread: the stack draws what `simulate` draws.
+        let plain = physics(&s);
+        let paths = [vec![20.0f32; n], vec![10.0; n], vec![1.5; n]];
+        assert_eq!(
+            plain
+                .simulate_stack(&paths, &layout, None, true, 9)
+                .unwrap()
+                .0,
+            plain.simulate(&paths, true, 9).unwrap()
+        );
+        let bad = Detector {
+            line_spread_mm: -1.0,
+            ..Detector::default()
+        };
+        let e = ClinicalPhysics::new(&s, 1.0, &bad, 1.0)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("line spread -1"), "{e}");
     }
 }

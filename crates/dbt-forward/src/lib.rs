@@ -14,6 +14,7 @@
 //! detector, quantum and electronic noise.
 
 pub mod clinical;
+pub mod spread;
 
 use dbt_projector::{Projector, ProjectorError};
 use rand::SeedableRng;

@@ -77,6 +77,14 @@ pub struct Detector2d {
     /// [`dbt_materials::Converter::default`] (200 um of CsI).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub converter: Option<dbt_materials::Converter>,
+    /// The converter's line spread, um (`line_spread_um`): the scale `s` of
+    /// an exponential line spread function `exp(-|x| / s) / (2 s)` across
+    /// the detector's plane (a scintillator's light spread: the model and
+    /// the fit to a measured MTF are `dbt_forward::spread`'s), where the
+    /// system's file states it; absent: none (each element records only
+    /// what reaches it, the paper's ideal detector).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub line_spread_um: Option<f64>,
 }
 
 /// A validated cone-beam DBT system.
@@ -146,6 +154,12 @@ impl ConeSystem {
         self.detector.converter.unwrap_or_default()
     }
 
+    /// The converter's line spread scale, mm (0: none; see
+    /// [`Detector2d::line_spread_um`]).
+    pub fn line_spread_mm(&self) -> f64 {
+        self.detector.line_spread_um.unwrap_or(0.0) / 1000.0
+    }
+
     /// Elements `factor` times larger on each side (same detector area).
     pub fn binned(&self, factor: usize) -> Result<Self, GeometryError> {
         if factor == 0 {
@@ -158,6 +172,7 @@ impl ConeSystem {
                 rows: d.rows / factor,
                 pitch_mm: d.pitch_mm * factor as f64,
                 converter: d.converter,
+                line_spread_um: d.line_spread_um,
             },
             ..self.clone()
         };
@@ -224,6 +239,16 @@ impl ConeSystem {
             ));
         }
         positive("detector.pitch_mm", self.detector.pitch_mm)?;
+        if let Some(s) = self.detector.line_spread_um {
+            // Up to a millimetre: a scintillator's light spreads over tens of
+            // um (a CsI panel's scale is about 60: ge-essential.toml).
+            if !(s.is_finite() && (0.0..=1000.0).contains(&s)) {
+                return Err(invalid(
+                    "detector.line_spread_um",
+                    format!("must be a number of um from 0 to 1000, got {s}"),
+                ));
+            }
+        }
         if !(self.support_height_mm.is_finite()
             && self.support_height_mm >= 0.0
             && self.support_height_mm < self.axis_height_mm + self.arc_radius_mm / 2.0)
@@ -540,6 +565,27 @@ mod tests {
         let t = SIEMENS_VICTRE_TOML.replace("\"a-Se\"", "\"GOS\"");
         let e = ConeSystem::from_toml_str(&t).unwrap_err().to_string();
         assert!(e.contains("GOS"), "{e}");
+    }
+
+    /// The panel's spread (`[detector] line_spread_um`): read in um, kept
+    /// by binning, absent where the file states none; a negative, huge or
+    /// non-numeric one is refused naming the key and the value.
+    #[test]
+    fn a_detector_states_its_line_spread() {
+        let ge = ConeSystem::builtin("ge-essential").unwrap();
+        assert_eq!(ge.detector.line_spread_um, Some(60.4));
+        assert!((ge.line_spread_mm() - 0.0604).abs() < 1e-15);
+        assert_eq!(ge.binned(4).unwrap().line_spread_mm(), ge.line_spread_mm());
+        assert_eq!(
+            ConeSystem::builtin("paper-cone").unwrap().line_spread_mm(),
+            0.0
+        );
+        for bad in ["-1.0", "1500.0", "nan"] {
+            let t = GE_ESSENTIAL_TOML
+                .replace("line_spread_um = 60.4", &format!("line_spread_um = {bad}"));
+            let e = ConeSystem::from_toml_str(&t).unwrap_err().to_string();
+            assert!(e.contains("detector.line_spread_um"), "{bad}: {e}");
+        }
     }
 
     /// A rotating detector stays at the same distance from the source and
