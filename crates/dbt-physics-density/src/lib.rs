@@ -66,7 +66,10 @@
 //! `d`) of the rays' all-fat thickness relative to the plane: the fattest rays
 //! at each distance give the shape. A ray's path is the model's, and never
 //! longer than its all-fat path. The rim's share of the breast volume is
-//! reported: the estimate rests on the edge model there.
+//! reported: the estimate rests on the edge model there. One profile for
+//! every sector ([`RimShape::Shared`], [`RimShape::Thinnest`]) was tried
+//! against this and not shipped (eval/physics-density.md, "The rim's
+//! shape").
 //!
 //! # What it does not do (yet)
 //! The silhouettes of the other projections (a visual hull) do not
@@ -154,6 +157,22 @@ pub struct Options {
     /// Refit the thickness plane where the fitted edge model says the
     /// breast is in contact, then the edge model again (a second pass).
     pub contact_refit: bool,
+    /// Which edge profile each sector's rays take (per sector as shipped;
+    /// the others an evaluation option).
+    pub rim_shape: RimShape,
+}
+
+/// Which edge profile each sector's rays take.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Default)]
+pub enum RimShape {
+    /// Each sector its own fit.
+    #[default]
+    PerSector,
+    /// Every sector the fit to all sectors' envelope at once.
+    Shared,
+    /// Every sector the fitted sector profile of least area (the fattest
+    /// sector's shape).
+    Thinnest,
 }
 
 impl Default for Options {
@@ -169,6 +188,7 @@ impl Default for Options {
             smooth_mm: 2.0,
             noise_z: 6.0,
             contact_refit: true,
+            rim_shape: RimShape::PerSector,
         }
     }
 }
@@ -1014,6 +1034,26 @@ fn view_estimate(
                 misfit: fit.2,
                 fallback,
             });
+        }
+        let area = |a: f64, r: f64| {
+            (0..200)
+                .map(|k| profile((k as f64 + 0.5) * fit_max / 200.0, a, r))
+                .sum::<f64>()
+        };
+        let chosen = match opts.rim_shape {
+            RimShape::PerSector => None,
+            RimShape::Shared => (all_env.len() >= 3).then_some((all_fit.0, all_fit.1)),
+            RimShape::Thinnest => rim
+                .iter()
+                .filter(|r| !r.fallback)
+                .map(|r| (r.width_mm, r.exponent))
+                .min_by(|x, y| area(x.0, x.1).total_cmp(&area(y.0, y.1))),
+        };
+        if let Some((a, r)) = chosen {
+            for sec in &mut rim {
+                sec.width_mm = a;
+                sec.exponent = r;
+            }
         }
         rim
     };

@@ -580,3 +580,52 @@ fn a_breast_tapering_over_a_wide_rim_keeps_its_thickness() {
         c1.thickness
     );
 }
+
+/// The rim's shape options (`Options::rim_shape`): the half disc of
+/// `an_elliptical_rim_is_fitted` with gland reaching its edge on one side
+/// (x > 35 mm, the whole height inside the skin). Per sector, that side's
+/// envelope is the gland's, its fitted rim is too thick and the gland there
+/// reads as fat: the glandularity low. Shared (one fit to every sector's
+/// envelope, mostly fat rims) and thinnest (the fattest sector's fit) give
+/// every sector one profile, the true ellipse's within the fit's grid, and
+/// read the breast closer to the truth.
+#[test]
+fn one_shared_rim_reads_gland_at_the_edge() {
+    let g = geom();
+    let (t, a) = (40.0, 20.0);
+    let ph = half_disc(t, a, |x, _y, _w| x > 35.0);
+    let m = make(&g, 96, &ph, 1e6, None);
+    let truth = m.glandularity();
+    let read = |shape| {
+        let o = Options {
+            rim_shape: shape,
+            ..opts()
+        };
+        estimate(&input(&g, &m.counts, t, 1e6), &o)
+            .expect("estimate")
+            .central
+    };
+    let per = read(RimShape::PerSector);
+    for shape in [RimShape::Shared, RimShape::Thinnest] {
+        let c = read(shape);
+        let first = (c.rim[0].width_mm, c.rim[0].exponent);
+        assert!(
+            c.rim.iter().all(|s| (s.width_mm, s.exponent) == first),
+            "{shape:?}: one profile for every sector: {:?}",
+            c.rim
+        );
+        assert!((first.0 - a).abs() <= 3.0, "{shape:?}: {first:?}");
+        eprintln!(
+            "{shape:?}: {:+.2} pp, per sector {:+.2} pp (truth {:.3})",
+            100.0 * (c.glandularity - truth),
+            100.0 * (per.glandularity - truth),
+            truth
+        );
+        assert!(
+            (c.glandularity - truth).abs() < (per.glandularity - truth).abs(),
+            "{shape:?} {:.4}, per sector {:.4}, truth {truth:.4}",
+            c.glandularity,
+            per.glandularity
+        );
+    }
+}

@@ -101,6 +101,10 @@ pub struct PipelineOptions {
     /// Where a physics-only report's model breast holds its glandular
     /// tissue ([`crate::model_breast::Placement`]).
     pub physics_breast: crate::model_breast::Placement,
+    /// Which edge profile the physics density's rim takes
+    /// ([`dbt_physics_density::RimShape`]; per sector as shipped, the
+    /// others an evaluation option: eval/physics-density.md).
+    pub physics_rim: dbt_physics_density::RimShape,
     /// What becomes of an acquisition whose beam the model has no
     /// glandularity calibration for ([`PipelineOptions::for_beam`]).
     pub uncalibrated_beam: UncalibratedBeam,
@@ -142,6 +146,7 @@ impl Default for PipelineOptions {
             intervals: None,
             method: ReportMethod::Reconstruction,
             physics_breast: crate::model_breast::Placement::CentralColumns,
+            physics_rim: dbt_physics_density::RimShape::PerSector,
             uncalibrated_beam: UncalibratedBeam::Refuse,
         }
     }
@@ -838,13 +843,14 @@ pub fn physics_density(
     let (counts, _) = check_counts_with(&acq.header, &acq.counts, opts.scatter_in_input)
         .and_then(|d| d.applied(&acq.counts))
         .map_err(|e| e.to_string())?;
-    physics_density_checked(&acq.header, &counts)
+    physics_density_checked(&acq.header, &counts, opts.physics_rim)
 }
 
 /// [`physics_density`] of counts already checked and corrected.
 fn physics_density_checked(
     h: &SliceHeader,
     counts: &[Vec<f32>],
+    rim_shape: dbt_physics_density::RimShape,
 ) -> Result<dbt_physics_density::PhysicsDensity, String> {
     let input = dbt_physics_density::Input {
         geometry: &h.geometry,
@@ -856,6 +862,7 @@ fn physics_density_checked(
     let o = dbt_physics_density::Options {
         skin_mm: crate::linearise::NOMINAL_SKIN_MM,
         noise_z: crate::plausibility::NOISE_Z,
+        rim_shape,
         ..Default::default()
     };
     let _s = tracing::debug_span!("physics_density").entered();
@@ -1045,7 +1052,7 @@ fn process_layout<H: ToSinograms>(
     // The second density, of the same corrected counts: after every
     // refusal of the reconstruction and the volume, so that an acquisition
     // refused costs none of it.
-    let physics_density = physics_density_checked(h, &acq.counts);
+    let physics_density = physics_density_checked(h, &acq.counts, opts.physics_rim);
     let glandularity = opts
         .calibration
         .map_or(dens.glandularity_partial_volume, |c| {
@@ -1224,7 +1231,7 @@ fn physics_only<H: ToSinograms>(
     let g = &h.geometry;
     let t0 = std::time::Instant::now();
     progress(Stage::Classification);
-    let physics = physics_density_checked(h, &acq.counts).map_err(|e| {
+    let physics = physics_density_checked(h, &acq.counts, opts.physics_rim).map_err(|e| {
         PipelineError::Input(format!(
             "no report: the physics-based density, the only method without a calibrated model for this gantry and beam, could not be made: {e}"
         ))

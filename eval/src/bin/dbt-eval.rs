@@ -542,6 +542,12 @@ struct AccuracyArgs {
     /// has a calibration (`dbt-eval calibrate`).
     #[arg(long)]
     no_calibration: bool,
+    /// The physics density's rim (an evaluation option; eval/physics-density.md):
+    /// `per-sector` (as shipped: each sector its own edge profile),
+    /// `shared` (every sector the fit to all sectors' envelope) or
+    /// `thinnest` (every sector the fattest sector's profile).
+    #[arg(long, default_value = "per-sector", value_parser = ["per-sector", "shared", "thinnest"])]
+    rim_shape: String,
     /// Reconstructors to compare on the same acquisitions (comma
     /// separated: mltr, fp32, int8, mixed, physics (no reconstruction: the
     /// physics-only report of a gantry without a model, its model breast
@@ -1281,6 +1287,7 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
         model,
         skin,
         no_calibration,
+        rim_shape,
         reconstructors,
         slice_steps,
         runtime,
@@ -1368,6 +1375,11 @@ fn run_accuracy(args: AccuracyArgs) -> Result<()> {
                 "physics-homogeneous" => dbt_pipeline::model_breast::Placement::Homogeneous,
                 "physics-columns" => dbt_pipeline::model_breast::Placement::CentralColumns,
                 _ => dbt_pipeline::PipelineOptions::default().physics_breast,
+            },
+            physics_rim: match rim_shape.as_str() {
+                "shared" => dbt_physics_density::RimShape::Shared,
+                "thinnest" => dbt_physics_density::RimShape::Thinnest,
+                _ => dbt_physics_density::RimShape::PerSector,
             },
             ..Default::default()
         };
