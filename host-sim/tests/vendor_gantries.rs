@@ -11,15 +11,59 @@ use dbt_geometry::{ConeSystem, Geometry};
 use dbt_phantom::{Population, PopulationKind};
 use dbt_pipeline::{process, reports, PipelineOptions, ReportMethod};
 
-fn acquisition(system: &str) -> (dbt_pipeline::acquisition::Acquisition, f64) {
+/// A built-in system binned x4, its rebinning fan on `paper-tall`, and
+/// procedural test breast 2.
+fn system_and_breast(system: &str) -> (ConeSystem, Geometry, dbt_phantom::LabelVolume) {
     let template = Geometry::builtin("paper-tall").unwrap().binned(4).unwrap();
     let sys = ConeSystem::builtin(system).unwrap().binned(4).unwrap();
     let fan = sys.rebinning_fan(&template).unwrap();
-    dbt_pipeline::rebin::check_site(&sys, &fan).unwrap();
     let vol = PopulationKind::Procedural
         .draw(&template, Population::TEST_SEED, 2)
         .generate()
         .unwrap();
+    (sys, fan, vol)
+}
+
+/// `vol` acquired on `sys` with the clinical physics' primary alone.
+fn clinical_primary(
+    vol: &dbt_phantom::LabelVolume,
+    fan: &Geometry,
+    sys: &ConeSystem,
+    noise: NoiseLevel,
+) -> dbt_pipeline::acquisition::Acquisition {
+    host_sim::simulate_cone_acquisition_with(
+        vol,
+        fan,
+        sys,
+        noise,
+        host_sim::Physics::parse("clinical-primary").unwrap(),
+        5,
+        host_sim::Technique::default(),
+        28.0,
+        "VENDOR",
+        "1.2.826.0.1.3680043.10.543.3",
+    )
+    .unwrap()
+}
+
+/// A physics-only report linearised for 200 um of `material`.
+fn physics_only_on(material: dbt_materials::ConverterMaterial) -> PipelineOptions {
+    PipelineOptions {
+        dose_uncertainty: 0.05,
+        method: ReportMethod::PhysicsOnly,
+        linearise: Some(
+            dbt_pipeline::linearise::BeamHardening::for_converter(
+                dbt_materials::Converter::new(material, 200.0).unwrap(),
+            )
+            .unwrap(),
+        ),
+        ..Default::default()
+    }
+}
+
+fn acquisition(system: &str) -> (dbt_pipeline::acquisition::Acquisition, f64) {
+    let (sys, fan, vol) = system_and_breast(system);
+    dbt_pipeline::rebin::check_site(&sys, &fan).unwrap();
     let a = host_sim::simulate_cone_acquisition(
         &vol,
         &fan,
@@ -117,30 +161,9 @@ fn every_vendor_gantry_is_reported_without_a_model() {
 /// physics density within the 4 pp of the test above.
 #[test]
 fn a_selenium_gantry_is_simulated_and_linearised_as_selenium() {
-    use dbt_materials::{Converter, ConverterMaterial};
-    let template = Geometry::builtin("paper-tall").unwrap().binned(4).unwrap();
-    let sys = ConeSystem::builtin("hologic-dimensions")
-        .unwrap()
-        .binned(4)
-        .unwrap();
-    let fan = sys.rebinning_fan(&template).unwrap();
-    let vol = PopulationKind::Procedural
-        .draw(&template, Population::TEST_SEED, 2)
-        .generate()
-        .unwrap();
-    let a = host_sim::simulate_cone_acquisition_with(
-        &vol,
-        &fan,
-        &sys,
-        NoiseLevel::Poisson(8),
-        host_sim::Physics::parse("clinical-primary").unwrap(),
-        5,
-        host_sim::Technique::default(),
-        28.0,
-        "VENDOR",
-        "1.2.826.0.1.3680043.10.543.3",
-    )
-    .unwrap();
+    use dbt_materials::ConverterMaterial;
+    let (sys, fan, vol) = system_and_breast("hologic-dimensions");
+    let a = clinical_primary(&vol, &fan, &sys, NoiseLevel::Poisson(8));
     let truth = a.header.truth.as_ref().unwrap();
     assert_eq!(truth["detector"], "200 um a-Se");
     // Its tomosynthesis mode's spread (dbt_forward::spread).
@@ -150,25 +173,14 @@ fn a_selenium_gantry_is_simulated_and_linearised_as_selenium() {
         header: a.header.clone(),
         counts: a.counts,
     };
-    let opts = |material| PipelineOptions {
-        dose_uncertainty: 0.05,
-        method: ReportMethod::PhysicsOnly,
-        linearise: Some(
-            dbt_pipeline::linearise::BeamHardening::for_converter(
-                Converter::new(material, 200.0).unwrap(),
-            )
-            .unwrap(),
-        ),
-        ..Default::default()
-    };
-    let e = process(&acq, &opts(ConverterMaterial::CsI))
+    let e = process(&acq, &physics_only_on(ConverterMaterial::CsI))
         .unwrap_err()
         .to_string();
     assert!(
         e.contains("200 um CsI") && e.contains("hologic-dimensions has 200 um a-Se"),
         "{e}"
     );
-    let res = process(&acq, &opts(ConverterMaterial::ASe)).unwrap();
+    let res = process(&acq, &physics_only_on(ConverterMaterial::ASe)).unwrap();
     let d = 100.0 * (res.glandularity - vol.glandularity().unwrap());
     eprintln!("hologic-dimensions, clinical-primary on a-Se: physics density {d:+.2} pp");
     assert!(d.abs() < 4.0, "{d:+.1} pp");
@@ -184,32 +196,8 @@ fn a_selenium_gantry_is_simulated_and_linearised_as_selenium() {
 /// within the 4 pp of the test above.
 #[test]
 fn a_csi_gantry_spreads_its_light() {
-    use dbt_materials::{Converter, ConverterMaterial};
-    let template = Geometry::builtin("paper-tall").unwrap().binned(4).unwrap();
-    let sys = ConeSystem::builtin("ge-essential")
-        .unwrap()
-        .binned(4)
-        .unwrap();
-    let fan = sys.rebinning_fan(&template).unwrap();
-    let vol = PopulationKind::Procedural
-        .draw(&template, Population::TEST_SEED, 2)
-        .generate()
-        .unwrap();
-    let acquire = |sys: &ConeSystem, noise| {
-        host_sim::simulate_cone_acquisition_with(
-            &vol,
-            &fan,
-            sys,
-            noise,
-            host_sim::Physics::parse("clinical-primary").unwrap(),
-            5,
-            host_sim::Technique::default(),
-            28.0,
-            "VENDOR",
-            "1.2.826.0.1.3680043.10.543.3",
-        )
-        .unwrap()
-    };
+    let (sys, fan, vol) = system_and_breast("ge-essential");
+    let acquire = |sys: &ConeSystem, noise| clinical_primary(&vol, &fan, sys, noise);
     let spread = acquire(&sys, NoiseLevel::NoiseFree);
     let truth = spread.header.truth.as_ref().unwrap();
     assert!((truth["line_spread_um"].as_f64().unwrap() - 60.4).abs() < 1e-9);
@@ -237,18 +225,11 @@ fn a_csi_gantry_spreads_its_light() {
         header: noisy.header,
         counts: noisy.counts,
     };
-    let opts = PipelineOptions {
-        dose_uncertainty: 0.05,
-        method: ReportMethod::PhysicsOnly,
-        linearise: Some(
-            dbt_pipeline::linearise::BeamHardening::for_converter(
-                Converter::new(ConverterMaterial::CsI, 200.0).unwrap(),
-            )
-            .unwrap(),
-        ),
-        ..Default::default()
-    };
-    let res = process(&acq, &opts).unwrap();
+    let res = process(
+        &acq,
+        &physics_only_on(dbt_materials::ConverterMaterial::CsI),
+    )
+    .unwrap();
     let d = 100.0 * (res.glandularity - vol.glandularity().unwrap());
     eprintln!("ge-essential, clinical-primary, spread: physics density {d:+.2} pp");
     assert!(d.abs() < 4.0, "{d:+.1} pp");

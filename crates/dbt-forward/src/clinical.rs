@@ -338,7 +338,12 @@ impl ClinicalPhysics {
         if noise {
             normal_draws(&mut mean, seed, 0, |i| (var[i] - e_var).max(0.0).sqrt());
         }
-        crate::spread::spread_stack(&mut mean, layout, self.line_spread_mm)?;
+        crate::spread::spread_stack(
+            &mut mean,
+            [layout.rows, layout.views, layout.cols],
+            [layout.row_mm, layout.col_mm],
+            self.line_spread_mm,
+        )?;
         if noise {
             let sd = self.electronic_sd;
             normal_draws(&mut mean, seed, ELECTRONIC_STREAMS, |_| sd);

@@ -50,7 +50,6 @@
 //! the same range as ours) and the longer, oblique paths of the views'
 //! rays through the layer.
 
-use crate::clinical::StackLayout;
 use crate::AcquisitionError;
 use rayon::prelude::*;
 
@@ -144,24 +143,24 @@ fn convolve_line(src: &[f64], k: &[f64], dst: &mut [f64]) {
     }
 }
 
-/// Spread every view's image of the stack `values` (ray `(r, v, c)` at
-/// `(r * views + v) * cols + c`, [`StackLayout`]) by the line spread of
-/// scale `scale_mm`, along the elements (`layout.col_mm`) and the rows
-/// (`layout.row_mm`).
+/// Spread every view's image of the stack `values` of `[rows, views,
+/// cols]` (ray `(r, v, c)` at `(r * views + v) * cols + c`, as
+/// `clinical::StackLayout` orders them) by the line spread of scale
+/// `scale_mm`, along the rows and the elements, `[row_mm, col_mm]` apart.
 pub fn spread_stack(
     values: &mut [f64],
-    layout: &StackLayout,
+    [rows, views, cols]: [usize; 3],
+    [row_mm, col_mm]: [f64; 2],
     scale_mm: f64,
 ) -> Result<(), AcquisitionError> {
-    let (rows, views, cols) = (layout.rows, layout.views, layout.cols);
     if rows * views * cols != values.len() {
         return Err(bad(format!(
             "a stack of {rows} rows x {views} views x {cols} elements for {} values",
             values.len()
         )));
     }
-    let kc = element_kernel(scale_mm, layout.col_mm)?;
-    let kr = element_kernel(scale_mm, layout.row_mm)?;
+    let kc = element_kernel(scale_mm, col_mm)?;
+    let kr = element_kernel(scale_mm, row_mm)?;
     if kc.len() == 1 && kr.len() == 1 {
         return Ok(());
     }
@@ -283,17 +282,6 @@ mod tests {
         }
     }
 
-    fn layout(rows: usize, views: usize, cols: usize, pitch: f64) -> StackLayout {
-        StackLayout {
-            rows,
-            views,
-            cols,
-            row_mm: pitch,
-            col_mm: pitch,
-            tan_angles: vec![0.0; views],
-        }
-    }
-
     /// A flat field stays flat (the mirrored borders); a point's light is
     /// all kept in its view and spread as the kernel's outer product;
     /// white noise loses the variance the kernel's squares say
@@ -301,16 +289,16 @@ mod tests {
     #[test]
     fn a_stack_spreads_view_by_view_and_conserves_light() {
         let (rows, views, cols) = (40, 3, 50);
-        let l = layout(rows, views, cols, 0.1);
+        let l = [rows, views, cols];
         let s = 0.0604;
         let mut flat = vec![7.5; rows * views * cols];
-        spread_stack(&mut flat, &l, s).unwrap();
+        spread_stack(&mut flat, l, [0.1, 0.1], s).unwrap();
         assert!(flat.iter().all(|&v| (v - 7.5).abs() < 1e-12));
 
         let mut point = vec![0.0; rows * views * cols];
         let (r0, v0, c0) = (20, 1, 25);
         point[(r0 * views + v0) * cols + c0] = 1.0;
-        spread_stack(&mut point, &l, s).unwrap();
+        spread_stack(&mut point, l, [0.1, 0.1], s).unwrap();
         let k = element_kernel(s, 0.1).unwrap();
         let half = k.len() / 2;
         let mut total = 0.0;
@@ -338,12 +326,12 @@ mod tests {
         use rand::SeedableRng;
         use rand_distr::{Distribution, StandardNormal};
         let (rows, cols) = (200, 200);
-        let l = layout(rows, 1, cols, 0.1);
+        let l = [rows, 1, cols];
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
         let mut noise: Vec<f64> = (0..rows * cols)
             .map(|_| StandardNormal.sample(&mut rng))
             .collect();
-        spread_stack(&mut noise, &l, s).unwrap();
+        spread_stack(&mut noise, l, [0.1, 0.1], s).unwrap();
         let sq: f64 = k.iter().map(|h| h * h).sum();
         let want = sq * sq;
         // The interior only (the mirrored borders correlate differently).
@@ -362,6 +350,6 @@ mod tests {
             "variance {var}, expected {want}"
         );
         assert!(want < 0.7, "the spread removes noise: {want}");
-        assert!(spread_stack(&mut noise, &layout(3, 1, 3, 0.1), s).is_err());
+        assert!(spread_stack(&mut noise, [3, 1, 3], [0.1, 0.1], s).is_err());
     }
 }
