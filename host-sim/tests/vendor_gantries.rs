@@ -168,7 +168,7 @@ fn a_selenium_gantry_is_simulated_and_linearised_as_selenium() {
     assert_eq!(truth["detector"], "200 um a-Se");
     // Its tomosynthesis mode's spread (dbt_forward::spread).
     let spread = truth["line_spread_um"].as_f64().unwrap();
-    assert!((spread - 35.4).abs() < 1e-9, "{spread}");
+    assert!((spread - 47.4).abs() < 1e-9, "{spread}");
     let acq = dbt_pipeline::acquisition::Acquisition {
         header: a.header.clone(),
         counts: a.counts,
@@ -200,7 +200,7 @@ fn a_csi_gantry_spreads_its_light() {
     let acquire = |sys: &ConeSystem, noise| clinical_primary(&vol, &fan, sys, noise);
     let spread = acquire(&sys, NoiseLevel::NoiseFree);
     let truth = spread.header.truth.as_ref().unwrap();
-    assert!((truth["line_spread_um"].as_f64().unwrap() - 60.4).abs() < 1e-9);
+    assert!((truth["line_spread_um"].as_f64().unwrap() - 56.8).abs() < 1e-9);
     let mut ideal_sys = sys.clone();
     ideal_sys.detector.line_spread_um = None;
     let ideal = acquire(&ideal_sys, NoiseLevel::NoiseFree);

@@ -324,8 +324,10 @@ impl ClinicalPhysics {
     }
 
     /// [`draw`] through the line spread: the quanta (the variance less the
-    /// electronic part) drawn, spread view by view, then the electronic
-    /// noise added (its own streams of `seed`).
+    /// electronic part) drawn, spread view by view, white noise making up
+    /// each element's quantum variance to that of photons absorbed anywhere
+    /// in their element ([`crate::spread::element_variance`]), then the
+    /// electronic noise added (each its own streams of `seed`).
     fn draw_spread(
         &self,
         mut mean: Vec<f64>,
@@ -335,8 +337,9 @@ impl ClinicalPhysics {
         seed: u64,
     ) -> Result<Vec<f32>, AcquisitionError> {
         let e_var = self.electronic_sd * self.electronic_sd;
+        let quanta = |i: usize| (var[i] - e_var).max(0.0);
         if noise {
-            normal_draws(&mut mean, seed, 0, |i| (var[i] - e_var).max(0.0).sqrt());
+            normal_draws(&mut mean, seed, 0, |i| quanta(i).sqrt());
         }
         crate::spread::spread_stack(
             &mut mean,
@@ -345,6 +348,12 @@ impl ClinicalPhysics {
             self.line_spread_mm,
         )?;
         if noise {
+            let (kr, tr) = crate::spread::element_variance(self.line_spread_mm, layout.row_mm)?;
+            let (kc, tc) = crate::spread::element_variance(self.line_spread_mm, layout.col_mm)?;
+            let missing = (tr * tc - kr * kc).max(0.0);
+            normal_draws(&mut mean, seed, MAKE_UP_STREAMS, |i| {
+                (quanta(i) * missing).sqrt()
+            });
             let sd = self.electronic_sd;
             normal_draws(&mut mean, seed, ELECTRONIC_STREAMS, |_| sd);
         }
@@ -477,12 +486,13 @@ impl StackLayout {
     }
 }
 
-/// Noisy draws of normals of the given means and variances (blocks of 4096
-/// from their own streams of `seed`), clamped at zero; the means when
-/// `noise` is false.
 /// The electronic noise's streams of a spread detector start here (the
 /// quanta's are the blocks' numbers, as [`draw`]'s).
 const ELECTRONIC_STREAMS: u64 = 1 << 40;
+
+/// The streams of the white noise that makes up a spread detector's quantum
+/// variance.
+const MAKE_UP_STREAMS: u64 = 2 << 40;
 
 /// Adds to each value a normal draw of standard deviation `sd(i)`, blocks
 /// of 4096 from their own streams `first_stream + block` of `seed`.
@@ -505,6 +515,9 @@ fn normal_draws(
         });
 }
 
+/// Noisy draws of normals of the given means and variances (blocks of 4096
+/// from their own streams of `seed`), clamped at zero; the means when
+/// `noise` is false.
 fn draw(mean: &[f64], var: &[f64], noise: bool, seed: u64) -> Vec<f32> {
     let mut out = vec![0f32; mean.len()];
     out.par_chunks_mut(4096).enumerate().for_each(|(blk, o)| {
@@ -689,9 +702,10 @@ mod tests {
     }
 
     /// A spreading detector (GE's CsI, `crate::spread`): a uniform exposure
-    /// keeps its mean, and its noise is the quanta's times the kernel's
-    /// `(sum h^2)^2` plus the electronic noise's, unspread (within the
-    /// sampling error of 40,000 elements); an edge is spread exactly as the
+    /// keeps its mean, and its noise is the quanta's times the spread
+    /// quanta's variance (`spread::element_variance`, squared for the two
+    /// axes) plus the electronic noise's, unspread (within the sampling
+    /// error of 40,000 elements); an edge is spread exactly as the
     /// kernel says (noise-free); the draws are seeded; without a spread
     /// the stack's signals are `simulate`'s draw for draw; `simulate`
     /// refuses a spreading detector (it has no layout).
@@ -701,7 +715,7 @@ mod tests {
             .unwrap()
             .spectrum
             .unwrap();
-        let spread_mm = 0.0604;
+        let spread_mm = 0.0568;
         let detector = Detector {
             // Electronic noise large enough to be seen beside the quanta.
             electronic_photons: 40.0,
@@ -729,8 +743,8 @@ mod tests {
         let (m, v) = p.expected([20.0, 10.0, 1.5]);
         let e_var = p.electronic_sd * p.electronic_sd;
         let k = crate::spread::element_kernel(spread_mm, 0.1).unwrap();
-        let sq: f64 = k.iter().map(|h| h * h).sum();
-        let want = (v - e_var) * sq * sq + e_var;
+        let (_, per_axis) = crate::spread::element_variance(spread_mm, 0.1).unwrap();
+        let want = (v - e_var) * per_axis * per_axis + e_var;
         // The interior (the mirrored borders correlate differently).
         let inner: Vec<f64> = (5..rows - 5)
             .flat_map(|r| (5..cols - 5).map(move |c| r * cols + c))
@@ -776,7 +790,7 @@ mod tests {
         assert!(f64::from(edge[100 * cols + cols / 2 - 1]) > lo * 1.01);
 
         let e = p.simulate(&paths, false, 0).unwrap_err().to_string();
-        assert!(e.contains("line spread") && e.contains("0.0604"), "{e}");
+        assert!(e.contains("line spread") && e.contains("0.0568"), "{e}");
         // No spread: the stack draws what `simulate` draws.
         let plain = physics(&s);
         let paths = [vec![20.0f32; n], vec![10.0; n], vec![1.5; n]];

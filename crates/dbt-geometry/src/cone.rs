@@ -573,8 +573,8 @@ mod tests {
     #[test]
     fn a_detector_states_its_line_spread() {
         let ge = ConeSystem::builtin("ge-essential").unwrap();
-        assert_eq!(ge.detector.line_spread_um, Some(60.4));
-        assert!((ge.line_spread_mm() - 0.0604).abs() < 1e-15);
+        assert_eq!(ge.detector.line_spread_um, Some(56.8));
+        assert!((ge.line_spread_mm() - 0.0568).abs() < 1e-15);
         assert_eq!(ge.binned(4).unwrap().line_spread_mm(), ge.line_spread_mm());
         assert_eq!(
             ConeSystem::builtin("paper-cone").unwrap().line_spread_mm(),
@@ -582,7 +582,7 @@ mod tests {
         );
         for bad in ["-1.0", "1500.0", "nan"] {
             let t = GE_ESSENTIAL_TOML
-                .replace("line_spread_um = 60.4", &format!("line_spread_um = {bad}"));
+                .replace("line_spread_um = 56.8", &format!("line_spread_um = {bad}"));
             let e = ConeSystem::from_toml_str(&t).unwrap_err().to_string();
             assert!(e.contains("detector.line_spread_um"), "{bad}: {e}");
         }

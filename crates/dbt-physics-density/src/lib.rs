@@ -1040,19 +1040,24 @@ fn view_estimate(
                 .map(|k| profile((k as f64 + 0.5) * fit_max / 200.0, a, r))
                 .sum::<f64>()
         };
+        // The one profile (and its misfit) every sector takes; where there is
+        // none (too few distances in all sectors, or every sector a
+        // fallback) each keeps its own, as per sector.
         let chosen = match opts.rim_shape {
             RimShape::PerSector => None,
-            RimShape::Shared => (all_env.len() >= 3).then_some((all_fit.0, all_fit.1)),
+            RimShape::Shared => (all_env.len() >= 3).then_some((all_fit.0, all_fit.1, all_fit.2)),
             RimShape::Thinnest => rim
                 .iter()
                 .filter(|r| !r.fallback)
-                .map(|r| (r.width_mm, r.exponent))
+                .map(|r| (r.width_mm, r.exponent, r.misfit))
                 .min_by(|x, y| area(x.0, x.1).total_cmp(&area(y.0, y.1))),
         };
-        if let Some((a, r)) = chosen {
+        if let Some((a, r, misfit)) = chosen {
             for sec in &mut rim {
                 sec.width_mm = a;
                 sec.exponent = r;
+                sec.misfit = misfit;
+                sec.fallback = false;
             }
         }
         rim

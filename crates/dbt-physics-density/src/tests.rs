@@ -587,8 +587,9 @@ fn a_breast_tapering_over_a_wide_rim_keeps_its_thickness() {
 /// envelope is the gland's, its fitted rim is too thick and the gland there
 /// reads as fat: the glandularity low. Shared (one fit to every sector's
 /// envelope, mostly fat rims) and thinnest (the fattest sector's fit) give
-/// every sector one profile, the true ellipse's within the fit's grid, and
-/// read the breast closer to the truth.
+/// every sector one profile, its width the true ellipse's within 3 mm (as
+/// `an_elliptical_rim_is_fitted` allows each sector's), and read the breast
+/// closer to the truth.
 #[test]
 fn one_shared_rim_reads_gland_at_the_edge() {
     let g = geom();
