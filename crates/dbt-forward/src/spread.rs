@@ -8,7 +8,7 @@
 //! Lorentzian `1 / (1 + (2 pi f s)^2)`; an element of pitch `a` integrates
 //! it over its aperture, so the presampling MTF is
 //!
-//! `MTF(f) = sinc(pi f a) / (1 + (2 pi f s)^2)` ([`presampling_mtf`]).
+//! `MTF(f) = sinc(pi f a) / (1 + (2 pi f s)^2)`.
 //!
 //! The simulator samples each element's line integrals at its centre and
 //! spreads them with the element kernel below, so what its detector does to
@@ -76,14 +76,14 @@ fn bad(what: String) -> AcquisitionError {
     AcquisitionError::Physics(what)
 }
 
-/// The presampling MTF of an exponential line spread of scale `scale_mm`
-/// seen through a square aperture of `aperture_mm`, at `f_per_mm` cycles
-/// per mm.
-pub fn presampling_mtf(scale_mm: f64, aperture_mm: f64, f_per_mm: f64) -> f64 {
-    let x = std::f64::consts::PI * f_per_mm * aperture_mm;
-    let sinc = if x == 0.0 { 1.0 } else { x.sin() / x };
-    let w = 2.0 * std::f64::consts::PI * f_per_mm * scale_mm;
-    sinc / (1.0 + w * w)
+/// The integral of the exponential LSF of scale `s > 0`: the share of a
+/// point's light falling left of `x`.
+fn cdf(x: f64, s: f64) -> f64 {
+    if x < 0.0 {
+        0.5 * (x / s).exp()
+    } else {
+        1.0 - 0.5 * (-x / s).exp()
+    }
 }
 
 /// The second integral of the exponential LSF of scale `s` (`s = 0`: the
@@ -157,13 +157,6 @@ pub fn element_variance(scale_mm: f64, pitch_mm: f64) -> Result<(f64, f64), Acqu
     if scale_mm == 0.0 {
         return Ok((code, 1.0));
     }
-    let cdf = |x: f64| {
-        if x < 0.0 {
-            0.5 * (x / scale_mm).exp()
-        } else {
-            1.0 - 0.5 * (-x / scale_mm).exp()
-        }
-    };
     let a = pitch_mm;
     let m = 400;
     let reach = (k.len() / 2) as i64 + 2;
@@ -171,7 +164,8 @@ pub fn element_variance(scale_mm: f64, pitch_mm: f64) -> Result<(f64, f64), Acqu
     for n in -reach..=reach {
         for i in 0..m {
             let u = -a / 2.0 + (i as f64 + 0.5) * a / m as f64;
-            let phi = cdf((n as f64 + 0.5) * a - u) - cdf((n as f64 - 0.5) * a - u);
+            let phi =
+                cdf((n as f64 + 0.5) * a - u, scale_mm) - cdf((n as f64 - 0.5) * a - u, scale_mm);
             truth += phi * phi / m as f64;
         }
     }
@@ -376,17 +370,10 @@ mod tests {
             let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
             let n = 200_000;
             let mut shares = std::collections::BTreeMap::<i64, f64>::new();
-            let cdf = |x: f64| {
-                if x < 0.0 {
-                    0.5 * (x / s).exp()
-                } else {
-                    1.0 - 0.5 * (-x / s).exp()
-                }
-            };
             for _ in 0..n {
                 let u: f64 = rng.random_range(-a / 2.0..a / 2.0);
                 for m in -6i64..=6 {
-                    let phi = cdf((m as f64 + 0.5) * a - u) - cdf((m as f64 - 0.5) * a - u);
+                    let phi = cdf((m as f64 + 0.5) * a - u, s) - cdf((m as f64 - 0.5) * a - u, s);
                     *shares.entry(m).or_default() += phi * phi / n as f64;
                 }
             }
