@@ -74,21 +74,28 @@ const EDGE_CRATES: &[&str] = &[
     "indicatif",
 ];
 
+/// The standard output of `cargo ARGS` run in the workspace's root, which
+/// must succeed.
+fn cargo(args: &[&str]) -> String {
+    let out = Command::new(env!("CARGO"))
+        .args(args)
+        .current_dir(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
+        .output()
+        .expect("cargo runs");
+    assert!(
+        out.status.success(),
+        "cargo {}: {}",
+        args.join(" "),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
 /// `cargo metadata` of the workspace (format 1, locked, offline) with
 /// `extra` options.
 fn cargo_metadata(extra: &[&str]) -> Value {
-    let out = Command::new(env!("CARGO"))
-        .args(["metadata", "--format-version", "1", "--locked", "--offline"])
-        .args(extra)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .output()
-        .expect("cargo metadata runs");
-    assert!(
-        out.status.success(),
-        "cargo metadata: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).unwrap()
+    let args = ["metadata", "--format-version", "1", "--locked", "--offline"];
+    serde_json::from_str(&cargo(&[&args[..], extra].concat())).unwrap()
 }
 
 /// Package name by package id, and each package's normal dependencies (ids).
@@ -427,26 +434,25 @@ fn features(dev: bool) -> BTreeMap<String, String> {
     } else {
         "normal,build"
     };
-    let out = Command::new(env!("CARGO"))
-        .args(["tree", "--workspace", "--locked", "--prefix", "none"])
-        .args(["-e", edges, "-f", "{p}|{f}"])
-        .current_dir(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
-        .output()
-        .expect("cargo tree");
-    assert!(
-        out.status.success(),
-        "cargo tree: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout)
-        .lines()
-        .filter_map(|l| {
-            let (p, f) = l.trim_end_matches(" (*)").split_once('|')?;
-            // `name vX.Y.Z (path)` -> `name vX.Y.Z`
-            let p: Vec<&str> = p.split_whitespace().take(2).collect();
-            Some((p.join(" "), f.to_string()))
-        })
-        .collect()
+    cargo(&[
+        "tree",
+        "--workspace",
+        "--locked",
+        "--prefix",
+        "none",
+        "-e",
+        edges,
+        "-f",
+        "{p}|{f}",
+    ])
+    .lines()
+    .filter_map(|l| {
+        let (p, f) = l.trim_end_matches(" (*)").split_once('|')?;
+        // `name vX.Y.Z (path)` -> `name vX.Y.Z`
+        let p: Vec<&str> = p.split_whitespace().take(2).collect();
+        Some((p.join(" "), f.to_string()))
+    })
+    .collect()
 }
 
 /// The binaries (`cargo build --workspace --bins`, what `scripts/test-all.sh`
